@@ -1,0 +1,65 @@
+"""jaxcal: kinematic calibration of industrial robots in JAX.
+
+Differentiable batched DH kinematics, draw-wire / position / pose measurement models, the
+simulated experiment of Chen & Li (AdaModW), identifiability analysis, and calibration methods
+(LM, Gauss–Newton, AdaModW and other optax optimizers, population and filter baselines).
+
+Float64: ``import jaxcal`` changes nothing global; call :func:`jaxcal.enable_x64` once at
+program start (see ``jaxcal._precision`` for the policy).
+"""
+
+from . import robots as robots
+from ._dataset import Dataset as Dataset
+from ._dataset import load_csv as load_csv
+from ._dataset import save_csv as save_csv
+from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
+from ._identifiability import identifiability as identifiability
+from ._kinematics import fk_pose as fk_pose
+from ._kinematics import fk_position as fk_position
+from ._measurement import CableLength as CableLength
+from ._measurement import MeasurementModel as MeasurementModel
+from ._measurement import Pose as Pose
+from ._measurement import Position as Position
+from ._measurement import residuals as residuals
+from ._metrics import Metrics as Metrics
+from ._metrics import compute_metrics as compute_metrics
+from ._metrics import format_table as format_table
+from ._metrics import statistical_floor as statistical_floor
+from ._params import Deviations as Deviations
+from ._params import ParameterSpace as ParameterSpace
+from ._precision import PrecisionWarning as PrecisionWarning
+from ._precision import enable_x64 as enable_x64
+from ._problem import Problem as Problem
+from ._robot import DHRobot as DHRobot
+from ._simulate import Experiment as Experiment
+from ._simulate import simulate_experiment as simulate_experiment
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "CableLength",
+    "DHRobot",
+    "Dataset",
+    "Deviations",
+    "Experiment",
+    "IdentifiabilityReport",
+    "MeasurementModel",
+    "Metrics",
+    "ParameterSpace",
+    "Pose",
+    "Position",
+    "PrecisionWarning",
+    "Problem",
+    "compute_metrics",
+    "enable_x64",
+    "fk_pose",
+    "fk_position",
+    "format_table",
+    "identifiability",
+    "load_csv",
+    "residuals",
+    "robots",
+    "save_csv",
+    "simulate_experiment",
+    "statistical_floor",
+]

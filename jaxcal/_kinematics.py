@@ -1,0 +1,158 @@
+"""Forward kinematics over a whole batch, in structure-of-arrays form.
+
+Each rotation column and the position are kept as separate ``[n]`` arrays and updated joint by
+joint with closed-form products by elementary rotations, instead of multiplying ``[n, 4, 4]``
+matrices per sample. On CPU this is ~15x faster for residuals and Jacobians (DESIGN.md §2) and
+it makes ``jax.jacfwd`` Jacobians w.r.t. the calibration parameters cheap.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._params import Deviations
+from ._robot import DHRobot
+
+__all__ = ["fk_position", "fk_pose", "tool_point_soa", "check_joint_angles"]
+
+Vec3 = tuple  # three [n] arrays (or python floats before the first joint)
+
+
+def check_joint_angles(robot: DHRobot, q) -> Array:
+    """Validate the joint-angle array's shape (``[n, dof]`` or ``[dof]``, rad) and return it."""
+    q = jnp.asarray(q)
+    if q.ndim not in (1, 2) or q.shape[-1] != robot.dof:
+        raise ValueError(
+            f"joint angles must have shape [n, {robot.dof}] (or [{robot.dof}]) for robot "
+            f"{robot.name!r} with {robot.dof} joints, got {q.shape}"
+        )
+    if not jnp.issubdtype(q.dtype, jnp.floating):
+        q = q.astype(jnp.result_type(float))
+    return q
+
+
+def _rot(u: Vec3, v: Vec3, c, s) -> tuple[Vec3, Vec3]:
+    """Columns (u, v) of R after R ← R·G, G a plane rotation by (c, s) taking u toward v."""
+    u2 = tuple(c * ui + s * vi for ui, vi in zip(u, v))
+    v2 = tuple(c * vi - s * ui for ui, vi in zip(u, v))
+    return u2, v2
+
+
+def _axpy(p: Vec3, k, u: Vec3) -> Vec3:
+    return tuple(pi + k * ui for pi, ui in zip(p, u))
+
+
+def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
+    """Flange frame as SoA: columns X, Y, Z and origin P, each a triple of ``[n]`` arrays."""
+    dtype = q.dtype
+    cast = lambda x: jnp.asarray(x).astype(dtype)  # noqa: E731
+    if dev is None:
+        alpha, a, d, theta, beta = (cast(getattr(robot, g)) for g in ("alpha", "a", "d", "theta", "beta"))
+    else:
+        alpha, a, d, theta, beta = (
+            cast(getattr(robot, g)) + cast(getattr(dev, g)) for g in ("alpha", "a", "d", "theta", "beta")
+        )
+    th = q.T + theta[:, None]  # [dof, n], rows contiguous
+    ct, st = jnp.cos(th), jnp.sin(th)
+    ca, sa = jnp.cos(alpha), jnp.sin(alpha)
+    cb, sb = jnp.cos(beta), jnp.sin(beta)
+    X: Vec3 = (1.0, 0.0, 0.0)
+    Y: Vec3 = (0.0, 1.0, 0.0)
+    Z: Vec3 = (0.0, 0.0, 1.0)
+    P: Vec3 = (0.0, 0.0, 0.0)
+    standard = robot.convention == "standard"
+    for i in range(robot.dof):
+        hayati = (i + 1) in robot.beta_joints
+        if standard:  # Rz(θ) Tz(d) Tx(a) Rx(α) [Ry(β)]
+            X, Y = _rot(X, Y, ct[i], st[i])
+            P = _axpy(_axpy(P, d[i], Z), a[i], X)
+            Y, Z = _rot(Y, Z, ca[i], sa[i])
+            if hayati:
+                Z, X = _rot(Z, X, cb[i], sb[i])
+        else:  # Craig: Rx(α) [Ry(β)] Tx(a) Rz(θ) Tz(d)
+            Y, Z = _rot(Y, Z, ca[i], sa[i])
+            if hayati:
+                Z, X = _rot(Z, X, cb[i], sb[i])
+            P = _axpy(P, a[i], X)
+            X, Y = _rot(X, Y, ct[i], st[i])
+            P = _axpy(P, d[i], Z)
+    n = q.shape[0]
+    full = lambda v: tuple(jnp.broadcast_to(jnp.asarray(c, dtype), (n,)) for c in v)  # noqa: E731
+    return full(X), full(Y), full(Z), full(P)
+
+
+def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype) -> Vec3:
+    X, Y, Z, P = frame
+    t = jnp.asarray(robot.tool).astype(dtype)
+    if dev is not None:
+        t = t + jnp.asarray(dev.tool).astype(dtype)
+    return tuple(P[k] + t[0] * X[k] + t[1] * Y[k] + t[2] * Z[k] for k in range(3))
+
+
+def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]) -> Vec3:
+    """Tool point in the base frame as three ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``."""
+    return _tool_offset(robot, dev, _chain(robot, dev, q), q.dtype)
+
+
+def fk_position(
+    robot: DHRobot,
+    q: Float[Array, "n dof"],
+    deviations: Deviations | None = None,
+    *,
+    tool: bool = True,
+) -> Float[Array, "n 3"]:
+    """Position of the tool point (``tool=True``) or flange origin in the base frame.
+
+    Pure and jittable; differentiable in ``deviations`` (use ``jax.jacfwd``).
+
+    Args:
+        robot: nominal model.
+        q: joint angles ``[n, dof]`` or ``[dof]`` (rad).
+        deviations: Δ from nominal (``None`` = nominal robot).
+        tool: include the tool point offset (nominal + Δtool).
+
+    Returns:
+        ``[n, 3]`` (or ``[3]``) positions in mm, in the dtype of ``q``.
+    """
+    q = check_joint_angles(robot, q)
+    single = q.ndim == 1
+    q2 = q[None] if single else q
+    if tool:
+        p = tool_point_soa(robot, deviations, q2)
+    else:
+        p = _chain(robot, deviations, q2)[3]
+    out = jnp.stack(p, axis=-1)
+    return out[0] if single else out
+
+
+def fk_pose(
+    robot: DHRobot,
+    q: Float[Array, "n dof"],
+    deviations: Deviations | None = None,
+    *,
+    tool: bool = False,
+) -> Float[Array, "n 4 4"]:
+    """Homogeneous transform ``T_base_flange`` (paper eq. 2), or ``T_base_tool`` with ``tool=True``
+    (flange orientation, origin at the tool point).
+
+    Args:
+        robot: nominal model.
+        q: joint angles ``[n, dof]`` or ``[dof]`` (rad).
+        deviations: Δ from nominal (``None`` = nominal robot).
+        tool: move the origin to the tool point.
+
+    Returns:
+        ``[n, 4, 4]`` (or ``[4, 4]``) transforms, translation in mm.
+    """
+    q = check_joint_angles(robot, q)
+    single = q.ndim == 1
+    q2 = q[None] if single else q
+    X, Y, Z, P = frame = _chain(robot, deviations, q2)
+    if tool:
+        P = _tool_offset(robot, deviations, frame, q2.dtype)
+    R = jnp.stack([jnp.stack(X, -1), jnp.stack(Y, -1), jnp.stack(Z, -1)], axis=-1)  # [n,3,3]
+    top = jnp.concatenate([R, jnp.stack(P, -1)[..., None]], axis=-1)  # [n,3,4]
+    bottom = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], q.dtype), top.shape[:-2] + (1, 4))
+    T = jnp.concatenate([top, bottom], axis=-2)
+    return T[0] if single else T

@@ -1,0 +1,122 @@
+"""Accuracy metrics (paper Section IV-A), the statistical floor, and plain-text tables."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+__all__ = [
+    "Metrics",
+    "rmse",
+    "mean_abs_error",
+    "max_abs_error",
+    "compute_metrics",
+    "statistical_floor",
+    "format_table",
+]
+
+
+def rmse(errors: Float[Array, " n"]) -> Float[Array, ""]:
+    """Root mean square ``sqrt(mean(e²))`` (mm).
+
+    The paper prints RMSE as ``Σᵢ sqrt((1/n)(Cᵢ − Ĉᵢ)²)``, which is garbled (it equals
+    ``sqrt(n)·MEAN``); jaxcal uses the standard definition.
+    """
+    e = jnp.asarray(errors)
+    return jnp.sqrt(jnp.mean(e * e))
+
+
+def mean_abs_error(errors: Float[Array, " n"]) -> Float[Array, ""]:
+    """MEAN: mean absolute error ``(1/n) Σ|eᵢ|`` (mm)."""
+    return jnp.mean(jnp.abs(jnp.asarray(errors)))
+
+
+def max_abs_error(errors: Float[Array, " n"]) -> Float[Array, ""]:
+    """MAX: largest absolute error ``max|eᵢ|`` (mm)."""
+    return jnp.max(jnp.abs(jnp.asarray(errors)))
+
+
+class Metrics(NamedTuple):
+    """RMSE, MEAN and MAX of per-sample errors (mm). A pytree; fields may be batched."""
+
+    rmse: Float[Array, ...]
+    mean: Float[Array, ...]
+    max: Float[Array, ...]
+
+
+def compute_metrics(errors: Float[Array, " n"]) -> Metrics:
+    """RMSE/MEAN/MAX of per-sample errors ``[n]`` (e.g. ``measurement.sample_error``). Jittable."""
+    return Metrics(rmse(errors), mean_abs_error(errors), max_abs_error(errors))
+
+
+class Floor(NamedTuple):
+    """Best achievable RMS error with Gaussian noise σ (least squares, correct model)."""
+
+    train: float
+    test: float
+
+
+def statistical_floor(noise_std: float, n_params: int, n_train: int, size: int = 1) -> Floor:
+    """The statistical floor for RMSE (DESIGN.md §3).
+
+    With ``N = n_train·size`` residuals, ``p`` identifiable parameters and i.i.d. Gaussian
+    noise σ per residual entry, least squares leaves an expected mean square residual of
+    ``σ²(1 − p/N)`` on training data, and a fresh pose has expected mean square error
+    ``σ²(1 + p/(N − p − 1))`` (prediction variance of a linear model with Gaussian regressors).
+    Per-sample errors combine ``size`` entries (the Euclidean norm for positions), so both are
+    multiplied by ``sqrt(size)``.
+
+    Args:
+        noise_std: σ per measured entry (mm).
+        n_params: number of identifiable free parameters ``p``.
+        n_train: number of training samples.
+        size: residual entries per sample (1 for cable length, 3 for position).
+
+    Returns:
+        ``Floor(train, test)`` RMSE in mm.
+    """
+    N = n_train * size
+    if N <= n_params + 1:
+        raise ValueError(f"need more residuals ({N}) than parameters + 1 ({n_params + 1})")
+    s = noise_std * math.sqrt(size)
+    return Floor(s * math.sqrt(1.0 - n_params / N), s * math.sqrt(1.0 + n_params / (N - n_params - 1)))
+
+
+def _fmt(v) -> str:
+    if isinstance(v, str):
+        return v
+    if v is None:
+        return "—"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    v = float(v)
+    if not math.isfinite(v):
+        return str(v)
+    if v != 0 and (abs(v) < 1e-3 or abs(v) >= 1e5):
+        return f"{v:.3e}"
+    return f"{v:.4f}"
+
+
+def format_table(
+    rows: Sequence[Sequence], headers: Sequence[str], *, markdown: bool = False, title: str | None = None
+) -> str:
+    """Format rows as an aligned plain-text (or Markdown) table. Floats get 4 decimals."""
+    cells = [[_fmt(c) for c in r] for r in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)]
+    lines = []
+    if title:
+        lines.append(title if not markdown else f"**{title}**\n")
+    if markdown:
+        lines.append("| " + " | ".join(h.ljust(w) for h, w in zip(headers, widths)) + " |")
+        lines.append("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+        lines += ["| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |" for r in cells]
+    else:
+        lines.append("  ".join(h.rjust(w) for h, w in zip(headers, widths)))
+        lines.append("  ".join("-" * w for w in widths))
+        lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in cells]
+    return "\n".join(lines)

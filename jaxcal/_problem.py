@@ -1,0 +1,88 @@
+"""A calibration problem: data + models + which parameters are free, as one pytree."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._measurement import MeasurementModel
+from ._params import Deviations, ParameterSpace
+from ._robot import DHRobot
+
+__all__ = ["Problem"]
+
+
+class Problem(eqx.Module):
+    """Everything a solver needs: ``residual(x)`` for the free-parameter vector ``x`` ``[p]``.
+
+    A pytree (arrays are leaves, the parameter space is static), so a problem can be passed
+    through ``jax.jit`` and ``jax.vmap`` (e.g. over datasets drawn from different keys).
+
+    Attributes:
+        robot: nominal robot.
+        measurement: measurement model.
+        q: ``[n, dof]`` joint angles (rad).
+        y: measurements, ``[n, *measurement.sample_shape]`` (mm).
+        space: free parameters (static).
+        base: values of the deviations that are not free (zeros = nominal).
+    """
+
+    robot: DHRobot
+    measurement: MeasurementModel
+    q: Float[Array, "n dof"]
+    y: Array
+    base: Deviations
+    space: ParameterSpace = eqx.field(static=True)
+
+    def __init__(self, robot, measurement, q, y, space=None, base=None):
+        self.robot = robot
+        self.measurement = measurement
+        self.q = jnp.asarray(q)
+        self.y = jnp.asarray(y, dtype=self.q.dtype)
+        self.space = ParameterSpace.for_robot(robot) if space is None else space
+        if self.space.dof != robot.dof:
+            raise ValueError(f"parameter space is for {self.space.dof} joints, robot has {robot.dof}")
+        self.base = Deviations.zeros(robot.dof, self.q.dtype) if base is None else base.astype(self.q.dtype)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def n_residuals(self) -> int:
+        return self.n_samples * self.measurement.size
+
+    @property
+    def dtype(self):
+        return self.q.dtype
+
+    def x0(self) -> Float[Array, " p"]:
+        """The free entries of ``base`` (zeros for the nominal start)."""
+        return self.space.to_vector(self.base)
+
+    def deviations(self, x: Float[Array, " p"]) -> Deviations:
+        """Full deviations for free-parameter vector ``x``."""
+        return self.space.from_vector(x, self.base)
+
+    def residual(self, x: Float[Array, " p"]) -> Float[Array, " n*m"]:
+        """``prediction − measured`` flattened to ``[n·m]`` (mm)."""
+        r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
+        return r.reshape(-1)
+
+    def sample_errors(self, x: Float[Array, " p"]) -> Float[Array, " n"]:
+        """Per-sample errors for the metrics (mm)."""
+        r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
+        return self.measurement.sample_error(r)
+
+    def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
+        """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
+        return jax.jacfwd(self.residual)(x)
+
+    def with_data(self, q, y) -> Problem:
+        """Same models and parameters, other data (e.g. the test split)."""
+        return Problem(self.robot, self.measurement, q, y, self.space, self.base)
+
+    def with_space(self, space: ParameterSpace) -> Problem:
+        return Problem(self.robot, self.measurement, self.q, self.y, space, self.base)

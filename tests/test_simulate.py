@@ -1,0 +1,92 @@
+"""The simulated experiment: reproducibility, noise level, error scale, filters, vmap."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxcal
+from jaxcal import Problem, compute_metrics, simulate_experiment
+
+
+@pytest.fixture(scope="module")
+def experiment():
+    return simulate_experiment(jax.random.PRNGKey(0))
+
+
+def test_same_key_bit_identical(experiment):
+    again = simulate_experiment(jax.random.PRNGKey(0))
+    for a, b in [(experiment.train.q, again.train.q), (experiment.train.y, again.train.y),
+                 (experiment.test.y, again.test.y), (experiment.true_deviations.ravel(), again.true_deviations.ravel())]:
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    other = simulate_experiment(jax.random.PRNGKey(1))
+    assert not np.array_equal(np.asarray(other.train.y), np.asarray(experiment.train.y))
+
+
+def test_sizes_limits_and_filters(experiment):
+    ex = experiment
+    assert (ex.train.n, ex.test.n) == (1600, 400)
+    q = np.concatenate([np.asarray(ex.train.q), np.asarray(ex.test.q)])
+    assert np.all(q >= np.asarray(ex.robot.q_min)) and np.all(q <= np.asarray(ex.robot.q_max))
+    assert np.unique(q, axis=0).shape[0] == 2000  # no duplicated or filler poses
+    p = np.asarray(jaxcal.fk_position(ex.robot, jnp.asarray(q), ex.true_deviations))
+    assert p[:, 2].min() >= 0.0
+    # joints spread over their ranges: each joint covers most of its range
+    span = (q.max(0) - q.min(0)) / (np.asarray(ex.robot.q_max) - np.asarray(ex.robot.q_min))
+    assert span.min() > 0.9
+
+
+def test_noise_level_is_documented_sigma():
+    sigma = 0.25
+    ex = simulate_experiment(jax.random.PRNGKey(3), n_samples=4000, noise_std=sigma)
+    prob = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, base=ex.true_deviations)
+    r = np.asarray(prob.residual(prob.x0()))
+    # sample std of 3200 Gaussian draws: relative standard error 1/sqrt(2·3200) = 1.25 %
+    assert abs(r.std() / sigma - 1) < 0.05
+    assert abs(r.mean()) < 4 * sigma / np.sqrt(r.size)
+
+
+def test_noiseless_truth_fits_exactly():
+    ex = simulate_experiment(jax.random.PRNGKey(4), n_samples=200, noise_std=0.0)
+    prob = Problem(ex.robot, ex.measurement, ex.test.q, ex.test.y, base=ex.true_deviations)
+    assert np.abs(np.asarray(prob.residual(prob.x0()))).max() < 1e-9
+
+
+def test_before_calibration_error_in_paper_range():
+    # paper Table III: BC RMSE 4.56 mm; the default deviations give 3–6 mm on average
+    rmses = []
+    for s in range(8):
+        ex = simulate_experiment(jax.random.PRNGKey(s))
+        prob = Problem(ex.robot, ex.measurement, ex.test.q, ex.test.y)
+        rmses.append(float(compute_metrics(prob.sample_errors(prob.x0())).rmse))
+    assert 3.0 <= np.mean(rmses) <= 6.0
+
+
+def test_vmap_over_keys_equals_sequential():
+    keys = jax.random.split(jax.random.PRNGKey(7), 3)
+    batched = jax.vmap(lambda k: simulate_experiment(k, n_samples=100))(keys)
+    for i in range(3):
+        one = simulate_experiment(keys[i], n_samples=100)
+        np.testing.assert_array_equal(np.asarray(batched.train.y[i]), np.asarray(one.train.y))
+        np.testing.assert_array_equal(np.asarray(batched.test.q[i]), np.asarray(one.test.q))
+
+
+def test_position_experiment_every_robot(robot):
+    ex = simulate_experiment(jax.random.PRNGKey(0), robot, n_samples=100, measurement=jaxcal.Position())
+    assert ex.train.y.shape == (80, 3) and ex.train.kind == "position"
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="noise_std"):
+        simulate_experiment(jax.random.PRNGKey(0), noise_std=-1.0)
+    with pytest.raises(ValueError, match="test_fraction"):
+        simulate_experiment(jax.random.PRNGKey(0), test_fraction=1.5)
+    with pytest.raises(Exception, match="too few joint configurations"):
+        simulate_experiment(jax.random.PRNGKey(0), n_samples=50, wire_range_mm=(10.0, 20.0))
+
+
+def test_float32_warns():
+    with jax.enable_x64(False):
+        with pytest.warns(jaxcal.PrecisionWarning, match="float32"):
+            ex = simulate_experiment(jax.random.PRNGKey(0), n_samples=50)
+    assert ex.train.q.dtype == jnp.float32
