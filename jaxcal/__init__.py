@@ -8,7 +8,13 @@ Float64: ``import jaxcal`` changes nothing global; call :func:`jaxcal.enable_x64
 program start (see ``jaxcal._precision`` for the policy).
 """
 
+from . import methods as methods
+from . import optim as optim
 from . import robots as robots
+from ._calibrate import CalibrationError as CalibrationError
+from ._calibrate import CalibrationWarning as CalibrationWarning
+from ._calibrate import Calibrator as Calibrator
+from ._calibrate import calibrate as calibrate
 from ._dataset import Dataset as Dataset
 from ._dataset import load_csv as load_csv
 from ._dataset import save_csv as save_csv
@@ -30,6 +36,9 @@ from ._params import ParameterSpace as ParameterSpace
 from ._precision import PrecisionWarning as PrecisionWarning
 from ._precision import enable_x64 as enable_x64
 from ._problem import Problem as Problem
+from ._result import CalibrationResult as CalibrationResult
+from ._result import Status as Status
+from ._result import iterations_to_converge as iterations_to_converge
 from ._robot import DHRobot as DHRobot
 from ._simulate import Experiment as Experiment
 from ._simulate import simulate_experiment as simulate_experiment
@@ -37,6 +46,15 @@ from ._simulate import simulate_experiment as simulate_experiment
 __version__ = "0.1.0"
 
 __all__ = [
+    "CalibrationError",
+    "CalibrationResult",
+    "CalibrationWarning",
+    "Calibrator",
+    "Status",
+    "calibrate",
+    "iterations_to_converge",
+    "methods",
+    "optim",
     "CableLength",
     "DHRobot",
     "Dataset",

@@ -1,0 +1,173 @@
+"""What a calibration returns: parameters, per-iteration history, status, timings."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._measurement import MeasurementModel
+from ._metrics import Metrics, compute_metrics
+from ._params import Deviations, ParameterSpace
+from ._robot import DHRobot
+
+__all__ = ["Status", "CalibrationResult", "iterations_to_converge", "CONVERGENCE_RTOL"]
+
+#: "Iterations to converge in RMSE": the first iteration from which the training RMSE stays
+#: within this relative tolerance of its final value. Used by every method, table and plot.
+CONVERGENCE_RTOL = 0.01
+
+
+class Status(enum.IntEnum):
+    """Outcome of a calibration run."""
+
+    #: the method's stopping test was met (LM/GN tolerances).
+    CONVERGED = 0
+    #: a fixed-budget method (gradient, population, filter) ran all its iterations.
+    COMPLETED = 1
+    #: the stopping test was not met within ``max_steps``.
+    MAX_STEPS = 2
+    #: the loss became NaN/inf or grew by more than 1e3×; parameters are the last finite ones.
+    DIVERGED = 3
+    #: the solver reported a failure (e.g. singular linear system).
+    FAILED = 4
+
+    def message(self, method: str = "calibration") -> str:
+        return {
+            Status.CONVERGED: f"{method}: converged (stopping tolerance met)",
+            Status.COMPLETED: f"{method}: completed its iteration budget",
+            Status.MAX_STEPS: f"{method}: step budget exhausted before the stopping tolerance was met",
+            Status.DIVERGED: f"{method}: diverged (NaN/inf or exploding loss); returned the last finite parameters",
+            Status.FAILED: f"{method}: solver failure (e.g. singular linear system)",
+        }[self]
+
+
+def iterations_to_converge(
+    history: Float[Array, " T"], n_iterations: Int[Array, ""], rtol: float = CONVERGENCE_RTOL
+) -> Int[Array, ""]:
+    """First iteration ``k`` such that ``history[j] ≤ (1 + rtol)·history[n]`` for all
+    ``k ≤ j ≤ n``, where ``n = n_iterations`` and ``history[0]`` is the starting RMSE.
+
+    Pure and ``vmap``-able. Entries after ``n`` are ignored.
+    """
+    history = jnp.asarray(history)
+    idx = jnp.arange(history.shape[-1])
+    final = jnp.take_along_axis(history, jnp.asarray(n_iterations)[..., None], axis=-1)
+    ok = (history <= final * (1 + rtol)) | (idx > jnp.asarray(n_iterations)[..., None])
+    last_bad = jnp.max(jnp.where(ok, -1, idx), axis=-1)
+    return last_bad + 1
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CalibrationResult:
+    """Result of :func:`jaxcal.calibrate`.
+
+    Attributes:
+        method: method name (``"lm"``, ``"adamodw"``, ..., or ``"optax"`` for a user chain).
+        deviations: calibrated deviations Δ from nominal.
+        x: ``[p]`` the free parameters (``space.free_names`` order; rad and mm).
+        space: which parameters were free.
+        robot, measurement: the nominal models calibrated.
+        history: ``[max_iterations + 1]`` training RMSE (mm); entry 0 is the start, entries
+            after ``n_iterations`` repeat the final value (NaN after a divergence).
+        n_iterations: iterations run.
+        iterations_to_converge: see :func:`iterations_to_converge`.
+        status: :class:`Status`.
+        train_metrics: RMSE/MEAN/MAX on the training data (mm).
+        wall_time_s: run time after compilation (s); ``compile_time_s`` separately.
+        hyperparameters: the method's settings.
+        extra: method-specific state (e.g. the RBF network), or ``None``.
+    """
+
+    method: str
+    deviations: Deviations
+    x: np.ndarray
+    space: ParameterSpace
+    robot: DHRobot
+    measurement: MeasurementModel
+    history: np.ndarray
+    n_iterations: int
+    iterations_to_converge: int
+    status: Status
+    train_metrics: Metrics
+    wall_time_s: float
+    compile_time_s: float
+    hyperparameters: dict[str, Any]
+    extra: Any = None
+    predictor: Any = None
+
+    @property
+    def message(self) -> str:
+        return self.status.message(self.method)
+
+    @property
+    def ok(self) -> bool:
+        return self.status in (Status.CONVERGED, Status.COMPLETED, Status.MAX_STEPS)
+
+    def predict(self, q) -> Array:
+        """Predicted readings of the calibrated model for joint angles ``q`` ``[n, dof]``."""
+        q = jnp.asarray(q)
+        if self.predictor is not None:
+            return self.predictor(self, q)
+        return self.measurement.predict(self.robot, self.deviations.astype(q.dtype), q)
+
+    def sample_errors(self, data) -> Array:
+        """Per-sample errors (mm) of the calibrated model on ``data`` (a Dataset)."""
+        pred = self.predict(data.q)
+        q = jnp.asarray(data.q)
+        if self.predictor is None:
+            r = self.measurement.residual(self.robot, self.deviations.astype(q.dtype), q, data.y)
+        else:
+            r = (pred - data.y).reshape(q.shape[0], self.measurement.size)
+        return self.measurement.sample_error(r)
+
+    def evaluate(self, data) -> Metrics:
+        """RMSE/MEAN/MAX (mm) on ``data`` (e.g. the held-out test split)."""
+        return Metrics(*(float(v) for v in compute_metrics(self.sample_errors(data))))
+
+    def dh_table(self) -> np.ndarray:
+        """Calibrated DH table ``[dof, 4]``: α/°, a/mm, d/mm, θ/° (the paper's Table V)."""
+        r, d = self.robot, self.deviations
+        return np.stack([
+            np.rad2deg(np.asarray(r.alpha + d.alpha)), np.asarray(r.a + d.a),
+            np.asarray(r.d + d.d), np.rad2deg(np.asarray(r.theta + d.theta)),
+        ], axis=1)
+
+    def to_dict(self) -> dict:
+        """JSON-friendly summary (parameters in rad/mm by name, history, metrics, status)."""
+        return {
+            "method": self.method,
+            "status": self.status.name.lower(),
+            "message": self.message,
+            "free_parameters": dict(zip(self.space.free_names, map(float, self.x))),
+            "units": dict(zip(self.space.free_names, self.space.free_units)),
+            "deviations": dict(zip(self.space.names, map(float, np.asarray(self.deviations.ravel())))),
+            "n_iterations": self.n_iterations,
+            "iterations_to_converge": self.iterations_to_converge,
+            "history_rmse_mm": [float(v) for v in self.history[: self.n_iterations + 1]],
+            "train_metrics_mm": self.train_metrics._asdict(),
+            "wall_time_s": self.wall_time_s,
+            "compile_time_s": self.compile_time_s,
+            "hyperparameters": {k: _jsonable(v) for k, v in self.hyperparameters.items()},
+        }
+
+    def __repr__(self) -> str:
+        m = self.train_metrics
+        return (
+            f"CalibrationResult(method={self.method!r}, status={self.status.name}, "
+            f"n_iterations={self.n_iterations}, iterations_to_converge={self.iterations_to_converge}, "
+            f"train_rmse={m.rmse:.4f} mm, p={self.space.n_free}, wall_time_s={self.wall_time_s:.4f})"
+        )
+
+
+def _jsonable(v):
+    try:
+        json.dumps(v)
+        return v
+    except TypeError:
+        return repr(v)
