@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from typing import NamedTuple
@@ -17,7 +18,7 @@ from ._identifiability import identifiability
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._params import Deviations, ParameterSpace
-from ._precision import warn_if_float32
+from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
 from ._result import CalibrationResult, Status, iterations_to_converge
 from ._robot import DHRobot
@@ -75,6 +76,12 @@ class Calibrator(eqx.Module):
         its = iterations_to_converge(raw.history, raw.n_iterations)
         metrics = compute_metrics(problem.sample_errors(x))
         return CalibrationOutput(x, raw.history, raw.n_iterations, its, raw.status, metrics, raw.extra)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _run_calibrator(dynamic, static, q, y, key) -> CalibrationOutput:
+    """The jitted core of :func:`calibrate` (module level, so compilations are cached)."""
+    return eqx.combine(dynamic, static)(q, y, key)
 
 
 def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
@@ -172,11 +179,13 @@ def calibrate(
     key = jax.random.key(0) if key is None else key
     cal = Calibrator(robot, measurement, meth, start, space)
     dyn, stat = eqx.partition(cal, eqx.is_array)
-    t0 = time.perf_counter()
-    compiled = jax.jit(lambda d, q, y, k: eqx.combine(d, stat)(q, y, k)).lower(dyn, q, y, key).compile()
-    t1 = time.perf_counter()
-    out = jax.block_until_ready(compiled(dyn, q, y, key))
-    t2 = time.perf_counter()
+    with dtype_scope(q.dtype):
+        dyn = cast_floating(dyn, q.dtype)
+        t0 = time.perf_counter()
+        compiled = _run_calibrator.lower(dyn, stat, q, y, key).compile()
+        t1 = time.perf_counter()
+        out = jax.block_until_ready(compiled(dyn, q, y, key))
+        t2 = time.perf_counter()
     status = Status(int(out.status))
     label = meth.label() if hasattr(meth, "label") else type(meth).name
     result = CalibrationResult(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -79,6 +80,14 @@ class IdentifiabilityReport:
         }
 
 
+_pivoted_qr = jax.jit(functools.partial(jsl.qr, mode="economic", pivoting=True))
+
+
+@jax.jit
+def _start_jacobian(problem: Problem):
+    return problem.jacobian(problem.x0())
+
+
 def identifiability(
     robot: DHRobot,
     measurement: MeasurementModel,
@@ -104,7 +113,7 @@ def identifiability(
         raise ValueError("no free parameters to examine")
     sample = jnp.zeros((q.shape[0], *measurement.sample_shape), q.dtype)
     problem = Problem(robot, measurement, q, sample, space, deviations)
-    J = np.asarray(jax.jit(lambda p: p.jacobian(p.x0()))(problem), dtype=np.float64)
+    J = np.asarray(_start_jacobian(problem), dtype=np.float64)
     if not np.all(np.isfinite(J)):
         raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
     norms = np.linalg.norm(J, axis=0)
@@ -112,7 +121,7 @@ def identifiability(
     Js = J / scale
     s = np.linalg.svd(Js, compute_uv=False)
     rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
-    _, R, piv = jsl.qr(jnp.asarray(Js), mode="economic", pivoting=True)
+    _, _, piv = _pivoted_qr(jnp.asarray(Js))
     piv = np.asarray(piv)
     names = space.free_names
     keep_idx = np.sort(piv[:rank])

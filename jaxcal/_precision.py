@@ -20,7 +20,15 @@ import warnings
 import jax
 import jax.numpy as jnp
 
-__all__ = ["PrecisionWarning", "enable_x64", "x64_enabled", "default_float", "warn_if_float32"]
+__all__ = [
+    "PrecisionWarning",
+    "enable_x64",
+    "x64_enabled",
+    "default_float",
+    "warn_if_float32",
+    "dtype_scope",
+    "cast_floating",
+]
 
 
 class PrecisionWarning(UserWarning):
@@ -60,3 +68,28 @@ def warn_if_float32(dtype, where: str) -> None:
             PrecisionWarning,
             stacklevel=3,
         )
+
+
+def dtype_scope(dtype):
+    """Context for tracing a float32 run while x64 is enabled: ``jax.enable_x64(False)``.
+
+    Some library code (optimistix's LM damping, optax counters) creates default-dtype scalars;
+    with x64 on those are float64 and break float32 runs. Tracing a float32 calibration with
+    x64 off keeps every intermediate in float32. For float64 it does nothing.
+    """
+    import contextlib
+
+    if jnp.dtype(dtype) == jnp.float32 and x64_enabled():
+        return jax.enable_x64(False)
+    return contextlib.nullcontext()
+
+
+def cast_floating(tree, dtype):
+    """Cast every floating-point array leaf of ``tree`` to ``dtype`` (other leaves unchanged)."""
+
+    def cast(x):
+        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.floating):
+            return x.astype(dtype)
+        return x
+
+    return jax.tree.map(cast, tree)

@@ -181,8 +181,14 @@ class Method(eqx.Module):
     def label(self) -> str:
         return type(self).name
 
-    def predict(self, result, q):  # pragma: no cover - default: the calibrated kinematic model
-        return None
+    def sample_errors(self, problem: Problem, x: Float[Array, " p"], extra: Any) -> Float[Array, " n"]:
+        """Per-sample errors (mm) of the calibrated model on ``problem``'s data (pure, vmappable).
+
+        Default: the calibrated kinematic model at free parameters ``x``. Methods whose model
+        is more than the kinematics (the RBF network) override this, using ``extra``.
+        """
+        del extra
+        return problem.sample_errors(x)
 
 
 #: name → factory(**hyperparameters) → Method

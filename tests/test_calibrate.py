@@ -1,0 +1,239 @@
+"""The solver layer: calibrate(), the statistical floor, Cramér–Rao recovery, vmap, errors."""
+
+import json
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import optimistix as optx
+import pytest
+
+import jaxcal
+from jaxcal import (
+    CalibrationError,
+    CalibrationWarning,
+    Calibrator,
+    Deviations,
+    Problem,
+    Status,
+    calibrate,
+    iterations_to_converge,
+    simulate_experiment,
+    statistical_floor,
+)
+from jaxcal.methods import LevenbergMarquardt, ScaledProblem, make_method
+
+GRADIENT_METHODS = ["adam", "adamw", "adamod", "adamodw"]
+
+
+@pytest.fixture(scope="module")
+def experiment():
+    return simulate_experiment(jax.random.PRNGKey(0))
+
+
+def _floor_check(ex, n_test_extra=20000, seed=11):
+    """LM on ex.train; test RMSE on a large fresh test set vs the statistical floor, and the
+    estimate vs the noiseless fit within 3 Cramér–Rao standard deviations."""
+    res = calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    assert res.status == Status.CONVERGED, res.message
+    space = res.space
+    # a large fresh test set from the same true robot: the RMSE estimate is then within ~0.5 %
+    big = simulate_experiment(jax.random.PRNGKey(seed), ex.robot, n_samples=n_test_extra, test_fraction=0.5,
+                              measurement=ex.measurement, true_deviations=ex.true_deviations,
+                              noise_std=float(ex.noise_std))
+    test_rmse = res.evaluate(big.test).rmse
+    floor = statistical_floor(float(ex.noise_std), space.n_free, ex.train.n).test
+    assert abs(test_rmse / floor - 1) < 0.02, (test_rmse, floor)
+    # the truth restricted to the identifiable subset: LM on noiseless data at the same poses.
+    # The left-out parameters are absorbed to first order only (e.g. a5 ≈ d6·θ5), leaving a
+    # ~1e-3 mm remainder, negligible against σ.
+    y_clean = ex.measurement.predict(ex.robot, ex.true_deviations, ex.train.q)
+    ref = calibrate(ex.robot, ex.measurement, (ex.train.q, y_clean), "lm", space=space)
+    assert ref.train_metrics.rmse < 0.01 * float(ex.noise_std), "identifiable subset must represent the true robot"
+    J = np.asarray(Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space).jacobian(jnp.asarray(ref.x)))
+    cov = float(ex.noise_std) ** 2 * np.linalg.inv(J.T @ J)
+    err = res.x - ref.x
+    z = err / np.sqrt(np.diag(cov))
+    assert np.all(np.abs(z) < 3.0), dict(zip(space.free_names, np.round(z, 2)))
+    maha = float(err @ np.linalg.solve(cov, err))
+    assert maha < 45.3  # chi-square(19) 99.9 % quantile is 43.8; (p varies by robot)
+    return test_rmse, floor
+
+
+def test_lm_reaches_floor_and_cramer_rao(experiment):
+    _floor_check(experiment)
+
+
+@pytest.mark.parametrize("name", ["puma560", "ur5", "abb_irb120"])
+def test_lm_floor_other_robots(name):
+    robot = jaxcal.robots.get_robot(name)
+    ex = simulate_experiment(jax.random.PRNGKey(2), robot)
+    _floor_check(ex)
+
+
+def test_gauss_newton_matches_lm(experiment):
+    ex = experiment
+    lm = calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    gn = calibrate(ex.robot, ex.measurement, ex.train, "gn")
+    np.testing.assert_allclose(gn.x, lm.x, rtol=0, atol=1e-6 * np.abs(lm.x).max())
+
+
+def test_lm_cholesky_step_equals_qr_step(experiment):
+    ex = experiment
+    space = jaxcal.identifiability(ex.robot, ex.measurement, ex.train.q).space
+    sp = ScaledProblem.build(Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space))
+    fn = lambda z, args: (sp.residual(z), None)  # noqa: E731
+    z = jnp.zeros(space.n_free)
+    f_struct = jax.ShapeDtypeStruct((sp.problem.n_residuals,), jnp.float64)
+    ys = {}
+    for ls in ("cholesky", "qr"):
+        solver = LevenbergMarquardt(linear_solver=ls).solver()
+
+        @jax.jit
+        def three_steps(z):
+            st = solver.init(fn, z, None, {}, f_struct, None, frozenset())
+            y = z
+            for _ in range(3):  # first step only evaluates; later ones solve the damped system
+                y, st, _ = solver.step(fn, y, None, {}, st, frozenset())
+            return y
+
+        ys[ls] = np.asarray(three_steps(z))
+    assert np.abs(ys["qr"]).max() > 0.1  # the steps moved
+    np.testing.assert_allclose(ys["cholesky"], ys["qr"], rtol=1e-9, atol=1e-9)
+    # and whole solves agree
+    a = calibrate(ex.robot, ex.measurement, ex.train, "lm", linear_solver="qr", space=space)
+    b = calibrate(ex.robot, ex.measurement, ex.train, "lm", space=space)
+    np.testing.assert_allclose(a.train_metrics.rmse, b.train_metrics.rmse, rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", GRADIENT_METHODS)
+def test_gradient_methods_noiseless(name):
+    ex = simulate_experiment(jax.random.PRNGKey(5), n_samples=400, noise_std=0.0)
+    res = calibrate(ex.robot, ex.measurement, ex.train, name, steps=3000)
+    assert res.status == Status.COMPLETED
+    assert res.train_metrics.rmse < 0.01 * res.history[0], (res.train_metrics.rmse, res.history[0])
+    assert np.all(np.isfinite(res.history))
+
+
+def test_vmap_over_keys_and_data_equals_sequential():
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
+    exs = jax.vmap(lambda k: simulate_experiment(k, n_samples=300))(keys)
+    robot, meas = jaxcal.robots.hsr_jr680(), exs.measurement
+    meas = jaxcal.CableLength(exs.measurement.anchor[0])
+    space = jaxcal.identifiability(robot, meas, exs.train.q[0]).space
+    for method in (make_method("lm"), make_method("adamodw", steps=50, batch_size=64)):
+        cal = Calibrator(robot, meas, method, Deviations.zeros(6), space)
+        run = lambda q, y, k: cal(q, y, k)  # noqa: E731
+        batched = jax.jit(jax.vmap(run))(exs.train.q, exs.train.y, keys)
+        for i in range(3):
+            one = jax.jit(run)(exs.train.q[i], exs.train.y[i], keys[i])
+            np.testing.assert_allclose(np.asarray(batched.x[i]), np.asarray(one.x), rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(np.asarray(batched.history[i]), np.asarray(one.history), rtol=1e-10)
+            assert int(batched.n_iterations[i]) == int(one.n_iterations)
+
+
+def test_minibatch_reproducible_from_key(experiment):
+    ex = experiment
+    a = calibrate(ex.robot, ex.measurement, ex.train, "adam", steps=100, batch_size=128, key=jax.random.key(1))
+    b = calibrate(ex.robot, ex.measurement, ex.train, "adam", steps=100, batch_size=128, key=jax.random.key(1))
+    c = calibrate(ex.robot, ex.measurement, ex.train, "adam", steps=100, batch_size=128, key=jax.random.key(2))
+    np.testing.assert_array_equal(a.x, b.x)
+    assert not np.array_equal(a.x, c.x)
+    assert a.train_metrics.rmse < 0.5 * a.history[0]
+
+
+def test_user_optax_chain(experiment):
+    ex = experiment
+    tx = optax.chain(optax.clip_by_global_norm(1.0), jaxcal.optim.adamodw(0.1, b3=0.9, weight_decay=1e-4))
+    res = calibrate(ex.robot, ex.measurement, ex.train, tx, steps=300)
+    assert res.method == "optax" and res.status == Status.COMPLETED
+    assert res.train_metrics.rmse < 0.2 * res.history[0]
+
+
+def test_divergence_is_reported_never_silent(experiment):
+    ex = experiment
+    with pytest.warns(CalibrationWarning, match="diverged"):
+        res = calibrate(ex.robot, ex.measurement, ex.train, optax.sgd(1e6), steps=50)
+    assert res.status == Status.DIVERGED and np.all(np.isfinite(res.x))
+    assert res.n_iterations < 50
+    with pytest.raises(CalibrationError, match="diverged"):
+        calibrate(ex.robot, ex.measurement, ex.train, optax.sgd(1e6), steps=50, throw=True)
+
+
+def test_iterations_to_converge_definition():
+    h = jnp.asarray([10.0, 5.0, 1.02, 1.5, 1.009, 1.0, 1.0, 1.0])
+    assert int(iterations_to_converge(h, 5)) == 4  # 1.5 at index 3 breaks the earlier run
+    assert int(iterations_to_converge(h, 2)) == 2
+    assert int(iterations_to_converge(jnp.asarray([3.0, 1.0, 1.0]), 2)) == 1
+    assert int(iterations_to_converge(jnp.asarray([3.0, 3.0]), 0)) == 0
+
+
+def test_result_api(experiment, tmp_path):
+    ex = experiment
+    res = calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    assert res.identifiability.rank == 19 and res.space.n_free == 19
+    m = res.evaluate(ex.test)
+    assert 0 < m.mean <= m.rmse <= m.max
+    tab = res.dh_table()
+    assert tab.shape == (6, 4) and np.abs(tab - ex.robot.dh_table_deg()).max() < 5
+    d = res.to_dict()
+    json.dumps(d)
+    assert d["status"] == "converged" and len(d["free_parameters"]) == 19
+    assert res.wall_time_s > 0 and res.compile_time_s > 0
+    assert "lm" in repr(res)
+    # start/space: everything 'all' runs and reports MAX_STEPS or CONVERGED without NaN
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full = calibrate(ex.robot, ex.measurement, ex.train, "lm", space="all", max_steps=30)
+    assert np.all(np.isfinite(full.x))
+
+
+def test_float32_runs_and_warns(experiment):
+    ex = experiment
+    q32, y32 = ex.train.q.astype(jnp.float32), ex.train.y.astype(jnp.float32)
+    with pytest.warns(jaxcal.PrecisionWarning):
+        res = calibrate(ex.robot, ex.measurement, (q32, y32), "lm")
+    assert res.x.dtype == np.float32
+    ref = calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    assert abs(res.train_metrics.rmse / ref.train_metrics.rmse - 1) < 0.01
+
+
+def test_bad_input(experiment):
+    ex = experiment
+    r, m = ex.robot, ex.measurement
+    with pytest.raises(ValueError, match="unknown method 'newton'; available: .*adamodw.*lm"):
+        calibrate(r, m, ex.train, "newton")
+    with pytest.raises(TypeError, match="bad hyperparameters for method 'lm'"):
+        calibrate(r, m, ex.train, "lm", learning_rate=0.1)
+    with pytest.raises(TypeError, match="unknown hyperparameter"):
+        calibrate(r, m, ex.train, "adam", max_steps=3)
+    with pytest.raises(ValueError, match="'cable' measurements but the measurement model is 'position'"):
+        calibrate(r, jaxcal.Position(), ex.train)
+    with pytest.raises(ValueError, match="too few samples: 10 sample"):
+        calibrate(r, m, ex.train.subset(slice(0, 10)), space="all")
+    with pytest.raises(ValueError, match="NaN/inf"):
+        calibrate(r, m, (ex.train.q, ex.train.y.at[3].set(jnp.nan)))
+    with pytest.raises(ValueError, match="look like degrees"):
+        calibrate(r, m, (jnp.rad2deg(ex.train.q), ex.train.y))
+    with pytest.raises(ValueError, match="robot 'hsr_jr680' has 6 joints"):
+        calibrate(r, m, (ex.train.q[:, :5], ex.train.y))
+    with pytest.raises(ValueError, match="steps must be >= 1"):
+        calibrate(r, m, ex.train, "adam", steps=0)
+    with pytest.raises(ValueError, match="linear_solver must be"):
+        calibrate(r, m, ex.train, "lm", linear_solver="svd")
+    with pytest.warns(UserWarning, match="outside robot 'hsr_jr680'"):
+        calibrate(r, m, (ex.train.q.at[0, 1].set(3.0), ex.train.y))
+
+
+def test_optimistix_least_squares_agrees(experiment):
+    """Our step-by-step loop matches optimistix.least_squares on the same scaled problem."""
+    ex = experiment
+    space = jaxcal.identifiability(ex.robot, ex.measurement, ex.train.q).space
+    sp = ScaledProblem.build(Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space))
+    solver = LevenbergMarquardt().solver()
+    sol = optx.least_squares(lambda z, a: sp.residual(z), solver, jnp.zeros(space.n_free), max_steps=100)
+    ours = LevenbergMarquardt().run(sp, None)
+    np.testing.assert_allclose(np.asarray(ours.z), np.asarray(sol.value), rtol=1e-12, atol=1e-12)
+    assert int(ours.n_iterations) == int(sol.stats["num_steps"])
