@@ -89,8 +89,11 @@ class _OptimistixMethod(Method):
     """Shared fields and run loop of the optimistix least-squares methods.
 
     Args:
-        rtol, atol: optimistix's relative/absolute termination tolerances on the scaled
-            parameters (a unit moves the RMS residual ~1 mm, so 1e-6 ≈ 1 nm) and the loss.
+        rtol, atol: optimistix's Cauchy termination tolerances: an accepted step must change
+            every scaled parameter (a unit moves the RMS residual ~1 mm) and every residual
+            (mm) by less than ``atol + rtol·|value|``. At 1e-5 the training RMSE is within
+            ~1e-8 mm of the optimum; tighter values make LM spend steps being rejected at
+            round-off level (optimistix counts rejected steps).
         max_steps: step budget (accepted and rejected steps both count).
         linear_solver: ``"cholesky"`` (default, p×p normal equations) or ``"qr"``.
     """
@@ -117,11 +120,11 @@ class _OptimistixMethod(Method):
 class LevenbergMarquardt(_OptimistixMethod):
     """Levenberg–Marquardt (``optimistix.LevenbergMarquardt``), the paper's M4 (Marquardt, 1963).
 
-    Defaults: ``rtol = atol = 1e-6``, ``max_steps = 100``, ``linear_solver = "cholesky"``.
+    Defaults: ``rtol = atol = 1e-5``, ``max_steps = 100``, ``linear_solver = "cholesky"``.
     """
 
-    rtol: float = 1e-6
-    atol: float = 1e-6
+    rtol: float = 1e-5
+    atol: float = 1e-5
     max_steps: int = 100
     linear_solver: str = "cholesky"
     name: ClassVar[str] = "lm"
@@ -135,11 +138,11 @@ class GaussNewton(_OptimistixMethod):
     """Gauss–Newton (``optimistix.GaussNewton``): LM without damping; fast when the start is
     close and the parameter set identifiable, no safeguard otherwise.
 
-    Defaults: ``rtol = atol = 1e-6``, ``max_steps = 100``, ``linear_solver = "cholesky"``.
+    Defaults: ``rtol = atol = 1e-5``, ``max_steps = 100``, ``linear_solver = "cholesky"``.
     """
 
-    rtol: float = 1e-6
-    atol: float = 1e-6
+    rtol: float = 1e-5
+    atol: float = 1e-5
     max_steps: int = 100
     linear_solver: str = "cholesky"
     name: ClassVar[str] = "gn"
