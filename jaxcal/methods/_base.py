@@ -224,9 +224,24 @@ def make_method(method, **hyperparameters) -> Method:
     if key not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
     try:
-        return METHODS[key](**hyperparameters)
+        cache_key = (key, tuple(sorted(hyperparameters.items())))
+        hash(cache_key)
+    except TypeError:  # unhashable settings (e.g. arrays): build afresh
+        cache_key = None
+    if cache_key is not None and cache_key in _METHOD_CACHE:
+        return _METHOD_CACHE[cache_key]
+    try:
+        built = METHODS[key](**hyperparameters)
     except TypeError as e:
         raise TypeError(f"bad hyperparameters for method {method!r}: {e}") from None
+    if cache_key is not None:
+        # the same name and settings give the same object, so jit caches hit (an optax
+        # transformation is a static field, compared by identity)
+        _METHOD_CACHE[cache_key] = built
+    return built
+
+
+_METHOD_CACHE: dict = {}
 
 
 def status_from_history(history: Array, rmse0: Array) -> Array:

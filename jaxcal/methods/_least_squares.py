@@ -9,7 +9,6 @@ identifiable parameter set). ``linear_solver="qr"`` selects optimistix's default
 
 from __future__ import annotations
 
-import abc
 from typing import ClassVar
 
 import equinox as eqx
@@ -18,6 +17,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from .._measurement import Pose
 from .._result import Status
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, finish_history, register_method
 
@@ -31,6 +31,17 @@ def make_linear_solver(name: str) -> lx.AbstractLinearSolver:
     if name == "qr":
         return lx.QR()
     raise ValueError(f"linear_solver must be 'cholesky' or 'qr', got {name!r}")
+
+
+def _rmse_from_state(problem: ScaledProblem, z, state):
+    """Training RMSE at the accepted point, reusing the residual the solver already holds
+    (saves one FK evaluation per step); pose data need the position-only sample errors."""
+    measurement = problem.problem.measurement
+    f_info = getattr(state, "f_info", None)
+    if isinstance(measurement, Pose) or f_info is None:
+        return problem.rmse(z)
+    r = f_info.residual
+    return jnp.sqrt(measurement.size * jnp.mean(r * r))
 
 
 def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
@@ -62,7 +73,7 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         done, result = solver.terminate(fn, z, None, options, st_new, tags)
         finite = jnp.all(jnp.isfinite(z_new))
         result = optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
-        rmse = problem.rmse(z_new)
+        rmse = _rmse_from_state(problem, z_new, st_new)
         dyn_new, _ = eqx.partition(st_new, eqx.is_array)
         return z_new, k + 1, dyn_new, done, result, hist.at[k + 1].set(rmse)
 
@@ -98,18 +109,27 @@ class _OptimistixMethod(Method):
         linear_solver: ``"cholesky"`` (default, p×p normal equations) or ``"qr"``.
     """
 
-    rtol: eqx.AbstractVar[float]
-    atol: eqx.AbstractVar[float]
-    max_steps: eqx.AbstractVar[int]
-    linear_solver: eqx.AbstractVar[str]
+    rtol: float = 1e-5
+    atol: float = 1e-5
+    max_steps: int = 100
+    linear_solver: str = "cholesky"
+    #: the optimistix solver class (``optx.LevenbergMarquardt`` or ``optx.GaussNewton``).
+    solver_cls: ClassVar[type] = optx.LevenbergMarquardt
+
+    def __check_init__(self):
+        make_linear_solver(self.linear_solver)
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        if not (self.rtol >= 0 and self.atol >= 0 and self.rtol + self.atol > 0):
+            raise ValueError(f"rtol and atol must be >= 0 and not both 0, got {self.rtol}, {self.atol}")
 
     @property
     def max_iterations(self) -> int:
         return self.max_steps
 
-    @abc.abstractmethod
     def solver(self) -> optx.AbstractLeastSquaresSolver:
         """The optimistix solver."""
+        return type(self).solver_cls(self.rtol, self.atol, linear_solver=make_linear_solver(self.linear_solver))
 
     def run(self, problem: ScaledProblem, key) -> RawRun:
         del key  # deterministic
@@ -120,32 +140,18 @@ class _OptimistixMethod(Method):
 class LevenbergMarquardt(_OptimistixMethod):
     """Levenberg–Marquardt (``optimistix.LevenbergMarquardt``), the paper's M4 (Marquardt, 1963).
 
-    Defaults: ``rtol = atol = 1e-5``, ``max_steps = 100``, ``linear_solver = "cholesky"``.
+    Defaults: ``rtol = atol = 1e-5``, ``max_steps = 100``, ``linear_solver = "cholesky"``
+    (see :class:`_OptimistixMethod`).
     """
 
-    rtol: float = 1e-5
-    atol: float = 1e-5
-    max_steps: int = 100
-    linear_solver: str = "cholesky"
     name: ClassVar[str] = "lm"
-
-    def solver(self):
-        return optx.LevenbergMarquardt(self.rtol, self.atol, linear_solver=make_linear_solver(self.linear_solver))
+    solver_cls: ClassVar[type] = optx.LevenbergMarquardt
 
 
 @register_method("gn")
 class GaussNewton(_OptimistixMethod):
     """Gauss–Newton (``optimistix.GaussNewton``): LM without damping; fast when the start is
-    close and the parameter set identifiable, no safeguard otherwise.
+    close and the parameter set identifiable, no safeguard otherwise. Same settings as LM."""
 
-    Defaults: ``rtol = atol = 1e-5``, ``max_steps = 100``, ``linear_solver = "cholesky"``.
-    """
-
-    rtol: float = 1e-5
-    atol: float = 1e-5
-    max_steps: int = 100
-    linear_solver: str = "cholesky"
     name: ClassVar[str] = "gn"
-
-    def solver(self):
-        return optx.GaussNewton(self.rtol, self.atol, linear_solver=make_linear_solver(self.linear_solver))
+    solver_cls: ClassVar[type] = optx.GaussNewton
