@@ -74,7 +74,7 @@ class Calibrator(eqx.Module):
         raw = self.method.run(scaled, key)
         x = scaled.x(raw.z)
         its = iterations_to_converge(raw.history, raw.n_iterations)
-        metrics = compute_metrics(problem.sample_errors(x))
+        metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
         return CalibrationOutput(x, raw.history, raw.n_iterations, its, raw.status, metrics, raw.extra)
 
 

@@ -106,9 +106,17 @@ class ScaledProblem(eqx.Module):
         return jax.vmap(self.residual)(Z)
 
     def rmse_batch(self, Z: Float[Array, "P p"]) -> Float[Array, " P"]:
-        """Training RMSE of ``P`` candidates at once (non-finite → ``inf``)."""
-        e = jax.vmap(lambda z: self.problem.sample_errors(self.x(z)))(Z)
-        r = jnp.sqrt(jnp.mean(e * e, axis=-1))
+        """Training RMSE of ``P`` candidates in one batched (``jax.vmap``-ed) FK call
+        (non-finite → ``inf``).
+
+        The mean over samples is a matrix–vector product on purpose: on XLA:CPU (JAX 0.10) a
+        row reduction (``jnp.mean(e², axis=-1)``, ``jnp.sum``, ``einsum``) of the vmapped
+        errors is lowered to a reduction fusion that recomputes the kinematic chain per output
+        and ran ~14x slower (1600 samples, P = 64: 127 ms vs 9 ms).
+        """
+        e = jax.vmap(lambda z: self.problem.sample_errors(self.x(z)))(Z)  # [P, n]
+        n = e.shape[-1]
+        r = jnp.sqrt((e * e) @ jnp.full((n,), 1.0 / n, e.dtype))
         return jnp.where(jnp.isfinite(r), r, jnp.inf)
 
     def half_width_z(self, half_width_x: Float[Array, " p"]) -> Float[Array, " p"]:
