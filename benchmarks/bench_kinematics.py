@@ -13,11 +13,10 @@ import pathlib
 
 import jax
 import jax.numpy as jnp
+from _common import machine, median_time
 
 import jaxcal
 from jaxcal import CableLength, ParameterSpace, Problem
-
-from _common import machine, median_time
 
 jaxcal.enable_x64()
 

@@ -18,13 +18,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import machine, median_time
 from scipy.optimize import least_squares
 
 import jaxcal
 from jaxcal import Calibrator, Deviations, calibrate, simulate_experiment
 from jaxcal.methods import make_method
-
-from _common import machine, median_time
 
 jaxcal.enable_x64()
 

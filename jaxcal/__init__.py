@@ -20,6 +20,8 @@ from ._dataset import load_csv as load_csv
 from ._dataset import save_csv as save_csv
 from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
 from ._identifiability import identifiability as identifiability
+from ._io import load_result as load_result
+from ._io import save_result as save_result
 from ._kinematics import fk_pose as fk_pose
 from ._kinematics import fk_position as fk_position
 from ._measurement import CableLength as CableLength
@@ -42,10 +44,18 @@ from ._result import iterations_to_converge as iterations_to_converge
 from ._robot import DHRobot as DHRobot
 from ._simulate import Experiment as Experiment
 from ._simulate import simulate_experiment as simulate_experiment
+from ._sweep import PAPER_METHODS as PAPER_METHODS
+from ._sweep import SweepResult as SweepResult
+from ._sweep import sweep as sweep
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "PAPER_METHODS",
+    "SweepResult",
+    "load_result",
+    "save_result",
+    "sweep",
     "CalibrationError",
     "CalibrationResult",
     "CalibrationWarning",
