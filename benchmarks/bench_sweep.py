@@ -1,0 +1,164 @@
+"""Sweep throughput: trials per second, vmapped chunks vs a Python loop over seeds.
+
+What is measured: one *trial* = calibrate one simulated experiment and evaluate it on its
+held-out split — the per-trial function of ``jaxcal._sweep`` (``_MethodTrial``). The data of
+all trials is simulated beforehand (not timed).
+
+* **vmapped**: ``jax.jit(jax.vmap(trial))`` over ``n`` seeds, compiled ahead of time
+  (``.lower().compile()``, compile time reported separately), then one timed call;
+  throughput = ``n / wall``. This is what one chunk of ``sweep(..., chunk_size=n)`` costs.
+* **loop**: ``jax.jit(trial)`` compiled once, then a Python loop over the seeds with a
+  ``block_until_ready`` per trial; throughput = ``n / wall``.
+
+Under ``vmap`` LM's ``while_loop`` runs until the *slowest* trial of the batch converges
+(finished trials idle, masked by ``select``), so a vmapped LM batch costs about
+``max(iterations)`` steps per trial instead of ``mean(iterations)``. AdaModW runs a fixed
+500 steps, so every trial does the same work.
+
+Grid: LM and AdaModW (registry defaults: LM ``rtol = atol = 1e-6``; AdaModW 500 steps),
+``n_seeds`` in (1, 4, 16, 64, 256), samples per experiment 200 and 2000 (80 % for training).
+AdaModW at 2000 samples stops at 64 seeds (256 would take ~4 min alone). The loop is timed over
+at most 16 seeds (its per-trial cost does not depend on ``n``); for larger ``n`` the row repeats
+the 16-seed throughput, marked ``*``.
+
+Run: ``python benchmarks/bench_sweep.py`` (writes ``benchmarks/results/sweep_cpu.md``; about
+10 minutes on the project's 2-core machine, compilation included). ``--quick`` runs a reduced
+grid for a smoke test and only prints its table.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import platform
+import sys
+import time
+
+import equinox as eqx
+import jax
+import numpy as np
+
+import jaxcal
+from jaxcal._sweep import _DataTrial, _MethodTrial, trial_keys
+from jaxcal.methods import make_method
+
+jaxcal.enable_x64()
+
+SEEDS = (1, 4, 16, 64, 256)
+SAMPLES = (200, 2000)
+METHODS = ("lm", "adamodw")
+LOOP_CAP = 16
+SKIP = {("adamodw", 2000, 256)}
+
+
+def machine_info() -> list[str]:
+    cpu = platform.processor() or "unknown"
+    try:
+        for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",) * 3
+    return [
+        f"- CPU: {cpu}, {os.cpu_count()} logical cores; {platform.system()} {platform.release()}",
+        f"- Python {platform.python_version()}, JAX {jax.__version__}, devices: {jax.devices()}",
+        f"- float64 (`jaxcal.enable_x64()`); load average at start: {', '.join(f'{x:.2f}' for x in load)}",
+    ]
+
+
+def simulate(n_samples: int, n: int):
+    """Data of trials 0..n-1 (one vmapped simulation), as the sweep's data unit makes it."""
+    robot = jaxcal.robots.hsr_jr680()
+    from jaxcal import CableLength, Deviations, ParameterSpace
+    from jaxcal._simulate import default_anchor
+    from jaxcal._sweep import _Simulated, _simulation_options
+
+    m = CableLength(default_anchor(robot))
+    opts = _simulation_options(robot, n_samples, 0.5, 0.2, {})
+    src = _Simulated(robot, m, None, tuple(sorted(opts.items())))
+    dtrial = _DataTrial(src, robot, m, Deviations.zeros(6), ParameterSpace.for_robot(robot), False)
+    out = eqx.filter_jit(eqx.filter_vmap(lambda k: dtrial(k)))(trial_keys(jax.random.key(0), 0, n))
+    space = jaxcal.identifiability(robot, m, out.split.q_train[0]).space
+    return robot, m, space, out.split, out.k_method
+
+
+def main(argv) -> None:
+    quick = "--quick" in argv
+    seeds = (1, 4, 16) if quick else SEEDS
+    samples = (200,) if quick else SAMPLES
+    t_start = time.perf_counter()
+    lines = ["# Sweep throughput on CPU (`benchmarks/bench_sweep.py`)", "", *machine_info(), ""]
+    lines += [
+        "Trials per second for one trial = calibrate a simulated experiment + evaluate on its test split",
+        "(data simulated beforehand). *vmapped*: one `jit(vmap(trial))` call over `n` seeds (compile excluded,",
+        "listed separately); *loop*: a Python loop of a jitted single trial. A vmapped LM batch runs until its",
+        "slowest trial converges (`its max/mean` column); AdaModW always runs 500 steps.",
+        "",
+    ]
+    for n_samples in samples:
+        robot, m, space, split, kmeth = simulate(n_samples, max(seeds))
+        for name in METHODS:
+            trial = _MethodTrial(robot, m, jaxcal.Deviations.zeros(6), make_method(name), space, keep_errors=False,
+                                 keep_history=False)
+            single = jax.jit(lambda s, k, trial=trial: trial(s, k))
+            t0 = time.perf_counter()
+            one = jax.tree.map(lambda a: a[0], (split, kmeth))
+            single_c = single.lower(*one).compile()
+            compile_single = time.perf_counter() - t0
+            rows = []
+            loop_tp = None
+            for n in seeds:
+                if (name, n_samples, n) in SKIP:
+                    continue
+                args = jax.tree.map(lambda a, n=n: a[:n], (split, kmeth))
+                batched = jax.jit(jax.vmap(lambda s, k, trial=trial: trial(s, k)))
+                t0 = time.perf_counter()
+                comp = batched.lower(*args).compile()
+                t_comp = time.perf_counter() - t0
+                reps = 3 if n <= 4 else 1
+                walls = []
+                for _ in range(reps):
+                    t0 = time.perf_counter()
+                    out = jax.block_until_ready(comp(*args))
+                    walls.append(time.perf_counter() - t0)
+                wall = min(walls)
+                its = np.asarray(out.n_iterations)
+                if n <= LOOP_CAP:
+                    # per-trial arguments prepared outside the timer (indexing compiles tiny programs)
+                    items = jax.block_until_ready([jax.tree.map(lambda a, i=i: a[i], args) for i in range(n)])
+                    t0 = time.perf_counter()
+                    for item in items:
+                        jax.block_until_ready(single_c(*item))
+                    loop_tp = n / (time.perf_counter() - t0)
+                    loop_cell = f"{loop_tp:.2f}"
+                else:
+                    loop_cell = f"{loop_tp:.2f}*"
+                vm_tp = n / wall
+                rows.append([n, f"{vm_tp:.2f}", loop_cell, f"{vm_tp / loop_tp:.2f}", f"{wall:.3f}",
+                             f"{its.max()}/{its.mean():.1f}", f"{t_comp:.1f}"])
+                print(f"{name} samples={n_samples} n={n}: vmapped {vm_tp:.2f}/s, loop {loop_cell}/s, "
+                      f"compile {t_comp:.1f} s", file=sys.stderr, flush=True)
+            lines += [f"## {name}, {n_samples} samples per experiment ({int(0.8 * n_samples)} for training)", ""]
+            lines.append(jaxcal.format_table(
+                rows, ["seeds", "vmapped trials/s", "loop trials/s", "speed-up", "vmapped wall/s", "its max/mean",
+                       "compile/s"], markdown=True))
+            lines += ["", f"Single-trial compile: {compile_single:.1f} s.", ""]
+    skipped = [f"{m} × {s} samples × {n} seeds" for m, s, n in sorted(SKIP) if s in samples and n in seeds]
+    if skipped:
+        lines += ["Skipped (too slow for the 10-minute budget): " + "; ".join(skipped) + ".", ""]
+    lines += ["`*` loop throughput measured over 16 seeds (the loop's per-trial cost does not depend on n).", ""]
+    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",) * 3
+    lines += [f"Total benchmark wall time {time.perf_counter() - t_start:.0f} s (compilation included); "
+              f"load average at the end: {', '.join(f'{x:.2f}' for x in load)}.", ""]
+    text = "\n".join(lines)
+    print(text)
+    if not quick:
+        out = pathlib.Path(__file__).resolve().parent / "results" / "sweep_cpu.md"
+        out.parent.mkdir(exist_ok=True)
+        out.write_text(text)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,417 @@
+"""Saving and loading results: calibration results as JSON, sweeps from their output directory.
+
+A calibration result file (``jaxcal calibrate --out result.json``, :func:`save_result`) is a
+JSON object holding everything needed to use the calibration again: the nominal robot, the
+measurement model, the free parameters, the calibrated deviations (rad, mm), the calibrated DH
+table (degrees, mm), the history, the status, metrics and the identifiability report.
+:func:`load_result` turns it back into a :class:`~jaxcal.CalibrationResult` whose ``predict``,
+``evaluate`` and ``dh_table`` work as on the original (the RBF network of ``"rbfnn"`` included).
+
+Sweeps write their chunks as they finish (:func:`jaxcal._sweep.sweep` with ``out_dir=``);
+:func:`load_sweep` rebuilds the :class:`~jaxcal._sweep.SweepResult` from that directory.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pathlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._measurement import CableLength, MeasurementModel, Pose, Position
+from ._metrics import Metrics, statistical_floor
+from ._params import Deviations, ParameterSpace
+from ._result import CalibrationResult, Status
+from ._robot import DHRobot
+
+__all__ = [
+    "RESULT_FORMAT",
+    "robot_to_dict",
+    "robot_from_dict",
+    "measurement_to_dict",
+    "measurement_from_dict",
+    "result_to_dict",
+    "save_result",
+    "load_result",
+    "load_result_dict",
+    "load_sweep",
+    "load_robot_csv",
+    "save_robot_csv",
+]
+
+#: ``"format"`` entry of calibration result files.
+RESULT_FORMAT = "jaxcal-calibration-result/1"
+
+
+# -- models -------------------------------------------------------------------------------------
+
+
+def robot_to_dict(robot: DHRobot) -> dict:
+    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm."""
+    deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
+    return {
+        "name": robot.name,
+        "convention": robot.convention,
+        "beta_joints": list(robot.beta_joints),
+        "alpha_deg": deg(robot.alpha),
+        "a_mm": np.asarray(robot.a, np.float64).tolist(),
+        "d_mm": np.asarray(robot.d, np.float64).tolist(),
+        "theta_deg": deg(robot.theta),
+        "beta_deg": deg(robot.beta),
+        "q_min_deg": deg(robot.q_min),
+        "q_max_deg": deg(robot.q_max),
+        "tool_mm": np.asarray(robot.tool, np.float64).tolist(),
+    }
+
+
+def robot_from_dict(d: dict) -> DHRobot:
+    """Inverse of :func:`robot_to_dict` (values within rounding of deg↔rad)."""
+    return DHRobot.from_degrees(
+        alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
+        q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),
+        beta_deg=d.get("beta_deg"), convention=d.get("convention", "standard"),
+        beta_joints=d.get("beta_joints", ()), name=d.get("name", "robot"),
+    )
+
+
+_DH_COLUMNS = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
+
+
+def load_robot_csv(path) -> DHRobot:
+    """A robot from a DH table file (standard DH, degrees and mm).
+
+    Layout: optional ``# name: NAME`` and ``# tool_mm: x,y,z`` comment lines (tool point in the
+    flange frame), a header row ``alpha_deg,a_mm,d_mm,theta_deg`` (plus optional
+    ``q_min_deg,q_max_deg`` joint limits, default ±180°), then one row per joint::
+
+        # name: hsr_jr680
+        alpha_deg,a_mm,d_mm,theta_deg,q_min_deg,q_max_deg
+        -90,250,653.5,0,-170,170
+        ...
+    """
+    import csv
+
+    path = pathlib.Path(path)
+    meta, lines = {}, []
+    for raw in path.read_text(encoding="utf-8").splitlines():
+        line = raw.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            if ":" in line:
+                k, v = line[1:].split(":", 1)
+                meta[k.strip().lower()] = v.strip()
+            continue
+        lines.append(line)
+    if not lines:
+        raise ValueError(f"{path}: no DH table (expected a header row {','.join(_DH_COLUMNS)})")
+    rows = list(csv.reader(lines))
+    header = [h.strip().lower() for h in rows[0]]
+    missing = [c for c in _DH_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: DH table lacks column(s) {missing}; header must include {','.join(_DH_COLUMNS)}")
+    body = rows[1:]
+    if not body:
+        raise ValueError(f"{path}: DH table has no joint rows")
+    cols: dict[str, list[float]] = {h: [] for h in header}
+    for i, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise ValueError(f"{path}: row {i} has {len(row)} values, the header has {len(header)}")
+        for h, v in zip(header, row):
+            try:
+                x = float(v)
+            except ValueError:
+                raise ValueError(f"{path}: row {i}, column {h}: {v!r} is not a number") from None
+            if not math.isfinite(x):
+                raise ValueError(f"{path}: row {i}, column {h} is not finite")
+            cols[h].append(x)
+    tool = (0.0, 0.0, 0.0)
+    if "tool_mm" in meta:
+        parts = [p for p in meta["tool_mm"].replace(";", ",").split(",") if p.strip()]
+        if len(parts) != 3:
+            raise ValueError(f"{path}: '# tool_mm:' needs 3 comma-separated numbers")
+        tool = tuple(float(p) for p in parts)
+    return DHRobot.from_degrees(
+        alpha_deg=cols["alpha_deg"], a_mm=cols["a_mm"], d_mm=cols["d_mm"], theta_deg=cols["theta_deg"],
+        q_min_deg=cols.get("q_min_deg"), q_max_deg=cols.get("q_max_deg"), tool_mm=tool,
+        name=meta.get("name", path.stem),
+    )
+
+
+def save_robot_csv(robot: DHRobot, path) -> None:
+    """Write ``robot``'s nominal DH table in the layout of :func:`load_robot_csv` (standard DH)."""
+    if robot.convention != "standard" or robot.beta_joints:
+        raise ValueError("the DH table file format holds standard DH without Hayati beta only")
+    d = robot_to_dict(robot)
+    lines = [f"# name: {robot.name}", "# tool_mm: " + ",".join(repr(v) for v in d["tool_mm"]),
+             ",".join(_DH_COLUMNS + ("q_min_deg", "q_max_deg"))]
+    for j in range(robot.dof):
+        lines.append(",".join(repr(float(d[c][j])) for c in _DH_COLUMNS + ("q_min_deg", "q_max_deg")))
+    pathlib.Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def measurement_to_dict(m: MeasurementModel) -> dict:
+    """``{"kind": "cable", "anchor_mm": [x, y, z]}``, ``{"kind": "position"}`` or
+    ``{"kind": "pose", "orientation_scale": s}``."""
+    if isinstance(m, CableLength):
+        return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
+    if isinstance(m, Pose):
+        return {"kind": "pose", "orientation_scale": float(m.orientation_scale)}
+    if isinstance(m, Position):
+        return {"kind": "position"}
+    raise TypeError(f"cannot serialise measurement model {type(m).__name__}")
+
+
+def measurement_from_dict(d: dict) -> MeasurementModel:
+    """Inverse of :func:`measurement_to_dict`."""
+    kind = d.get("kind")
+    if kind == "cable":
+        return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
+    if kind == "position":
+        return Position()
+    if kind == "pose":
+        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)))
+    raise ValueError(f"unknown measurement kind {kind!r}")
+
+
+def _jsonable(v):
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, (np.ndarray, jax.Array)):
+        return _jsonable(np.asarray(v).tolist())
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.floating):
+        return float(v)
+    if isinstance(v, float) and not math.isfinite(v):
+        return None if math.isnan(v) else ("inf" if v > 0 else "-inf")
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    return repr(v)
+
+
+def _extra_to_dict(extra) -> dict | None:
+    """Method state worth keeping (the RBF network); ``None`` otherwise."""
+    from .methods import RBFNetwork
+
+    if isinstance(extra, RBFNetwork):
+        return {"type": "RBFNetwork", "fields": {f: np.asarray(getattr(extra, f)).tolist() for f in extra._fields}}
+    return None
+
+
+def _extra_from_dict(d: dict | None):
+    if not d:
+        return None, None
+    if d.get("type") == "RBFNetwork":
+        from .methods import RBFNetwork, RBFNetworkMethod
+
+        net = RBFNetwork(**{f: jnp.asarray(np.asarray(v)) for f, v in d["fields"].items()})
+        return net, RBFNetworkMethod().predictor()
+    raise ValueError(f"unknown saved method state {d.get('type')!r}")
+
+
+# -- calibration results ----------------------------------------------------------------------
+
+
+def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
+    """Everything in ``result`` as JSON-friendly data, plus ``info`` entries (e.g.
+    ``test_metrics_mm=``, ``before_metrics_mm=``, ``settings=``) stored under their names.
+
+    Units: angles in the DH table in degrees, lengths in mm; ``deviations`` and
+    ``free_parameters`` in rad (angles) and mm (lengths), as :meth:`CalibrationResult.to_dict`.
+    """
+    out = {"format": RESULT_FORMAT}
+    out |= result.to_dict()
+    out["history_rmse_mm"] = [float(v) for v in np.asarray(result.history)]
+    out["robot"] = robot_to_dict(result.robot)
+    out["measurement"] = measurement_to_dict(result.measurement)
+    out["free_names"] = list(result.space.free_names)
+    out["calibrated_dh_table"] = {
+        "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
+        "rows": np.asarray(result.dh_table()).tolist(),
+    }
+    ident = getattr(result, "identifiability", None)
+    if ident is not None:
+        out["identifiability"] = ident.to_dict()
+    extra = _extra_to_dict(result.extra)
+    if extra is not None:
+        out["method_state"] = extra
+    for k, v in info.items():
+        out[k] = v._asdict() if isinstance(v, Metrics) else v
+    return _jsonable(out)
+
+
+def save_result(result: CalibrationResult, path, **info: Any) -> None:
+    """Write ``result`` (and ``info``, see :func:`result_to_dict`) as JSON to ``path``."""
+    text = json.dumps(result_to_dict(result, **info), indent=1, allow_nan=False)
+    pathlib.Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+def load_result_dict(path) -> dict:
+    """The raw JSON object of a result file (checked to be a jaxcal result)."""
+    try:
+        d = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not a JSON file: {e}") from None
+    if not isinstance(d, dict) or not str(d.get("format", "")).startswith("jaxcal-calibration-result/"):
+        raise ValueError(f"{path} is not a jaxcal calibration result (no 'format': {RESULT_FORMAT!r} entry)")
+    return d
+
+
+def _num(v) -> float:
+    if v is None:
+        return math.nan
+    if isinstance(v, str):
+        return float(v)
+    return float(v)
+
+
+def load_result(path) -> CalibrationResult:
+    """Read a result file written by :func:`save_result` (or ``jaxcal calibrate --out``).
+
+    The returned :class:`~jaxcal.CalibrationResult` predicts and evaluates like the original;
+    ``compile_time_s``/``wall_time_s`` are the saved values. The identifiability report is kept
+    as its dict under ``result.identifiability`` (``None`` if absent).
+    """
+    d = load_result_dict(path)
+    robot = robot_from_dict(d["robot"])
+    measurement = measurement_from_dict(d["measurement"])
+    dof = robot.dof
+    names = ParameterSpace.for_robot(robot).names
+    dev = d["deviations"]
+    missing = [n for n in names if n not in dev]
+    if missing:
+        raise ValueError(f"{path}: deviations lack {missing}")
+    deviations = Deviations.unravel(jnp.asarray(np.asarray([dev[n] for n in names], np.float64)), dof)
+    space = ParameterSpace.from_names(dof, d["free_names"])
+    extra, predictor = _extra_from_dict(d.get("method_state"))
+    tm = d.get("train_metrics_mm", {})
+    result = CalibrationResult(
+        method=d["method"],
+        deviations=deviations,
+        x=np.asarray([d["free_parameters"][n] for n in space.free_names], np.float64),
+        space=space,
+        robot=robot,
+        measurement=measurement,
+        history=np.asarray([_num(v) for v in d.get("history_rmse_mm", [])], np.float64),
+        n_iterations=int(d["n_iterations"]),
+        iterations_to_converge=int(d["iterations_to_converge"]),
+        status=Status[str(d["status"]).upper()],
+        train_metrics=Metrics(*(_num(tm.get(f)) for f in Metrics._fields)),
+        wall_time_s=_num(d.get("wall_time_s")),
+        compile_time_s=_num(d.get("compile_time_s")),
+        hyperparameters=dict(d.get("hyperparameters", {})),
+        extra=extra,
+        predictor=predictor,
+    )
+    object.__setattr__(result, "identifiability", d.get("identifiability"))
+    return result
+
+
+# -- sweeps -----------------------------------------------------------------------------------
+
+
+def load_sweep(out_dir, *, partial: bool = False):
+    """Rebuild a :class:`~jaxcal._sweep.SweepResult` from a sweep's ``out_dir``.
+
+    Args:
+        out_dir: the directory passed to ``sweep(..., out_dir=)``.
+        partial: load only the trials finished by every run of an interrupted sweep (default:
+            raise if any chunk is missing; rerun ``sweep`` with the same settings to resume).
+    """
+    from ._sweep import SweepResult, SweepRun, _DataOut, _Split, _Store, _TrialOut, _unflatten
+
+    root = pathlib.Path(out_dir)
+    meta_path = root / "sweep.json"
+    if not meta_path.exists():
+        raise FileNotFoundError(f"{root} holds no sweep (no sweep.json)")
+    st = json.loads(meta_path.read_text())
+    robot = robot_from_dict(st["robot_dict"])
+    measurement = measurement_from_dict(st["measurement_dict"])
+    n, csize = int(st["n_seeds"]), int(st["chunk_size"])
+    store = _Store(root)
+
+    def chunks(unit):
+        out = []
+        for a in range(0, n, csize):
+            b = min(a + csize, n)
+            p = store.path(unit, a, b)
+            if not p.exists():
+                break
+            with np.load(p, allow_pickle=False) as f:
+                meta = json.loads(str(f["__meta__"]))
+                out.append(({k: np.array(f[k]) for k in f.files if k != "__meta__"}, meta, b - a))
+        return out
+
+    units = {"_data": chunks("_data")}
+    for r in st["runs"]:
+        units[r["unit"]] = chunks(r["unit"])
+    done = min(sum(c[2] for c in ch) for ch in units.values())
+    if done < n and not partial:
+        raise ValueError(f"{root}: the sweep is incomplete ({done} of {n} trials in every run); rerun the sweep "
+                         "with the same settings to resume it, or pass partial=True")
+    if done == 0:
+        raise ValueError(f"{root}: no finished trials")
+
+    def merge(unit, axis):
+        ch = units[unit]
+        merged, times, k = {}, [], 0
+        for arrays, meta, m in ch:
+            if k >= done:
+                break
+            take = min(m, done - k)
+            for key, v in arrays.items():
+                merged.setdefault(key, []).append(v[:, :take] if axis == 1 else v[:take])
+            times.append(np.full(take, meta["time_per_trial_s"]))
+            k += take
+        return ({key: np.concatenate(v, axis=axis) for key, v in merged.items()}, np.concatenate(times),
+                float(ch[0][1].get("compile_time_s", 0.0)))
+
+    dtype = np.float64 if st["dtype"] == "float64" else np.float32
+    dof = robot.dof
+    has_truth = st["source"]["kind"] in ("simulated", "experiment")
+    met = Metrics(0.0, 0.0, 0.0)
+    dlike = _DataOut(met, met, Deviations.zeros(dof) if has_truth else None, 0.0,
+                     _Split(0.0, 0.0, 0.0, 0.0, None), 0)
+    dmerged, _, _ = merge("_data", 0)
+    dout = _unflatten(dlike, dmerged)
+    tlike = _TrialOut(met, met, 0, 0, 0, 0.0, 0.0, 0.0)
+    runs = {}
+    for r in st["runs"]:
+        axis = 1 if r["grid_index"] is not None else 0
+        merged, times, ct = merge(r["unit"], axis)
+        if axis == 1:
+            merged = {k: v[r["grid_index"]] for k, v in merged.items()}
+        out = _unflatten(tlike, merged)
+        runs[r["label"]] = SweepRun(
+            label=r["label"], method=r["method"], hyperparameters=r["hyperparameters"], grid_point=r["grid_point"],
+            test=Metrics(*out.test), train=Metrics(*out.train), n_iterations=out.n_iterations,
+            iterations_to_converge=out.iterations_to_converge, status=out.status, time_per_trial_s=times,
+            compile_time_s=ct, x=out.x, history=out.history, test_errors=out.test_errors,
+        )
+    space = ParameterSpace.from_names(dof, st["space"])
+    start = Deviations.unravel(jnp.asarray(np.asarray(st["start_values"], dtype)), dof)
+    noise = st["noise_std"]
+    floor = None if noise is None else statistical_floor(float(noise), space.n_free, int(st["n_train"]),
+                                                         measurement.size)
+    settings = dict(st)
+    settings["n_seeds"] = done
+    return SweepResult(
+        runs=runs, n_seeds=done, before=Metrics(*dout.before), oracle=Metrics(*dout.oracle), floor=floor,
+        before_errors=dout.before_errors, space=space, robot=robot, measurement=measurement, start=start,
+        true_deviations=dout.truth, settings=settings,
+    )
+
+
+def _atomic_write_text(path, text: str) -> None:
+    path = pathlib.Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)

@@ -1,0 +1,1032 @@
+"""Seed sweeps: many seeded trials per method, each chunk of trials one ``jax.vmap``-ed function.
+
+A *trial* is a pure function of one ``jax.random`` key: ``key_i = fold_in(key, i)`` is split into
+a data key (simulate the experiment, or split given data) and a method key; the trial calibrates
+on the training split and evaluates on the held-out split. Every method sees the same data in
+trial ``i`` (paired comparisons).
+
+A sweep is a few compiled units, each ``jit(vmap(trial))`` over a chunk of trials:
+
+1. the *data* unit: simulate (or split) the chunk's data and compute the before-calibration
+   (nominal) and oracle (true model) test metrics — once per sweep, not once per method
+   (simulation takes ~10 s to compile on CPU, mostly its random-number code);
+2. one unit per method (or per vmapped hyperparameter grid): calibrate the chunk's training
+   splits and evaluate on their test splits.
+
+With several devices the trial axis of every input is sharded over a one-axis mesh and XLA
+partitions the vmapped unit along it (plain ``jit`` with ``NamedSharding`` inputs). Not
+``jax.shard_map`` (nor ``pmap``): inside it, traced values carry a manual-axis sharding in their
+types, and lineax's structure checks (``ShapeDtypeStruct`` equality) then reject optimistix's
+linear solves ("Vector and operator structures do not match", lineax issue #185).
+
+Entry point: :func:`sweep` → :class:`SweepResult`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import itertools
+import json
+import math
+import os
+import pathlib
+import sys
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+from jaxtyping import Array
+
+from . import _simulate as _simulate_mod
+from ._calibrate import Calibrator, resolve_space
+from ._dataset import Dataset
+from ._io import measurement_to_dict, robot_to_dict
+from ._measurement import CableLength, MeasurementModel
+from ._metrics import Floor, Metrics, compute_metrics, statistical_floor
+from ._params import Deviations, ParameterSpace
+from ._precision import cast_floating, dtype_scope, warn_if_float32
+from ._problem import Problem
+from ._robot import DHRobot
+from ._simulate import DEFAULT_NOISE_STD, Experiment, default_anchor, simulate_experiment
+from .methods import METHODS, Method, make_method
+
+__all__ = [
+    "sweep",
+    "SweepResult",
+    "SweepRun",
+    "PAPER_METHODS",
+    "trial_keys",
+    "DEFAULT_CHUNK_PER_DEVICE",
+]
+
+#: The paper's compared methods M1–M8 (Table II) as registry names, in the paper's order.
+PAPER_METHODS: tuple[str, ...] = ("ga", "ekf", "bso", "lm", "iwoa", "rbfnn", "adam", "adamodw")
+
+#: Default maximum number of trials per device in one vmapped chunk (bounds memory: the RBF
+#: network and the population methods hold a few MB per trial at 2 000 samples).
+DEFAULT_CHUNK_PER_DEVICE = 16
+
+_FORMAT_VERSION = 1
+
+#: fields of the simulation's static configuration, in order (``jaxcal._simulate._Config``).
+_CONFIG_FIELDS = ("n_samples", "test_fraction", "angle_std_deg", "length_std_mm", "anchor_std_mm", "tool_std_mm",
+                  "cable_offset_std_mm", "coverage", "wire_range", "min_height_mm", "oversample")
+
+
+# ---------------------------------------------------------------------------------------------
+# keys
+
+
+def _as_key(key) -> Array:
+    """A typed ``jax.random`` key from a typed key, a legacy ``uint32[2]`` key or an int seed."""
+    if isinstance(key, (int, np.integer)):
+        return jax.random.key(int(key))
+    key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return key
+    return jax.random.wrap_key_data(key)
+
+
+def trial_keys(key, start: int, stop: int) -> Array:
+    """Keys of trials ``start … stop−1``: ``fold_in(key, i)`` (trial ``i``'s key does not depend
+    on how many trials the sweep has or how they are chunked)."""
+    key = _as_key(key)
+    return jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(start, stop, dtype=jnp.uint32))
+
+
+# ---------------------------------------------------------------------------------------------
+# data sources (pure in the data key)
+
+
+class _Split(NamedTuple):
+    q_train: Array
+    y_train: Array
+    q_test: Array
+    y_test: Array
+    truth: Deviations | None
+
+
+class _Simulated(eqx.Module):
+    """Simulate the paper's experiment from the data key (:func:`simulate_experiment`)."""
+
+    robot: DHRobot
+    measurement: MeasurementModel
+    true_deviations: Deviations | None
+    options: tuple = eqx.field(static=True)
+
+    def __call__(self, key) -> _Split:
+        # simulate_experiment's core (the public wrapper reads the robot's dimensions with NumPy,
+        # which a traced robot cannot provide); identical data for the same key and options.
+        o = dict(self.options)
+        cfg = _simulate_mod._Config(*(o[f] for f in _CONFIG_FIELDS))
+        ex = _simulate_mod._simulate(key, self.robot, self.measurement, self.true_deviations, o["noise_std"], cfg)
+        return _Split(ex.train.q, ex.train.y, ex.test.q, ex.test.y, ex.true_deviations)
+
+
+class _RandomSplit(eqx.Module):
+    """Given data, split at random from the data key (a different split per trial)."""
+
+    q: Array
+    y: Array
+    n_test: int = eqx.field(static=True)
+
+    def __call__(self, key) -> _Split:
+        perm = jax.random.permutation(key, self.q.shape[0])
+        tr, te = perm[self.n_test:], perm[: self.n_test]
+        return _Split(self.q[tr], self.y[tr], self.q[te], self.y[te], None)
+
+
+class _FixedSplit(eqx.Module):
+    """Given train and test data, the same in every trial (only the method key varies)."""
+
+    q_train: Array
+    y_train: Array
+    q_test: Array
+    y_test: Array
+    truth: Deviations | None
+
+    def __call__(self, key) -> _Split:
+        del key
+        return _Split(self.q_train, self.y_train, self.q_test, self.y_test, self.truth)
+
+
+# ---------------------------------------------------------------------------------------------
+# the pure per-trial functions
+
+
+class _DataOut(NamedTuple):
+    before: Metrics
+    oracle: Metrics
+    truth: Any
+    before_errors: Array
+    split: _Split  # the trial's data (input of every method's trial)
+    k_method: Array  # uint32 key data of the method key
+
+
+class _TrialOut(NamedTuple):
+    test: Metrics
+    train: Metrics
+    n_iterations: Array
+    iterations_to_converge: Array
+    status: Array
+    x: Array
+    history: Array
+    test_errors: Array
+
+
+class _DataTrial(eqx.Module):
+    """Trial data from the trial key, and the before-calibration (nominal) and oracle (true
+    model) metrics on its test split. Runs once per sweep; every method reuses its output."""
+
+    source: eqx.Module
+    robot: DHRobot
+    measurement: MeasurementModel
+    start: Deviations
+    space: ParameterSpace = eqx.field(static=True)
+    keep_errors: bool = eqx.field(static=True)
+
+    def __call__(self, key, hyper=None) -> _DataOut:
+        del hyper
+        k_data, k_method = jax.random.split(key)
+        s = self.source(k_data)
+        test = Problem(self.robot, self.measurement, s.q_test, s.y_test, self.space, self.start)
+        e0 = test.sample_errors(test.x0())
+        if s.truth is None:
+            nan = jnp.full((), jnp.nan, e0.dtype)
+            oracle, truth = Metrics(nan, nan, nan), None
+        else:
+            r = self.measurement.residual(self.robot, s.truth, s.q_test, s.y_test)
+            oracle, truth = compute_metrics(self.measurement.sample_error(r)), s.truth
+        return _DataOut(compute_metrics(e0), oracle, truth, e0 if self.keep_errors else jnp.zeros((0,), e0.dtype),
+                        s._replace(truth=None), jax.random.key_data(k_method))
+
+
+class _MethodTrial(eqx.Module):
+    """Calibrate one trial's training split with ``method`` and evaluate on its test split.
+
+    With ``method_name`` set (a traced hyperparameter grid) the method is built inside the trace
+    from ``static_hyper`` plus the traced values passed to ``__call__``.
+    """
+
+    robot: DHRobot
+    measurement: MeasurementModel
+    start: Deviations
+    method: Method | None
+    space: ParameterSpace = eqx.field(static=True)
+    method_name: str | None = eqx.field(static=True, default=None)
+    static_hyper: tuple = eqx.field(static=True, default=())
+    keep_errors: bool = eqx.field(static=True, default=True)
+    keep_history: bool = eqx.field(static=True, default=True)
+
+    def __call__(self, split: _Split, k_method, hyper=None) -> _TrialOut:
+        if self.method_name is None:
+            method = self.method
+        else:
+            with warnings.catch_warnings():  # traced values in the method's report-only settings
+                warnings.filterwarnings("ignore", "A JAX array is being set as static")
+                method = make_method(self.method_name, **dict(self.static_hyper), **(hyper or {}))
+        cal = Calibrator(self.robot, self.measurement, method, self.start, self.space)
+        out = cal(split.q_train, split.y_train, jax.random.wrap_key_data(k_method))
+        e = method.sample_errors(cal.problem(split.q_test, split.y_test), out.x, out.extra)
+        hist = out.history if self.keep_history else out.history[-1:]
+        return _TrialOut(
+            compute_metrics(e), out.train_metrics, out.n_iterations, out.iterations_to_converge,
+            out.status, out.x, hist, e if self.keep_errors else jnp.zeros((0,), e.dtype),
+        )
+
+
+def _batched(static, dyn, inputs, hyper):
+    """``vmap`` of the trial over ``inputs`` (a tuple of trial-batched pytrees) and, with a grid,
+    over the hyperparameter points first."""
+    trial = eqx.combine(dyn, static)
+    over_trials = lambda h: jax.vmap(lambda *a: trial(*a, h))(*inputs)  # noqa: E731
+    if hyper is None:
+        return over_trials(None)
+    return jax.vmap(over_trials)(hyper)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def _run_chunk(static, mesh, grid: bool, dyn, inputs, hyper):
+    """One chunk of trials, jitted (module level so compilations are cached by the static part).
+
+    With a ``mesh`` the trial axis of ``inputs`` arrives sharded over the devices and everything
+    else replicated; the vmapped trial is partitioned along that axis by XLA (GSPMD), and the
+    outputs are constrained to the same sharding.
+    """
+    out = _batched(static, dyn, inputs, hyper)
+    if mesh is not None:
+        spec = P(None, "trials") if grid else P("trials")
+        out = jax.lax.with_sharding_constraint(out, NamedSharding(mesh, spec))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# results
+
+
+@dataclasses.dataclass(eq=False)
+class SweepRun:
+    """Per-trial results of one method (or one grid point) in a sweep. Arrays have a leading
+    ``[n_seeds]`` axis (trial ``i`` = seed ``i``).
+
+    Attributes:
+        label: display name (``"adamodw"``, ``"adamodw[b3=0.99, weight_decay=0.001]"``, ...).
+        method: registry name (or the label of a user's method).
+        hyperparameters: the method's settings.
+        grid_point: the grid values of this run, or ``None``.
+        test: RMSE/MEAN/MAX (mm) on each trial's held-out split, arrays ``[n]``.
+        train: RMSE/MEAN/MAX (mm) on the training split.
+        n_iterations, iterations_to_converge, status: ``[n]`` ints (:class:`~jaxcal.Status` codes).
+        time_per_trial_s: ``[n]`` wall time of the trial's chunk divided by the chunk size
+            (compilation excluded; under ``vmap`` a chunk of LM runs lasts until its slowest
+            member converges).
+        compile_time_s: compilation time of the chunk function (s; 0 when loaded from disk).
+        x: ``[n, p]`` calibrated free parameters (rad, mm; ``SweepResult.space`` order).
+        history: ``[n, T+1]`` training RMSE per iteration (``[n, 1]``: final only, if not kept).
+        test_errors: ``[n, n_test]`` per-sample test errors (mm; signed for wire lengths), or
+            an empty ``[n, 0]`` array if not kept.
+    """
+
+    label: str
+    method: str
+    hyperparameters: dict
+    grid_point: dict | None
+    test: Metrics
+    train: Metrics
+    n_iterations: np.ndarray
+    iterations_to_converge: np.ndarray
+    status: np.ndarray
+    time_per_trial_s: np.ndarray
+    compile_time_s: float
+    x: np.ndarray
+    history: np.ndarray
+    test_errors: np.ndarray
+
+    @property
+    def n_seeds(self) -> int:
+        return int(self.status.shape[0])
+
+    def summary(self) -> dict:
+        """Mean and standard deviation over seeds (``ddof=1``) of every scalar per-trial
+        quantity, plus status counts: ``{"test_rmse": (mean, std), ..., "status": {...}}``."""
+        from ._result import Status
+
+        out = {}
+        for split, m in (("test", self.test), ("train", self.train)):
+            for f in m._fields:
+                out[f"{split}_{f}"] = _mean_std(getattr(m, f))
+        for f in ("n_iterations", "iterations_to_converge", "time_per_trial_s"):
+            out[f] = _mean_std(getattr(self, f))
+        out["time_to_converge_s"] = _mean_std(self.time_to_converge_s)
+        codes, counts = np.unique(self.status, return_counts=True)
+        out["status"] = {Status(int(c)).name.lower(): int(k) for c, k in zip(codes, counts)}
+        return out
+
+    @property
+    def time_to_converge_s(self) -> np.ndarray:
+        """Estimated time to converge in RMSE: ``time_per_trial_s × iterations_to_converge /
+        n_iterations`` (the paper's Table IV "Time (RMSE)"), ``[n]``."""
+        its = np.maximum(self.n_iterations, 1)
+        return self.time_per_trial_s * np.minimum(self.iterations_to_converge, its) / its
+
+
+def _mean_std(a) -> tuple[float, float]:
+    a = np.asarray(a, dtype=np.float64)
+    if a.size == 0:
+        return (math.nan, math.nan)
+    return float(np.mean(a)), float(np.std(a, ddof=1)) if a.size > 1 else 0.0
+
+
+@dataclasses.dataclass(eq=False)
+class SweepResult:
+    """Result of :func:`sweep`.
+
+    Attributes:
+        runs: ``{label: SweepRun}`` in the order the methods (then grid points) were given.
+        n_seeds: number of trials.
+        before: RMSE/MEAN/MAX (mm) of the nominal model ("BC", before calibration) on each
+            trial's test split, arrays ``[n]``.
+        oracle: the same for the true model (simulation only; NaN for given data): the noise
+            level actually present in each test split, the best any method can do there.
+        floor: theoretical statistical floor ``Floor(train, test)`` (mm) for σ = ``noise_std``,
+            ``p = space.n_free`` and the training size (:func:`~jaxcal.statistical_floor`), or
+            ``None`` when the noise level is unknown.
+        before_errors: ``[n, n_test]`` per-sample test errors of the nominal model (mm).
+        space: the free parameters (the same for every trial and method).
+        robot, measurement, start: the nominal models and the start deviations.
+        true_deviations: the true deviations per trial (a :class:`Deviations` with a leading
+            ``[n]`` axis; simulation only, else ``None``).
+        settings: the sweep's settings (JSON-friendly).
+    """
+
+    runs: dict[str, SweepRun]
+    n_seeds: int
+    before: Metrics
+    oracle: Metrics
+    floor: Floor | None
+    before_errors: np.ndarray
+    space: ParameterSpace
+    robot: DHRobot
+    measurement: MeasurementModel
+    start: Deviations
+    true_deviations: Deviations | None
+    settings: dict
+
+    def __getitem__(self, label: str) -> SweepRun:
+        try:
+            return self.runs[label]
+        except KeyError:
+            raise KeyError(f"no run {label!r} in this sweep; runs: {list(self.runs)}") from None
+
+    def __iter__(self):
+        return iter(self.runs.values())
+
+    @property
+    def labels(self) -> list[str]:
+        return list(self.runs)
+
+    def deviations(self, label: str, trial: int = 0) -> Deviations:
+        """Calibrated deviations of run ``label`` in trial ``trial`` (non-free entries from
+        ``start``)."""
+        return self.space.from_vector(jnp.asarray(self[label].x[trial]), self.start)
+
+    def true_deviation(self, trial: int = 0) -> Deviations | None:
+        """The true deviations of trial ``trial`` (simulation only)."""
+        if self.true_deviations is None:
+            return None
+        return jax.tree.map(lambda a: jnp.asarray(a)[trial], self.true_deviations)
+
+    def summary(self) -> dict:
+        """``{"before": ..., "oracle": ..., "floor": ..., "runs": {label: SweepRun.summary()}}``."""
+        m = lambda met: {f: _mean_std(getattr(met, f)) for f in met._fields}  # noqa: E731
+        return {
+            "n_seeds": self.n_seeds,
+            "n_free": self.space.n_free,
+            "before": m(self.before),
+            "oracle": m(self.oracle),
+            "floor": None if self.floor is None else self.floor._asdict(),
+            "runs": {k: r.summary() | {"hyperparameters": r.hyperparameters, "grid_point": r.grid_point}
+                     for k, r in self.runs.items()},
+        }
+
+    def __repr__(self) -> str:
+        parts = ", ".join(f"{k}: {np.mean(r.test.rmse):.4f}" for k, r in self.runs.items())
+        return f"SweepResult(n_seeds={self.n_seeds}, p={self.space.n_free}, mean test RMSE (mm) {{{parts}}})"
+
+
+# ---------------------------------------------------------------------------------------------
+# the sweep
+
+
+def _progress(enabled: bool, msg: str) -> None:
+    if enabled:
+        print(f"[jaxcal.sweep] {msg}", file=sys.stderr, flush=True)
+
+
+def _label_value(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _grid_points(grid: Mapping[str, Sequence]) -> list[dict]:
+    names = list(grid)
+    for n in names:
+        if isinstance(grid[n], (str, bytes)) or not isinstance(grid[n], Sequence) or len(grid[n]) == 0:
+            raise ValueError(f"grid values for {n!r} must be a non-empty list, got {grid[n]!r}")
+    return [dict(zip(names, combo)) for combo in itertools.product(*(list(grid[n]) for n in names))]
+
+
+def _is_traceable(values) -> bool:
+    """A grid axis whose values are numbers with at least one float is vmapped over (traced);
+    others (integers such as ``steps``, strings) change shapes or code and are compiled per value."""
+    nums = all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in values)
+    return nums and any(isinstance(v, (float, np.floating)) for v in values)
+
+
+@dataclasses.dataclass
+class _RunSpec:
+    """One compiled unit: a method (``points`` None) or a method's grid points."""
+
+    name: str  # registry name or user label
+    method: Method | None  # plain run
+    labels: list[str]
+    hyper_reports: list[dict]
+    points: list[dict] | None = None
+    traced_keys: tuple[str, ...] = ()
+    static_hyper: dict = dataclasses.field(default_factory=dict)
+    fingerprint_extra: str = ""
+
+
+def _method_specs(methods, hyperparameters, grid) -> list[_RunSpec]:
+    import optax
+
+    hyperparameters = dict(hyperparameters or {})
+    grid = dict(grid or {})
+    if isinstance(methods, (str, Method, optax.GradientTransformation)):
+        methods = [methods]
+    items: list[tuple[str | None, Any]]
+    if isinstance(methods, Mapping):
+        items = list(methods.items())
+    else:
+        items = [(None, m) for m in methods]
+    specs: list[_RunSpec] = []
+    for label, m in items:
+        if isinstance(m, str) and m.lower() in grid:
+            continue  # run as a grid below
+        hyper = hyperparameters.get(m, {}) if isinstance(m, str) else {}
+        meth = make_method(m, **hyper)
+        lab = label or (m.lower() if isinstance(m, str) else meth.label())
+        specs.append(_RunSpec(m.lower() if isinstance(m, str) else lab, meth, [lab], [meth.hyperparameters()],
+                              fingerprint_extra=repr(sorted(hyper.items()))))
+    for name, g in grid.items():
+        if not isinstance(name, str) or name.lower() not in METHODS:
+            raise ValueError(f"grid keys must be registered method names, got {name!r}; available: {sorted(METHODS)}")
+        name = name.lower()
+        if not isinstance(g, Mapping) or not g:
+            raise ValueError(f"grid[{name!r}] must be a non-empty mapping hyperparameter -> list of values")
+        base = dict(hyperparameters.get(name, {}))
+        points = _grid_points(g)
+        reports, labels = [], []
+        for pt in points:
+            meth = make_method(name, **(base | pt))  # validates every point eagerly
+            reports.append(meth.hyperparameters())
+            labels.append(f"{name}[" + ", ".join(f"{k}={_label_value(v)}" for k, v in pt.items()) + "]")
+        traced = tuple(k for k in g if _is_traceable(list(g[k])))
+        static_keys = [k for k in g if k not in traced]
+        # group the points by their static values: one compilation per group, traced axes vmapped
+        groups: dict[tuple, list[int]] = {}
+        for i, pt in enumerate(points):
+            groups.setdefault(tuple((k, pt[k]) for k in static_keys), []).append(i)
+        for stat, idx in groups.items():
+            specs.append(_RunSpec(
+                name, None, [labels[i] for i in idx], [reports[i] for i in idx],
+                points=[points[i] for i in idx], traced_keys=traced, static_hyper=base | dict(stat),
+                fingerprint_extra=repr(sorted((base | dict(stat)).items())),
+            ))
+    seen = set()
+    for s in specs:
+        for lab in s.labels:
+            if lab in seen:
+                raise ValueError(f"two runs are labelled {lab!r}; pass methods as a dict {{label: method}}")
+            seen.add(lab)
+    if not specs:
+        raise ValueError("no methods to run")
+    return specs
+
+
+def _resolve_devices(devices) -> list:
+    if devices is None:
+        devs = jax.devices()
+    elif isinstance(devices, int):
+        devs = jax.devices()[:devices]
+        if len(devs) < devices:
+            raise ValueError(f"asked for {devices} devices, only {len(jax.devices())} present")
+    else:
+        devs = list(devices)
+    if not devs:
+        raise ValueError("no devices")
+    return devs
+
+
+def _chunking(n: int, chunk_size: int | None, n_dev: int) -> tuple[int, int]:
+    """``(per_device, per_chunk)``: trials per device in one vmapped call, and per chunk.
+
+    The per-device batch is balanced (``n`` trials with a cap of 16 run as 2 × 10, not 16 + 4).
+    With an explicit ``chunk_size`` it does not depend on the device count, so trial ``i`` is
+    computed in the same batch of trials on any number of devices (bitwise-equal results); by
+    default the cap is ``min(16, ceil(n / n_dev))`` so that every device gets work.
+    """
+    if chunk_size is None:
+        cap = min(DEFAULT_CHUNK_PER_DEVICE, math.ceil(n / n_dev))
+    else:
+        cap = int(chunk_size)
+        if cap < 1:
+            raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
+    per_device = math.ceil(n / math.ceil(n / cap))
+    return per_device, per_device * n_dev
+
+
+def _robot_fingerprint(robot: DHRobot) -> dict:
+    return {
+        "name": robot.name, "convention": robot.convention, "beta_joints": list(robot.beta_joints),
+        **{f: np.asarray(getattr(robot, f), np.float64).round(12).tolist()
+           for f in ("alpha", "a", "d", "theta", "beta", "q_min", "q_max", "tool")},
+    }
+
+
+def _array_digest(*arrays) -> str:
+    h = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(np.asarray(a, np.float64))
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _fingerprint(obj) -> str:
+    return hashlib.sha1(json.dumps(obj, sort_keys=True, default=repr).encode()).hexdigest()[:16]
+
+
+class _Store:
+    """Chunk files of a sweep in ``out_dir`` (written as each chunk finishes; read to resume)."""
+
+    def __init__(self, out_dir):
+        self.root = None if out_dir is None else pathlib.Path(out_dir)
+        if self.root is not None:
+            self.root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, unit: str, start: int, stop: int) -> pathlib.Path | None:
+        if self.root is None:
+            return None
+        safe = "".join(c if c.isalnum() or c in "-_.=," else "_" for c in unit)
+        return self.root / "chunks" / safe / f"trials_{start:06d}-{stop:06d}.npz"
+
+    def load(self, unit, start, stop, fingerprint):
+        p = self.path(unit, start, stop)
+        if p is None or not p.exists():
+            return None
+        with np.load(p, allow_pickle=False) as f:
+            meta = json.loads(str(f["__meta__"]))
+            if meta.get("fingerprint") != fingerprint:
+                raise ValueError(
+                    f"{p} was written by a sweep with other settings (fingerprint {meta.get('fingerprint')} "
+                    f"!= {fingerprint}); use another out_dir or delete it"
+                )
+            arrays = {k: np.array(f[k]) for k in f.files if k != "__meta__"}
+        return arrays, meta
+
+    def save(self, unit, start, stop, fingerprint, arrays: dict, meta: dict) -> None:
+        p = self.path(unit, start, stop)
+        if p is None or jax.process_index() != 0:
+            return
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_name(p.stem + ".tmp.npz")
+        np.savez(tmp, __meta__=np.asarray(json.dumps(meta | {"fingerprint": fingerprint})), **arrays)
+        os.replace(tmp, p)  # atomic: an interrupted write never leaves a half file
+
+
+def _flatten(tree) -> dict[str, np.ndarray]:
+    leaves, _ = jax.tree_util.tree_flatten_with_path(tree)
+    return {jax.tree_util.keystr(path): np.asarray(leaf) for path, leaf in leaves}
+
+
+def _unflatten(like, arrays: dict[str, np.ndarray]):
+    leaves, treedef = jax.tree_util.tree_flatten_with_path(like)
+    return jax.tree_util.tree_unflatten(treedef, [arrays[jax.tree_util.keystr(p)] for p, _ in leaves])
+
+
+def _to_host(tree):
+    def get(a):
+        if isinstance(a, jax.Array) and not a.is_fully_addressable:
+            from jax.experimental import multihost_utils
+
+            return np.asarray(multihost_utils.process_allgather(a, tiled=True))
+        return np.asarray(a)
+
+    return jax.tree.map(get, tree)
+
+
+class _Runner:
+    """Compiles and runs the chunks of one unit (data pass, method, or grid group)."""
+
+    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool):
+        self.dyn, self.static = eqx.partition(trial, eqx.is_array)
+        self.dyn = cast_floating(self.dyn, dtype)
+        self.mesh, self.dtype, self.grid = mesh, dtype, grid
+        self.compiled = None
+        self.compile_time_s = 0.0
+
+    def _place(self, inputs, hyper):
+        if self.mesh is None:
+            return inputs, hyper
+        rep = NamedSharding(self.mesh, P())
+        inputs = jax.device_put(inputs, NamedSharding(self.mesh, P("trials")))
+        return inputs, jax.device_put(hyper, rep)
+
+    def __call__(self, inputs, hyper):
+        with dtype_scope(self.dtype):
+            inputs, hyper = self._place(inputs, hyper)
+            if self.compiled is None:
+                t0 = time.perf_counter()
+                dyn = self.dyn if self.mesh is None else jax.device_put(self.dyn, NamedSharding(self.mesh, P()))
+                self.dyn = dyn
+                self.compiled = _run_chunk.lower(self.static, self.mesh, self.grid, dyn, inputs, hyper).compile()
+                self.compile_time_s = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            out = jax.block_until_ready(self.compiled(self.dyn, inputs, hyper))
+            wall = time.perf_counter() - t0
+        return _to_host(out), wall
+
+
+def sweep(
+    methods,
+    n_seeds: int = 20,
+    *,
+    seed: int = 0,
+    key=None,
+    robot: DHRobot | None = None,
+    measurement: MeasurementModel | None = None,
+    n_samples: int = 2000,
+    noise_std: float | None = DEFAULT_NOISE_STD,
+    test_fraction: float = 0.2,
+    experiment: Mapping[str, Any] | None = None,
+    data=None,
+    space: ParameterSpace | str | None = None,
+    start: Deviations | None = None,
+    hyperparameters: Mapping[str, Mapping[str, Any]] | None = None,
+    grid: Mapping[str, Mapping[str, Sequence]] | None = None,
+    chunk_size: int | None = None,
+    devices=None,
+    out_dir=None,
+    progress: bool = True,
+    keep_errors: bool = True,
+    keep_history: bool = True,
+) -> SweepResult:
+    """Run ``n_seeds`` seeded trials of each method; each chunk of trials is one jitted ``vmap``.
+
+    Trial ``i`` uses ``key_i = jax.random.fold_in(key, i)`` split into a data key and a method
+    key. With simulation (the default) the data key draws a whole experiment
+    (:func:`~jaxcal.simulate_experiment`: true deviations, poses, noise, split), so the spread
+    over seeds covers robots, poses and noise, as a repeated experiment would; every method sees
+    the same data in trial ``i``.
+
+    Args:
+        methods: a registry name, a list of names / :class:`~jaxcal.methods.Method` objects /
+            optax transformations, or a dict ``{label: method}``.
+        n_seeds: number of trials.
+        seed, key: base key (``key`` wins; an int, a typed key or a legacy ``uint32[2]`` key).
+        robot, measurement: nominal models (default: HSR-JR680, draw-wire at
+            :func:`~jaxcal._simulate.default_anchor`).
+        n_samples, noise_std, test_fraction: simulation settings (σ in mm). With given
+            ``data``, ``noise_std`` (or ``None``) only sets the statistical-floor row.
+        experiment: other :func:`~jaxcal.simulate_experiment` keywords (``coverage``,
+            ``angle_std_deg``, ``anchor_std_mm``, ``true_deviations``, ...).
+        data: instead of simulating, a :class:`~jaxcal.Dataset` (split at random per trial with
+            ``test_fraction``), a ``(train, test)`` pair of Datasets, or an
+            :class:`~jaxcal.Experiment` (fixed split; the truth gives the oracle row).
+        space: free parameters, fixed for the whole sweep. Default: the identifiable subset at
+            trial 0's training poses (:func:`jaxcal.identifiability`); ``"all"`` or a
+            :class:`~jaxcal.ParameterSpace` as in :func:`~jaxcal.calibrate`.
+        start: starting deviations (default nominal).
+        hyperparameters: ``{method name: {setting: value}}``.
+        grid: ``{method name: {setting: [values, ...]}}``: run every combination of the values
+            (the cartesian product), each as its own run labelled ``name[k=v, ...]``. Axes with
+            float values are vmapped over inside one compilation; integer or string axes compile
+            once per value.
+        chunk_size: maximum trials per device in one vmapped call (default: up to 16, spread
+            evenly over the devices). Batches are balanced (20 trials with a cap of 16 run as
+            2 × 10); a chunk is one batch per device, and the last chunk is padded (padded
+            trials are computed and dropped). Vectorised code rounds differently for different
+            batch sizes (~1e-13 relative; an LM stopping test can then flip by one iteration),
+            so pass ``chunk_size`` explicitly for results that are bitwise independent of the
+            number of devices.
+        devices: devices to spread each chunk over (default: all of ``jax.devices()``), an int
+            (the first ``n``), or a list. With more than one, the chunk's keys are sharded over
+            the devices (``NamedSharding(Mesh(devices, ("trials",)), P("trials"))``), everything
+            else replicated, and XLA partitions the vmapped trial along the trial axis: each
+            device computes its own batch, with the same results as one device computing that
+            batch (see ``chunk_size``).
+        out_dir: directory to write each finished chunk to (``chunks/<run>/trials_a-b.npz``)
+            and the settings (``sweep.json``); a rerun with the same settings loads finished
+            chunks instead of recomputing them (resume after an interruption);
+            :func:`jaxcal._io.load_sweep` reads the directory back.
+        progress: one line per chunk on stderr.
+        keep_errors: keep per-sample test errors (``[n, n_test]`` per run; Fig. 4).
+        keep_history: keep per-iteration training RMSE (``[n, T+1]`` per run; Fig. 3).
+
+    Returns:
+        :class:`SweepResult`.
+    """
+    if isinstance(n_seeds, bool) or not isinstance(n_seeds, (int, np.integer)) or n_seeds < 1:
+        raise ValueError(f"n_seeds must be a positive integer, got {n_seeds!r}")
+    n_seeds = int(n_seeds)
+    base_key = _as_key(seed if key is None else key)
+    dtype = jnp.result_type(float)
+    warn_if_float32(dtype, "sweep")
+    specs = _method_specs(methods, hyperparameters, grid)
+    source, robot, measurement, source_settings = _make_source(
+        robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype)
+    start = Deviations.zeros(robot.dof, dtype) if start is None else start.astype(dtype)
+    devs = _resolve_devices(devices)
+    mesh = Mesh(np.asarray(devs), ("trials",)) if len(devs) > 1 else None
+    per_device, csize = _chunking(n_seeds, chunk_size, len(devs))
+    n_chunks = math.ceil(n_seeds / csize)
+    store = _Store(out_dir)
+    settings = {
+        "format_version": _FORMAT_VERSION,
+        "n_seeds": n_seeds,
+        "key_data": np.asarray(jax.random.key_data(base_key)).tolist(),
+        "dtype": str(jnp.dtype(dtype)),
+        "chunk_size": csize,
+        "per_device_batch": per_device,
+        "n_devices": len(devs),
+        "noise_std": None if noise_std is None else float(noise_std),
+        "source": source_settings,
+        "robot": _robot_fingerprint(robot),
+        "robot_dict": robot_to_dict(robot),
+        "measurement": {"kind": measurement.kind, "repr": repr(jax.tree.map(np.asarray, measurement))},
+        "measurement_dict": measurement_to_dict(measurement),
+        "start": _array_digest(start.ravel()),
+        "start_values": np.asarray(start.ravel(), np.float64).tolist(),
+        "keep_errors": keep_errors,
+        "keep_history": keep_history,
+    }
+    common = {k: settings[k] for k in ("format_version", "key_data", "dtype", "chunk_size", "source", "robot",
+                                       "measurement", "start", "keep_errors", "keep_history")}
+
+    def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of):
+        """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
+        per trial ``[n]``, the compile time and the per-chunk arrays."""
+        runner = _Runner(trial, mesh, dtype, hyper is not None)
+        shown = "data" if unit == "_data" else unit
+        chunks, walls = [], []
+        for c in range(n_chunks):
+            a, b = c * csize, min((c + 1) * csize, n_seeds)
+            loaded = store.load(unit, a, b, fp)
+            if loaded is not None:
+                arrays, meta = loaded
+                chunks.append(arrays)
+                walls.append(meta["time_per_trial_s"])
+                if c == 0:
+                    runner.compile_time_s = meta.get("compile_time_s", 0.0)
+                _progress(progress, f"{shown}: chunk {c + 1}/{n_chunks} (trials {a}–{b - 1}) loaded from {store.root}")
+                continue
+            fresh = runner.compiled is None
+            out, wall = runner(inputs_of(c, a, b), hyper)
+            arrays = {k: (v[:, : b - a] if hyper is not None else v[: b - a]) for k, v in _flatten(out).items()}
+            per = wall / (csize * (n_points or 1))
+            store.save(unit, a, b, fp, arrays, {"time_per_trial_s": per, "compile_time_s": runner.compile_time_s})
+            chunks.append(arrays)
+            walls.append(per)
+            comp = f", compiled in {runner.compile_time_s:.1f} s" if fresh else ""
+            _progress(progress, f"{shown}: chunk {c + 1}/{n_chunks} (trials {a}–{b - 1}) {wall:.2f} s "
+                      f"({per * 1e3:.1f} ms/trial){comp}")
+        axis = 1 if hyper is not None else 0
+        merged = {k: np.concatenate([ch[k] for ch in chunks], axis=axis) for k in chunks[0]}
+        times = np.concatenate([np.full(min((c + 1) * csize, n_seeds) - c * csize, w) for c, w in enumerate(walls)])
+        return merged, times, runner.compile_time_s, chunks
+
+    # 1. data pass: every trial's data (simulated or split once, reused by every method), the
+    #    before-calibration and oracle metrics, the true deviations
+    _progress(progress, f"{n_seeds} trial(s) in chunks of {csize} = {len(devs)} device(s) × {per_device}")
+    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot), keep_errors)
+    k0 = trial_keys(base_key, 0, 1)[0]
+    with dtype_scope(dtype):
+        dlike = eqx.filter_eval_shape(lambda t, k: t(k), dtrial, k0)
+    dmerged, _, _, dchunks = run_unit("_data", dtrial, None, _fingerprint(common | {"unit": "data"}), None,
+                                      lambda c, a, b: (trial_keys(base_key, a, a + csize),))
+    dout = _unflatten(dlike, dmerged)
+
+    # 2. the free parameters: fixed for the whole sweep (static under jit), from trial 0's poses
+    q0 = jnp.asarray(dout.split.q_train[0])
+    space, report = resolve_space(robot, measurement, q0, space, start)
+    n_train, n_test = int(q0.shape[0]), int(dout.split.q_test.shape[1])
+    if n_train * measurement.size <= space.n_free + 1:
+        raise ValueError(
+            f"too few samples: {n_train} training sample(s) give {n_train * measurement.size} residuals "
+            f"for {space.n_free} free parameters"
+        )
+    floor = None if noise_std is None else statistical_floor(float(noise_std), space.n_free, n_train, measurement.size)
+    settings |= {"n_train": n_train, "n_test": n_test, "space": list(space.free_names),
+                 "identifiability": None if report is None else report.to_dict()}
+    common["space"] = settings["space"]
+
+    # 3. the plan: compiled units (a method, or a group of grid points vmapped together)
+    mk = functools.partial(_MethodTrial, robot, measurement, start, keep_errors=keep_errors, keep_history=keep_history)
+    trial_args = (dlike.split, dlike.k_method)  # shapes of one trial's method inputs
+    units: list[_Unit] = []
+    for s in specs:
+        fp = _fingerprint(common | {"unit": s.name, "labels": s.labels, "hyper": _jsonable(s.hyper_reports),
+                                    "extra": s.fingerprint_extra})
+        if s.points is None:
+            units.append(_Unit(s.labels[0], fp, mk(s.method, space), None, s, [None]))
+            continue
+        trial, hyper = _grid_trial(s, mk, space, dtype, trial_args)
+        if hyper is None:  # the method needs concrete values: one compilation per point
+            for i, (lab, pt) in enumerate(zip(s.labels, s.points)):
+                sub = dataclasses.replace(s, labels=[lab], hyper_reports=[s.hyper_reports[i]], points=[pt])
+                units.append(_Unit(lab, _fingerprint([fp, lab]), mk(make_method(s.name, **(s.static_hyper | pt)), space),
+                                   None, sub, [None]))
+        else:
+            unit = s.labels[0] if len(s.labels) == 1 else f"{s.name}-grid-{fp[:8]}"
+            units.append(_Unit(unit, fp, trial, hyper, s, list(range(len(s.points)))))
+    settings["runs"] = [
+        {"label": lab, "method": u.spec.name, "unit": u.name, "grid_index": g,
+         "hyperparameters": _jsonable(u.spec.hyper_reports[i]),
+         "grid_point": None if u.spec.points is None else _jsonable(u.spec.points[i])}
+        for u in units for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index))
+    ]
+    if store.root is not None and jax.process_index() == 0:
+        (store.root / "sweep.json").write_text(json.dumps(settings, indent=1, default=repr))
+    _progress(progress, f"{len(settings['runs'])} run(s); p = {space.n_free} free parameters; "
+              f"{n_train} train / {n_test} test samples per trial")
+
+    def method_inputs(c, a, b):
+        d = _unflatten(dlike, dchunks[c])
+        pad = lambda x: np.concatenate([x, np.repeat(x[-1:], a + csize - b, axis=0)]) if b - a < csize else x  # noqa: E731
+        return jax.tree.map(pad, (d.split, d.k_method))
+
+    # 4. every method (or grid group), chunk by chunk
+    runs: dict[str, SweepRun] = {}
+    for u in units:
+        merged, times, ct, _ = run_unit(u.name, u.trial, u.hyper, u.fingerprint,
+                                        None if u.hyper is None else len(u.grid_index), method_inputs)
+        for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index)):
+            part = merged if g is None else {k: v[g] for k, v in merged.items()}
+            h = None if g is None else jax.tree.map(lambda a, g=g: a[g], u.hyper)
+            pt = None if u.spec.points is None else u.spec.points[i]
+            runs[lab] = _make_run(lab, u.spec.name, u.spec.hyper_reports[i], pt, part, times, ct, u.trial,
+                                  trial_args, h, dtype)
+
+    return SweepResult(
+        runs=runs,
+        n_seeds=n_seeds,
+        before=Metrics(*(np.asarray(v) for v in dout.before)),
+        oracle=Metrics(*(np.asarray(v) for v in dout.oracle)),
+        floor=floor,
+        before_errors=np.asarray(dout.before_errors),
+        space=space,
+        robot=robot,
+        measurement=measurement,
+        start=start,
+        true_deviations=None if dout.truth is None else jax.tree.map(np.asarray, dout.truth),
+        settings=settings,
+    )
+
+
+@dataclasses.dataclass
+class _Unit:
+    name: str
+    fingerprint: str
+    trial: eqx.Module
+    hyper: dict | None
+    spec: _RunSpec
+    grid_index: list
+
+
+def _make_run(label, name, report, point, merged, times, compile_time, trial, trial_args, hyper, dtype) -> SweepRun:
+    with dtype_scope(dtype):
+        like = eqx.filter_eval_shape(lambda t, a, h: t(*a, h), trial, trial_args, hyper)
+    out = _unflatten(like, merged)
+    return SweepRun(
+        label=label, method=name, hyperparameters=_jsonable(report), grid_point=None if point is None else _jsonable(point),
+        test=Metrics(*(np.asarray(v) for v in out.test)), train=Metrics(*(np.asarray(v) for v in out.train)),
+        n_iterations=np.asarray(out.n_iterations), iterations_to_converge=np.asarray(out.iterations_to_converge),
+        status=np.asarray(out.status), time_per_trial_s=np.asarray(times), compile_time_s=float(compile_time),
+        x=np.asarray(out.x), history=np.asarray(out.history), test_errors=np.asarray(out.test_errors),
+    )
+
+
+def _grid_trial(s: _RunSpec, mk, space, dtype, trial_args):
+    """The vmapped-grid trial and its ``[G]`` hyperparameter arrays, or ``(None, None)`` when the
+    method cannot be built from traced hyperparameters (then each point compiles on its own)."""
+    if not s.traced_keys:
+        return None, None
+    hyper = {k: jnp.asarray([float(pt[k]) for pt in s.points], dtype) for k in s.traced_keys}
+    trial = mk(None, space, method_name=s.name, static_hyper=tuple(sorted(s.static_hyper.items())))
+    try:
+        with dtype_scope(dtype):
+            eqx.filter_eval_shape(lambda t, a, h: t(*a, h), trial, trial_args, jax.tree.map(lambda a: a[0], hyper))
+    except Exception:  # noqa: BLE001 - the method needs concrete values: compile per point instead
+        return None, None
+    return trial, hyper
+
+
+def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype):
+    experiment = dict(experiment or {})
+    if data is None:
+        from .robots import hsr_jr680
+
+        robot = hsr_jr680() if robot is None else robot
+        measurement = CableLength(default_anchor(robot)) if measurement is None else measurement
+        truth = experiment.pop("true_deviations", None)
+        if noise_std is None:
+            raise ValueError("simulation needs noise_std (mm)")
+        options = _simulation_options(robot, n_samples, noise_std, test_fraction, experiment)
+        settings = {"kind": "simulated", **{k: _jsonable(v) for k, v in options.items()},
+                    "true_deviations": None if truth is None else _array_digest(truth.ravel())}
+        return _Simulated(robot, measurement, truth, tuple(sorted(options.items()))), robot, measurement, settings
+    if experiment:
+        raise ValueError("experiment options apply to simulation; they cannot be combined with data=")
+    if isinstance(data, Experiment):
+        robot = data.robot if robot is None else robot
+        measurement = data.measurement if measurement is None else measurement
+        _check_kind(data.train, measurement)
+        src = _FixedSplit(data.train.q, data.train.y, data.test.q, data.test.y, data.true_deviations)
+        settings = {"kind": "experiment", "digest": _array_digest(data.train.q, data.train.y, data.test.q, data.test.y)}
+        return src, robot, measurement, settings
+    if robot is None or measurement is None:
+        raise ValueError("with given data, pass robot= and measurement= (the nominal models the data come from)")
+    if isinstance(data, Dataset):
+        _check_kind(data, measurement)
+        n_test = int(round(data.n * test_fraction))
+        if not (0 < n_test < data.n):
+            raise ValueError(f"test_fraction={test_fraction} leaves no test or no training data for {data.n} samples")
+        src = _RandomSplit(jnp.asarray(data.q, dtype), jnp.asarray(data.y, dtype), n_test)
+        settings = {"kind": "dataset", "test_fraction": float(test_fraction), "digest": _array_digest(data.q, data.y)}
+        return src, robot, measurement, settings
+    if isinstance(data, (tuple, list)) and len(data) == 2 and all(isinstance(d, Dataset) for d in data):
+        train, test = data
+        _check_kind(train, measurement)
+        _check_kind(test, measurement)
+        src = _FixedSplit(jnp.asarray(train.q, dtype), jnp.asarray(train.y, dtype),
+                          jnp.asarray(test.q, dtype), jnp.asarray(test.y, dtype), None)
+        settings = {"kind": "split", "digest": _array_digest(train.q, train.y, test.q, test.y)}
+        return src, robot, measurement, settings
+    raise TypeError("data must be None (simulate), a Dataset, a (train, test) pair of Datasets or an Experiment")
+
+
+def _simulation_options(robot, n_samples, noise_std, test_fraction, experiment) -> dict:
+    """Every :func:`simulate_experiment` setting (defaults filled in, validated like it does)."""
+    import inspect
+
+    sig = inspect.signature(simulate_experiment)
+    allowed = {n for n, p in sig.parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY} - {
+        "measurement", "true_deviations", "n_samples", "noise_std", "test_fraction"}
+    unknown = set(experiment) - allowed
+    if unknown:
+        raise TypeError(f"unknown experiment option(s) {sorted(unknown)}; valid: {sorted(allowed)}")
+    o = {n: sig.parameters[n].default for n in allowed} | dict(experiment)
+    if n_samples < 2:
+        raise ValueError(f"n_samples must be at least 2, got {n_samples}")
+    if not (0.0 < test_fraction < 1.0):
+        raise ValueError(f"test_fraction must be in (0, 1), got {test_fraction}")
+    if noise_std < 0 or not math.isfinite(noise_std):
+        raise ValueError(f"noise_std must be a finite non-negative number (mm), got {noise_std}")
+    if o["oversample"] < 1:
+        raise ValueError("oversample must be >= 1")
+    reach = robot.reach_mm()
+    wr = o.pop("wire_range_mm")
+    o["wire_range"] = (0.05 * reach, 1.2 * reach) if wr is None else tuple(float(v) for v in wr)
+    o.update(n_samples=int(n_samples), noise_std=float(noise_std), test_fraction=float(test_fraction))
+    missing = set(_CONFIG_FIELDS) - set(o)
+    if missing:  # simulate_experiment changed: fail loudly rather than simulate something else
+        raise RuntimeError(f"jaxcal._sweep is out of date with simulate_experiment (missing {sorted(missing)})")
+    return o
+
+
+def _check_kind(data: Dataset, measurement: MeasurementModel) -> None:
+    if data.kind != measurement.kind:
+        raise ValueError(f"data are {data.kind!r} measurements but the measurement model is {measurement.kind!r}")
+
+
+def _jsonable(v):
+    if isinstance(v, Mapping):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating,)):
+        return float(v)
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    return repr(v)

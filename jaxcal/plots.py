@@ -1,0 +1,328 @@
+"""The paper's figures from a sweep (matplotlib; needs the ``plot`` extra).
+
+* :func:`fig2_accuracy` — Fig. 2: RMSE / MEAN / MAX per method on held-out data, bars with
+  ± std error bars over seeds, the statistical floor and the oracle as reference lines.
+* :func:`fig3_training` — Fig. 3: training RMSE vs iteration (log–log-ish axes; mean over seeds
+  with a ± std band), in two panels as in the paper, and time per trial per method.
+* :func:`fig4_positioning` — Fig. 4: errors at 30 random test points of one trial per method,
+  dashed lines at each method's mean.
+* :func:`grid_figure` — test RMSE over a two-axis hyperparameter grid (the ablation).
+* :func:`save_figures` — all of them as PNG and PDF.
+
+Figures are built on :class:`matplotlib.figure.Figure` directly (no ``pyplot`` state, no GUI):
+saving uses the Agg renderer whatever backend is active, so this works headless and in
+notebooks (``display(fig)``) alike.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._report import paper_label
+from ._sweep import PAPER_METHODS, SweepResult, SweepRun
+
+__all__ = ["fig2_accuracy", "fig3_training", "fig4_positioning", "grid_figure", "save_figures", "method_color"]
+
+_OTHER_COLORS = ("#17becf", "#bcbd22", "#7f7f7f", "#8c564b", "#e377c2")
+
+
+def _figure(figsize):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, layout="constrained")
+
+
+def method_color(method: str, index: int = 0) -> str:
+    """A fixed colour per paper method (AdaModW red), others from a spare palette."""
+    palette = {
+        "ga": "#1f77b4", "ekf": "#ff7f0e", "bso": "#2ca02c", "lm": "#9467bd",
+        "iwoa": "#8c564b", "rbfnn": "#e377c2", "adam": "#17becf", "adamodw": "#d62728",
+        "gn": "#7f7f7f", "adamod": "#bcbd22", "adamw": "#393b79",
+    }
+    return palette.get(method, _OTHER_COLORS[index % len(_OTHER_COLORS)])
+
+
+def _tick(run: SweepRun) -> str:
+    m = paper_label(run.method) if run.grid_point is None else ""
+    name = run.label.upper() if run.label in PAPER_METHODS else run.label
+    name = {"ADAMODW": "AdaModW", "ADAM": "Adam", "RBFNN": "RBFNN", "IWOA": "IWOA"}.get(name, name)
+    return f"{m}\n{name}" if m else name
+
+
+def _runs(result: SweepResult, methods: Sequence[str] | None) -> list[SweepRun]:
+    if methods is None:
+        return list(result)
+    return [result[m] for m in methods]
+
+
+def _save(fig, path) -> None:
+    if path is None:
+        return
+    p = pathlib.Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, dpi=150)
+
+
+def fig2_accuracy(result: SweepResult, path=None, *, methods: Sequence[str] | None = None):
+    """Fig. 2: test RMSE, MEAN and MAX (mm) per method, mean ± std over seeds.
+
+    The y axes start near the smallest bar (the methods differ by a few percent, the nominal
+    model by an order of magnitude; its value is printed in the title instead). Dashed line:
+    statistical floor (RMSE, and √(2/π)× it for MEAN); dotted line: the true model (oracle)
+    on the same test data.
+    """
+    runs = _runs(result, methods)
+    fig = _figure((max(12.0, 1.75 * len(runs) + 1.5), 4.2))
+    axes = fig.subplots(1, 3)
+    x = np.arange(len(runs))
+    floor = result.floor.test if result.floor is not None else None
+    for ax, f, name, letter in zip(axes, ("rmse", "mean", "max"), ("RMSE", "MEAN", "MAX"), "abc"):
+        means = np.array([np.nanmean(getattr(r.test, f)) for r in runs])
+        stds = np.array([np.nanstd(getattr(r.test, f), ddof=1) if r.n_seeds > 1 else 0.0 for r in runs])
+        colors = [method_color(r.method, i) for i, r in enumerate(runs)]
+        ax.bar(x, means, yerr=stds, color=colors, capsize=4, edgecolor="black", linewidth=0.5, zorder=2)
+        lo = [np.nanmin(means - stds)]
+        ref = []
+        if floor is not None and f in ("rmse", "mean"):
+            fv = floor if f == "rmse" else floor * math.sqrt(2 / math.pi)
+            ax.axhline(fv, color="black", ls="--", lw=1, label=f"statistical floor {fv:.3f}", zorder=3)
+            ref.append(fv)
+        oracle = np.asarray(getattr(result.oracle, f), np.float64)
+        if np.any(np.isfinite(oracle)):
+            ov = float(np.nanmean(oracle))
+            ax.axhline(ov, color="dimgray", ls=":", lw=1.2, label=f"true model {ov:.3f}", zorder=3)
+            ref.append(ov)
+        lo = min(lo + ref)
+        hi = max(float(np.nanmax(means + stds)), *ref)
+        span = hi - lo if hi > lo else 0.1 * hi
+        y0 = max(0.0, lo - 0.25 * span)
+        ax.set_ylim(y0, hi + 0.35 * span)  # headroom for the legend
+        for xi, m in zip(x, means):  # the value inside the bar, near its (cut) base
+            ax.text(xi, y0 + 0.03 * span, f"{m:.3f}", ha="center", va="bottom", fontsize=7,
+                    bbox={"facecolor": "white", "edgecolor": "none", "pad": 1.0, "alpha": 0.85}, zorder=4)
+        ax.set_xticks(x, [_tick(r) for r in runs], fontsize=8)
+        bc = float(np.nanmean(getattr(result.before, f)))
+        ax.set_title(f"({letter}) {name} on test data (BC: {bc:.2f} mm)", fontsize=10)
+        ax.set_ylabel(f"{name} / mm")
+        ax.grid(axis="y", alpha=0.3, zorder=0)
+        if ref:
+            ax.legend(fontsize=7, loc="upper left", ncol=2)
+    fig.suptitle(f"Calibration accuracy, mean ± std over {result.n_seeds} seed(s)", fontsize=11)
+    _save(fig, path)
+    return fig
+
+
+def _plain_ticks(axis) -> None:
+    """Tick labels as plain numbers (0.5, 2, 0.01) instead of 5×10⁻¹ on log axes."""
+    from matplotlib.ticker import FuncFormatter
+
+    def minor(v, _):
+        if v <= 0:
+            return ""
+        lead = round(v / 10 ** math.floor(math.log10(v) + 1e-9))
+        return f"{v:g}" if lead in (2, 5) else ""
+
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(FuncFormatter(minor))
+
+
+def _split_halves(runs: list[SweepRun]) -> tuple[list[SweepRun], list[SweepRun]]:
+    """The paper's panels: (M1, M2, M4, M6) and (M3, M5, M7, M8) when present, else halves."""
+    names = [r.method for r in runs]
+    first = {"ga", "ekf", "lm", "rbfnn", "gn"}
+    if any(n in PAPER_METHODS for n in names):
+        a = [r for r in runs if r.method in first]
+        b = [r for r in runs if r.method not in first]
+        if a and b:
+            return a, b
+    h = math.ceil(len(runs) / 2)
+    return runs[:h], runs[h:]
+
+
+def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
+    for i, r in enumerate(runs):
+        h = np.asarray(r.history, np.float64)
+        if h.shape[1] < 2:
+            continue
+        T = int(np.max(r.n_iterations)) + 1
+        h = h[:, :T]
+        it = np.arange(T)
+        mean = np.nanmean(h, axis=0)
+        std = np.nanstd(h, axis=0, ddof=1) if h.shape[0] > 1 else np.zeros_like(mean)
+        c = method_color(r.method, i)
+        lab = _tick(r).replace("\n", " ")
+        ax.plot(it, mean, color=c, lw=1.6, label=lab, marker="o" if T <= 12 else None, ms=3)
+        ax.fill_between(it, np.maximum(mean - std, 1e-3), mean + std, color=c, alpha=0.15, lw=0)
+        its = float(np.mean(r.iterations_to_converge))
+        ax.plot([its], [np.interp(its, it, mean)], marker="v", color=c, ms=6, mec="black", mew=0.5)
+    if floor is not None:
+        ax.axhline(floor, color="black", ls="--", lw=1, label=f"floor (train) {floor:.3f}")
+    longest = max((int(np.max(r.n_iterations)) for r in runs), default=1)
+    if longest > 30:  # linear up to 1, logarithmic beyond: LM's 5 steps and GA's 600 both show
+        ax.set_xscale("symlog", linthresh=1)
+        from matplotlib.ticker import FuncFormatter
+
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.set_yscale("log")
+    _plain_ticks(ax.yaxis)
+    ax.set_xlim(left=0)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("training RMSE / mm")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    ax.set_title(f"({letter}) training curves", fontsize=10)
+
+
+def fig3_training(result: SweepResult, path=None, *, methods: Sequence[str] | None = None):
+    """Fig. 3: (a, b) training RMSE vs iteration (mean over seeds, ± std band; ▼ marks the mean
+    iteration to converge), x axis linear up to 1 then logarithmic; (c) time per trial (s, log
+    scale, ± std)."""
+    runs = _runs(result, methods)
+    fig = _figure((max(14.0, 10.0 + 0.75 * len(runs)), 4.4))
+    axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.15, 1.15, max(1.0, 0.17 * len(runs))]})
+    a, b = _split_halves(runs)
+    floor = result.floor.train if result.floor is not None else None
+    _curve_panel(axes[0], a, floor, "a")
+    _curve_panel(axes[1], b, floor, "b")
+    ymin = min(ax.get_ylim()[0] for ax in axes[:2])
+    ymax = max(ax.get_ylim()[1] for ax in axes[:2])
+    for ax in axes[:2]:
+        ax.set_ylim(ymin, ymax)
+    ax = axes[2]
+    x = np.arange(len(runs))
+    t = np.array([np.mean(r.time_per_trial_s) for r in runs])
+    tc = np.array([np.mean(r.time_to_converge_s) for r in runs])
+    colors = [method_color(r.method, i) for i, r in enumerate(runs)]
+    ax.bar(x - 0.2, t, width=0.4, color=colors, edgecolor="black", linewidth=0.5, label="whole run", zorder=2)
+    ax.bar(x + 0.2, np.maximum(tc, 1e-6), width=0.4, color=colors, edgecolor="black", linewidth=0.5, hatch="///",
+           alpha=0.6, label="to converge (RMSE)", zorder=2)
+    ax.set_yscale("log")
+    _plain_ticks(ax.yaxis)
+    ax.set_xticks(x, [_tick(r) for r in runs], fontsize=8)
+    ax.set_ylabel("time per trial / s")
+    ax.grid(axis="y", alpha=0.3, which="both", zorder=0)
+    ax.legend(fontsize=7)
+    dev = result.settings.get("n_devices", 1)
+    ax.set_title(f"(c) time per trial (vmapped, {dev} device(s))", fontsize=10)
+    fig.suptitle(f"Training curves and time, {result.n_seeds} seed(s)", fontsize=11)
+    _save(fig, path)
+    return fig
+
+
+def fig4_positioning(result: SweepResult, path=None, *, methods: Sequence[str] | None = None, n_points: int = 30,
+                     trial: int = 0, seed: int = 0):
+    """Fig. 4: absolute error (mm) at ``n_points`` random test points of ``trial``, per method,
+    with dashed lines at each method's mean over those points; (a) before calibration vs the
+    best method, (b, c) the methods in two groups."""
+    runs = [r for r in _runs(result, methods) if r.test_errors.shape[-1] > 0]
+    if not runs or result.before_errors.shape[-1] == 0:
+        raise ValueError("the sweep kept no per-sample test errors (run it with keep_errors=True)")
+    n_test = result.before_errors.shape[-1]
+    idx = np.sort(np.random.default_rng(seed).choice(n_test, size=min(n_points, n_test), replace=False))
+    pts = np.arange(1, idx.size + 1)
+    bc = np.abs(result.before_errors[trial, idx])
+    fig = _figure((14, 4.4))
+    axes = fig.subplots(1, 3)
+    best = min(runs, key=lambda r: float(np.mean(np.abs(r.test_errors[trial, idx]))))
+    show = next((r for r in runs if r.method == "adamodw"), best)
+
+    def draw(ax, entries, letter, title):
+        if not entries:
+            ax.set_axis_off()
+            return
+        for lab, e, c, mk in entries:
+            ax.plot(pts, e, marker=mk, ms=4, lw=0.8, color=c, label=f"{lab} (mean {e.mean():.3f})")
+            ax.axhline(e.mean(), color=c, ls="--", lw=1)
+        ax.set_xlabel("test point")
+        ax.set_ylabel("|error| / mm")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=1 if len(entries) < 5 else 2)
+        ax.set_title(f"({letter}) {title}", fontsize=10)
+
+    draw(axes[0], [("before calibration", bc, "black", "s"),
+                   (_tick(show).replace("\n", " "), np.abs(show.test_errors[trial, idx]), method_color(show.method), "o")],
+         "a", "before vs after calibration")
+    g1, g2 = _split_halves(runs)
+    markers = "o^sDvP<>*"
+    for ax, group, letter in ((axes[1], g1, "b"), (axes[2], g2, "c")):
+        entries = [(_tick(r).replace("\n", " "), np.abs(r.test_errors[trial, idx]), method_color(r.method, i),
+                    markers[i % len(markers)]) for i, r in enumerate(group)]
+        draw(ax, entries, letter, "after calibration")
+    top = max(float(np.max(np.abs(r.test_errors[trial, idx]))) for r in runs)
+    for ax in axes[1:]:
+        ax.set_ylim(0, top * 1.45)  # headroom for the legend
+    axes[0].set_ylim(0, max(float(bc.max()), top) * 1.3)
+    fig.suptitle(f"Errors at {idx.size} random test points (trial {trial}); dashed: means", fontsize=11)
+    _save(fig, path)
+    return fig
+
+
+def grid_figure(result: SweepResult, method: str | None = None, path=None, *, metric: str = "rmse"):
+    """Mean test ``metric`` over a hyperparameter grid: a heat map for two axes, a line for one."""
+    runs = [r for r in result if r.grid_point is not None and (method is None or r.method == method)]
+    if not runs:
+        raise ValueError("the sweep has no grid runs")
+    keys = list(runs[0].grid_point)
+    fig = _figure((6.4, 4.8))
+    ax = fig.subplots()
+    vals = {r.label: float(np.mean(getattr(r.test, metric))) for r in runs}
+    if len(keys) == 1:
+        k = keys[0]
+        xs = [r.grid_point[k] for r in runs]
+        ys = [vals[r.label] for r in runs]
+        ax.plot(xs, ys, marker="o")
+        ax.set_xscale("log" if all(isinstance(v, (int, float)) and v > 0 for v in xs) else "linear")
+        ax.set_xlabel(k)
+        ax.set_ylabel(f"test {metric.upper()} / mm")
+    else:
+        kx, ky = keys[:2]
+        xs = sorted({r.grid_point[kx] for r in runs})
+        ys = sorted({r.grid_point[ky] for r in runs})
+        Z = np.full((len(ys), len(xs)), np.nan)
+        for r in runs:
+            Z[ys.index(r.grid_point[ky]), xs.index(r.grid_point[kx])] = vals[r.label]
+        im = ax.imshow(Z, origin="lower", cmap="viridis", aspect="auto")
+        for i in range(len(ys)):
+            for j in range(len(xs)):
+                if np.isfinite(Z[i, j]):
+                    ax.text(j, i, f"{Z[i, j]:.4f}", ha="center", va="center", fontsize=8,
+                            color="white" if Z[i, j] < np.nanmean(Z) else "black")
+        ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])
+        ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
+        ax.set_xlabel(kx)
+        ax.set_ylabel(ky)
+        fig.colorbar(im, ax=ax, label=f"mean test {metric.upper()} / mm")
+        if len(keys) > 2:
+            ax.set_title("(first two grid axes; other axes overlaid)", fontsize=8)
+    name = runs[0].method
+    fig.suptitle(f"{name}: test {metric.upper()} over the grid, {result.n_seeds} seed(s)", fontsize=11)
+    _save(fig, path)
+    return fig
+
+
+def save_figures(result: SweepResult, out_dir, *, formats: Sequence[str] = ("png", "pdf")) -> dict[str, pathlib.Path]:
+    """Write Figs. 2–4 (and the grid figure if there are grid runs) into ``out_dir`` in each format.
+
+    Returns ``{file name: path}``.
+    """
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    plain = [r.label for r in result if r.grid_point is None]
+    makers = [("fig2_accuracy", lambda: fig2_accuracy(result, methods=plain or None)),
+              ("fig3_training", lambda: fig3_training(result, methods=plain or None))]
+    if result.before_errors.shape[-1] > 0 and plain:
+        makers.append(("fig4_positioning", lambda: fig4_positioning(result, methods=plain)))
+    if any(r.grid_point is not None for r in result):
+        makers.append(("grid", lambda: grid_figure(result)))
+    files = {}
+    for name, make in makers:
+        fig = make()
+        for ext in formats:
+            p = out / f"{name}.{ext}"
+            fig.savefig(p, dpi=150)
+            files[p.name] = p
+    return files

@@ -1,0 +1,54 @@
+"""The example notebooks run top to bottom at small settings (``JAXCAL_NB_QUICK=1``), and the
+committed notebooks are the ones ``notebooks/_make.py`` builds (with their outputs kept)."""
+
+import os
+import pathlib
+import sys
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+
+NOTEBOOKS = pathlib.Path(__file__).resolve().parents[1] / "notebooks"
+sys.path.insert(0, str(NOTEBOOKS))
+import _make  # noqa: E402
+
+NAMES = sorted(_make.NOTEBOOKS)
+
+
+def test_every_notebook_is_built_by_make():
+    assert sorted(p.name for p in NOTEBOOKS.glob("*.ipynb")) == NAMES
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_committed_notebook_matches_source_and_has_outputs(name):
+    committed = nbformat.read(NOTEBOOKS / name, as_version=4)
+    built = _make.build(name)
+    assert [c.source for c in committed.cells] == [c.source for c in built.cells], \
+        f"{name} is stale: run `python notebooks/_make.py --execute {name}`"
+    code = [c for c in committed.cells if c.cell_type == "code"]
+    assert all(c.get("outputs") is not None for c in code)
+    assert sum(bool(c.outputs) for c in code) >= len(code) // 2, f"{name} was committed without outputs"
+    errors = [o for c in code for o in c.outputs if o.get("output_type") == "error"]
+    assert not errors, f"{name} was committed with errors"
+
+
+@pytest.fixture(scope="session")
+def xla_cache(tmp_path_factory):
+    """A persistent compilation cache shared by the notebooks' kernels (they compile some of
+    the same functions; compilation dominates their run time)."""
+    return tmp_path_factory.mktemp("xla-cache")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_notebook_runs_quick(name, monkeypatch, xla_cache):
+    monkeypatch.setenv("JAXCAL_NB_QUICK", "1")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(xla_cache))
+    monkeypatch.setenv("PYTHONPATH", str(NOTEBOOKS.parent) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    nb = _make.build(name)
+    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                     resources={"metadata": {"path": str(NOTEBOOKS)}})
+    client.execute()  # raises CellExecutionError on the first failing cell
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+    assert any("image/png" in o.get("data", {}) for o in outputs), "every notebook shows a figure"
