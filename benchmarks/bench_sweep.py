@@ -5,10 +5,11 @@ held-out split — the per-trial function of ``jaxcal._sweep`` (``_MethodTrial``
 all trials is simulated beforehand (not timed).
 
 * **vmapped**: ``jax.jit(jax.vmap(trial))`` over ``n`` seeds, compiled ahead of time
-  (``.lower().compile()``, compile time reported separately), then one timed call;
-  throughput = ``n / wall``. This is what one chunk of ``sweep(..., chunk_size=n)`` costs.
-* **loop**: ``jax.jit(trial)`` compiled once, then a Python loop over the seeds with a
-  ``block_until_ready`` per trial; throughput = ``n / wall``.
+  (``.lower().compile()``, compile time reported separately); for ``n ≤ 16`` a warm-up call and
+  the best of 3 timed calls, for larger ``n`` one timed call; throughput = ``n / wall``. This is
+  what one chunk of ``sweep(..., chunk_size=n)`` costs.
+* **loop**: ``jax.jit(trial)`` compiled once, a warm-up call, then a Python loop over the ``n``
+  seeds (repeated to make at least 16 calls) with a ``block_until_ready`` per trial.
 
 Under ``vmap`` LM's ``while_loop`` runs until the *slowest* trial of the batch converges
 (finished trials idle, masked by ``select``), so a vmapped LM batch costs about
@@ -17,9 +18,9 @@ Under ``vmap`` LM's ``while_loop`` runs until the *slowest* trial of the batch c
 
 Grid: LM and AdaModW (registry defaults: LM ``rtol = atol = 1e-6``; AdaModW 500 steps),
 ``n_seeds`` in (1, 4, 16, 64, 256), samples per experiment 200 and 2000 (80 % for training).
-AdaModW at 2000 samples stops at 64 seeds (256 would take ~4 min alone). The loop is timed over
-at most 16 seeds (its per-trial cost does not depend on ``n``); for larger ``n`` the row repeats
-the 16-seed throughput, marked ``*``.
+AdaModW at 2000 samples stops at 64 seeds (256 would take ~4 min alone). The loop is timed for
+``n ≤ 16`` (its per-trial cost does not depend on ``n``); for larger ``n`` the row repeats the
+16-seed throughput, marked ``*``.
 
 Run: ``python benchmarks/bench_sweep.py`` (writes ``benchmarks/results/sweep_cpu.md``; about
 10 minutes on the project's 2-core machine, compilation included). ``--quick`` runs a reduced
@@ -112,26 +113,32 @@ def main(argv) -> None:
             for n in seeds:
                 if (name, n_samples, n) in SKIP:
                     continue
-                args = jax.tree.map(lambda a, n=n: a[:n], (split, kmeth))
+                args = jax.block_until_ready(jax.tree.map(lambda a, n=n: a[:n], (split, kmeth)))
                 batched = jax.jit(jax.vmap(lambda s, k, trial=trial: trial(s, k)))
                 t0 = time.perf_counter()
                 comp = batched.lower(*args).compile()
                 t_comp = time.perf_counter() - t0
-                reps = 3 if n <= 4 else 1
+                small = n <= LOOP_CAP
+                if small:
+                    jax.block_until_ready(comp(*args))  # warm-up call (one-time costs)
                 walls = []
-                for _ in range(reps):
+                for _ in range(3 if small else 1):
                     t0 = time.perf_counter()
                     out = jax.block_until_ready(comp(*args))
                     walls.append(time.perf_counter() - t0)
                 wall = min(walls)
                 its = np.asarray(out.n_iterations)
-                if n <= LOOP_CAP:
-                    # per-trial arguments prepared outside the timer (indexing compiles tiny programs)
+                if small:
+                    # per-trial arguments prepared outside the timer (indexing compiles tiny programs);
+                    # the n-seed loop is repeated to make at least LOOP_CAP calls
                     items = jax.block_until_ready([jax.tree.map(lambda a, i=i: a[i], args) for i in range(n)])
+                    jax.block_until_ready(single_c(*items[0]))  # warm-up
+                    reps = -(-LOOP_CAP // n)
                     t0 = time.perf_counter()
-                    for item in items:
-                        jax.block_until_ready(single_c(*item))
-                    loop_tp = n / (time.perf_counter() - t0)
+                    for _ in range(reps):
+                        for item in items:
+                            jax.block_until_ready(single_c(*item))
+                    loop_tp = reps * n / (time.perf_counter() - t0)
                     loop_cell = f"{loop_tp:.2f}"
                 else:
                     loop_cell = f"{loop_tp:.2f}*"
