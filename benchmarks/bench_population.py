@@ -23,7 +23,7 @@ from _common import machine, median_time
 import jaxcal
 from jaxcal import Problem, identifiability, simulate_experiment
 from jaxcal.methods import ScaledProblem, make_method
-from jaxcal.methods._ga import population_rmse
+from jaxcal.methods._population import population_rmse
 
 jaxcal.enable_x64()
 

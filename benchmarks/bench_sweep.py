@@ -8,6 +8,8 @@ all trials is simulated beforehand (not timed).
   (``.lower().compile()``, compile time reported separately); for ``n ≤ 16`` a warm-up call and
   the best of 3 timed calls, for larger ``n`` one timed call; throughput = ``n / wall``. This is
   what one chunk of ``sweep(..., chunk_size=n)`` costs.
+* **lax.map**: ``jax.jit(lambda xs: jax.lax.map(trial, xs))``, timed the same way: the trials
+  run one after the other inside one compiled function (``sweep``'s default on one CPU device).
 * **loop**: ``jax.jit(trial)`` compiled once, a warm-up call, then a Python loop over the ``n``
   seeds (repeated to make at least 16 calls) with a ``block_until_ready`` per trial.
 
@@ -92,10 +94,12 @@ def main(argv) -> None:
     t_start = time.perf_counter()
     lines = ["# Sweep throughput on CPU (`benchmarks/bench_sweep.py`)", "", *machine_info(), ""]
     lines += [
-        "Trials per second for one trial = calibrate a simulated experiment + evaluate on its test split",
-        "(data simulated beforehand). *vmapped*: one `jit(vmap(trial))` call over `n` seeds (compile excluded,",
-        "listed separately); *loop*: a Python loop of a jitted single trial. A vmapped LM batch runs until its",
-        "slowest trial converges (`its max/mean` column); AdaModW always runs 500 steps.",
+        "Trials per second; one trial = calibrate a simulated experiment + evaluate on its test split",
+        "(data simulated beforehand). *vmap*: one `jit(vmap(trial))` call over `n` seeds; *lax.map*: one",
+        "`jit(lax.map(trial))` call (the trials one after the other inside one compiled function: what",
+        "`sweep` does on a single CPU device); *loop*: a Python loop of a jitted single trial. Compilation",
+        "is excluded (listed separately). A vmapped LM batch runs until its slowest trial converges",
+        "(`its max/mean`); AdaModW always runs 500 steps.",
         "",
     ]
     for n_samples in samples:
@@ -114,20 +118,21 @@ def main(argv) -> None:
                 if (name, n_samples, n) in SKIP:
                     continue
                 args = jax.block_until_ready(jax.tree.map(lambda a, n=n: a[:n], (split, kmeth)))
-                batched = jax.jit(jax.vmap(lambda s, k, trial=trial: trial(s, k)))
-                t0 = time.perf_counter()
-                comp = batched.lower(*args).compile()
-                t_comp = time.perf_counter() - t0
                 small = n <= LOOP_CAP
-                if small:
-                    jax.block_until_ready(comp(*args))  # warm-up call (one-time costs)
-                walls = []
-                for _ in range(3 if small else 1):
+                timed = {}
+                for how, fn in (("vmap", jax.vmap(lambda s, k, trial=trial: trial(s, k))),
+                                ("map", lambda s, k, trial=trial: jax.lax.map(lambda a: trial(*a), (s, k)))):
                     t0 = time.perf_counter()
-                    out = jax.block_until_ready(comp(*args))
-                    walls.append(time.perf_counter() - t0)
-                wall = min(walls)
-                its = np.asarray(out.n_iterations)
+                    comp = jax.jit(fn).lower(*args).compile()
+                    t_comp = time.perf_counter() - t0
+                    if small:
+                        jax.block_until_ready(comp(*args))  # warm-up call (one-time costs)
+                    walls = []
+                    for _ in range(3 if small else 1):
+                        t0 = time.perf_counter()
+                        out = jax.block_until_ready(comp(*args))
+                        walls.append(time.perf_counter() - t0)
+                    timed[how] = (n / min(walls), t_comp, np.asarray(out.n_iterations))
                 if small:
                     # per-trial arguments prepared outside the timer (indexing compiles tiny programs);
                     # the n-seed loop is repeated to make at least LOOP_CAP calls
@@ -142,15 +147,15 @@ def main(argv) -> None:
                     loop_cell = f"{loop_tp:.2f}"
                 else:
                     loop_cell = f"{loop_tp:.2f}*"
-                vm_tp = n / wall
-                rows.append([n, f"{vm_tp:.2f}", loop_cell, f"{vm_tp / loop_tp:.2f}", f"{wall:.3f}",
-                             f"{its.max()}/{its.mean():.1f}", f"{t_comp:.1f}"])
-                print(f"{name} samples={n_samples} n={n}: vmapped {vm_tp:.2f}/s, loop {loop_cell}/s, "
-                      f"compile {t_comp:.1f} s", file=sys.stderr, flush=True)
+                (vm_tp, vm_c, its), (mp_tp, mp_c, _) = timed["vmap"], timed["map"]
+                rows.append([n, f"{vm_tp:.2f}", f"{mp_tp:.2f}", loop_cell, f"{vm_tp / loop_tp:.2f}",
+                             f"{mp_tp / loop_tp:.2f}", f"{its.max()}/{its.mean():.1f}", f"{vm_c:.1f} / {mp_c:.1f}"])
+                print(f"{name} samples={n_samples} n={n}: vmap {vm_tp:.2f}/s, lax.map {mp_tp:.2f}/s, loop {loop_cell}/s",
+                      file=sys.stderr, flush=True)
             lines += [f"## {name}, {n_samples} samples per experiment ({int(0.8 * n_samples)} for training)", ""]
             lines.append(jaxcal.format_table(
-                rows, ["seeds", "vmapped trials/s", "loop trials/s", "speed-up", "vmapped wall/s", "its max/mean",
-                       "compile/s"], markdown=True))
+                rows, ["seeds", "vmap trials/s", "lax.map trials/s", "loop trials/s", "vmap ÷ loop", "map ÷ loop",
+                       "its max/mean", "compile vmap / map (s)"], markdown=True))
             lines += ["", f"Single-trial compile: {compile_single:.1f} s.", ""]
     skipped = [f"{m} × {s} samples × {n} seeds" for m, s, n in sorted(SKIP) if s in samples and n in seeds]
     if skipped:

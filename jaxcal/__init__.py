@@ -10,6 +10,8 @@ program start (see ``jaxcal._precision`` for the policy).
 
 from . import methods as methods
 from . import optim as optim
+from . import plots as plots
+from . import report as report
 from . import robots as robots
 from ._calibrate import CalibrationError as CalibrationError
 from ._calibrate import CalibrationWarning as CalibrationWarning
@@ -21,6 +23,7 @@ from ._dataset import save_csv as save_csv
 from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
 from ._identifiability import identifiability as identifiability
 from ._io import load_result as load_result
+from ._io import load_sweep as load_sweep
 from ._io import save_result as save_result
 from ._kinematics import fk_pose as fk_pose
 from ._kinematics import fk_position as fk_position
@@ -54,6 +57,9 @@ __all__ = [
     "PAPER_METHODS",
     "SweepResult",
     "load_result",
+    "load_sweep",
+    "plots",
+    "report",
     "save_result",
     "sweep",
     "CalibrationError",

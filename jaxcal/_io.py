@@ -19,10 +19,10 @@ import os
 import pathlib
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
 from ._params import Deviations, ParameterSpace
@@ -179,24 +179,6 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
     raise ValueError(f"unknown measurement kind {kind!r}")
 
 
-def _jsonable(v):
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, (np.ndarray, jax.Array)):
-        return _jsonable(np.asarray(v).tolist())
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, np.floating):
-        return float(v)
-    if isinstance(v, float) and not math.isfinite(v):
-        return None if math.isnan(v) else ("inf" if v > 0 else "-inf")
-    if v is None or isinstance(v, (bool, int, float, str)):
-        return v
-    return repr(v)
-
-
 def _extra_to_dict(extra) -> dict | None:
     """Method state worth keeping (the RBF network); ``None`` otherwise."""
     from .methods import RBFNetwork
@@ -245,7 +227,7 @@ def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
         out["method_state"] = extra
     for k, v in info.items():
         out[k] = v._asdict() if isinstance(v, Metrics) else v
-    return _jsonable(out)
+    return to_jsonable(out)
 
 
 def save_result(result: CalibrationResult, path, **info: Any) -> None:

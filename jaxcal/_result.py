@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import json
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._json import to_jsonable
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._params import Deviations, ParameterSpace
@@ -153,7 +153,7 @@ class CalibrationResult:
             "train_metrics_mm": self.train_metrics._asdict(),
             "wall_time_s": self.wall_time_s,
             "compile_time_s": self.compile_time_s,
-            "hyperparameters": {k: _jsonable(v) for k, v in self.hyperparameters.items()},
+            "hyperparameters": to_jsonable(self.hyperparameters),
         }
 
     def __repr__(self) -> str:
@@ -163,11 +163,3 @@ class CalibrationResult:
             f"n_iterations={self.n_iterations}, iterations_to_converge={self.iterations_to_converge}, "
             f"train_rmse={m.rmse:.4f} mm, p={self.space.n_free}, wall_time_s={self.wall_time_s:.4f})"
         )
-
-
-def _jsonable(v):
-    try:
-        json.dumps(v)
-        return v
-    except TypeError:
-        return repr(v)

@@ -92,6 +92,18 @@ def draw_deviations(
     )
 
 
+def check_simulation_settings(n_samples: int, test_fraction: float, noise_std: float, oversample: float) -> None:
+    """Raise ``ValueError`` naming the first bad setting of :func:`simulate_experiment`."""
+    if n_samples < 2:
+        raise ValueError(f"n_samples must be at least 2, got {n_samples}")
+    if not (0.0 < test_fraction < 1.0):
+        raise ValueError(f"test_fraction must be in (0, 1), got {test_fraction}")
+    if noise_std < 0 or not math.isfinite(noise_std):
+        raise ValueError(f"noise_std must be a finite non-negative number (mm), got {noise_std}")
+    if oversample < 1:
+        raise ValueError("oversample must be >= 1")
+
+
 def simulate_experiment(
     key: Array,
     robot: DHRobot | None = None,
@@ -135,14 +147,7 @@ def simulate_experiment(
     from .robots import hsr_jr680
 
     robot = hsr_jr680() if robot is None else robot
-    if n_samples < 2:
-        raise ValueError(f"n_samples must be at least 2, got {n_samples}")
-    if not (0.0 < test_fraction < 1.0):
-        raise ValueError(f"test_fraction must be in (0, 1), got {test_fraction}")
-    if noise_std < 0 or not math.isfinite(noise_std):
-        raise ValueError(f"noise_std must be a finite non-negative number (mm), got {noise_std}")
-    if oversample < 1:
-        raise ValueError("oversample must be >= 1")
+    check_simulation_settings(n_samples, test_fraction, noise_std, oversample)
     measurement = CableLength(default_anchor(robot)) if measurement is None else measurement
     reach = robot.reach_mm()
     wire_range = (0.05 * reach, 1.2 * reach) if wire_range_mm is None else tuple(map(float, wire_range_mm))

@@ -5,7 +5,9 @@ a data key (simulate the experiment, or split given data) and a method key; the 
 on the training split and evaluates on the held-out split. Every method sees the same data in
 trial ``i`` (paired comparisons).
 
-A sweep is a few compiled units, each ``jit(vmap(trial))`` over a chunk of trials:
+A sweep is a few compiled units, each one jitted function over a chunk of trials — the trial
+``jax.vmap``-ed over the chunk (or, on a single CPU device by default, ``jax.lax.map``-ed: one
+trial after the other inside the compiled function, which measured 2–3× faster for LM there):
 
 1. the *data* unit: simulate (or split) the chunk's data and compute the before-calibration
    (nominal) and oracle (true model) test metrics — once per sweep, not once per method
@@ -50,13 +52,20 @@ from . import _simulate as _simulate_mod
 from ._calibrate import Calibrator, resolve_space
 from ._dataset import Dataset
 from ._io import measurement_to_dict, robot_to_dict
+from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel
 from ._metrics import Floor, Metrics, compute_metrics, statistical_floor
 from ._params import Deviations, ParameterSpace
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
 from ._robot import DHRobot
-from ._simulate import DEFAULT_NOISE_STD, Experiment, default_anchor, simulate_experiment
+from ._simulate import (
+    DEFAULT_NOISE_STD,
+    Experiment,
+    check_simulation_settings,
+    default_anchor,
+    simulate_experiment,
+)
 from .methods import METHODS, Method, make_method
 
 __all__ = [
@@ -244,25 +253,27 @@ class _MethodTrial(eqx.Module):
         )
 
 
-def _batched(static, dyn, inputs, hyper):
-    """``vmap`` of the trial over ``inputs`` (a tuple of trial-batched pytrees) and, with a grid,
-    over the hyperparameter points first."""
+def _batched(static, dyn, inputs, hyper, sequential: bool = False):
+    """The trial over a chunk: ``inputs`` is a tuple of trial-batched pytrees; with a grid, the
+    hyperparameter points form an outer axis. ``jax.vmap`` (all trials at once), or with
+    ``sequential`` ``jax.lax.map`` (one trial after the other inside the compiled function)."""
     trial = eqx.combine(dyn, static)
+    if sequential:
+        over_trials = lambda h: jax.lax.map(lambda a: trial(*a, h), inputs)  # noqa: E731
+        return over_trials(None) if hyper is None else jax.lax.map(over_trials, hyper)
     over_trials = lambda h: jax.vmap(lambda *a: trial(*a, h))(*inputs)  # noqa: E731
-    if hyper is None:
-        return over_trials(None)
-    return jax.vmap(over_trials)(hyper)
+    return over_trials(None) if hyper is None else jax.vmap(over_trials)(hyper)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2))
-def _run_chunk(static, mesh, grid: bool, dyn, inputs, hyper):
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _run_chunk(static, mesh, grid: bool, sequential: bool, dyn, inputs, hyper):
     """One chunk of trials, jitted (module level so compilations are cached by the static part).
 
     With a ``mesh`` the trial axis of ``inputs`` arrives sharded over the devices and everything
     else replicated; the vmapped trial is partitioned along that axis by XLA (GSPMD), and the
     outputs are constrained to the same sharding.
     """
-    out = _batched(static, dyn, inputs, hyper)
+    out = _batched(static, dyn, inputs, hyper, sequential)
     if mesh is not None:
         spec = P(None, "trials") if grid else P("trials")
         out = jax.lax.with_sharding_constraint(out, NamedSharding(mesh, spec))
@@ -637,10 +648,10 @@ def _to_host(tree):
 class _Runner:
     """Compiles and runs the chunks of one unit (data pass, method, or grid group)."""
 
-    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool):
+    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool, sequential: bool):
         self.dyn, self.static = eqx.partition(trial, eqx.is_array)
         self.dyn = cast_floating(self.dyn, dtype)
-        self.mesh, self.dtype, self.grid = mesh, dtype, grid
+        self.mesh, self.dtype, self.grid, self.sequential = mesh, dtype, grid, sequential
         self.compiled = None
         self.compile_time_s = 0.0
 
@@ -658,7 +669,8 @@ class _Runner:
                 t0 = time.perf_counter()
                 dyn = self.dyn if self.mesh is None else jax.device_put(self.dyn, NamedSharding(self.mesh, P()))
                 self.dyn = dyn
-                self.compiled = _run_chunk.lower(self.static, self.mesh, self.grid, dyn, inputs, hyper).compile()
+                self.compiled = _run_chunk.lower(self.static, self.mesh, self.grid, self.sequential, dyn, inputs,
+                                                   hyper).compile()
                 self.compile_time_s = time.perf_counter() - t0
             t0 = time.perf_counter()
             out = jax.block_until_ready(self.compiled(self.dyn, inputs, hyper))
@@ -685,6 +697,7 @@ def sweep(
     grid: Mapping[str, Mapping[str, Sequence]] | None = None,
     chunk_size: int | None = None,
     devices=None,
+    batching: str = "auto",
     out_dir=None,
     progress: bool = True,
     keep_errors: bool = True,
@@ -734,6 +747,13 @@ def sweep(
             else replicated, and XLA partitions the vmapped trial along the trial axis: each
             device computes its own batch, with the same results as one device computing that
             batch (see ``chunk_size``).
+        batching: how a device runs its batch of trials inside the chunk's compiled function:
+            ``"vmap"`` (all at once, vectorised: what fills a GPU; a vmapped LM batch runs until
+            its slowest trial converges), ``"map"`` (``jax.lax.map``: one after the other, no
+            batching overhead; on CPU 2–3× faster for LM and half the compile time, equal for
+            AdaModW — ``benchmarks/results/sweep_cpu.md``), or ``"auto"``: ``"map"`` on a single
+            CPU device, else ``"vmap"``. Several devices always use ``"vmap"`` (XLA partitions a
+            vmapped batch over them; a sequential map cannot be split).
         out_dir: directory to write each finished chunk to (``chunks/<run>/trials_a-b.npz``)
             and the settings (``sweep.json``); a rerun with the same settings loads finished
             chunks instead of recomputing them (resume after an interruption);
@@ -757,6 +777,11 @@ def sweep(
     start = Deviations.zeros(robot.dof, dtype) if start is None else start.astype(dtype)
     devs = _resolve_devices(devices)
     mesh = Mesh(np.asarray(devs), ("trials",)) if len(devs) > 1 else None
+    if batching not in ("auto", "vmap", "map"):
+        raise ValueError(f"batching must be 'auto', 'vmap' or 'map', got {batching!r}")
+    if batching == "map" and mesh is not None:
+        raise ValueError("batching='map' runs on one device; use 'vmap' (or 'auto') with several devices")
+    sequential = batching == "map" or (batching == "auto" and mesh is None and devs[0].platform == "cpu")
     per_device, csize = _chunking(n_seeds, chunk_size, len(devs))
     n_chunks = math.ceil(n_seeds / csize)
     store = _Store(out_dir)
@@ -768,6 +793,7 @@ def sweep(
         "chunk_size": csize,
         "per_device_batch": per_device,
         "n_devices": len(devs),
+        "batching": "map" if sequential else "vmap",
         "noise_std": None if noise_std is None else float(noise_std),
         "source": source_settings,
         "robot": _robot_fingerprint(robot),
@@ -785,7 +811,7 @@ def sweep(
     def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of):
         """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
         per trial ``[n]``, the compile time and the per-chunk arrays."""
-        runner = _Runner(trial, mesh, dtype, hyper is not None)
+        runner = _Runner(trial, mesh, dtype, hyper is not None, sequential)
         shown = "data" if unit == "_data" else unit
         chunks, walls = [], []
         for c in range(n_chunks):
@@ -816,7 +842,8 @@ def sweep(
 
     # 1. data pass: every trial's data (simulated or split once, reused by every method), the
     #    before-calibration and oracle metrics, the true deviations
-    _progress(progress, f"{n_seeds} trial(s) in chunks of {csize} = {len(devs)} device(s) × {per_device}")
+    _progress(progress, f"{n_seeds} trial(s) in chunks of {csize} = {len(devs)} device(s) × {per_device} "
+              f"({'lax.map' if sequential else 'vmap'})")
     dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot), keep_errors)
     k0 = trial_keys(base_key, 0, 1)[0]
     with dtype_scope(dtype):
@@ -844,7 +871,7 @@ def sweep(
     trial_args = (dlike.split, dlike.k_method)  # shapes of one trial's method inputs
     units: list[_Unit] = []
     for s in specs:
-        fp = _fingerprint(common | {"unit": s.name, "labels": s.labels, "hyper": _jsonable(s.hyper_reports),
+        fp = _fingerprint(common | {"unit": s.name, "labels": s.labels, "hyper": to_jsonable(s.hyper_reports),
                                     "extra": s.fingerprint_extra})
         if s.points is None:
             units.append(_Unit(s.labels[0], fp, mk(s.method, space), None, s, [None]))
@@ -860,8 +887,8 @@ def sweep(
             units.append(_Unit(unit, fp, trial, hyper, s, list(range(len(s.points)))))
     settings["runs"] = [
         {"label": lab, "method": u.spec.name, "unit": u.name, "grid_index": g,
-         "hyperparameters": _jsonable(u.spec.hyper_reports[i]),
-         "grid_point": None if u.spec.points is None else _jsonable(u.spec.points[i])}
+         "hyperparameters": to_jsonable(u.spec.hyper_reports[i]),
+         "grid_point": None if u.spec.points is None else to_jsonable(u.spec.points[i])}
         for u in units for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index))
     ]
     if store.root is not None and jax.process_index() == 0:
@@ -917,7 +944,7 @@ def _make_run(label, name, report, point, merged, times, compile_time, trial, tr
         like = eqx.filter_eval_shape(lambda t, a, h: t(*a, h), trial, trial_args, hyper)
     out = _unflatten(like, merged)
     return SweepRun(
-        label=label, method=name, hyperparameters=_jsonable(report), grid_point=None if point is None else _jsonable(point),
+        label=label, method=name, hyperparameters=to_jsonable(report), grid_point=None if point is None else to_jsonable(point),
         test=Metrics(*(np.asarray(v) for v in out.test)), train=Metrics(*(np.asarray(v) for v in out.train)),
         n_iterations=np.asarray(out.n_iterations), iterations_to_converge=np.asarray(out.iterations_to_converge),
         status=np.asarray(out.status), time_per_trial_s=np.asarray(times), compile_time_s=float(compile_time),
@@ -951,7 +978,7 @@ def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experi
         if noise_std is None:
             raise ValueError("simulation needs noise_std (mm)")
         options = _simulation_options(robot, n_samples, noise_std, test_fraction, experiment)
-        settings = {"kind": "simulated", **{k: _jsonable(v) for k, v in options.items()},
+        settings = {"kind": "simulated", **{k: to_jsonable(v) for k, v in options.items()},
                     "true_deviations": None if truth is None else _array_digest(truth.ravel())}
         return _Simulated(robot, measurement, truth, tuple(sorted(options.items()))), robot, measurement, settings
     if experiment:
@@ -995,14 +1022,7 @@ def _simulation_options(robot, n_samples, noise_std, test_fraction, experiment) 
     if unknown:
         raise TypeError(f"unknown experiment option(s) {sorted(unknown)}; valid: {sorted(allowed)}")
     o = {n: sig.parameters[n].default for n in allowed} | dict(experiment)
-    if n_samples < 2:
-        raise ValueError(f"n_samples must be at least 2, got {n_samples}")
-    if not (0.0 < test_fraction < 1.0):
-        raise ValueError(f"test_fraction must be in (0, 1), got {test_fraction}")
-    if noise_std < 0 or not math.isfinite(noise_std):
-        raise ValueError(f"noise_std must be a finite non-negative number (mm), got {noise_std}")
-    if o["oversample"] < 1:
-        raise ValueError("oversample must be >= 1")
+    check_simulation_settings(n_samples, test_fraction, noise_std, o["oversample"])
     reach = robot.reach_mm()
     wr = o.pop("wire_range_mm")
     o["wire_range"] = (0.05 * reach, 1.2 * reach) if wr is None else tuple(float(v) for v in wr)
@@ -1018,15 +1038,3 @@ def _check_kind(data: Dataset, measurement: MeasurementModel) -> None:
         raise ValueError(f"data are {data.kind!r} measurements but the measurement model is {measurement.kind!r}")
 
 
-def _jsonable(v):
-    if isinstance(v, Mapping):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    if isinstance(v, (np.floating,)):
-        return float(v)
-    if v is None or isinstance(v, (bool, int, float, str)):
-        return v
-    return repr(v)

@@ -270,9 +270,9 @@ QUICK = {
 
 
 def _cmd_reproduce(args) -> int:
-    from ._report import write_report
     from ._sweep import PAPER_METHODS, sweep
     from .methods import METHODS
+    from .report import write_report
 
     quick = args.quick
     seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if quick else 20)
@@ -293,7 +293,7 @@ def _cmd_reproduce(args) -> int:
     out = pathlib.Path(args.out)
     t0 = time.perf_counter()
     res = sweep(methods, seeds, seed=args.seed, n_samples=samples, noise_std=args.noise_std, hyperparameters=hyper,
-                chunk_size=args.chunk_size, out_dir=out / "sweep", progress=not args.quiet)
+                chunk_size=args.chunk_size, batching=args.batching, out_dir=out / "sweep", progress=not args.quiet)
     t_sweep = time.perf_counter() - t0
     _print_tables(res)
     files = write_report(res, out)
@@ -318,7 +318,7 @@ def _figures(res, out) -> dict:
 
 
 def _print_tables(res) -> None:
-    from ._report import accuracy_table, convergence_table, dh_table
+    from .report import accuracy_table, convergence_table, dh_table
 
     print()
     print(accuracy_table(res))
@@ -330,7 +330,7 @@ def _print_tables(res) -> None:
 
 def _cmd_report(args) -> int:
     from ._io import load_sweep
-    from ._report import write_report
+    from .report import write_report
 
     src = pathlib.Path(args.sweep_dir)
     if not (src / "sweep.json").exists() and (src / "sweep" / "sweep.json").exists():
@@ -381,7 +381,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="base random seed (default 0)")
     r.add_argument("--out", default="jaxcal-reproduce", help="output directory (default ./jaxcal-reproduce)")
     r.add_argument("--quick", action="store_true", help="small, fast settings (a smoke run)")
-    r.add_argument("--chunk-size", type=int, default=None, help="max trials per device per vmapped call (default 16)")
+    r.add_argument("--chunk-size", type=int, default=None, help="max trials per device per compiled chunk (default 16)")
+    r.add_argument("--batching", choices=("auto", "vmap", "map"), default="auto",
+                   help="how a device runs its trials: vmap (vectorised; GPUs, several devices), map (lax.map, one "
+                        "after the other), auto (map on one CPU device, else vmap)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures (no matplotlib needed)")
     r.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     r.set_defaults(func=_cmd_reproduce)
@@ -391,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Calibrate the DH parameters (the identifiable subset, found by QR with column pivoting) from "
                     "measured data: split off --test-fraction of the samples (at random, --seed), calibrate on the "
                     "rest, print RMSE/MEAN/MAX (mm) before and after on both parts and the calibrated DH table, "
-                    "and write a JSON result (--out) that jaxcal._io.load_result reads back.",
+                    "and write a JSON result (--out) that jaxcal.load_result reads back.",
         epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT + "\n\nexit status: 0 ok, 1 calibration failed/diverged, "
                "2 bad input.",
     )

@@ -22,8 +22,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._report import paper_label
 from ._sweep import PAPER_METHODS, SweepResult, SweepRun
+from .report import batching_label, paper_label
 
 __all__ = ["fig2_accuracy", "fig3_training", "fig4_positioning", "grid_figure", "save_figures", "method_color"]
 
@@ -207,7 +207,8 @@ def fig3_training(result: SweepResult, path=None, *, methods: Sequence[str] | No
     ax.grid(axis="y", alpha=0.3, which="both", zorder=0)
     ax.legend(fontsize=7)
     dev = result.settings.get("n_devices", 1)
-    ax.set_title(f"(c) time per trial (vmapped, {dev} device(s))", fontsize=10)
+    how = batching_label(result)
+    ax.set_title(f"(c) time per trial ({how}, {dev} device(s))", fontsize=10)
     fig.suptitle(f"Training curves and time, {result.n_seeds} seed(s)", fontsize=11)
     _save(fig, path)
     return fig

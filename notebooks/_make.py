@@ -91,7 +91,7 @@ print(lm)
 print(adamodw)
 """),
         code("""
-from jaxcal._problem import Problem
+from jaxcal import Problem
 
 nominal = Problem(ex.robot, ex.measurement, ex.test.q, ex.test.y)
 before = jaxcal.compute_metrics(nominal.sample_errors(nominal.x0()))
@@ -141,13 +141,13 @@ without changing any predicted wire length.
 
 ## Save and load the result
 
-`jaxcal._io.save_result` writes a JSON file (the same format as `jaxcal calibrate --out`);
+`jaxcal.save_result` writes a JSON file (the same format as `jaxcal calibrate --out`);
 `load_result` gives back a `CalibrationResult` that predicts and evaluates like the original.
 """),
         code("""
 import tempfile
 
-from jaxcal._io import load_result, save_result
+from jaxcal import load_result, save_result
 
 path = os.path.join(tempfile.mkdtemp(), "lm.json")
 save_result(lm, path, test_metrics_mm=lm.evaluate(ex.test))
@@ -180,8 +180,9 @@ test data.
 `jaxcal reproduce` does the same from the command line (`--quick` for a smoke run).
 """),
         code(setup(third=("import numpy as np", "from IPython.display import Image, Markdown, display"),
-                   first=("from jaxcal import plots", "from jaxcal._report import accuracy_table, convergence_table, dh_table",
-                          "from jaxcal._sweep import PAPER_METHODS, sweep", "from jaxcal.methods import METHODS"))),
+                   first=("from jaxcal import PAPER_METHODS, plots, sweep",
+                          "from jaxcal.methods import METHODS",
+                          "from jaxcal.report import accuracy_table, convergence_table, dh_table"))),
         code("""
 if QUICK:
     methods, n_seeds, n_samples = ["lm", "adamodw"], 3, 300
@@ -214,9 +215,10 @@ for r in res:
         md("## Table IV: iterations and time"),
         code("display(Markdown(convergence_table(res, markdown=True)))"),
         md("""
-Times are per trial inside a vmapped, jitted chunk (compilation excluded), so they measure the
-algorithms' arithmetic, not Python overhead; a vmapped LM chunk lasts until its slowest member
-converges. Iteration counts are not comparable across families: one LM iteration is a damped
+Times are per trial inside one jitted function per chunk of trials (compilation excluded), so
+they measure the algorithms' arithmetic, not Python overhead (on one CPU device the trials of a
+chunk run one after the other, `jax.lax.map`; vmapped on GPUs, where a vmapped LM chunk lasts
+until its slowest member converges). Iteration counts are not comparable across families: one LM iteration is a damped
 Gauss–Newton step, one GA/BSO/IWOA iteration evaluates a whole population, one EKF iteration is
 a pass over all samples.
 
@@ -284,7 +286,7 @@ Here we drive the optimizer by hand on the scaled problem and cut the learning r
 half-way through.
 """),
         code("""
-from jaxcal._problem import Problem
+from jaxcal import Problem
 from jaxcal.methods import ScaledProblem
 
 tx = optax.inject_hyperparams(jaxcal.optim.adamodw)(learning_rate=0.1, b3=0.9, weight_decay=1e-4)
@@ -341,20 +343,23 @@ parameters, `optax.MultiSteps` for gradient accumulation over mini-batches
 def seed_sweeps():
     return [
         md("""
-# 04 · Seed sweeps: vmapped trials, a hyperparameter grid, several devices
+# 04 · Seed sweeps: batched trials, a hyperparameter grid, several devices
 
 One calibration says little: the spread over seeds (robots, poses, noise, splits) is as large
-as the differences between good methods. `jaxcal._sweep.sweep` runs N seeded trials per method;
-a chunk of trials (simulation + calibration + test metrics) is **one** `jax.vmap`-ed, jitted
-function per method, so a sweep costs one compilation per method and runs the trials in
-parallel on whatever hardware is there.
+as the differences between good methods. `jaxcal.sweep` runs N seeded trials per method.
+The data of a chunk of trials is simulated once (one jitted, vmapped function); then each
+method calibrates and evaluates the whole chunk in **one** jitted function, so a sweep costs one
+compilation per method. Inside it the trials are `jax.vmap`-ed (what fills a GPU, and what is
+spread over several devices) or, on a single CPU device, run one after the other with
+`jax.lax.map` (measured 2–3× faster there for LM: `benchmarks/results/sweep_cpu.md`);
+`batching="vmap" | "map" | "auto"` chooses.
 
 Trial *i* uses `key_i = fold_in(key, i)`, split into a data key and a method key: every method
 sees the same data in trial *i* (paired comparisons), and a trial's result does not depend on
 how many trials the sweep has or how they are chunked.
 """),
         code(setup(stdlib=("import tempfile",), third=("import numpy as np", "from IPython.display import Image, Markdown, display"),
-                   first=("from jaxcal import plots", "from jaxcal._report import grid_table", "from jaxcal._sweep import sweep"))),
+                   first=("from jaxcal import plots, sweep", "from jaxcal.report import grid_table"))),
         code("""
 n_seeds = 3 if QUICK else 32
 n_samples = 300 if QUICK else 2000
@@ -366,9 +371,9 @@ print(res.labels)
 """),
         md("""
 One call ran LM and a 3 × 3 grid of AdaModW's β3 × weight decay — the ablation the paper does
-not report. Float-valued grid axes are vmapped over inside one compilation
-(`optax.inject_hyperparams`-style traced hyperparameters), so the nine settings cost one
-compile, not nine.
+not report. Float-valued grid axes are traced (the hyperparameters are arrays, as under
+`optax.inject_hyperparams`) and mapped over inside one compilation, so the nine settings cost
+one compile, not nine.
 """),
         code("""
 display(Markdown(grid_table(res, "adamodw", markdown=True)))
@@ -406,10 +411,10 @@ run (as in the paper's tables) cannot rank them; paired differences over many se
 
 With `out_dir`, every finished chunk is written at once (`chunks/<run>/trials_a-b.npz`); a rerun
 with the same settings loads the finished chunks and computes only the missing ones, and
-`jaxcal._io.load_sweep` rebuilds the result from the directory.
+`jaxcal.load_sweep` rebuilds the result from the directory.
 """),
         code("""
-from jaxcal._io import load_sweep
+from jaxcal import load_sweep
 
 out = tempfile.mkdtemp()
 first = sweep(["lm"], n_seeds, seed=0, n_samples=n_samples, out_dir=out, progress=False)
@@ -424,7 +429,7 @@ print(sorted(os.listdir(os.path.join(out, "chunks"))), load_sweep(out))
 of the chunk's trials are sharded along a one-axis mesh `Mesh(devices, ("trials",))` with
 `NamedSharding(mesh, P("trials"))`, everything else is replicated, and XLA partitions the
 vmapped trial along that axis. Each device computes its own batch of `chunk_size` trials, with
-bitwise the same results as one device computing that batch.
+bitwise the same results as one device computing that batch with `batching="vmap"`.
 
 Why not `jax.shard_map`? Inside `shard_map` (and `pmap`, which is built on it in JAX 0.10)
 every traced value carries a manual-axis sharding in its type, and lineax compares a vector's
@@ -446,10 +451,10 @@ script = textwrap.dedent('''
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
     import jax, numpy as np
     jax.config.update("jax_enable_x64", True)
-    from jaxcal._sweep import sweep
+    from jaxcal import sweep
     kw = dict(seed=1, n_samples=300, chunk_size=2, progress=False)
     four = sweep(["lm"], 8, devices=4, **kw)
-    one = sweep(["lm"], 8, devices=1, **kw)
+    one = sweep(["lm"], 8, devices=1, batching="vmap", **kw)
     print(len(jax.devices()), "devices; identical to one device:", np.array_equal(four["lm"].x, one["lm"].x))
 ''')
 if QUICK:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import Any, ClassVar, NamedTuple
@@ -180,10 +181,12 @@ class Method(eqx.Module):
     def hyperparameters(self) -> dict[str, Any]:
         """Settings reported in results (numbers and strings)."""
         out = {}
-        for f in self.__dataclass_fields__:
-            v = getattr(self, f)
+        # dataclasses.fields: instance fields only (no ClassVars such as ``name``); the
+        # keyword-only ones (e.g. the search box of BoxSearch) after the method's own
+        for f in sorted(dataclasses.fields(self), key=lambda f: f.kw_only is True):
+            v = getattr(self, f.name)
             if isinstance(v, (int, float, str, bool, type(None))):
-                out[f] = v
+                out[f.name] = v
         return out
 
     def label(self) -> str:

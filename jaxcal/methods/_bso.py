@@ -36,10 +36,9 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from ._base import Method, RawRun, ScaledProblem, register_method
-from ._ga import (
-    box_half_width_z,
-    check_box,
+from ._base import RawRun, ScaledProblem, register_method
+from ._population import (
+    BoxSearch,
     check_positive,
     check_unit_interval,
     finish_population_run,
@@ -54,7 +53,7 @@ __all__ = ["BeetleSwarm"]
 
 
 @register_method("bso")
-class BeetleSwarm(Method):
+class BeetleSwarm(BoxSearch):
     """Beetle swarm optimisation (PSO + beetle-antennae search), the paper's M3.
 
     One iteration = one generation (``3 × population_size`` evaluations in one batched call).
@@ -90,9 +89,6 @@ class BeetleSwarm(Method):
     w_max: float = 0.9
     w_min: float = 0.4
     v_max_fraction: float = 0.2
-    box_angle_deg: float = 2.0
-    box_length_mm: float = 5.0
-    box_extra_mm: float = 50.0
     name: ClassVar[str] = "bso"
 
     def __check_init__(self):
@@ -109,7 +105,6 @@ class BeetleSwarm(Method):
         if self.w_min > self.w_max:
             raise ValueError(f"w_min must be <= w_max, got w_min={self.w_min} > w_max={self.w_max}")
         check_positive("v_max_fraction", self.v_max_fraction)
-        check_box(self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
 
     @property
     def max_iterations(self) -> int:
@@ -118,7 +113,7 @@ class BeetleSwarm(Method):
     def run(self, problem: ScaledProblem, key) -> RawRun:
         P, p, T = self.population_size, problem.n_free, self.generations
         dtype = problem.dtype
-        hw = box_half_width_z(problem, self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
+        hw = self.box_half_width_z(problem)
         v_max = self.v_max_fraction * 2.0 * hw
         k_init, k_run = jax.random.split(key)
         X0 = initial_population(k_init, hw, P)

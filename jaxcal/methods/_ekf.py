@@ -33,14 +33,14 @@ import jax
 import jax.numpy as jnp
 
 from .._result import Status
-from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, register_method
-from ._ga import box_half_width_z, check_box, check_positive, start_rmse
+from ._base import DIVERGENCE_FACTOR, RawRun, ScaledProblem, register_method
+from ._population import BoxSearch, check_positive, start_rmse
 
 __all__ = ["ExtendedKalmanFilter"]
 
 
 @register_method("ekf")
-class ExtendedKalmanFilter(Method):
+class ExtendedKalmanFilter(BoxSearch):
     """Sequential EKF over the samples with the deviations as static state (the paper's M2).
 
     Defaults (the paper gives none): ``passes = 3``, ``noise_std = 0.5`` mm,
@@ -60,9 +60,6 @@ class ExtendedKalmanFilter(Method):
     noise_std: float = 0.5
     prior_fraction: float = 0.5
     process_noise: float = 0.0
-    box_angle_deg: float = 2.0
-    box_length_mm: float = 5.0
-    box_extra_mm: float = 50.0
     name: ClassVar[str] = "ekf"
 
     def __check_init__(self):
@@ -70,7 +67,6 @@ class ExtendedKalmanFilter(Method):
         check_positive("noise_std", self.noise_std)
         check_positive("prior_fraction", self.prior_fraction)
         check_positive("process_noise", self.process_noise, allow_zero=True)
-        check_box(self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
 
     @property
     def max_iterations(self) -> int:
@@ -80,7 +76,7 @@ class ExtendedKalmanFilter(Method):
         del key  # deterministic
         pr = problem.problem
         p, m, dtype = problem.n_free, pr.measurement.size, problem.dtype
-        hw = box_half_width_z(problem, self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
+        hw = self.box_half_width_z(problem)
         P0 = jnp.diag((self.prior_fraction * hw) ** 2)
         R = jnp.eye(m, dtype=dtype) * (self.noise_std**2)
         Q = jnp.eye(p, dtype=dtype) * (self.process_noise**2)

@@ -19,7 +19,6 @@ robot), the others are uniform in the box. Every generation evaluates all offspr
 batched forward-kinematics call (:func:`population_rmse`); the generations run in
 ``jax.lax.scan``. The history holds the best training RMSE found so far (non-increasing).
 
-This module also holds the small helpers shared by the population methods (GA, BSO, IWOA).
 Written in JAX rather than on ``evosax.algorithms.SimpleGA``: SimpleGA has no tournament/SBX/
 polynomial-mutation operators and barely converges with its default mutation std
 (DESIGN.md §5), and a plain JAX loop is exact, vmappable and adds no dependency.
@@ -27,134 +26,33 @@ polynomial-mutation operators and barely converges with its default mutation std
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._result import Status
-from ._base import Method, RawRun, ScaledProblem, default_half_width, register_method
+from ._base import RawRun, ScaledProblem, register_method
+from ._population import (
+    BoxSearch,
+    check_positive,
+    check_unit_interval,
+    finish_population_run,
+    initial_population,
+    population_rmse,
+    uniform_index,
+    uniform_parts,
+)
 
 __all__ = [
     "GeneticAlgorithm",
-    "population_rmse",
-    "box_half_width_z",
-    "initial_population",
-    "finish_population_run",
-    "uniform_parts",
-    "normal_from_uniform",
-    "uniform_index",
     "sbx_crossover",
     "polynomial_mutation",
     "tournament",
 ]
 
 
-# --- helpers shared by the population methods ------------------------------------------------
-
-
-def population_rmse(problem: ScaledProblem, Z: Float[Array, "P p"]) -> Float[Array, " P"]:
-    """Training RMSE of ``P`` candidates in one batched FK call (:meth:`ScaledProblem.rmse_batch`)."""
-    return problem.rmse_batch(Z)
-
-
-def box_half_width_z(problem: ScaledProblem, angle_deg: float, length_mm: float, extra_mm: float) -> Array:
-    """Half-widths ``[p]`` in ``z`` of the physical box ±``angle_deg`` / ±``length_mm`` /
-    ±``extra_mm`` (anchor, tool, cable offset) around the start."""
-    hw = default_half_width(problem.problem.space, angle_deg, length_mm, extra_mm)
-    return problem.half_width_z(hw)
-
-
-def check_box(angle_deg: float, length_mm: float, extra_mm: float) -> None:
-    """``ValueError`` unless the box half-widths are finite and positive."""
-    for name, v in (("box_angle_deg", angle_deg), ("box_length_mm", length_mm), ("box_extra_mm", extra_mm)):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be a finite number > 0 (search box half-width), got {v!r}")
-
-
-def check_positive(name: str, value, *, integer: bool = False, minimum=None, allow_zero: bool = False) -> None:
-    """``ValueError`` with a clear message for a non-positive (or too small) hyperparameter."""
-    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok_type or (not integer and not math.isfinite(value)):
-        kind = "an integer" if integer else "a finite number"
-        raise ValueError(f"{name} must be {kind}, got {value!r}")
-    if minimum is not None:
-        if value < minimum:
-            raise ValueError(f"{name} must be >= {minimum}, got {value}")
-    elif value < 0 or (value == 0 and not allow_zero):
-        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {value}")
-
-
-def check_unit_interval(name: str, value, *, open_low: bool = False) -> None:
-    """``ValueError`` unless ``value`` lies in ``[0, 1]`` (``(0, 1]`` with ``open_low``)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0.0 <= value <= 1.0) or (open_low and value == 0):
-        raise ValueError(f"{name} must be in {'(0, 1]' if open_low else '[0, 1]'}, got {value!r}")
-
-
-def initial_population(key: Array, half_width: Float[Array, " p"], size: int) -> Float[Array, "P p"]:
-    """``[size, p]`` candidates uniform in the box ``±half_width``; row 0 is the start ``z = 0``."""
-    p = half_width.shape[0]
-    u = jax.random.uniform(key, (size, p), half_width.dtype, -1.0, 1.0)
-    return (u * half_width).at[0].set(0.0)
-
-
-def finish_population_run(
-    problem: ScaledProblem, rmse0: Array, best_history: Float[Array, " T"], z_best: Float[Array, " p"], extra=None
-) -> RawRun:
-    """RawRun from a per-generation best-so-far history ``[T]`` (without the start).
-
-    ``history[0]`` is the start's RMSE; status COMPLETED, or DIVERGED where the history is
-    non-finite (no finite candidate ever found); the returned ``z`` is the best found (the start
-    where nothing finite was found).
-    """
-    hist = jnp.concatenate([rmse0[None], best_history])
-    finite = jnp.isfinite(hist)
-    ok = jnp.all(finite) & jnp.all(jnp.isfinite(z_best))
-    n_gen = best_history.shape[0]
-    # first non-finite entry - 1 (as the gradient methods count iterations before a divergence)
-    first_bad = jnp.argmax(~finite)
-    n_it = jnp.where(ok, n_gen, jnp.maximum(first_bad - 1, 0))
-    z = jnp.where(jnp.all(jnp.isfinite(z_best)) & jnp.isfinite(hist[-1]), z_best, jnp.zeros_like(z_best))
-    status = jnp.where(ok, int(Status.COMPLETED), int(Status.DIVERGED))
-    return RawRun(z, hist, jnp.asarray(n_it), status, extra)
-
-
-def start_rmse(problem: ScaledProblem) -> Array:
-    """RMSE at ``z = 0`` (``inf`` if non-finite), entry 0 of every history."""
-    r = problem.rmse(jnp.zeros(problem.n_free, problem.dtype))
-    return jnp.where(jnp.isfinite(r), r, jnp.inf)
-
-
 # --- the genetic algorithm --------------------------------------------------------------------
-
-
-def uniform_parts(key: Array, shapes, dtype) -> list[Array]:
-    """Uniform ``[0, 1)`` arrays of the given shapes from ONE ``jax.random.uniform`` draw.
-
-    One draw per generation instead of one per operator: each random-bit generator (and
-    ``randint``) is a separate threefry kernel for XLA to compile; sharing one draw cut the
-    GA's compilation by ~40 % (measured, XLA:CPU), at no cost in randomness.
-    """
-    sizes = [math.prod(s) for s in shapes]
-    u = jax.random.uniform(key, (sum(sizes),), dtype)
-    out, i = [], 0
-    for shape, n in zip(shapes, sizes):
-        out.append(u[i : i + n].reshape(shape))
-        i += n
-    return out
-
-
-def normal_from_uniform(u: Array) -> Array:
-    """Standard normals from uniforms ``u`` in [0, 1) (inverse CDF, as ``jax.random.normal``)."""
-    lo = jnp.nextafter(jnp.asarray(-1.0, u.dtype), jnp.asarray(0.0, u.dtype))
-    return math.sqrt(2.0) * jax.scipy.special.erfinv(jnp.maximum(2.0 * u - 1.0, lo))
-
-
-def uniform_index(u: Array, n: int) -> Array:
-    """Integers uniform in ``[0, n)`` from uniforms ``u`` in ``[0, 1)``."""
-    return jnp.clip(jnp.floor(u * n), 0, n - 1).astype(jnp.int32)
 
 
 def sbx_crossover(a: Array, b: Array, eta: float, prob: float, u: Array, u_gene: Array, u_pair: Array):
@@ -192,7 +90,7 @@ def tournament(fitness: Float[Array, " P"], u: Array) -> Array:
 
 
 @register_method("ga")
-class GeneticAlgorithm(Method):
+class GeneticAlgorithm(BoxSearch):
     """Real-coded GA (the paper's M1): tournament selection, SBX, polynomial mutation, elitism.
 
     One iteration = one generation (``population_size − n_elite`` new evaluations, one batched
@@ -226,9 +124,6 @@ class GeneticAlgorithm(Method):
     crossover_eta: float = 15.0
     mutation_prob: float | None = None
     mutation_eta: float = 50.0
-    box_angle_deg: float = 2.0
-    box_length_mm: float = 5.0
-    box_extra_mm: float = 50.0
     name: ClassVar[str] = "ga"
 
     def __check_init__(self):
@@ -243,7 +138,6 @@ class GeneticAlgorithm(Method):
         if self.mutation_prob is not None:
             check_unit_interval("mutation_prob", self.mutation_prob)
         check_positive("mutation_eta", self.mutation_eta)
-        check_box(self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
 
     @property
     def max_iterations(self) -> int:
@@ -251,7 +145,7 @@ class GeneticAlgorithm(Method):
 
     def run(self, problem: ScaledProblem, key) -> RawRun:
         P, p = self.population_size, problem.n_free
-        hw = box_half_width_z(problem, self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
+        hw = self.box_half_width_z(problem)
         lo, hi = -hw, hw
         pm = 1.0 / p if self.mutation_prob is None else self.mutation_prob
         n_child = P - self.n_elite

@@ -44,10 +44,9 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from ._base import Method, RawRun, ScaledProblem, register_method
-from ._ga import (
-    box_half_width_z,
-    check_box,
+from ._base import RawRun, ScaledProblem, register_method
+from ._population import (
+    BoxSearch,
     check_positive,
     check_unit_interval,
     finish_population_run,
@@ -63,7 +62,7 @@ __all__ = ["ImprovedWhale"]
 
 
 @register_method("iwoa")
-class ImprovedWhale(Method):
+class ImprovedWhale(BoxSearch):
     """Improved whale optimisation (WOA + nonlinear ``a(t)``, adaptive inertia weight, local
     deep search around the best whale), the paper's M5.
 
@@ -100,9 +99,6 @@ class ImprovedWhale(Method):
     local_step: float = 0.05
     local_expand: float = 1.25
     local_shrink: float = 0.9
-    box_angle_deg: float = 2.0
-    box_length_mm: float = 5.0
-    box_extra_mm: float = 50.0
     name: ClassVar[str] = "iwoa"
 
     def __check_init__(self):
@@ -118,7 +114,6 @@ class ImprovedWhale(Method):
         check_positive("local_step", self.local_step)
         check_positive("local_expand", self.local_expand, minimum=1.0)
         check_unit_interval("local_shrink", self.local_shrink, open_low=True)
-        check_box(self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
 
     @property
     def max_iterations(self) -> int:
@@ -127,7 +122,7 @@ class ImprovedWhale(Method):
     def run(self, problem: ScaledProblem, key) -> RawRun:
         P, p, T, L = self.population_size, problem.n_free, self.iterations, self.n_local
         dtype = problem.dtype
-        hw = box_half_width_z(problem, self.box_angle_deg, self.box_length_mm, self.box_extra_mm)
+        hw = self.box_half_width_z(problem)
         k_init, k_run = jax.random.split(key)
         X0 = initial_population(k_init, hw, P)
         f0 = population_rmse(problem, X0)

@@ -52,8 +52,8 @@ from jaxtyping import Array, Float, Int
 from .._measurement import CableLength, Position
 from .._result import Status
 from ._base import Method, RawRun, ScaledProblem, register_method
-from ._ga import check_positive, start_rmse
 from ._least_squares import LevenbergMarquardt, optimistix_run
+from ._population import check_positive, start_rmse
 
 __all__ = ["RBFNetwork", "RBFNetworkMethod", "rbf_features", "rbf_apply"]
 

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ._json import to_jsonable
 from ._metrics import format_table
 from ._result import Status
 from ._sweep import PAPER_METHODS, SweepResult
@@ -209,18 +210,26 @@ def convergence_table(result: SweepResult, *, markdown: bool = False, paper: boo
     title = f"Table IV. Iterations and time, mean ± std over {result.n_seeds} seed(s)"
     notes = [
         "Iterations (RMSE): first iteration after which the training RMSE stays within 1 % of its final value.",
-        f"Time/trial: wall time of a vmapped chunk of trials / chunk size ({result.settings.get('per_device_batch')} "
-        f"per device, {dev} device(s); compilation excluded). A vmapped LM chunk runs until its slowest trial "
-        "converges. Time (RMSE) = Time/trial × Iterations (RMSE) / Iterations run.",
+        f"Time/trial: wall time of a chunk of trials / chunk size ({result.settings.get('per_device_batch')} "
+        f"per device, {dev} device(s), {batching_label(result)}; compilation excluded). "
+        + ("A vmapped LM chunk runs until its slowest trial converges. " if batching_label(result) == "vmap" else "")
+        + "Time (RMSE) = Time/trial × Iterations (RMSE) / Iterations run.",
     ]
     if paper:
-        notes.append("paper: Chen & Li's Table IV (seconds on their machine; not comparable to vmapped JAX runs).")
+        notes.append("paper: Chen & Li's Table IV (seconds on their machine; not comparable to compiled JAX runs).")
     return _with_notes(format_table(rows, headers, markdown=markdown, title=title), notes, markdown)
+
+
+def batching_label(result: SweepResult) -> str:
+    """How the sweep ran each chunk of trials: ``"lax.map"`` or ``"vmap"``."""
+    return "lax.map" if result.settings.get("batching") == "map" else "vmap"
 
 
 def _time_pm(m, s):
     if not math.isfinite(m):
         return "—"
+    if s == 0:  # every trial in one chunk: one wall time shared by all, no spread to show
+        return f"{m:.3g}"
     return f"{m:.3g} ± {s:.1g}"
 
 
@@ -349,21 +358,6 @@ def rows_to_csv(rows: Sequence[dict]) -> str:
     return buf.getvalue()
 
 
-def _json_clean(v):
-    if isinstance(v, dict):
-        return {str(k): _json_clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_json_clean(x) for x in v]
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    if isinstance(v, (float, np.floating)):
-        v = float(v)
-        return v if math.isfinite(v) else None
-    if isinstance(v, np.bool_):
-        return bool(v)
-    return v
-
-
 def write_report(result: SweepResult, out_dir, *, dh_method: str | None = None, trial: int = 0) -> dict[str, pathlib.Path]:
     """Write Tables III, IV, V (and the grid table if there are grid runs) as ``.txt``, ``.md``
     and ``.csv``, the whole summary as ``summary.json``, and ``report.md`` with every table.
@@ -396,7 +390,7 @@ def write_report(result: SweepResult, out_dir, *, dh_method: str | None = None, 
         "settings": result.settings,
     }
     p = out / "summary.json"
-    p.write_text(json.dumps(_json_clean(summary), indent=1, default=repr) + "\n", encoding="utf-8")
+    p.write_text(json.dumps(to_jsonable(summary, nonfinite="null"), indent=1, default=repr) + "\n", encoding="utf-8")
     files["summary.json"] = p
     p = out / "report.md"
     p.write_text("\n\n".join(md_parts) + "\n", encoding="utf-8")
