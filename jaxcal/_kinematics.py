@@ -43,8 +43,9 @@ def _axpy(p: Vec3, k, u: Vec3) -> Vec3:
     return tuple(pi + k * ui for pi, ui in zip(p, u))
 
 
-def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
-    """Flange frame as SoA: columns X, Y, Z and origin P, each a triple of ``[n]`` arrays."""
+def _joint_terms(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
+    """cos/sin of θ + q (``[dof, n]``), of α and β (``[dof]``), and a, d (``[dof]``, mm) of the
+    deviated robot, in the dtype of ``q``."""
     dtype = q.dtype
     cast = lambda x: jnp.asarray(x).astype(dtype)  # noqa: E731
     if dev is None:
@@ -54,9 +55,12 @@ def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
             cast(getattr(robot, g)) + cast(getattr(dev, g)) for g in ("alpha", "a", "d", "theta", "beta")
         )
     th = q.T + theta[:, None]  # [dof, n], rows contiguous
-    ct, st = jnp.cos(th), jnp.sin(th)
-    ca, sa = jnp.cos(alpha), jnp.sin(alpha)
-    cb, sb = jnp.cos(beta), jnp.sin(beta)
+    return jnp.cos(th), jnp.sin(th), jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta), a, d
+
+
+def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
+    """Flange frame as SoA: columns X, Y, Z and origin P, each a triple of ``[n]`` arrays."""
+    ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
     X: Vec3 = (1.0, 0.0, 0.0)
     Y: Vec3 = (0.0, 1.0, 0.0)
     Z: Vec3 = (0.0, 0.0, 1.0)
@@ -78,7 +82,7 @@ def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
             X, Y = _rot(X, Y, ct[i], st[i])
             P = _axpy(P, d[i], Z)
     n = q.shape[0]
-    full = lambda v: tuple(jnp.broadcast_to(jnp.asarray(c, dtype), (n,)) for c in v)  # noqa: E731
+    full = lambda v: tuple(jnp.broadcast_to(jnp.asarray(c, q.dtype), (n,)) for c in v)  # noqa: E731
     return full(X), full(Y), full(Z), full(P)
 
 
@@ -90,9 +94,47 @@ def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype) -> Vec3:
     return tuple(P[k] + t[0] * X[k] + t[1] * Y[k] + t[2] * Z[k] for k in range(3))
 
 
-def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]) -> Vec3:
-    """Tool point in the base frame as three ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``."""
-    return _tool_offset(robot, dev, _chain(robot, dev, q), q.dtype)
+def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], point) -> Vec3:
+    """A point given in the flange frame (``[3]``, mm), expressed in the base frame: three ``[n]``.
+
+    Applied from the flange inward, ``p ← A_i(q_i)·p`` for ``i = dof … 1``, each joint
+    transform acting on a point rather than on a frame: a point needs two plane rotations and
+    two additions per joint where a frame needs three columns rotated (~4x the arithmetic),
+    and ``jax.jacfwd`` pushes every tangent through the same cheap recursion. Equal to the
+    flange frame of :func:`_chain` applied to the point (tested to round-off).
+    """
+    ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
+    x, y, z = (point[k] for k in range(3))
+    standard = robot.convention == "standard"
+    for i in reversed(range(robot.dof)):
+        hayati = (i + 1) in robot.beta_joints
+        if standard:  # Rz(θ) Tz(d) Tx(a) Rx(α) [Ry(β)] · p
+            if hayati:
+                z, x = cb[i] * z - sb[i] * x, sb[i] * z + cb[i] * x
+            y, z = ca[i] * y - sa[i] * z, sa[i] * y + ca[i] * z
+            x, z = x + a[i], z + d[i]
+            x, y = ct[i] * x - st[i] * y, st[i] * x + ct[i] * y
+        else:  # Craig: Rx(α) [Ry(β)] Tx(a) Rz(θ) Tz(d) · p
+            z = z + d[i]
+            x, y = ct[i] * x - st[i] * y, st[i] * x + ct[i] * y
+            x = x + a[i]
+            if hayati:
+                z, x = cb[i] * z - sb[i] * x, sb[i] * z + cb[i] * x
+            y, z = ca[i] * y - sa[i] * z, sa[i] * y + ca[i] * z
+    n = q.shape[0]
+    return tuple(jnp.broadcast_to(c, (n,)) for c in (x, y, z))
+
+
+def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], *, tool: bool = True) -> Vec3:
+    """Tool point (or, with ``tool=False``, the flange origin) in the base frame as three
+    ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``."""
+    dtype = q.dtype
+    t = jnp.zeros(3, dtype)
+    if tool:
+        t = jnp.asarray(robot.tool).astype(dtype)
+        if dev is not None:
+            t = t + jnp.asarray(dev.tool).astype(dtype)
+    return _point_in_base(robot, dev, q, t)
 
 
 def fk_position(
@@ -118,11 +160,7 @@ def fk_position(
     q = check_joint_angles(robot, q)
     single = q.ndim == 1
     q2 = q[None] if single else q
-    if tool:
-        p = tool_point_soa(robot, deviations, q2)
-    else:
-        p = _chain(robot, deviations, q2)[3]
-    out = jnp.stack(p, axis=-1)
+    out = jnp.stack(tool_point_soa(robot, deviations, q2, tool=tool), axis=-1)
     return out[0] if single else out
 
 

@@ -24,6 +24,7 @@ from jaxcal import (
     statistical_floor,
 )
 from jaxcal.methods import LevenbergMarquardt, ScaledProblem, make_method
+from jaxcal.methods._least_squares import residual_with_jacfwd
 
 GRADIENT_METHODS = ["adam", "adamw", "adamod", "adamodw"]
 
@@ -103,6 +104,27 @@ def test_lm_cholesky_step_equals_qr_step(experiment):
         ys[ls] = np.asarray(three_steps(z))
     assert np.abs(ys["qr"]).max() > 0.1  # the steps moved
     np.testing.assert_allclose(ys["cholesky"], ys["qr"], rtol=1e-9, atol=1e-9)
+
+
+def test_residual_with_jacfwd_has_the_exact_derivatives(experiment):
+    """The custom-JVP residual handed to optimistix (Jacobian materialised by jacfwd in its JVP
+    rule) has the values, JVPs, Jacobians and (through transposition) VJPs of the plain one, also
+    under vmap over problems."""
+    ex = experiment
+    sp = ScaledProblem.build(Problem(ex.robot, ex.measurement, ex.train.q[:300], ex.train.y[:300]))
+    f = residual_with_jacfwd(sp)
+    z = 0.01 * jax.random.normal(jax.random.key(0), (sp.n_free,))
+    t = jax.random.normal(jax.random.key(1), (sp.n_free,))
+    np.testing.assert_array_equal(f(z), sp.residual(z))
+    (r1, d1), (r2, d2) = jax.jvp(f, (z,), (t,)), jax.jvp(sp.residual, (z,), (t,))
+    np.testing.assert_array_equal(r1, r2)
+    np.testing.assert_allclose(d1, d2, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(jax.jacfwd(f)(z), sp.jacobian(z), rtol=1e-10, atol=1e-10)
+    w = jax.random.normal(jax.random.key(2), r1.shape)
+    np.testing.assert_allclose(jax.vjp(f, z)[1](w)[0], jax.vjp(sp.residual, z)[1](w)[0], rtol=1e-9, atol=1e-9)
+    two = jax.tree.map(lambda a: jnp.stack([a, a]), sp)
+    batched = jax.vmap(lambda p, z: jax.jvp(residual_with_jacfwd(p), (z,), (t,))[1])(two, jnp.stack([z, 2 * z]))
+    np.testing.assert_allclose(batched[1], jax.jvp(sp.residual, (2 * z,), (t,))[1], rtol=1e-10, atol=1e-10)
 
 
 @pytest.mark.slow

@@ -43,6 +43,8 @@ def test_fk_matches_numpy_reference(robot):
         np.testing.assert_allclose(p, _ref(robot, q, dev)[:, :3, 3], rtol=0, atol=1e-9)
         Tt = np.asarray(fk_pose(robot, jnp.asarray(q), dev, tool=True))
         np.testing.assert_allclose(Tt[:, :3, 3], p, rtol=0, atol=1e-9)
+        flange = np.asarray(fk_position(robot, jnp.asarray(q), dev, tool=False))
+        np.testing.assert_allclose(flange, T[:, :3, 3], rtol=0, atol=1e-9)
 
 
 def test_zero_angles_hand_computed():
@@ -87,6 +89,10 @@ def test_hayati_beta_nonzero_matches_reference():
     q = _random_q(hay, 30)
     dev = _random_dev(hay)
     np.testing.assert_allclose(np.asarray(fk_pose(hay, jnp.asarray(q), dev)), _ref(hay, q, dev, tool=False), atol=1e-9)
+    # positions come from a separate recursion (a point carried from the flange inward)
+    np.testing.assert_allclose(np.asarray(fk_position(hay, jnp.asarray(q), dev)), _ref(hay, q, dev)[:, :3, 3], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(fk_position(hay, jnp.asarray(q), dev, tool=False)),
+                               _ref(hay, q, dev, tool=False)[:, :3, 3], atol=1e-9)
     # beta at a joint without Hayati is ignored
     plain = hsr_jr680()
     np.testing.assert_allclose(np.asarray(fk_pose(plain, jnp.asarray(q), dev)), _ref(plain, q, dev, tool=False), atol=1e-9)
@@ -104,6 +110,8 @@ def test_modified_dh_matches_reference():
     dev = _random_dev(r)
     np.testing.assert_allclose(np.asarray(fk_pose(r, jnp.asarray(q), dev)), _ref(r, q, dev, tool=False), atol=1e-9)
     np.testing.assert_allclose(np.asarray(fk_position(r, jnp.asarray(q), dev)), _ref(r, q, dev)[:, :3, 3], atol=1e-9)
+    np.testing.assert_allclose(np.asarray(fk_position(r, jnp.asarray(q), dev, tool=False)),
+                               _ref(r, q, dev, tool=False)[:, :3, 3], atol=1e-9)
 
 
 @pytest.mark.parametrize("model", ["cable", "position", "pose"])
