@@ -67,7 +67,8 @@ def main():
         "# Population methods: cost per generation (CPU)",
         "",
         f"Machine: {machine()}; float64. Load average (1 min) at the end: {os.getloadavg()[0]:.1f} "
-        "(other jobs shared the cores: timings are upper bounds).",
+        "(this benchmark alone keeps both cores busy, ~2; well above 2 means other jobs shared the cores "
+        "and the timings are upper bounds).",
         "",
         "Default experiment: HSR-JR680, draw-wire, 1600 training samples, 19 identifiable parameters. "
         f"Per generation = (t({G1} generations) − t({G0} generations)) / {G1 - G0}, compiled, median of "

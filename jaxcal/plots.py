@@ -143,6 +143,10 @@ def _split_halves(runs: list[SweepRun]) -> tuple[list[SweepRun], list[SweepRun]]
     return runs[:h], runs[h:]
 
 
+_LINESTYLES = ("-", "--", "-.", (0, (6, 1.5)))
+_MARKERS = ("o", "s", "^", "D")
+
+
 def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
     for i, r in enumerate(runs):
         h = np.asarray(r.history, np.float64)
@@ -155,7 +159,10 @@ def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
         std = np.nanstd(h, axis=0, ddof=1) if h.shape[0] > 1 else np.zeros_like(mean)
         c = method_color(r.method, i)
         lab = _tick(r).replace("\n", " ")
-        ax.plot(it, mean, color=c, lw=1.6, label=lab, marker="o" if T <= 12 else None, ms=3)
+        # curves that coincide (LM, EKF and the RBF network all reach the floor in 1-2 steps)
+        # stay visible: the first drawn is the widest, each has its own dash and marker
+        ax.plot(it, mean, color=c, lw=max(2.4 - 0.35 * i, 1.3), ls=_LINESTYLES[i % len(_LINESTYLES)], label=lab,
+                marker=_MARKERS[i % len(_MARKERS)] if T <= 12 else None, ms=max(6 - i, 3))
         ax.fill_between(it, np.maximum(mean - std, 1e-3), mean + std, color=c, alpha=0.15, lw=0)
         its = float(np.mean(r.iterations_to_converge))
         ax.plot([its], [np.interp(its, it, mean)], marker="v", color=c, ms=6, mec="black", mew=0.5)

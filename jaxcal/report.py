@@ -229,8 +229,8 @@ def _time_pm(m, s):
     if not math.isfinite(m):
         return "—"
     if s == 0:  # every trial in one chunk: one wall time shared by all, no spread to show
-        return f"{m:.3g}"
-    return f"{m:.3g} ± {s:.1g}"
+        return f"{m:#.3g}"
+    return f"{m:#.3g} ± {s:.1g}"
 
 
 # -- Table V --------------------------------------------------------------------------------------

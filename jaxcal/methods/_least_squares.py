@@ -6,7 +6,7 @@ per linearisation point and returns ``J·t`` (:func:`residual_with_jacfwd`). opt
 ``jac="fwd"`` linearisation then holds a plain matrix, so its trust-region test (``J·δ``), the
 lineax materialisation and the transposes in the normal equations are matrix products instead
 of passes through the linearised kinematics — which XLA:CPU evaluated ~3x slower than the
-Jacobian itself (LM: 11.3 ms → 5.0 ms for the default experiment, 2-core CPU; the iterates are
+Jacobian itself (the LM solve of the default experiment: 11.3 ms → 4.6 ms, 2-core CPU; the iterates are
 the same to round-off). The damped system is solved through its small ``p×p`` normal
 equations, ``lineax.Normal(lineax.Cholesky())`` (DESIGN.md §2), in the column-scaled coordinates
 of :class:`ScaledProblem` (which keep them well conditioned on an identifiable parameter set).
