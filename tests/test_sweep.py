@@ -273,5 +273,9 @@ def test_four_devices_equal_one_device_every_method(tmp_path):
     dist = _run_devices(methods, kw, tmp_path)
     one = sweep(methods, 3, devices=1, **kw)
     for m in methods:
-        for f in ("x", "history", "n_iterations", "status", "test_errors"):
+        for f in ("n_iterations", "status"):  # the same decisions
             np.testing.assert_array_equal(dist[f"{m}.{f}"], getattr(one[m], f), err_msg=f"{m}.{f}")
+        # the same numbers: bitwise for most methods, but the partitioned program is a different
+        # compilation and may round a reduction differently (seen: 1 ulp in an RBF history entry)
+        for f in ("x", "history", "test_errors"):
+            np.testing.assert_allclose(dist[f"{m}.{f}"], getattr(one[m], f), rtol=1e-13, atol=1e-13, err_msg=f"{m}.{f}")
