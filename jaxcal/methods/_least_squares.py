@@ -10,7 +10,11 @@ Jacobian itself (the LM solve of the default experiment: 11.3 ms → 4.6 ms, 2-c
 the same to round-off). The damped system is solved through its small ``p×p`` normal
 equations, ``lineax.Normal(lineax.Cholesky())`` (DESIGN.md §2), in the column-scaled coordinates
 of :class:`ScaledProblem` (which keep them well conditioned on an identifiable parameter set).
-``linear_solver="qr"`` selects optimistix's default QR instead.
+``linear_solver="qr"`` selects optimistix's default QR instead. LM's trust region is
+optimistix's ``ClassicalTrustRegion`` plus one rule (:class:`RoundoffAwareTrustRegion`): a step
+whose predicted and actual changes of the loss are both below its rounding error is accepted, so
+a converged solve stops instead of shrinking the trust region through ~20 rejected round-off
+steps.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ from .._measurement import Pose
 from .._result import Status
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, finish_history, register_method
 
-__all__ = ["LevenbergMarquardt", "GaussNewton", "make_linear_solver", "optimistix_run", "residual_with_jacfwd"]
+__all__ = ["LevenbergMarquardt", "GaussNewton", "make_linear_solver", "optimistix_run", "residual_with_jacfwd", "RoundoffAwareTrustRegion"]
 
 
 def make_linear_solver(name: str) -> lx.AbstractLinearSolver:
@@ -59,6 +63,32 @@ def residual_with_jacfwd(problem: ScaledProblem):
         return r, J @ t
 
     return residual
+
+
+class RoundoffAwareTrustRegion(optx.ClassicalTrustRegion):
+    """``optimistix.ClassicalTrustRegion`` that also accepts a step whose predicted decrease of the
+    loss ``½‖r‖²`` is below the loss's rounding error (``N·eps·loss``, ``N`` residuals) and whose
+    actual change is too (the step size is then left as it is).
+
+    Near the optimum both the predicted and the actual decrease are round-off, so the classical
+    ratio test accepts or rejects at random; after a rejection the trust region shrinks by 4 and
+    the next, smaller step is again round-off — optimistix's LM then spent up to ~20 extra
+    steps (each with a Jacobian) until a step happened to pass, and a ``vmap``-ed batch of LM
+    trials waits for its slowest member. Accepting such a step changes the loss by at most its
+    rounding error, and lets the Cauchy termination (step below ``atol + rtol·|z|``) end the
+    solve.
+    """
+
+    def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
+        step_size, accept, result, new_state = super().step(first_step, y, y_eval, f_info, f_eval_info, state)
+        r, r_eval = f_info.residual, f_eval_info.residual
+        loss = 0.5 * jnp.sum(r * r)
+        noise = r.size * jnp.finfo(r.dtype).eps * loss
+        predicted = self.predict_reduction(y_eval - y, f_info)
+        roundoff = (~first_step) & (jnp.abs(predicted) <= noise) & (0.5 * jnp.sum(r_eval * r_eval) - loss <= noise)
+        step_size = jnp.where(roundoff & ~accept, state.step_size, step_size)
+        new_state = eqx.tree_at(lambda s: s.step_size, new_state, step_size)
+        return step_size, accept | roundoff, result, new_state
 
 
 def _rmse_from_state(problem: ScaledProblem, z, state):
@@ -158,7 +188,10 @@ class _OptimistixMethod(Method):
 
     def solver(self) -> optx.AbstractLeastSquaresSolver:
         """The optimistix solver."""
-        return type(self).solver_cls(self.rtol, self.atol, linear_solver=make_linear_solver(self.linear_solver))
+        solver = type(self).solver_cls(self.rtol, self.atol, linear_solver=make_linear_solver(self.linear_solver))
+        if isinstance(solver.search, optx.ClassicalTrustRegion):  # LM
+            solver = eqx.tree_at(lambda s: s.search, solver, RoundoffAwareTrustRegion())
+        return solver
 
     def run(self, problem: ScaledProblem, key) -> RawRun:
         del key  # deterministic
