@@ -92,11 +92,17 @@ def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
     return full(X), full(Y), full(Z), full(P)
 
 
-def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype) -> Vec3:
-    X, Y, Z, P = frame
+def _tool_vector(robot: DHRobot, dev: Deviations | None, dtype) -> Float[Array, " 3"]:
+    """The tool point in the flange frame (nominal + Δtool, mm)."""
     t = jnp.asarray(robot.tool).astype(dtype)
     if dev is not None:
         t = t + jnp.asarray(dev.tool).astype(dtype)
+    return t
+
+
+def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype) -> Vec3:
+    X, Y, Z, P = frame
+    t = _tool_vector(robot, dev, dtype)
     return tuple(P[k] + t[0] * X[k] + t[1] * Y[k] + t[2] * Z[k] for k in range(3))
 
 
@@ -134,12 +140,7 @@ def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n do
 def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], *, tool: bool = True) -> Vec3:
     """Tool point (or, with ``tool=False``, the flange origin) in the base frame as three
     ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``."""
-    dtype = q.dtype
-    t = jnp.zeros(3, dtype)
-    if tool:
-        t = jnp.asarray(robot.tool).astype(dtype)
-        if dev is not None:
-            t = t + jnp.asarray(dev.tool).astype(dtype)
+    t = _tool_vector(robot, dev, q.dtype) if tool else jnp.zeros(3, q.dtype)
     return _point_in_base(robot, dev, q, t)
 
 

@@ -34,7 +34,7 @@ def experiment():
     return simulate_experiment(jax.random.PRNGKey(0))
 
 
-def _floor_check(ex, n_test_extra=20000, seed=11):
+def assert_lm_at_floor_and_cramer_rao(ex, n_test_extra=20000, seed=11):
     """LM on ex.train; test RMSE on a large fresh test set vs the statistical floor, and the
     estimate vs the noiseless fit within 3 Cramér–Rao standard deviations."""
     res = calibrate(ex.robot, ex.measurement, ex.train, "lm")
@@ -64,7 +64,7 @@ def _floor_check(ex, n_test_extra=20000, seed=11):
 
 
 def test_lm_reaches_floor_and_cramer_rao(experiment):
-    _floor_check(experiment)
+    assert_lm_at_floor_and_cramer_rao(experiment)
 
 
 @pytest.mark.slow  # ~1 min each on 2 cores (compilation); run with -m slow
@@ -72,7 +72,7 @@ def test_lm_reaches_floor_and_cramer_rao(experiment):
 def test_lm_floor_other_robots(name):
     robot = jaxcal.robots.get_robot(name)
     ex = simulate_experiment(jax.random.PRNGKey(2), robot)
-    _floor_check(ex)
+    assert_lm_at_floor_and_cramer_rao(ex)
 
 
 def test_gauss_newton_matches_lm(experiment):

@@ -90,15 +90,23 @@ class ScaledProblem(eqx.Module):
         """``∂residual/∂z`` by ``jax.jacfwd``."""
         return jax.jacfwd(self.residual)(z)
 
+    def residual_and_jacobian(self, z: Float[Array, " p"], problem: Problem | None = None):
+        """``(r [N], ∂r/∂z [N, p])`` from one ``jax.jacfwd`` pass (the residual is its primal).
+
+        ``problem`` (default: the training problem) lets mini-batches reuse the scaling.
+        """
+        pr = self.problem if problem is None else problem
+        f = lambda z: (pr.residual(self.x(z)),) * 2  # noqa: E731
+        J, r = jax.jacfwd(f, has_aux=True)(z)
+        return r, J
+
     def loss_and_grad(self, z: Float[Array, " p"], problem: Problem | None = None):
         """``(½·mean(r²), ∇_z)`` in forward mode: ``Jᵀr/N`` from one ``jacfwd`` pass.
 
         With p ≪ N this is ~3x faster on CPU than reverse mode (``jax.value_and_grad``).
         ``problem`` (default: the training problem) lets mini-batches reuse it.
         """
-        pr = self.problem if problem is None else problem
-        f = lambda z: (pr.residual(self.x(z)),) * 2  # noqa: E731
-        J, r = jax.jacfwd(f, has_aux=True)(z)
+        r, J = self.residual_and_jacobian(z, problem)
         n = r.shape[0]
         return 0.5 * jnp.sum(r * r) / n, jnp.sum(J * r[:, None], axis=0) / n
 

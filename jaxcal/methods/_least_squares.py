@@ -6,8 +6,8 @@ per linearisation point and returns ``J·t`` (:func:`residual_with_jacfwd`). opt
 ``jac="fwd"`` linearisation then holds a plain matrix, so its trust-region test (``J·δ``), the
 lineax materialisation and the transposes in the normal equations are matrix products instead
 of passes through the linearised kinematics — which XLA:CPU evaluated ~3x slower than the
-Jacobian itself (the LM solve of the default experiment: 11.3 ms → 4.6 ms, 2-core CPU; the iterates are
-the same to round-off). The damped system is solved through its small ``p×p`` normal
+Jacobian itself (the LM solve of the default experiment: 11.3 ms → 4.6 ms, 2-core CPU; the
+iterates are the same to round-off). The damped system is solved through its small ``p×p`` normal
 equations, ``lineax.Normal(lineax.Cholesky())`` (DESIGN.md §2), in the column-scaled coordinates
 of :class:`ScaledProblem` (which keep them well conditioned on an identifiable parameter set).
 ``linear_solver="qr"`` selects optimistix's default QR instead. LM's trust region is
@@ -31,7 +31,14 @@ from .._measurement import Pose
 from .._result import Status
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, finish_history, register_method
 
-__all__ = ["LevenbergMarquardt", "GaussNewton", "make_linear_solver", "optimistix_run", "residual_with_jacfwd", "RoundoffAwareTrustRegion"]
+__all__ = [
+    "LevenbergMarquardt",
+    "GaussNewton",
+    "RoundoffAwareTrustRegion",
+    "make_linear_solver",
+    "optimistix_run",
+    "residual_with_jacfwd",
+]
 
 
 def make_linear_solver(name: str) -> lx.AbstractLinearSolver:
@@ -59,7 +66,7 @@ def residual_with_jacfwd(problem: ScaledProblem):
     @residual.defjvp
     def _jvp(primals, tangents):
         (z,), (t,) = primals, tangents
-        J, r = jax.jacfwd(lambda z: (problem.residual(z),) * 2, has_aux=True)(z)
+        r, J = problem.residual_and_jacobian(z)
         return r, J @ t
 
     return residual
@@ -81,11 +88,11 @@ class RoundoffAwareTrustRegion(optx.ClassicalTrustRegion):
 
     def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
         step_size, accept, result, new_state = super().step(first_step, y, y_eval, f_info, f_eval_info, state)
-        r, r_eval = f_info.residual, f_eval_info.residual
-        loss = 0.5 * jnp.sum(r * r)
+        r = f_info.residual
+        loss = f_info.as_min()
         noise = r.size * jnp.finfo(r.dtype).eps * loss
         predicted = self.predict_reduction(y_eval - y, f_info)
-        roundoff = (~first_step) & (jnp.abs(predicted) <= noise) & (0.5 * jnp.sum(r_eval * r_eval) - loss <= noise)
+        roundoff = (~first_step) & (jnp.abs(predicted) <= noise) & (f_eval_info.as_min() - loss <= noise)
         step_size = jnp.where(roundoff & ~accept, state.step_size, step_size)
         new_state = eqx.tree_at(lambda s: s.step_size, new_state, step_size)
         return step_size, accept | roundoff, result, new_state
