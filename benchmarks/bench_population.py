@@ -5,8 +5,8 @@ parameters). For each method and population size, ``method.run`` is compiled for
 generation counts (``G0`` and ``G1``) and timed after compilation (median of ``REPEATS``); the
 per-generation cost is ``(t(G1) − t(G0)) / (G1 − G0)``, which removes the fixed cost (scaling
 Jacobian excluded anyway, initial population, final bookkeeping). Also timed: one batched
-evaluation of ``P`` candidates by ``population_rmse`` (the evaluator the methods use) and by
-``ScaledProblem.rmse_batch`` (same values; a row reduction that XLA:CPU lowers ~14× slower).
+evaluation of ``P`` candidates, ``ScaledProblem.rmse_batch`` (the evaluator the methods use: one
+vmapped FK call, the mean over samples as a matrix–vector product).
 
 Run:  python benchmarks/bench_population.py   (writes benchmarks/results/population_cpu.md)
 """
@@ -23,7 +23,6 @@ from _common import machine, median_time
 import jaxcal
 from jaxcal import Problem, identifiability, simulate_experiment
 from jaxcal.methods import ScaledProblem, make_method
-from jaxcal.methods._population import population_rmse
 
 jaxcal.enable_x64()
 
@@ -47,10 +46,9 @@ def main():
     rows = []
     for P in SIZES:
         Z = 0.1 * jax.random.normal(jax.random.PRNGKey(1), (P, sp.n_free), jnp.float64)
-        t_pop = median_time(jax.jit(population_rmse), sp, Z, repeats=REPEATS)
-        t_batch = median_time(jax.jit(lambda sp, Z: sp.rmse_batch(Z)), sp, Z, repeats=REPEATS)
-        rows.append(("(evaluation)", P, P, t_pop, t_batch))
-        print(f"P={P}: population_rmse {t_pop * 1e3:.1f} ms, rmse_batch {t_batch * 1e3:.1f} ms", flush=True)
+        t_eval = median_time(jax.jit(lambda sp, Z: sp.rmse_batch(Z)), sp, Z, repeats=REPEATS)
+        rows.append(("(evaluation)", P, P, t_eval))
+        print(f"P={P}: rmse_batch {t_eval * 1e3:.1f} ms", flush=True)
         for name, (gen_kw, evals) in METHODS.items():
             ts = []
             for G in (G0, G1):
@@ -60,7 +58,7 @@ def main():
                 ts.append(median_time(f, sp, key, repeats=REPEATS))
             per_gen = (ts[1] - ts[0]) / (G1 - G0)
             n_eval = evals(P, make_method(name, population_size=P))
-            rows.append((name, P, n_eval, per_gen, None))
+            rows.append((name, P, n_eval, per_gen))
             print(f"P={P} {name}: {per_gen * 1e3:.1f} ms/generation ({n_eval} evaluations)", flush=True)
 
     lines = [
@@ -72,16 +70,14 @@ def main():
         "",
         "Default experiment: HSR-JR680, draw-wire, 1600 training samples, 19 identifiable parameters. "
         f"Per generation = (t({G1} generations) − t({G0} generations)) / {G1 - G0}, compiled, median of "
-        f"{REPEATS} runs. `population_rmse` is the evaluator the methods use (one vmapped FK call, mean "
-        "over samples as a matrix–vector product); `rmse_batch` is `ScaledProblem.rmse_batch` (same values, "
-        "`jnp.mean` reduction).",
+        f"{REPEATS} runs. (evaluation): one `ScaledProblem.rmse_batch` call on P candidates, the "
+        "evaluator the methods use (one vmapped FK call, mean over samples as a matrix–vector product).",
         "",
-        "| method | P | evaluations / generation | ms / generation | µs / evaluation | rmse_batch ms |",
-        "| --- | ---: | ---: | ---: | ---: | ---: |",
+        "| method | P | evaluations / generation | ms / generation | µs / evaluation |",
+        "| --- | ---: | ---: | ---: | ---: |",
     ]
-    for name, P, n_eval, t, t_batch in rows:
-        extra = f"{t_batch * 1e3:.1f}" if t_batch is not None else ""
-        lines.append(f"| {name} | {P} | {n_eval} | {t * 1e3:.1f} | {t / n_eval * 1e6:.0f} | {extra} |")
+    for name, P, n_eval, t in rows:
+        lines.append(f"| {name} | {P} | {n_eval} | {t * 1e3:.1f} | {t / n_eval * 1e6:.0f} |")
     out = pathlib.Path(__file__).parent / "results" / "population_cpu.md"
     out.parent.mkdir(exist_ok=True)
     out.write_text("\n".join(lines) + "\n")

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import pathlib
 from typing import Any
 
@@ -248,11 +247,8 @@ def load_result_dict(path) -> dict:
 
 
 def _num(v) -> float:
-    if v is None:
-        return math.nan
-    if isinstance(v, str):
-        return float(v)
-    return float(v)
+    """A JSON number back to float: ``null`` → NaN, ``"inf"``/``"-inf"`` → ±inf."""
+    return math.nan if v is None else float(v)
 
 
 def load_result(path) -> CalibrationResult:
@@ -308,7 +304,7 @@ def load_sweep(out_dir, *, partial: bool = False):
         partial: load only the trials finished by every run of an interrupted sweep (default:
             raise if any chunk is missing; rerun ``sweep`` with the same settings to resume).
     """
-    from ._sweep import SweepResult, SweepRun, _DataOut, _Split, _Store, _TrialOut, _unflatten
+    from ._sweep import _TRIAL_LIKE, SweepResult, SweepRun, _DataOut, _Split, _Store, _unflatten
 
     root = pathlib.Path(out_dir)
     meta_path = root / "sweep.json"
@@ -364,14 +360,13 @@ def load_sweep(out_dir, *, partial: bool = False):
                      _Split(0.0, 0.0, 0.0, 0.0, None), 0)
     dmerged, _, _ = merge("_data", 0)
     dout = _unflatten(dlike, dmerged)
-    tlike = _TrialOut(met, met, 0, 0, 0, 0.0, 0.0, 0.0)
     runs = {}
     for r in st["runs"]:
         axis = 1 if r["grid_index"] is not None else 0
         merged, times, ct = merge(r["unit"], axis)
         if axis == 1:
             merged = {k: v[r["grid_index"]] for k, v in merged.items()}
-        out = _unflatten(tlike, merged)
+        out = _unflatten(_TRIAL_LIKE, merged)
         runs[r["label"]] = SweepRun(
             label=r["label"], method=r["method"], hyperparameters=r["hyperparameters"], grid_point=r["grid_point"],
             test=Metrics(*out.test), train=Metrics(*out.train), n_iterations=out.n_iterations,
@@ -390,10 +385,3 @@ def load_sweep(out_dir, *, partial: bool = False):
         before_errors=dout.before_errors, space=space, robot=robot, measurement=measurement, start=start,
         true_deviations=dout.truth, settings=settings,
     )
-
-
-def _atomic_write_text(path, text: str) -> None:
-    path = pathlib.Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)

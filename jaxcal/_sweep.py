@@ -192,6 +192,11 @@ class _TrialOut(NamedTuple):
     test_errors: Array
 
 
+#: the tree structure of a :class:`_TrialOut` (leaf values are placeholders): the template that
+#: maps a chunk's flat ``{path: array}`` back to a result (sweep and ``load_sweep`` alike).
+_TRIAL_LIKE = _TrialOut(Metrics(0.0, 0.0, 0.0), Metrics(0.0, 0.0, 0.0), 0, 0, 0, 0.0, 0.0, 0.0)
+
+
 class _DataTrial(eqx.Module):
     """Trial data from the trial key, and the before-calibration (nominal) and oracle (true
     model) metrics on its test split. Runs once per sweep; every method reuses its output."""
@@ -258,11 +263,9 @@ def _batched(static, dyn, inputs, hyper, sequential: bool = False):
     hyperparameter points form an outer axis. ``jax.vmap`` (all trials at once), or with
     ``sequential`` ``jax.lax.map`` (one trial after the other inside the compiled function)."""
     trial = eqx.combine(dyn, static)
-    if sequential:
-        over_trials = lambda h: jax.lax.map(lambda a: trial(*a, h), inputs)  # noqa: E731
-        return over_trials(None) if hyper is None else jax.lax.map(over_trials, hyper)
-    over_trials = lambda h: jax.vmap(lambda *a: trial(*a, h))(*inputs)  # noqa: E731
-    return over_trials(None) if hyper is None else jax.vmap(over_trials)(hyper)
+    batch = (lambda f, xs: jax.lax.map(lambda a: f(*a), xs)) if sequential else (lambda f, xs: jax.vmap(f)(*xs))  # noqa: E731
+    over_trials = lambda h: batch(lambda *a: trial(*a, h), inputs)  # noqa: E731
+    return over_trials(None) if hyper is None else batch(over_trials, (hyper,))
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
@@ -651,6 +654,8 @@ class _Runner:
     def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool, sequential: bool):
         self.dyn, self.static = eqx.partition(trial, eqx.is_array)
         self.dyn = cast_floating(self.dyn, dtype)
+        if mesh is not None:  # the trial's own arrays are replicated on every device
+            self.dyn = jax.device_put(self.dyn, NamedSharding(mesh, P()))
         self.mesh, self.dtype, self.grid, self.sequential = mesh, dtype, grid, sequential
         self.compiled = None
         self.compile_time_s = 0.0
@@ -667,9 +672,7 @@ class _Runner:
             inputs, hyper = self._place(inputs, hyper)
             if self.compiled is None:
                 t0 = time.perf_counter()
-                dyn = self.dyn if self.mesh is None else jax.device_put(self.dyn, NamedSharding(self.mesh, P()))
-                self.dyn = dyn
-                self.compiled = _run_chunk.lower(self.static, self.mesh, self.grid, self.sequential, dyn, inputs,
+                self.compiled = _run_chunk.lower(self.static, self.mesh, self.grid, self.sequential, self.dyn, inputs,
                                                    hyper).compile()
                 self.compile_time_s = time.perf_counter() - t0
             t0 = time.perf_counter()
@@ -908,10 +911,8 @@ def sweep(
                                         None if u.hyper is None else len(u.grid_index), method_inputs)
         for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index)):
             part = merged if g is None else {k: v[g] for k, v in merged.items()}
-            h = None if g is None else jax.tree.map(lambda a, g=g: a[g], u.hyper)
             pt = None if u.spec.points is None else u.spec.points[i]
-            runs[lab] = _make_run(lab, u.spec.name, u.spec.hyper_reports[i], pt, part, times, ct, u.trial,
-                                  trial_args, h, dtype)
+            runs[lab] = _make_run(lab, u.spec.name, u.spec.hyper_reports[i], pt, part, times, ct)
 
     return SweepResult(
         runs=runs,
@@ -939,10 +940,8 @@ class _Unit:
     grid_index: list
 
 
-def _make_run(label, name, report, point, merged, times, compile_time, trial, trial_args, hyper, dtype) -> SweepRun:
-    with dtype_scope(dtype):
-        like = eqx.filter_eval_shape(lambda t, a, h: t(*a, h), trial, trial_args, hyper)
-    out = _unflatten(like, merged)
+def _make_run(label, name, report, point, merged, times, compile_time) -> SweepRun:
+    out = _unflatten(_TRIAL_LIKE, merged)
     return SweepRun(
         label=label, method=name, hyperparameters=to_jsonable(report), grid_point=None if point is None else to_jsonable(point),
         test=Metrics(*(np.asarray(v) for v in out.test)), train=Metrics(*(np.asarray(v) for v in out.train)),

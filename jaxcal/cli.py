@@ -272,21 +272,15 @@ QUICK = {
 def _cmd_reproduce(args) -> int:
     from ._sweep import PAPER_METHODS, sweep
     from .methods import METHODS
-    from .report import write_report
 
     quick = args.quick
     seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if quick else 20)
     samples = args.samples if args.samples is not None else (QUICK["samples"] if quick else 2000)
-    wanted = args.methods or list(QUICK["methods"] if quick else PAPER_METHODS)
-    wanted = [m.lower() for m in wanted]
-    unknown = [m for m in wanted if m not in METHODS]
-    if args.methods and unknown:
-        raise _Usage(f"unknown method(s) {unknown}; available: {', '.join(sorted(METHODS))}")
+    # the defaults (the paper's M1-M8, or the quick pair) are all registered
+    methods = [m.lower() for m in args.methods or (QUICK["methods"] if quick else PAPER_METHODS)]
+    unknown = [m for m in methods if m not in METHODS]
     if unknown:
-        print(f"jaxcal: note: method(s) {unknown} are not registered in this installation; left out", file=sys.stderr)
-    methods = [m for m in wanted if m in METHODS]
-    if not methods:
-        raise _Usage("no methods to run")
+        raise _Usage(f"unknown method(s) {unknown}; available: {', '.join(sorted(METHODS))}")
     if seeds < 1:
         raise _Usage(f"--seeds must be >= 1, got {seeds}")
     hyper = {m: h for m, h in QUICK["hyperparameters"].items() if m in methods} if quick else {}
@@ -295,14 +289,22 @@ def _cmd_reproduce(args) -> int:
     res = sweep(methods, seeds, seed=args.seed, n_samples=samples, noise_std=args.noise_std, hyperparameters=hyper,
                 chunk_size=args.chunk_size, batching=args.batching, out_dir=out / "sweep", progress=not args.quiet)
     t_sweep = time.perf_counter() - t0
-    _print_tables(res)
-    files = write_report(res, out)
-    if not args.no_figures:
-        files |= _figures(res, out)
+    files = _write_outputs(res, out, figures=not args.no_figures)
     total = time.perf_counter() - t0
     print(f"\n{len(files)} files written to {out}/ (sweep {t_sweep:.1f} s, total {total:.1f} s; "
           f"chunks in {out / 'sweep'} resume an interrupted run)")
     return 0
+
+
+def _write_outputs(res, out, *, figures: bool) -> dict:
+    """Print Tables III-V, write them (and the figures) into ``out``; ``{name: path}``."""
+    from .report import write_report
+
+    _print_tables(res)
+    files = write_report(res, out)
+    if figures:
+        files |= _figures(res, out)
+    return files
 
 
 def _figures(res, out) -> dict:
@@ -330,7 +332,6 @@ def _print_tables(res) -> None:
 
 def _cmd_report(args) -> int:
     from ._io import load_sweep
-    from .report import write_report
 
     src = pathlib.Path(args.sweep_dir)
     if not (src / "sweep.json").exists() and (src / "sweep" / "sweep.json").exists():
@@ -338,11 +339,8 @@ def _cmd_report(args) -> int:
     if not (src / "sweep.json").exists():
         raise _Usage(f"{args.sweep_dir} holds no sweep (no sweep.json)")
     res = load_sweep(src, partial=args.partial)
-    _print_tables(res)
     out = pathlib.Path(args.out) if args.out else src.parent
-    files = write_report(res, out)
-    if not args.no_figures:
-        files |= _figures(res, out)
+    files = _write_outputs(res, out, figures=not args.no_figures)
     print(f"\n{len(files)} files written to {out}/")
     return 0
 

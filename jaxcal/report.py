@@ -23,7 +23,7 @@ import numpy as np
 from ._json import to_jsonable
 from ._metrics import format_table
 from ._result import Status
-from ._sweep import PAPER_METHODS, SweepResult
+from ._sweep import PAPER_METHODS, SweepResult, _mean_std
 
 __all__ = [
     "PAPER_TABLE_III",
@@ -79,11 +79,9 @@ def pm(mean: float, std: float, digits: int = 4) -> str:
 
 
 def _ms(a) -> tuple[float, float]:
+    """Mean ± std over the finite entries."""
     a = np.asarray(a, np.float64)
-    a = a[np.isfinite(a)]
-    if a.size == 0:
-        return math.nan, math.nan
-    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
+    return _mean_std(a[np.isfinite(a)])
 
 
 # -- Table III ------------------------------------------------------------------------------------
@@ -374,9 +372,10 @@ def write_report(result: SweepResult, out_dir, *, dh_method: str | None = None, 
     ]
     if any(r.grid_point is not None for r in result):
         tables.append(("grid", grid_table, grid_rows, {}))
-    md_parts = []
+    md_parts, rows_by = [], {}
     for name, fmt, rows_fn, kw in tables:
         txt, md, rows = fmt(result, **kw), fmt(result, markdown=True, **kw), rows_fn(result, **kw)
+        rows_by[name] = rows
         for ext, text in (("txt", txt), ("md", md), ("csv", rows_to_csv(rows))):
             p = out / f"{name}.{ext}"
             p.write_text(text + ("\n" if not text.endswith("\n") else ""), encoding="utf-8")
@@ -384,9 +383,9 @@ def write_report(result: SweepResult, out_dir, *, dh_method: str | None = None, 
         md_parts.append(md)
     summary = {
         "summary": result.summary(),
-        "table3_accuracy": accuracy_rows(result),
-        "table4_convergence": convergence_rows(result),
-        "table5_dh": dh_rows(result, dh_method, trial),
+        "table3_accuracy": rows_by["table3_accuracy"],
+        "table4_convergence": rows_by["table4_convergence"],
+        "table5_dh": rows_by["table5_dh"],
         "settings": result.settings,
     }
     p = out / "summary.json"

@@ -15,7 +15,6 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._problem import Problem
-from .._result import Status
 
 __all__ = [
     "ScaledProblem",
@@ -109,10 +108,6 @@ class ScaledProblem(eqx.Module):
         r, J = self.residual_and_jacobian(z, problem)
         n = r.shape[0]
         return 0.5 * jnp.sum(r * r) / n, jnp.sum(J * r[:, None], axis=0) / n
-
-    def residual_batch(self, Z: Float[Array, "P p"]) -> Float[Array, "P N"]:
-        """Residuals of ``P`` candidates in one batched FK call (``jax.vmap``)."""
-        return jax.vmap(self.residual)(Z)
 
     def rmse_batch(self, Z: Float[Array, "P p"]) -> Float[Array, " P"]:
         """Training RMSE of ``P`` candidates in one batched (``jax.vmap``-ed) FK call
@@ -263,7 +258,3 @@ def make_method(method, **hyperparameters) -> Method:
 _METHOD_CACHE: dict = {}
 
 
-def status_from_history(history: Array, rmse0: Array) -> Array:
-    """DIVERGED where the history went non-finite or exploded, else COMPLETED."""
-    bad = ~jnp.all(jnp.isfinite(history)) | jnp.any(history > DIVERGENCE_FACTOR * rmse0)
-    return jnp.where(bad, int(Status.DIVERGED), int(Status.COMPLETED))

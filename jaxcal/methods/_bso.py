@@ -44,7 +44,6 @@ from ._population import (
     finish_population_run,
     initial_population,
     normal_from_uniform,
-    population_rmse,
     start_rmse,
     uniform_parts,
 )
@@ -129,7 +128,7 @@ class BeetleSwarm(BoxSearch):
             b = normal_from_uniform(u_b)
             b = b / jnp.maximum(jnp.linalg.norm(b, axis=1, keepdims=True), 1e-12)
             # positions and both antennae of every beetle: one batched evaluation
-            f_all = population_rmse(problem, jnp.concatenate([X, X + d * b, X - d * b]))
+            f_all = problem.rmse_batch(jnp.concatenate([X, X + d * b, X - d * b]))
             f, f_r, f_l = f_all[:P], f_all[P : 2 * P], f_all[2 * P :]
             # personal and global bests (over positions)
             better = f < fp
@@ -149,4 +148,4 @@ class BeetleSwarm(BoxSearch):
         carry0 = (X0, jnp.zeros_like(X0), X0, jnp.full((P,), inf), X0[0], inf)
         steps = (jnp.arange(T), jax.random.split(k_run, T))
         (_, _, _, _, g, fg), best = jax.lax.scan(generation, carry0, steps)
-        return finish_population_run(problem, rmse0, best, g)
+        return finish_population_run(rmse0, best, g)

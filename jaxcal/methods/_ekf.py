@@ -84,18 +84,11 @@ class ExtendedKalmanFilter(BoxSearch):
         z0 = jnp.zeros(p, dtype)
         rmse0 = start_rmse(problem)
 
-        def residual_and_jacobian(z, q_i, y_i):
-            def f(z):
-                r = pr.with_data(q_i[None], y_i[None]).residual(problem.x(z))  # [m]
-                return r, r
-
-            H, r = jax.jacfwd(f, has_aux=True)(z)  # one forward pass: [m, p], [m]
-            return r, H
-
         def update(carry, sample):
             z, P = carry
             q_i, y_i = sample
-            r, H = residual_and_jacobian(z, q_i, y_i)
+            # one forward pass: r [m], H [m, p]
+            r, H = problem.residual_and_jacobian(z, pr.with_data(q_i[None], y_i[None]))
             PHt = P @ H.T
             S = H @ PHt + R
             K = jnp.linalg.solve(S, PHt.T).T  # [p, m]  (S symmetric)

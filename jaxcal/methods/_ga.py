@@ -16,7 +16,7 @@ It runs over the scaled deviations ``z`` inside the physical search box of
 :func:`~jaxcal.methods.default_half_width` (±2° angles, ±5 mm lengths, ±50 mm sensor extras),
 converted to ``z``. Individual 0 of the initial population is the start (``z = 0``, the nominal
 robot), the others are uniform in the box. Every generation evaluates all offspring in one
-batched forward-kinematics call (:func:`population_rmse`); the generations run in
+batched forward-kinematics call (``ScaledProblem.rmse_batch``); the generations run in
 ``jax.lax.scan``. The history holds the best training RMSE found so far (non-increasing).
 
 Written in JAX rather than on ``evosax.algorithms.SimpleGA``: SimpleGA has no tournament/SBX/
@@ -39,7 +39,6 @@ from ._population import (
     check_unit_interval,
     finish_population_run,
     initial_population,
-    population_rmse,
     uniform_index,
     uniform_parts,
 )
@@ -153,7 +152,7 @@ class GeneticAlgorithm(BoxSearch):
         k_init, k_run = jax.random.split(key)
 
         X0 = initial_population(k_init, hw, P)
-        f0 = population_rmse(problem, X0)
+        f0 = problem.rmse_batch(X0)
         rmse0 = f0[0]
 
         shapes = [(2 * n_pairs, self.tournament_size), (n_pairs, p), (n_pairs, p), (n_pairs, 1), (n_child, p), (n_child, p)]
@@ -168,7 +167,7 @@ class GeneticAlgorithm(BoxSearch):
             c1, c2 = sbx_crossover(a, b, self.crossover_eta, self.crossover_prob, u_beta, u_gene, u_pair)
             children = jnp.clip(jnp.concatenate([c1, c2])[:n_child], lo, hi)
             children = polynomial_mutation(children, lo, hi, self.mutation_eta, pm, u_mut, u_mutate)
-            fc = population_rmse(problem, children)  # one batched call per generation
+            fc = problem.rmse_batch(children)  # one batched call per generation
             X_new = jnp.concatenate([elite_X, children])
             f_new = jnp.concatenate([elite_f, fc])
             return (X_new, f_new), (jnp.min(f_new), X_new[jnp.argmin(f_new)])
@@ -179,4 +178,4 @@ class GeneticAlgorithm(BoxSearch):
         best_so_far = jax.lax.cummin(jnp.minimum(best_f, jnp.min(f0)))
         i = jnp.argmin(best_f)
         z_best = jnp.where(best_f[i] <= jnp.min(f0), best_X[i], X0[jnp.argmin(f0)])
-        return finish_population_run(problem, rmse0, best_so_far, z_best)
+        return finish_population_run(rmse0, best_so_far, z_best)

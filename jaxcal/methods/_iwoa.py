@@ -52,7 +52,6 @@ from ._population import (
     finish_population_run,
     initial_population,
     normal_from_uniform,
-    population_rmse,
     start_rmse,
     uniform_index,
     uniform_parts,
@@ -125,7 +124,7 @@ class ImprovedWhale(BoxSearch):
         hw = self.box_half_width_z(problem)
         k_init, k_run = jax.random.split(key)
         X0 = initial_population(k_init, hw, P)
-        f0 = population_rmse(problem, X0)
+        f0 = problem.rmse_batch(X0)
         rmse0 = start_rmse(problem)
         i0 = jnp.argmin(f0)
         sigma0 = self.local_step * hw
@@ -152,13 +151,13 @@ class ImprovedWhale(BoxSearch):
             X_new = jnp.clip(jnp.where(pr < 0.5, encircle, spiral), -hw, hw)
             # local deep search around the best whale, evaluated with the moves in one call
             local = jnp.clip(best + sigma * normal_from_uniform(u_loc), -hw, hw)
-            f_all = population_rmse(problem, jnp.concatenate([X_new, local]))
+            cand_X = jnp.concatenate([X_new, local])
+            f_all = problem.rmse_batch(cand_X)
             f_new, f_loc = f_all[:P], f_all[P:]
             success = jnp.min(f_loc, initial=jnp.inf) < f_best
             sigma = jnp.clip(
                 sigma * jnp.where(success, self.local_expand, self.local_shrink), 1e-6 * hw, hw
             )
-            cand_X = jnp.concatenate([X_new, local])
             j = jnp.argmin(f_all)
             improved = f_all[j] < f_best
             best = jnp.where(improved, cand_X[j], best)
@@ -168,4 +167,4 @@ class ImprovedWhale(BoxSearch):
         carry0 = (X0, f0, X0[i0], f0[i0], sigma0)
         steps = (jnp.arange(T), jax.random.split(k_run, T))
         (_, _, best, _, _), hist = jax.lax.scan(iteration, carry0, steps)
-        return finish_population_run(problem, rmse0, hist, best)
+        return finish_population_run(rmse0, hist, best)

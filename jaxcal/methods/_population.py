@@ -4,9 +4,9 @@
   box of ±``box_angle_deg`` (angles), ±``box_length_mm`` (DH lengths) and ±``box_extra_mm``
   (anchor, tool, cable offset) around the start, converted to the scaled coordinates ``z``
   (:func:`box_half_width_z`); the EKF uses the same box for its prior covariance.
-* one batched forward-kinematics call per population (:func:`population_rmse`), the initial
-  population, the best-so-far :class:`~jaxcal.methods.RawRun` of a population run, and the
-  random-number helpers that draw one ``jax.random.uniform`` block per generation;
+* the initial population (evaluated, like every generation, in one batched forward-kinematics
+  call: ``ScaledProblem.rmse_batch``), the best-so-far :class:`~jaxcal.methods.RawRun` of a
+  population run, and the random-number helpers that draw one ``jax.random.uniform`` block per generation;
 * hyperparameter checks with messages that name the parameter.
 """
 
@@ -24,7 +24,6 @@ from ._base import Method, RawRun, ScaledProblem, default_half_width
 
 __all__ = [
     "BoxSearch",
-    "population_rmse",
     "box_half_width_z",
     "check_box",
     "check_positive",
@@ -36,11 +35,6 @@ __all__ = [
     "normal_from_uniform",
     "uniform_index",
 ]
-
-
-def population_rmse(problem: ScaledProblem, Z: Float[Array, "P p"]) -> Float[Array, " P"]:
-    """Training RMSE of ``P`` candidates in one batched FK call (:meth:`ScaledProblem.rmse_batch`)."""
-    return problem.rmse_batch(Z)
 
 
 def box_half_width_z(problem: ScaledProblem, angle_deg: float, length_mm: float, extra_mm: float) -> Array:
@@ -84,7 +78,7 @@ def initial_population(key: Array, half_width: Float[Array, " p"], size: int) ->
 
 
 def finish_population_run(
-    problem: ScaledProblem, rmse0: Array, best_history: Float[Array, " T"], z_best: Float[Array, " p"], extra=None
+    rmse0: Array, best_history: Float[Array, " T"], z_best: Float[Array, " p"], extra=None
 ) -> RawRun:
     """RawRun from a per-generation best-so-far history ``[T]`` (without the start).
 
