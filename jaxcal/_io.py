@@ -155,14 +155,17 @@ def save_robot_csv(robot: DHRobot, path) -> None:
 
 
 def measurement_to_dict(m: MeasurementModel) -> dict:
-    """``{"kind": "cable", "anchor_mm": [x, y, z]}``, ``{"kind": "position"}`` or
-    ``{"kind": "pose", "orientation_scale": s}``."""
+    """``{"kind": "cable", "anchor_mm": [x, y, z]}``, ``{"kind": "position", "rotation": R,
+    "translation_mm": t}`` or ``{"kind": "pose", "orientation_scale": s, ...}`` (``R`` the nominal
+    ``[3, 3]`` sensor-from-base rotation, ``t`` mm)."""
     if isinstance(m, CableLength):
         return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
+    frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
+             "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
     if isinstance(m, Pose):
-        return {"kind": "pose", "orientation_scale": float(m.orientation_scale)}
+        return {"kind": "pose", "orientation_scale": float(m.orientation_scale)} | frame
     if isinstance(m, Position):
-        return {"kind": "position"}
+        return {"kind": "position"} | frame
     raise TypeError(f"cannot serialise measurement model {type(m).__name__}")
 
 
@@ -171,10 +174,12 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
     kind = d.get("kind")
     if kind == "cable":
         return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
+    frame = {"rotation": jnp.asarray(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
+             "translation": jnp.asarray(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
     if kind == "position":
-        return Position()
+        return Position(**frame)
     if kind == "pose":
-        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)))
+        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame)
     raise ValueError(f"unknown measurement kind {kind!r}")
 
 

@@ -20,7 +20,7 @@ from jaxtyping import Array, Float
 from ._params import Deviations
 from ._robot import DHRobot
 
-__all__ = ["fk_position", "fk_pose", "tool_point_soa", "check_joint_angles"]
+__all__ = ["fk_position", "fk_pose", "tool_point_soa", "check_joint_angles", "rotvec_to_matrix"]
 
 Vec3 = tuple  # three [n] arrays (or python floats before the first joint)
 
@@ -201,3 +201,23 @@ def fk_pose(
     bottom = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], q.dtype), top.shape[:-2] + (1, 4))
     T = jnp.concatenate([top, bottom], axis=-2)
     return T[0] if single else T
+
+
+def rotvec_to_matrix(w: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+    """Rotation matrix ``exp([w]×)`` of a rotation vector ``w`` (rad; Rodrigues' formula).
+
+    Differentiable everywhere, including ``w = 0`` (series expansions below θ² = 1e-8), so
+    ``jax.jacfwd`` of a frame at the nominal (zero) correction is exact.
+    """
+    w = jnp.asarray(w)
+    t2 = jnp.sum(w * w, axis=-1)[..., None, None]
+    small = t2 < 1e-8
+    t2s = jnp.where(small, 1.0, t2)
+    th = jnp.sqrt(t2s)
+    a = jnp.where(small, 1.0 - t2 / 6.0, jnp.sin(th) / th)
+    b = jnp.where(small, 0.5 - t2 / 24.0, (1.0 - jnp.cos(th)) / t2s)
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    o = jnp.zeros_like(x)
+    K = jnp.stack([jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2)
+    eye = jnp.eye(3, dtype=w.dtype)
+    return eye + a * K + b * (K @ K)

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._kinematics import _chain, _tool_offset, check_joint_angles, tool_point_soa
+from ._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
 from ._params import Deviations
 from ._robot import DHRobot
 
@@ -95,20 +95,63 @@ class CableLength(MeasurementModel):
         return jnp.sqrt(sq) + offset
 
 
-class Position(MeasurementModel):
-    """3-D position of the tool point in the base frame (e.g. a laser tracker), ``[n, 3]`` mm."""
+def _sensor_frame(model, deviations, dtype):
+    """``(R [3,3], t [3])`` of ``T_sensor_base``: the nominal frame of ``model`` corrected by the
+    ``base_rotation`` / ``base_translation`` deviations (``R = exp(δr)·R₀``, ``t = t₀ + δt``)."""
+    R = jnp.asarray(model.rotation).astype(dtype)
+    t = jnp.asarray(model.translation).astype(dtype)
+    if deviations is not None:
+        R = rotvec_to_matrix(jnp.asarray(deviations.base_rotation).astype(dtype)) @ R
+        t = t + jnp.asarray(deviations.base_translation).astype(dtype)
+    return R, t
 
+
+def _check_frame(rotation, translation):
+    R = jnp.eye(3) if rotation is None else jnp.asarray(rotation)
+    t = jnp.zeros(3) if translation is None else jnp.asarray(translation)
+    if R.shape != (3, 3):
+        raise ValueError(f"rotation must be a [3, 3] rotation matrix (sensor <- base), got shape {R.shape}")
+    if t.shape != (3,):
+        raise ValueError(f"translation must be a [3] vector in mm, got shape {t.shape}")
+    Rn = np.asarray(R, dtype=np.float64)
+    if not (np.allclose(Rn.T @ Rn, np.eye(3), atol=1e-6) and np.linalg.det(Rn) > 0):
+        raise ValueError("rotation must be a proper rotation matrix (RᵀR = I, det R = +1)")
+    return R, t
+
+
+class Position(MeasurementModel):
+    """3-D position of the tool point measured in the sensor's frame (e.g. a laser tracker),
+    ``[n, 3]`` mm: ``y = R·p_base(q) + t`` with ``(R, t) = T_sensor_base``.
+
+    A tracker never measures in the robot's base frame: give the nominal sensor-to-base frame
+    here (default: identity, i.e. data already in the base frame) and estimate its correction
+    with the ``base`` extras (``base_rx…base_z``; :func:`jaxcal.initial_extras` finds a start
+    by Kabsch/Horn on nominal FK).
+
+    Attributes:
+        rotation: ``[3, 3]`` nominal ``R_sensor_base``.
+        translation: ``[3]`` nominal base origin in the sensor frame (mm).
+    """
+
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, " 3"]
     kind: ClassVar[str] = "position"
     size: ClassVar[int] = 3
     sample_shape: ClassVar[tuple[int, ...]] = (3,)
 
+    def __init__(self, rotation=None, translation=None):
+        self.rotation, self.translation = _check_frame(rotation, translation)
+
     def predict(self, robot, deviations, q) -> Float[Array, "n 3"]:
         q = check_joint_angles(robot, q)
-        return jnp.stack(tool_point_soa(robot, deviations, q), axis=-1)
+        p = tool_point_soa(robot, deviations, q)
+        R, t = _sensor_frame(self, deviations, q.dtype)
+        return jnp.stack([R[k, 0] * p[0] + R[k, 1] * p[1] + R[k, 2] * p[2] + t[k] for k in range(3)], axis=-1)
 
 
 class Pose(MeasurementModel):
-    """Full pose ``T_base_tool`` ``[n, 4, 4]`` (flange orientation, origin at the tool point).
+    """Full pose ``T_sensor_tool = T_sensor_base·T_base_tool`` ``[n, 4, 4]`` (flange orientation,
+    origin at the tool point); ``T_sensor_base`` as in :class:`Position` (default identity).
 
     The residual per sample is ``[Δp (mm, 3), orientation_scale · δθ (3)]`` with
     ``δθ = ½ vee(R_mᵀR_p − R_pᵀR_m)`` the small-angle rotation error (rad): ``orientation_scale``
@@ -116,21 +159,35 @@ class Pose(MeasurementModel):
     ``sample_error`` is the position error norm (mm).
     """
 
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, " 3"]
     orientation_scale: float = eqx.field(static=True, default=1000.0)
     kind: ClassVar[str] = "pose"
     size: ClassVar[int] = 6
     sample_shape: ClassVar[tuple[int, ...]] = (4, 4)
 
+    def __init__(self, orientation_scale: float = 1000.0, rotation=None, translation=None):
+        self.orientation_scale = float(orientation_scale)
+        self.rotation, self.translation = _check_frame(rotation, translation)
+
     def predict(self, robot, deviations, q) -> Float[Array, "n 4 4"]:
         from ._kinematics import fk_pose
 
-        return fk_pose(robot, q, deviations, tool=True)
+        q = check_joint_angles(robot, q)
+        T = fk_pose(robot, q, deviations, tool=True)
+        R, t = _sensor_frame(self, deviations, T.dtype)
+        top = jnp.concatenate([R @ T[..., :3, :3], (T[..., :3, 3] @ R.T + t)[..., None]], axis=-1)
+        return jnp.concatenate([top, T[..., 3:, :]], axis=-2)
 
     def residual(self, robot, deviations, q, y) -> Float[Array, "n 6"]:
         q = check_joint_angles(robot, q)
         frame = _chain(robot, deviations, q)
         p = jnp.stack(_tool_offset(robot, deviations, frame, q.dtype), axis=-1)
         Rp = jnp.stack([jnp.stack(c, -1) for c in frame[:3]], axis=-1)  # [n,3,3]
+        R, t = _sensor_frame(self, deviations, q.dtype)
+        # residual in the sensor frame: position R·p + t − p_m; orientation of R·R_p vs R_m
+        p = p @ R.T + t
+        Rp = jnp.einsum("ij,njk->nik", R, Rp)
         Rm, pm = y[:, :3, :3], y[:, :3, 3]
         E = jnp.einsum("nji,njk->nik", Rm, Rp)  # R_mᵀ R_p
         w = 0.5 * jnp.stack([E[:, 2, 1] - E[:, 1, 2], E[:, 0, 2] - E[:, 2, 0], E[:, 1, 0] - E[:, 0, 1]], -1)

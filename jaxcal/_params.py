@@ -12,7 +12,7 @@ from jaxtyping import Array, Float
 
 from ._robot import DHRobot
 
-__all__ = ["Deviations", "ParameterSpace", "GROUPS"]
+__all__ = ["Deviations", "ParameterSpace", "GROUPS", "EXTRA_GROUPS", "group_of"]
 
 #: Parameter groups in the order of the flat vector, with their per-entry unit.
 GROUPS: tuple[tuple[str, str], ...] = (
@@ -24,8 +24,19 @@ GROUPS: tuple[tuple[str, str], ...] = (
     ("anchor", "mm"),
     ("tool", "mm"),
     ("cable_offset", "mm"),
+    ("base_rotation", "rad"),
+    ("base_translation", "mm"),
 )
 _PER_JOINT = ("alpha", "a", "d", "theta", "beta")
+#: the components of the three-vector groups, as they appear in parameter names
+_COMPONENTS = {
+    "anchor": ("anchor_x", "anchor_y", "anchor_z"),
+    "tool": ("tool_x", "tool_y", "tool_z"),
+    "base_rotation": ("base_rx", "base_ry", "base_rz"),
+    "base_translation": ("base_x", "base_y", "base_z"),
+}
+#: groups that describe the sensor/setup rather than the robot (the "extras")
+EXTRA_GROUPS = ("anchor", "tool", "cable_offset", "base_rotation", "base_translation")
 
 
 class Deviations(eqx.Module):
@@ -40,6 +51,10 @@ class Deviations(eqx.Module):
             base frame).
         tool: ``[3]`` deviation of the tool point from its nominal position (mm, flange frame).
         cable_offset: ``[]`` the draw-wire's zero offset (mm), added to the predicted length.
+        base_rotation: ``[3]`` rotation vector (rad) correcting the orientation of the robot base
+            in the sensor frame (position/pose sensors: ``R_sensor_base = exp(base_rotation)·R₀``).
+        base_translation: ``[3]`` correction of the robot base origin in the sensor frame (mm):
+            ``t_sensor_base = t₀ + base_translation``.
     """
 
     alpha: Float[Array, " dof"]
@@ -50,29 +65,40 @@ class Deviations(eqx.Module):
     anchor: Float[Array, " 3"]
     tool: Float[Array, " 3"]
     cable_offset: Float[Array, ""]
+    base_rotation: Float[Array, " 3"]
+    base_translation: Float[Array, " 3"]
+
+    def __init__(self, alpha, a, d, theta, beta, anchor, tool, cable_offset, base_rotation=None,
+                 base_translation=None):
+        self.alpha, self.a, self.d, self.theta, self.beta = alpha, a, d, theta, beta
+        self.anchor, self.tool, self.cable_offset = anchor, tool, cable_offset
+        dtype = jnp.result_type(anchor)
+        lead = jnp.shape(anchor)[:-1]
+        self.base_rotation = jnp.zeros(lead + (3,), dtype) if base_rotation is None else base_rotation
+        self.base_translation = jnp.zeros(lead + (3,), dtype) if base_translation is None else base_translation
 
     @classmethod
     def zeros(cls, dof: int, dtype=None) -> Deviations:
         """All-zero deviations (the nominal model) for a ``dof``-joint robot."""
         z = lambda *s: jnp.zeros(s, dtype=dtype)  # noqa: E731
-        return cls(z(dof), z(dof), z(dof), z(dof), z(dof), z(3), z(3), z())
+        return cls(z(dof), z(dof), z(dof), z(dof), z(dof), z(3), z(3), z(), z(3), z(3))
 
     @property
     def dof(self) -> int:
         return int(self.alpha.shape[-1])
 
-    def ravel(self) -> Float[Array, " 5*dof+7"]:
+    def ravel(self) -> Float[Array, " 5*dof+13"]:
         """All entries as one flat vector in :data:`GROUPS` order."""
         return jnp.concatenate(
             [jnp.atleast_1d(getattr(self, g)) for g, _ in GROUPS], axis=-1
         )
 
     @classmethod
-    def unravel(cls, flat: Float[Array, " 5*dof+7"], dof: int) -> Deviations:
+    def unravel(cls, flat: Float[Array, " 5*dof+13"], dof: int) -> Deviations:
         """Inverse of :meth:`ravel`."""
         parts, i = {}, 0
         for g, _ in GROUPS:
-            size = dof if g in _PER_JOINT else (3 if g in ("anchor", "tool") else 1)
+            size = dof if g in _PER_JOINT else (3 if g in _COMPONENTS else 1)
             parts[g] = flat[..., i : i + size]
             i += size
         parts["cable_offset"] = parts["cable_offset"][..., 0]
@@ -82,19 +108,35 @@ class Deviations(eqx.Module):
         return Deviations(*(jnp.asarray(getattr(self, g), dtype) for g, _ in GROUPS))
 
 
-def _full_names(dof: int) -> tuple[list[str], list[str]]:
-    names, units = [], []
+def _full_names(dof: int, groups: bool = False):
+    """``(names, units)`` of every entry of :meth:`Deviations.ravel` (``groups=True``: each
+    entry's group instead of its unit)."""
+    names, units, of = [], [], []
     for g, unit in GROUPS:
         if g in _PER_JOINT:
-            names += [f"{g}_{j + 1}" for j in range(dof)]
-            units += [unit] * dof
-        elif g in ("anchor", "tool"):
-            names += [f"{g}_{c}" for c in "xyz"]
-            units += [unit] * 3
+            new = [f"{g}_{j + 1}" for j in range(dof)]
+        elif g in _COMPONENTS:
+            new = list(_COMPONENTS[g])
         else:
-            names.append(g)
-            units.append(unit)
-    return names, units
+            new = [g]
+        names += new
+        units += [unit] * len(new)
+        of += [g] * len(new)
+    return (names, of) if groups else (names, units)
+
+
+def group_of(name: str) -> str:
+    """The :data:`GROUPS` entry a parameter name belongs to (``"d_3"`` → ``"d"``,
+    ``"base_rx"`` → ``"base_rotation"``)."""
+    for g, comps in _COMPONENTS.items():
+        if name in comps:
+            return g
+    if name == "cable_offset":
+        return name
+    g = name.rsplit("_", 1)[0]
+    if g in _PER_JOINT:
+        return g
+    raise ValueError(f"unknown parameter name {name!r}")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -105,8 +147,9 @@ class ParameterSpace:
 
     Attributes:
         dof: number of joints.
-        free: ``[5*dof+7]`` bool mask over :meth:`Deviations.ravel` entries.
-        names: all entry names, e.g. ``"alpha_1"``, ``"d_3"``, ``"anchor_x"``, ``"cable_offset"``.
+        free: ``[5*dof+13]`` bool mask over :meth:`Deviations.ravel` entries.
+        names: all entry names, e.g. ``"alpha_1"``, ``"d_3"``, ``"anchor_x"``, ``"cable_offset"``,
+            ``"base_rx"``, ``"base_z"``.
         units: ``"rad"`` or ``"mm"`` per entry.
     """
 
@@ -136,24 +179,21 @@ class ParameterSpace:
         anchor: bool = False,
         tool: bool = False,
         cable_offset: bool = False,
+        base: bool = False,
     ) -> ParameterSpace:
         """Free the DH deviations (all 4·dof), β at the robot's Hayati joints, and the
-        optional extras (anchor position, tool point, cable zero offset)."""
+        optional extras (anchor position, tool point, cable zero offset, sensor-to-base frame
+        ``base`` = rotation and translation, 6 parameters)."""
         dof = robot.dof
-        names, _ = _full_names(dof)
-        free = np.zeros(len(names), dtype=bool)
-        for i, n in enumerate(names):
-            g = n.rsplit("_", 1)[0] if n != "cable_offset" else n
+        free = np.zeros(5 * dof + 13, dtype=bool)
+        for i, (n, g) in enumerate(zip(*_full_names(dof, groups=True))):
             if g in ("alpha", "a", "d", "theta"):
                 free[i] = dh
             elif g == "beta":
                 free[i] = beta and int(n.rsplit("_", 1)[1]) in robot.beta_joints
-            elif g == "anchor":
-                free[i] = anchor
-            elif g == "tool":
-                free[i] = tool
             else:
-                free[i] = cable_offset
+                free[i] = {"anchor": anchor, "tool": tool, "cable_offset": cable_offset,
+                           "base_rotation": base, "base_translation": base}[g]
         return cls(dof, free)
 
     @classmethod

@@ -45,7 +45,7 @@ def test_extras_and_hayati_rank_25_of_32(experiment):
 def test_float32_and_errors(experiment):
     ex = experiment
     with pytest.raises(ValueError, match="no free parameters"):
-        identifiability(ex.robot, ex.measurement, ex.train.q, ParameterSpace(6, np.zeros(37, bool)))
+        identifiability(ex.robot, ex.measurement, ex.train.q, ParameterSpace(6, np.zeros(43, bool)))
     rep = identifiability(ex.robot, ex.measurement, ex.train.q.astype(np.float32), rtol=1e-5)
     assert rep.rank == 19
 

@@ -69,10 +69,11 @@ def test_measurement_shape_checks():
 
 def test_deviations_ravel_roundtrip():
     dev = Deviations(*(jnp.arange(k, k + s, dtype=float) for k, s in
-                       [(0, 6), (10, 6), (20, 6), (30, 6), (40, 6), (50, 3), (60, 3), (70, 1)]))
-    dev = Deviations(dev.alpha, dev.a, dev.d, dev.theta, dev.beta, dev.anchor, dev.tool, dev.cable_offset[0])
+                       [(0, 6), (10, 6), (20, 6), (30, 6), (40, 6), (50, 3), (60, 3), (70, 1), (80, 3), (90, 3)]))
+    dev = Deviations(dev.alpha, dev.a, dev.d, dev.theta, dev.beta, dev.anchor, dev.tool, dev.cable_offset[0],
+                     dev.base_rotation, dev.base_translation)
     flat = dev.ravel()
-    assert flat.shape == (37,)
+    assert flat.shape == (43,)
     back = Deviations.unravel(flat, 6)
     for a, b in zip(jaxcal.Deviations.__dataclass_fields__, jaxcal.Deviations.__dataclass_fields__):
         np.testing.assert_array_equal(np.asarray(getattr(back, a)), np.asarray(getattr(dev, b)))
