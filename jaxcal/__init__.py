@@ -20,8 +20,13 @@ from ._calibrate import calibrate as calibrate
 from ._dataset import Dataset as Dataset
 from ._dataset import load_csv as load_csv
 from ._dataset import save_csv as save_csv
+from ._diagnostics import Checks as Checks
+from ._diagnostics import Diagnostics as Diagnostics
+from ._diagnostics import Uncertainty as Uncertainty
 from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
 from ._identifiability import identifiability as identifiability
+from ._initialise import ExtrasEstimate as ExtrasEstimate
+from ._initialise import initial_extras as initial_extras
 from ._io import load_result as load_result
 from ._io import load_sweep as load_sweep
 from ._io import save_result as save_result
@@ -36,6 +41,7 @@ from ._metrics import Metrics as Metrics
 from ._metrics import compute_metrics as compute_metrics
 from ._metrics import format_table as format_table
 from ._metrics import statistical_floor as statistical_floor
+from ._objective import Prior as Prior
 from ._params import Deviations as Deviations
 from ._params import ParameterSpace as ParameterSpace
 from ._precision import PrecisionWarning as PrecisionWarning
@@ -54,6 +60,12 @@ from ._sweep import sweep as sweep
 __version__ = "0.1.0"
 
 __all__ = [
+    "Checks",
+    "Diagnostics",
+    "ExtrasEstimate",
+    "Prior",
+    "Uncertainty",
+    "initial_extras",
     "PAPER_METHODS",
     "SweepResult",
     "load_result",

@@ -14,9 +14,20 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._dataset import Dataset
+from ._diagnostics import (
+    Checks,
+    Diagnostics,
+    coverage,
+    implausible_deviations,
+    outlier_rows,
+    parameter_uncertainty,
+    weak_parameters,
+)
 from ._identifiability import identifiability
+from ._initialise import INITIALISABLE, initial_extras
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
+from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import Deviations, ParameterSpace
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
@@ -24,7 +35,8 @@ from ._result import CalibrationResult, Status, iterations_to_converge
 from ._robot import DHRobot
 from .methods import Method, ScaledProblem, make_method
 
-__all__ = ["calibrate", "Calibrator", "CalibrationOutput", "CalibrationWarning", "CalibrationError", "resolve_space"]
+__all__ = ["calibrate", "Calibrator", "CalibrationOutput", "CalibrationWarning", "CalibrationError", "resolve_space",
+           "extras_flags"]
 
 
 class CalibrationWarning(RuntimeWarning):
@@ -57,6 +69,8 @@ class Calibrator(eqx.Module):
         method: a :class:`~jaxcal.methods.Method`.
         start: deviations the run starts from (zeros = nominal); non-free entries stay fixed.
         space: free parameters (static).
+        objective: prior and robust loss (:class:`~jaxcal._objective.Objective`); ``None`` =
+            plain least squares.
     """
 
     robot: DHRobot
@@ -64,13 +78,14 @@ class Calibrator(eqx.Module):
     method: Method
     start: Deviations
     space: ParameterSpace = eqx.field(static=True)
+    objective: Objective | None = None
 
     def problem(self, q, y) -> Problem:
         return Problem(self.robot, self.measurement, q, y, self.space, self.start)
 
     def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array) -> CalibrationOutput:
         problem = self.problem(q, y)
-        scaled = ScaledProblem.build(problem)
+        scaled = ScaledProblem.build(problem, objective=self.objective)
         raw = self.method.run(scaled, key)
         x = scaled.x(raw.z)
         its = iterations_to_converge(raw.history, raw.n_iterations)
@@ -113,22 +128,68 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
     return q, y
 
 
-def resolve_space(robot, measurement, q, space, start=None) -> tuple[ParameterSpace, object]:
-    """``space=None`` or ``"identifiable"``: the identifiable subset of all DH (+β) deviations
-    (QR with column pivoting, :func:`jaxcal.identifiability`); ``"all"``: every DH (+β)
-    deviation; or a :class:`ParameterSpace` as given. Returns ``(space, report_or_None)``."""
+#: ``extras=`` names accepted by :func:`calibrate` → :meth:`ParameterSpace.for_robot` flags.
+EXTRAS = {"anchor": "anchor", "tool": "tool", "cable_offset": "cable_offset", "offset": "cable_offset",
+          "base": "base"}
+
+
+def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
+    """``extras`` (names such as ``"anchor"``, ``"cable_offset"``, ``"tool"``, ``"base"``) as
+    keyword flags of :meth:`ParameterSpace.for_robot`, checked against the measurement kind."""
+    if isinstance(extras, str):
+        extras = [e for e in extras.split(",") if e.strip()]
+    flags = {}
+    for e in extras or ():
+        key = e.strip().lower()
+        if key not in EXTRAS:
+            raise ValueError(f"unknown extra {e!r}; choose from anchor, cable_offset (offset), tool, base")
+        flag = EXTRAS[key]
+        if flag in ("anchor", "cable_offset") and measurement.kind != "cable":
+            raise ValueError(f"extra {e!r} applies to draw-wire (cable) data only, not {measurement.kind!r}")
+        if flag == "base" and measurement.kind == "cable":
+            raise ValueError("extra 'base' (sensor frame) applies to position/pose data; a draw-wire has an anchor")
+        flags[flag] = True
+    return flags
+
+
+def resolve_space(robot, measurement, q, space, start=None, extras=()) -> tuple[ParameterSpace, object]:
+    """``space=None`` or ``"identifiable"``: the identifiable subset of all DH (+β) deviations and
+    the requested ``extras`` (QR with column pivoting, :func:`jaxcal.identifiability`); ``"all"``:
+    every DH (+β) deviation and the extras; or a :class:`ParameterSpace` as given. Returns
+    ``(space, report_or_None)``."""
+    flags = extras_flags(extras, measurement)
     if space is None or (isinstance(space, str) and space == "identifiable"):
-        report = identifiability(robot, measurement, q, ParameterSpace.for_robot(robot), start)
+        report = identifiability(robot, measurement, q, ParameterSpace.for_robot(robot, **flags), start)
         return report.space, report
     if isinstance(space, str):
         if space == "all":
-            return ParameterSpace.for_robot(robot), None
+            return ParameterSpace.for_robot(robot, **flags), None
         raise ValueError(f"space must be None, 'identifiable', 'all' or a ParameterSpace, got {space!r}")
     if not isinstance(space, ParameterSpace):
         raise TypeError(f"space must be a ParameterSpace, got {type(space)}")
     if space.dof != robot.dof:
         raise ValueError(f"parameter space is for {space.dof} joints but the robot has {robot.dof}")
     return space, None
+
+
+def _run_once(cal: Calibrator, q, y, key):
+    """Compile (cached) and run ``cal``; ``(output, compile_s, run_s)``."""
+    dyn, stat = eqx.partition(cal, eqx.is_array)
+    with dtype_scope(q.dtype):
+        dyn = cast_floating(dyn, q.dtype)
+        t0 = time.perf_counter()
+        compiled = _run_calibrator.lower(dyn, stat, q, y, key).compile()
+        t1 = time.perf_counter()
+        out = jax.block_until_ready(compiled(dyn, q, y, key))
+        t2 = time.perf_counter()
+    return out, t1 - t0, t2 - t1
+
+
+def _sample_residuals(problem: Problem, x) -> np.ndarray:
+    """Signed residual entries (mm; the position part of a pose) for robust scales."""
+    r = np.asarray(problem.measurement.residual(problem.robot, problem.deviations(jnp.asarray(x, problem.dtype)),
+                                                problem.q, problem.y))
+    return r[:, :3] if problem.measurement.kind == "pose" else r
 
 
 def calibrate(
@@ -140,6 +201,12 @@ def calibrate(
     key: Array | None = None,
     space: ParameterSpace | str | None = None,
     start: Deviations | None = None,
+    extras=(),
+    init: str = "auto",
+    prior: Prior | str | None = None,
+    loss: str = "linear",
+    loss_scale: float | None = None,
+    checks: Checks | None = None,
     throw: bool = False,
     **hyperparameters,
 ) -> CalibrationResult:
@@ -147,29 +214,61 @@ def calibrate(
 
     Args:
         robot: nominal robot model.
-        measurement: the measurement model the data come from (e.g. :class:`CableLength`).
+        measurement: the measurement model the data come from (e.g. :class:`CableLength`); its
+            anchor / sensor frame is the nominal guess the extras correct.
         data: training data, a :class:`Dataset` or a ``(q [n, dof] rad, y)`` pair.
         method: a registry name (``"lm"``, ``"gn"``, ``"adam"``, ``"adamw"``, ``"adamod"``,
             ``"adamodw"``, and the baselines), a :class:`~jaxcal.methods.Method`, or any
             ``optax.GradientTransformation`` (run full batch; pass ``steps=``).
         key: ``jax.random`` key for the method's randomness (default ``jax.random.key(0)``).
-        space: free parameters; default: the identifiable subset of the DH deviations
-            (see :func:`resolve_space`).
-        start: starting deviations (default: nominal); entries that are not free keep these.
+        space: free parameters; default: the identifiable subset of the DH deviations and the
+            ``extras`` (see :func:`resolve_space`).
+        start: starting deviations (default: nominal, with the extras initialised from the
+            data, see ``init``); entries that are not free keep these.
+        extras: sensor/setup unknowns to estimate with the robot: ``"anchor"``,
+            ``"cable_offset"`` (draw-wire), ``"tool"`` (tool point), ``"base"`` (position/pose
+            sensor frame, 6 parameters), as a list or a comma-separated string.
+        init: ``"auto"`` (default): when anchor, cable offset or base frame are estimated,
+            start them from the data in closed form (:func:`jaxcal.initial_extras`:
+            multilateration / Kabsch on the nominal robot) — a guess far off is fine;
+            ``"none"``: start from ``start`` as given.
+        prior: Gaussian priors toward nominal (maximum a posteriori): ``None`` (default, plain
+            least squares), ``"default"`` (0.5°, 2 mm on the DH deviations, none on extras), a
+            :class:`jaxcal.Prior`, or a ``"key=value,..."`` string. The prior's noise σ is
+            estimated from the fit unless given (see ``Prior.noise_std``).
+        loss: ``"linear"`` (least squares), ``"huber"`` or ``"cauchy"`` (robust against gross
+            outliers; see :mod:`jaxcal._objective`).
+        loss_scale: robust-loss scale ``c`` (mm); default ``k·σ̂`` re-estimated from the fit.
+        checks: thresholds of the plausibility / conditioning / coverage / outlier checks
+            (:class:`jaxcal.Checks`).
         throw: raise :class:`CalibrationError` on divergence/failure instead of warning.
         **hyperparameters: the method's settings (e.g. ``learning_rate=``, ``steps=``,
             ``batch_size=``, ``max_steps=``).
 
     Returns:
         :class:`CalibrationResult` with calibrated deviations, the per-iteration training
-        RMSE history, iterations (and iterations to converge), status, and the run time
-        excluding compilation.
+        objective history, iterations (and iterations to converge), status, run time excluding
+        compilation, ``uncertainty`` (posterior σ of each free parameter) and ``diagnostics``
+        (plausibility, conditioning, coverage, outliers; its warnings are also issued as
+        :class:`CalibrationWarning`).
     """
     meth = make_method(method, **hyperparameters)
     q, y = _as_arrays(data, measurement, robot)
     warn_if_float32(q.dtype, "calibrate")
+    checks = Checks() if checks is None else checks
+    prior = resolve_prior(prior)
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
+    if init not in ("auto", "none"):
+        raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
+    flags = extras_flags(extras, measurement)
     start = Deviations.zeros(robot.dof, q.dtype) if start is None else start.astype(q.dtype)
-    space, report = resolve_space(robot, measurement, q, space, start)
+    extras_msg = None
+    initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
+    if init == "auto" and initialisable:
+        est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
+        start, extras_msg = est.deviations, est.message
+    space, report = resolve_space(robot, measurement, q, space, start, extras)
     n_res = q.shape[0] * measurement.size
     if n_res <= space.n_free:
         raise ValueError(
@@ -177,38 +276,123 @@ def calibrate(
             "need more residuals than parameters"
         )
     key = jax.random.key(0) if key is None else key
-    cal = Calibrator(robot, measurement, meth, start, space)
-    dyn, stat = eqx.partition(cal, eqx.is_array)
-    with dtype_scope(q.dtype):
-        dyn = cast_floating(dyn, q.dtype)
-        t0 = time.perf_counter()
-        compiled = _run_calibrator.lower(dyn, stat, q, y, key).compile()
-        t1 = time.perf_counter()
-        out = jax.block_until_ready(compiled(dyn, q, y, key))
-        t2 = time.perf_counter()
+    problem = Problem(robot, measurement, q, y, space, start)
+    x = np.asarray(problem.x0())
+    before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k)
+
+    # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
+    adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
+    rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
+    noise = scale = None
+    histories = []
+    while True:
+        resid = _sample_residuals(problem.with_space(space), space.to_vector(cur))
+        s_hat = robust_scale(resid)
+        s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
+        new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
+        new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
+        if rounds > 0 and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale)) or rounds >= 4):
+            break
+        noise, scale = new_noise, new_scale
+        objective = Objective.build(space, prior, noise, loss, scale, q.dtype)
+        cal = Calibrator(robot, measurement, meth, cur, space, None if objective.plain_least_squares else objective)
+        out, c_s, r_s = _run_once(cal, q, y, key)
+        compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
+        cur = space.from_vector(out.x, cur)
+        histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
+        if int(out.status) in (Status.DIVERGED, Status.FAILED) or not adaptive:
+            break
     status = Status(int(out.status))
     label = meth.label() if hasattr(meth, "label") else type(meth).name
+    # one history across the rounds (each round restarts where the last ended; the objective's
+    # scales change between rounds, so the curve may step at the boundaries)
+    history = np.concatenate([histories[0]] + [h[1:] for h in histories[1:]])
+    n_it = history.shape[0] - 1
+    history = np.concatenate([history, np.full(meth.max_iterations * rounds - n_it, history[-1])])
     result = CalibrationResult(
         method=label,
-        deviations=space.from_vector(out.x, start),
+        deviations=cur,
         x=np.asarray(out.x),
         space=space,
         robot=robot,
         measurement=measurement,
-        history=np.asarray(out.history),
-        n_iterations=int(out.n_iterations),
-        iterations_to_converge=int(out.iterations_to_converge),
+        history=history,
+        n_iterations=n_it,
+        iterations_to_converge=int(out.iterations_to_converge) if rounds == 1 else int(
+            iterations_to_converge(jnp.asarray(history), jnp.asarray(n_it))),
         status=status,
         train_metrics=Metrics(*(float(v) for v in out.train_metrics)),
-        wall_time_s=t2 - t1,
-        compile_time_s=t1 - t0,
+        wall_time_s=run_s,
+        compile_time_s=compile_s,
         hyperparameters=meth.hyperparameters(),
         extra=out.extra,
         predictor=getattr(meth, "predictor", lambda: None)(),
+        identifiability=report,
+        prior=prior,
+        loss=loss,
+        loss_scale_mm=scale,
+        start=start,
     )
     if status in (Status.DIVERGED, Status.FAILED):
         if throw:
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=2)
-    object.__setattr__(result, "identifiability", report)
+    diag, unc = _diagnose(result, problem.with_space(space), before_rows, checks, extras_msg, rounds, noise)
+    object.__setattr__(result, "diagnostics", diag)
+    object.__setattr__(result, "uncertainty", unc)
+    for w in diag.warnings:
+        warnings.warn(w, CalibrationWarning, stacklevel=2)
     return result
+
+
+def _close(a, b, rtol: float = 0.05) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return abs(a - b) <= rtol * abs(b)
+
+
+def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds, noise):
+    """Uncertainty and the plausibility / conditioning / coverage / outlier findings."""
+    space = result.space
+    x = np.asarray(result.x, np.float64)
+    prior_std = result.prior.std(space) if result.prior is not None else None
+    inv = None if prior_std is None else np.where(np.isfinite(prior_std), 1.0 / prior_std, 0.0)
+    msgs = []
+    try:
+        unc, cond = parameter_uncertainty(problem, x, prior_inv_std=inv, loss=result.loss,
+                                          loss_scale=result.loss_scale_mm or 1.0)
+    except (np.linalg.LinAlgError, ValueError) as e:  # pragma: no cover - defensive
+        unc, cond = None, float("inf")
+        msgs.append(f"uncertainty could not be computed: {e}")
+    if result.status == Status.MAX_STEPS:
+        msgs.append(f"{result.method}: step budget exhausted before the stopping tolerance was met — the fit may "
+                    "not be finished (raise max_steps, or check the start and the data)")
+    flat = np.asarray(result.deviations.ravel(), np.float64)
+    bad = implausible_deviations(space.names, space.units, flat, checks)
+    if bad:
+        listed = ", ".join(f"Δ{n} = {v:+.4g} {'°' if u == 'deg' else 'mm'}" for n, v, u in bad[:8])
+        hint = "" if result.prior is not None else "; a prior toward nominal (prior='default') usually fixes this"
+        msgs.append(f"implausible parameters (beyond ±{checks.angle_deg:g}° / ±{checks.length_mm:g} mm): {listed}"
+                    f"{' …' if len(bad) > 8 else ''} — the model may fit the measured region and be wrong "
+                    f"elsewhere{hint}")
+    if cond > checks.condition_number:
+        msgs.append(f"condition number {cond:.3g} of the identification Jacobian exceeds {checks.condition_number:.3g}: "
+                    "some parameter combinations are weakly determined by these poses")
+    cov = coverage(result.robot, problem.q)
+    narrow = tuple(int(j) + 1 for j in np.flatnonzero(cov[:, 0] < checks.narrow_joint_deg))
+    weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()
+    if narrow:
+        moved = ", ".join(f"q{j} {cov[j - 1, 0]:.1f}°" for j in narrow)
+        msgs.append(f"narrow joint coverage: {moved} of motion (< {checks.narrow_joint_deg:g}°)"
+                    + (f"; weakly determined: {', '.join(weak)}" if weak else ""))
+    elif weak:
+        msgs.append(f"weakly determined by the data: {', '.join(weak)}")
+    after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k)
+    if len(after_rows):
+        shown = ", ".join(str(int(r)) for r in after_rows[:12])
+        msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} mm robust σ) at "
+                    f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
+                    + ("" if result.loss != "linear" else "; consider loss='huber' or excluding them"))
+    diag = Diagnostics(tuple(msgs), bad, cond, cov, narrow, weak, tuple(int(r) for r in before_rows),
+                       tuple(int(r) for r in after_rows), s_after, extras_msg, rounds)
+    return diag, unc

@@ -261,14 +261,18 @@ def load_result(path) -> CalibrationResult:
 
     The returned :class:`~jaxcal.CalibrationResult` predicts and evaluates like the original;
     ``compile_time_s``/``wall_time_s`` are the saved values. The identifiability report is kept
-    as its dict under ``result.identifiability`` (``None`` if absent).
+    as its dict under ``result.identifiability`` (``None`` if absent); the saved diagnostics and
+    uncertainty stay in the file (``load_result_dict``), not on the result.
     """
     d = load_result_dict(path)
     robot = robot_from_dict(d["robot"])
     measurement = measurement_from_dict(d["measurement"])
     dof = robot.dof
     names = ParameterSpace.for_robot(robot).names
-    dev = d["deviations"]
+    dev = dict(d["deviations"])
+    for n in names:  # files written before the sensor-frame extras existed
+        if n.startswith("base_") and n not in dev:
+            dev[n] = 0.0
     missing = [n for n in names if n not in dev]
     if missing:
         raise ValueError(f"{path}: deviations lack {missing}")

@@ -82,6 +82,12 @@ class CalibrationResult:
         wall_time_s: run time after compilation (s); ``compile_time_s`` separately.
         hyperparameters: the method's settings.
         extra: method-specific state (e.g. the RBF network), or ``None``.
+        identifiability: the :class:`~jaxcal.IdentifiabilityReport` that chose the free set.
+        prior, loss, loss_scale_mm: the objective (``None``/``"linear"`` = least squares).
+        start: the deviations the fit started from (extras initialised from the data).
+        diagnostics: :class:`~jaxcal.Diagnostics` (plausibility, conditioning, coverage,
+            outliers; its ``warnings``).
+        uncertainty: :class:`~jaxcal.Uncertainty` (posterior σ of every free parameter).
     """
 
     method: str
@@ -100,6 +106,13 @@ class CalibrationResult:
     hyperparameters: dict[str, Any]
     extra: Any = None
     predictor: Any = None
+    identifiability: Any = None
+    prior: Any = None
+    loss: str = "linear"
+    loss_scale_mm: float | None = None
+    start: Deviations | None = None
+    diagnostics: Any = None
+    uncertainty: Any = None
 
     @property
     def message(self) -> str:
@@ -107,7 +120,38 @@ class CalibrationResult:
 
     @property
     def ok(self) -> bool:
-        return self.status in (Status.CONVERGED, Status.COMPLETED, Status.MAX_STEPS)
+        """The method finished: converged, or completed its fixed budget. ``MAX_STEPS`` (an
+        iterative solver stopped before its tolerance) is not success."""
+        return self.status in (Status.CONVERGED, Status.COMPLETED)
+
+    @property
+    def plausible(self) -> bool:
+        """No DH deviation beyond the plausibility bounds (see :class:`~jaxcal.Checks`)."""
+        return self.diagnostics is None or self.diagnostics.plausible
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """The diagnostics' warnings (empty if none)."""
+        return () if self.diagnostics is None else self.diagnostics.warnings
+
+    def prediction_std(self, q) -> np.ndarray:
+        """Standard deviation (mm) of the calibrated model's predicted reading at joint angles
+        ``q`` ``[n, dof]`` from the parameter uncertainty (``sqrt(diag(J·Cov·Jᵀ))``, summed over
+        a sample's coordinates for position data; position part for poses). Add the sensor noise
+        (``uncertainty.noise_std``) in quadrature for the expected error of a new reading."""
+        if self.uncertainty is None:
+            raise ValueError("this result has no uncertainty (computed by jaxcal.calibrate)")
+        from ._problem import Problem
+
+        q = jnp.asarray(q)
+        y = jnp.zeros((q.shape[0], *self.measurement.sample_shape), q.dtype)
+        pr = Problem(self.robot, self.measurement, q, y, self.space, self.deviations.astype(q.dtype))
+        J = np.asarray(pr.jacobian(pr.x0()), np.float64).reshape(q.shape[0], self.measurement.size, -1)
+        if self.measurement.kind == "pose":
+            J = J[:, :3]
+        C = np.asarray(self.uncertainty.covariance, np.float64)
+        var = np.einsum("nmp,pk,nmk->n", J, C, J)
+        return np.sqrt(np.maximum(var, 0.0))
 
     def predict(self, q) -> Array:
         """Predicted readings of the calibrated model for joint angles ``q`` ``[n, dof]``."""
@@ -131,11 +175,14 @@ class CalibrationResult:
         return Metrics(*(float(v) for v in compute_metrics(self.sample_errors(data))))
 
     def dh_table(self) -> np.ndarray:
-        """Calibrated DH table ``[dof, 4]``: α/°, a/mm, d/mm, θ/° (the paper's Table V)."""
+        """Calibrated DH table ``[dof, 4]``: α/°, a/mm, d/mm, θ/° (the paper's Table V); angles
+        wrapped to (−180°, 180°]."""
+        from ._diagnostics import wrap_angle_deg
+
         r, d = self.robot, self.deviations
         return np.stack([
-            np.rad2deg(np.asarray(r.alpha + d.alpha)), np.asarray(r.a + d.a),
-            np.asarray(r.d + d.d), np.rad2deg(np.asarray(r.theta + d.theta)),
+            wrap_angle_deg(np.rad2deg(np.asarray(r.alpha + d.alpha))), np.asarray(r.a + d.a),
+            np.asarray(r.d + d.d), wrap_angle_deg(np.rad2deg(np.asarray(r.theta + d.theta))),
         ], axis=1)
 
     def to_dict(self) -> dict:
@@ -154,6 +201,13 @@ class CalibrationResult:
             "wall_time_s": self.wall_time_s,
             "compile_time_s": self.compile_time_s,
             "hyperparameters": to_jsonable(self.hyperparameters),
+            "ok": self.ok,
+            "plausible": self.plausible,
+            "prior": None if self.prior is None else self.prior.describe(),
+            "loss": self.loss,
+            "loss_scale_mm": self.loss_scale_mm,
+            "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict(),
+            "uncertainty": None if self.uncertainty is None else self.uncertainty.to_dict(),
         }
 
     def __repr__(self) -> str:

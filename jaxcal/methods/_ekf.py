@@ -17,7 +17,9 @@ Each pass restarts from the previous pass's estimate with the prior covariance `
 iterated EKF: the relinearisation of the whole data set at the new estimate; carrying ``P``
 over would count every measurement again). ``P0 = diag((prior_fraction · half-width)²)``: the
 physical search box of the population methods (±2°, ±5 mm, ±50 mm) as ``1/prior_fraction``
-standard deviations. ``R`` comes from ``noise_std`` (mm), by default the simulated sensor's
+standard deviations — or, for parameters with a MAP prior (``calibrate(..., prior=...)``), that
+prior's σ (relative to ``noise_std``, so the filter weighs prior and data as the MAP objective
+does). ``R`` comes from ``noise_std`` (mm), by default the simulated sensor's
 0.5 mm; with many samples the estimate is insensitive to it (it only weighs the prior).
 
 The filter is deterministic (the key is unused). The history holds the training RMSE after
@@ -77,7 +79,16 @@ class ExtendedKalmanFilter(BoxSearch):
         pr = problem.problem
         p, m, dtype = problem.n_free, pr.measurement.size, problem.dtype
         hw = self.box_half_width_z(problem)
-        P0 = jnp.diag((self.prior_fraction * hw) ** 2)
+        prior_sd = self.prior_fraction * hw
+        ob = problem.objective
+        if ob is not None and ob.loss != "linear":
+            raise ValueError("the EKF assimilates one sample at a time and supports no robust loss; "
+                             "use loss='linear' (or a least-squares/gradient/population method)")
+        if ob is not None and ob.has_prior:
+            # the MAP prior: residual w·(x − m) with w = σ/s  →  std of z = (noise_std/w)/scale
+            w_z = ob.prior_precision * problem.scale
+            prior_sd = jnp.where(w_z > 0, self.noise_std / jnp.where(w_z > 0, w_z, 1.0), prior_sd)
+        P0 = jnp.diag(prior_sd**2)
         R = jnp.eye(m, dtype=dtype) * (self.noise_std**2)
         Q = jnp.eye(p, dtype=dtype) * (self.process_noise**2)
         eye = jnp.eye(p, dtype=dtype)

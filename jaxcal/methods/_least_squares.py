@@ -51,7 +51,8 @@ def make_linear_solver(name: str) -> lx.AbstractLinearSolver:
 
 
 def residual_with_jacfwd(problem: ScaledProblem):
-    """``z ↦ problem.residual(z)`` whose JVP is ``J·t`` with ``J = jax.jacfwd(residual)(z)``.
+    """``z ↦ problem.objective_residual(z)`` (the data residuals, plus prior residuals and the
+    robust scaling when the problem has them) whose JVP is ``J·t`` with ``J = jax.jacfwd(residual)(z)``.
 
     Same values and derivatives as ``problem.residual`` (the JVP is exact, not approximate);
     what changes is how a linearisation is represented: one materialised Jacobian per point
@@ -61,12 +62,12 @@ def residual_with_jacfwd(problem: ScaledProblem):
 
     @jax.custom_jvp
     def residual(z):
-        return problem.residual(z)
+        return problem.objective_residual(z)
 
     @residual.defjvp
     def _jvp(primals, tangents):
         (z,), (t,) = primals, tangents
-        r, J = problem.residual_and_jacobian(z)
+        r, J = problem.objective_residual_and_jacobian(z)
         return r, J @ t
 
     return residual
@@ -106,7 +107,10 @@ def _rmse_from_state(problem: ScaledProblem, z, state):
     if isinstance(measurement, Pose) or f_info is None:
         return problem.rmse(z)
     r = f_info.residual
-    return jnp.sqrt(measurement.size * jnp.mean(r * r))
+    if problem.plain:
+        return jnp.sqrt(measurement.size * jnp.mean(r * r))
+    # data residuals (robust-scaled) and prior residuals, per data residual
+    return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_residuals)
 
 
 def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
@@ -121,7 +125,7 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     z0 = jnp.zeros(problem.n_free, problem.dtype)
     residual = residual_with_jacfwd(problem)
     fn = lambda z, args: (residual(z), None)  # noqa: E731
-    f_struct = jax.ShapeDtypeStruct((problem.problem.n_residuals,), problem.dtype)
+    f_struct = jax.ShapeDtypeStruct((problem.n_objective_residuals,), problem.dtype)
     state = solver.init(fn, z0, None, options, f_struct, None, tags)
     dyn0, static = eqx.partition(state, eqx.is_array)
     done0, result0 = solver.terminate(fn, z0, None, options, state, tags)

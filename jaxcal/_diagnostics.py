@@ -1,0 +1,281 @@
+"""Honest numbers about a calibration: uncertainties, plausibility, conditioning, coverage, outliers.
+
+A calibration that fits the data with absurd parameters is a failure, not a result. After every
+:func:`jaxcal.calibrate` these checks run on the host (one ``jax.jacfwd`` Jacobian at the
+solution, a few small dense factorisations) and their findings land in
+``CalibrationResult.diagnostics`` (warnings as plain sentences) and ``.uncertainty``.
+
+Uncertainty (Gauss–Markov / Laplace approximation of the posterior at the solution ``x̂``):
+``Cov = (JᵀWJ/σ̂² + Λ)⁻¹`` with ``J`` the identification Jacobian of the data residuals, ``W``
+the robust-loss weights (IRLS weights ``f_i²``; identity for least squares), ``Λ = diag(1/s_j²)``
+the prior precision (0 without prior) and ``σ̂² = Σ w r² / (N − p_eff)`` the residual variance,
+``p_eff = tr(JᵀWJ/σ̂²·Cov)`` the effective number of parameters (= ``p`` without prior).
+Without prior this is ``σ̂²(JᵀJ)⁻¹``, the Cramér–Rao bound with σ estimated from the residuals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._objective import robust_factor, robust_scale
+from ._params import EXTRA_GROUPS, group_of
+
+__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Checks:
+    """Thresholds of the post-calibration checks (all configurable).
+
+    Attributes:
+        angle_deg, length_mm: a DH deviation beyond these (wrapped angles, degrees; mm) is
+            implausible for a real arm (default 5°, 20 mm).
+        condition_number: warn above this condition number of the column-scaled Jacobian of the
+            free parameters at the solution (default 1e4).
+        narrow_joint_deg: warn when a joint moved less than this in the data (default 30°).
+        outlier_k: a sample is an outlier when its residual exceeds ``k`` robust standard
+            deviations (1.4826·MAD) from the median residual (default 5).
+        weak_fraction: with a prior, a parameter whose posterior σ exceeds this fraction of its
+            prior σ is "weakly determined" by the data (default 0.5).
+    """
+
+    angle_deg: float = 5.0
+    length_mm: float = 20.0
+    condition_number: float = 1e4
+    narrow_joint_deg: float = 30.0
+    outlier_k: float = 5.0
+    weak_fraction: float = 0.5
+
+
+def wrap_angle_deg(v):
+    """Angles in degrees wrapped to (−180°, 180°]."""
+    v = np.asarray(v, dtype=np.float64)
+    w = np.mod(v + 180.0, 360.0) - 180.0
+    return np.where(w == -180.0, 180.0, w)
+
+
+@dataclasses.dataclass(frozen=True)
+class Uncertainty:
+    """Posterior standard deviations of the free parameters (see the module docstring).
+
+    Attributes:
+        names, units: of the free parameters (``"rad"``/``"mm"``).
+        std: ``[p]`` standard deviations (rad, mm); ``inf`` where the data and prior leave a
+            direction undetermined.
+        covariance: ``[p, p]``.
+        noise_std: σ̂, the residual standard deviation (mm).
+        effective_parameters: ``p_eff``.
+        n_residuals: ``N``.
+    """
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    std: np.ndarray
+    covariance: np.ndarray
+    noise_std: float
+    effective_parameters: float
+    n_residuals: int
+
+    def std_display(self) -> dict[str, tuple[float, str]]:
+        """``{name: (σ, unit)}`` with angles in degrees."""
+        return {n: ((math.degrees(s), "deg") if u == "rad" else (float(s), "mm"))
+                for n, s, u in zip(self.names, self.std, self.units)}
+
+    def to_dict(self) -> dict:
+        return {
+            "std": {n: float(s) for n, s in zip(self.names, self.std)},
+            "units": dict(zip(self.names, self.units)),
+            "noise_std_mm": self.noise_std,
+            "effective_parameters": self.effective_parameters,
+            "n_residuals": self.n_residuals,
+            "covariance": np.asarray(self.covariance).tolist(),
+        }
+
+
+@jax.jit
+def _jacobian_and_residual(problem, x):
+    J, r = jax.jacfwd(lambda x: (problem.residual(x),) * 2, has_aux=True)(x)
+    return J, r
+
+
+def _robust_weights(problem, r: np.ndarray, loss: str, loss_scale: float) -> np.ndarray:
+    """Per-residual IRLS weights ``f_i²`` (repeated over each sample's ``m`` entries)."""
+    n, m = problem.n_samples, problem.measurement.size
+    if loss == "linear":
+        return np.ones(n * m)
+    blocks = r.reshape(n, m)
+    e = np.asarray(problem.measurement.sample_error(jnp.asarray(blocks)))
+    f = np.asarray(robust_factor(loss, jnp.asarray(e * e), jnp.asarray(loss_scale)))
+    return np.repeat(f * f, m)
+
+
+def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0
+                          ) -> tuple[Uncertainty, float]:
+    """Posterior covariance of the free parameters at ``x`` ``[p]`` for ``problem`` (training data).
+
+    Args:
+        prior_inv_std: ``[p]`` ``1/s_j`` of the prior (0 = none).
+        loss, loss_scale: the robust loss of the fit.
+
+    Returns:
+        ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian.
+    """
+    J, r = _jacobian_and_residual(problem, jnp.asarray(x, problem.dtype))
+    J = np.asarray(J, np.float64)
+    r = np.asarray(r, np.float64)
+    N, p = J.shape
+    w = _robust_weights(problem, r, loss, loss_scale)
+    lam = np.zeros(p) if prior_inv_std is None else np.asarray(prior_inv_std, np.float64) ** 2
+    norms = np.linalg.norm(J, axis=0)
+    d = np.where(norms > 0, norms, 1.0)
+    Js = J / d
+    sv = np.linalg.svd(Js, compute_uv=False)
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+    A = (Js * w[:, None]).T @ Js  # column-scaled JᵀWJ
+    rss = float(np.sum(w * r * r))
+    p_eff = float(p)
+    sigma2 = rss / max(N - p, 1)
+    for _ in range(3):
+        H = A / sigma2 + np.diag(lam / (d * d))
+        try:
+            ev, V = np.linalg.eigh(H)
+        except np.linalg.LinAlgError:
+            ev, V = np.full(p, 0.0), np.eye(p)
+        tol = ev.max() * p * np.finfo(np.float64).eps if ev.size else 0.0
+        inv = np.where(ev > tol, 1.0 / np.where(ev > tol, ev, 1.0), np.inf)
+        Cs = (V * np.where(np.isfinite(inv), inv, 0.0)) @ V.T
+        p_eff = float(np.trace(A / sigma2 @ Cs))
+        new = rss / max(N - p_eff, 1.0)
+        if abs(new - sigma2) <= 1e-6 * sigma2:
+            sigma2 = new
+            break
+        sigma2 = new
+    C = Cs / np.outer(d, d)
+    std = np.sqrt(np.maximum(np.diag(C), 0.0))
+    undetermined = np.abs(V[:, ~np.isfinite(inv)]).max(axis=1) > 1e-6 if (~np.isfinite(inv)).any() else np.zeros(p, bool)
+    std = np.where(undetermined, np.inf, std)
+    space = problem.space
+    return Uncertainty(space.free_names, space.free_units, std, C, math.sqrt(sigma2), p_eff, N), cond
+
+
+def outlier_rows(problem, x, k: float = 5.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Samples whose residual is more than ``k`` robust standard deviations from the median.
+
+    Returns:
+        ``(rows [k_out], errors [k_out] mm, scale mm)``: row indices into ``problem``'s data (0-based),
+        each row's largest residual entry, and the robust scale σ̂ = 1.4826·MAD of the residual
+        entries (position part for poses).
+    """
+    r = np.asarray(problem.measurement.residual(problem.robot, problem.deviations(jnp.asarray(x, problem.dtype)),
+                                                problem.q, problem.y), np.float64)
+    if problem.measurement.kind == "pose":
+        r = r[:, :3]
+    med = np.median(r)
+    s = robust_scale(r)
+    dev = np.abs(r - med)
+    worst = dev.max(axis=1)
+    rows = np.flatnonzero(~(worst <= k * s))  # NaN/inf count as outliers
+    errors = (r - med)[rows, np.argmax(dev[rows], axis=1)] if rows.size else np.zeros(0)
+    return rows, errors, s
+
+
+@dataclasses.dataclass(frozen=True)
+class Diagnostics:
+    """Findings of the post-calibration checks (:class:`Checks`).
+
+    Attributes:
+        warnings: plain sentences, one per finding (also issued as ``CalibrationWarning``).
+        implausible: ``((name, deviation, unit), ...)`` DH deviations beyond the bounds (angles in
+            degrees, wrapped).
+        condition_number: of the column-scaled Jacobian of the free parameters at the solution.
+        coverage_deg: ``[dof, 2]`` per joint: range moved in the data and range of the limits (°).
+        narrow_joints: 1-based joints that moved less than ``Checks.narrow_joint_deg``.
+        weak_parameters: free parameters the data barely determine (see :class:`Checks`).
+        outliers_before, outliers_after: training rows (0-based) flagged as outliers at the start
+            and after the fit; ``outlier_scale_mm``: the robust residual scale after the fit.
+        extras: the message of the extras initialisation, if one ran.
+        rounds: fits run (more than 1 when a robust-loss scale or the prior's noise σ was
+            re-estimated).
+    """
+
+    warnings: tuple[str, ...]
+    implausible: tuple
+    condition_number: float
+    coverage_deg: np.ndarray
+    narrow_joints: tuple[int, ...]
+    weak_parameters: tuple[str, ...]
+    outliers_before: tuple[int, ...]
+    outliers_after: tuple[int, ...]
+    outlier_scale_mm: float
+    extras: str | None = None
+    rounds: int = 1
+
+    @property
+    def plausible(self) -> bool:
+        return not self.implausible
+
+    def to_dict(self) -> dict:
+        return {
+            "warnings": list(self.warnings),
+            "plausible": self.plausible,
+            "implausible": [[n, float(v), u] for n, v, u in self.implausible],
+            "condition_number": self.condition_number,
+            "coverage_deg": np.asarray(self.coverage_deg).tolist(),
+            "narrow_joints": list(self.narrow_joints),
+            "weak_parameters": list(self.weak_parameters),
+            "outliers_before": list(self.outliers_before),
+            "outliers_after": list(self.outliers_after),
+            "outlier_scale_mm": self.outlier_scale_mm,
+            "extras": self.extras,
+            "rounds": self.rounds,
+        }
+
+
+def implausible_deviations(names, units, values, checks: Checks) -> tuple:
+    """DH deviations beyond the plausibility bounds: ``((name, value, unit), ...)`` with angles in
+    wrapped degrees; non-finite values always count."""
+    out = []
+    for n, u, v in zip(names, units, values):
+        if group_of(n) in EXTRA_GROUPS:
+            continue
+        v = float(v)
+        if not math.isfinite(v):
+            out.append((n, v, "deg" if u == "rad" else "mm"))
+        elif u == "rad":
+            deg = float(wrap_angle_deg(math.degrees(v)))
+            if abs(deg) > checks.angle_deg:
+                out.append((n, deg, "deg"))
+        elif abs(v) > checks.length_mm:
+            out.append((n, v, "mm"))
+    return tuple(out)
+
+
+def coverage(robot, q) -> np.ndarray:
+    """``[dof, 2]``: degrees each joint moved in ``q`` and the width of its limits."""
+    qn = np.asarray(q, np.float64)
+    used = np.rad2deg(qn.max(axis=0) - qn.min(axis=0)) if qn.shape[0] else np.zeros(robot.dof)
+    limits = np.rad2deg(np.asarray(robot.q_max, np.float64) - np.asarray(robot.q_min, np.float64))
+    return np.stack([used, limits], axis=1)
+
+
+def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, ...]:
+    """Free parameters the data barely determine: posterior σ above ``weak_fraction`` of the prior
+    σ, or (no prior) above a third of the plausibility bound; undetermined ones always."""
+    out = []
+    prior_std = np.full(len(unc.names), np.inf) if prior_std is None else np.asarray(prior_std, np.float64)
+    for n, u, s, s0 in zip(unc.names, unc.units, unc.std, prior_std):
+        if not math.isfinite(s):
+            out.append(n)
+        elif math.isfinite(s0):
+            if s > checks.weak_fraction * s0:
+                out.append(n)
+        elif group_of(n) not in EXTRA_GROUPS:
+            bound = math.radians(checks.angle_deg) if u == "rad" else checks.length_mm
+            if s > bound / 3:
+                out.append(n)
+    return tuple(out)

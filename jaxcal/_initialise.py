@@ -1,0 +1,250 @@
+"""Starting values for the sensor's unknowns, from the data, before the kinematic fit.
+
+Real setups do not know where the draw-wire leaves its housing (the anchor), the cable's zero
+offset, or where a laser tracker stands relative to the robot base; a first guess can be 500 mm
+off, and local solvers started there land in nonsense (DESIGN.md §7). With the nominal robot the
+tool points ``p_i`` are known to a few mm, so the sensor unknowns follow in closed form:
+
+* **Draw-wire** (``L_i = ‖p_i − c‖ + o``): multilateration. Squaring ``L_i − o = ‖p_i − c‖``
+  gives equations linear in ``(c, o, k = o² − ‖c‖²)``:
+  ``‖p_i‖² − L_i² = 2 p_i·c − 2 L_i o + k`` (without an offset: ``o = 0``, unknowns ``c, k``),
+  solved by least squares, then refined by Gauss–Newton on the true distances. Points of a
+  narrow session lie close to a surface, where the linear solution is poorly determined across
+  it and the distance equations have a mirror solution; the refinement starts from the linear
+  solution, its mirror image through the points' best-fit plane and the user's guess, and keeps
+  the best fit (ties: nearest the guess).
+* **Position / pose sensors** (``y_i = R p_i + t``): the rigid transform by Kabsch/Horn
+  (SVD of the cross-covariance of centred point sets; Horn, 1987; Kabsch, 1976).
+
+Both are refit once without the samples whose residual exceeds 5 robust standard deviations
+(gross outliers must not move the start; the calibration itself reports them).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._dataset import _matrix_to_rotvec
+from ._kinematics import fk_position
+from ._measurement import CableLength, MeasurementModel, Pose, Position
+from ._objective import robust_scale
+from ._params import Deviations
+from ._robot import DHRobot
+
+__all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "kabsch"]
+
+#: extras :func:`initial_extras` can start from data, per measurement kind.
+INITIALISABLE = {"cable": ("anchor", "cable_offset"), "position": ("base",), "pose": ("base",)}
+
+
+class ExtrasEstimate(NamedTuple):
+    """Result of :func:`initial_extras`.
+
+    Attributes:
+        deviations: the start: ``start`` (or nominal) with the estimated extras filled in.
+        rmse_before, rmse_after: RMS residual (mm) of the nominal robot with the guessed and with
+            the estimated extras.
+        n_trimmed: samples left out of the final closed-form fit as gross outliers.
+        message: one line for logs and the CLI.
+    """
+
+    deviations: Deviations
+    rmse_before: float
+    rmse_after: float
+    n_trimmed: int
+    message: str
+
+
+def _trim(res: np.ndarray, k: float = 5.0) -> np.ndarray:
+    s = robust_scale(res)
+    if not (s > 0 and math.isfinite(s)):
+        return np.ones(res.shape, bool)
+    return np.abs(res - np.median(res)) <= k * s
+
+
+def multilaterate(points, lengths, *, offset: bool = True, guess=None, iterations: int = 50):
+    """Anchor ``c`` [3] (mm) and cable offset ``o`` (mm) with ``lengths ≈ ‖points − c‖ + o``.
+
+    Args:
+        points: ``[n, 3]`` tool points (mm), ``lengths``: ``[n]`` wire readings (mm).
+        offset: estimate ``o`` (else ``o = 0``).
+        guess: ``[3]`` anchor guess (tie-break and an extra start); default the linear solution.
+
+    Returns:
+        ``(c [3], o, rms)`` with ``rms`` the RMS residual of the fit (mm).
+    """
+    P = np.asarray(points, np.float64)
+    L = np.asarray(lengths, np.float64)
+    n = P.shape[0]
+    need = 6 if offset else 5
+    if n < need:
+        raise ValueError(f"multilateration needs at least {need} samples, got {n}")
+    b = np.sum(P * P, axis=1) - L * L
+    cols = [2 * P] + ([-2 * L[:, None]] if offset else []) + [np.ones((n, 1))]
+    A = np.concatenate(cols, axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c_lin, o_lin = sol[:3], (sol[3] if offset else 0.0)
+
+    def residual(c, o):
+        return np.linalg.norm(P - c, axis=1) + o - L
+
+    def refine(c, o):
+        c, o = c.astype(np.float64).copy(), float(o)
+        lam = 1e-3
+        r = residual(c, o)
+        for _ in range(iterations):
+            d = P - c
+            dist = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+            J = -d / dist[:, None]
+            if offset:
+                J = np.concatenate([J, np.ones((n, 1))], axis=1)
+            H = J.T @ J
+            g = J.T @ r
+            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
+            c_new = c + step[:3]
+            o_new = o + (step[3] if offset else 0.0)
+            r_new = residual(c_new, o_new)
+            if np.sum(r_new**2) < np.sum(r**2):
+                c, o, r, lam = c_new, o_new, r_new, lam / 10
+                if np.linalg.norm(step) < 1e-9 * (1 + np.linalg.norm(c)):
+                    break
+            else:
+                lam *= 10
+                if lam > 1e12:
+                    break
+        return c, o, float(np.sqrt(np.mean(r**2)))
+
+    starts = [(c_lin, o_lin)]
+    # mirror of the linear solution through the points' best-fit plane
+    centre = P.mean(axis=0)
+    _, _, Vt = np.linalg.svd(P - centre, full_matrices=False)
+    normal = Vt[-1]
+    starts.append((c_lin - 2 * np.dot(c_lin - centre, normal) * normal, o_lin))
+    if guess is not None:
+        g = np.asarray(guess, np.float64)
+        starts.append((g, float(np.median(L - np.linalg.norm(P - g, axis=1))) if offset else 0.0))
+    fits = [refine(c, o) for c, o in starts]
+    best = min(f[2] for f in fits)
+    close = [f for f in fits if f[2] <= best * (1 + 1e-6) + 1e-9]
+    ref = np.asarray(guess, np.float64) if guess is not None else c_lin
+    c, o, rms = min(close, key=lambda f: np.linalg.norm(f[0] - ref))
+    return c, o, rms
+
+
+def kabsch(source, target):
+    """Rigid transform ``(R [3,3], t [3])`` minimising ``Σ‖R·source_i + t − target_i‖²``
+    (Kabsch, 1976; Horn, 1987), proper rotation (det = +1)."""
+    S = np.asarray(source, np.float64)
+    T = np.asarray(target, np.float64)
+    if S.shape[0] < 3:
+        raise ValueError(f"a rigid transform needs at least 3 points, got {S.shape[0]}")
+    cs, ct = S.mean(axis=0), T.mean(axis=0)
+    H = (S - cs).T @ (T - ct)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+    R = Vt.T @ D @ U.T
+    return R, ct - R @ cs
+
+
+def initial_extras(
+    robot: DHRobot,
+    measurement: MeasurementModel,
+    data,
+    *,
+    estimate=None,
+    start: Deviations | None = None,
+) -> ExtrasEstimate:
+    """Closed-form starting values for the sensor extras from the data and the nominal robot.
+
+    Args:
+        robot, measurement: nominal models (the measurement's anchor / frame is the user's guess).
+        data: a :class:`~jaxcal.Dataset` or ``(q [n, dof] rad, y)``.
+        estimate: which extras to initialise: for draw-wire data ``"anchor"`` and/or
+            ``"cable_offset"`` (default both), for position/pose data ``"base"`` (default).
+        start: deviations to start from (default nominal); its DH part is used for the tool
+            points and kept, the estimated extras are replaced.
+
+    Returns:
+        :class:`ExtrasEstimate` (the new start, RMS residual before/after, trimmed samples).
+    """
+    q, y = (data.q, data.y) if hasattr(data, "q") else data
+    q = jnp.asarray(q)
+    dtype = q.dtype
+    start = Deviations.zeros(robot.dof, dtype) if start is None else start.astype(dtype)
+    kind = measurement.kind
+    estimate = set(INITIALISABLE[kind] if estimate is None else estimate)
+    bad = estimate - set(INITIALISABLE[kind])
+    if bad:
+        raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(INITIALISABLE[kind])}")
+    P = np.asarray(fk_position(robot, q, start), np.float64)
+    Y = np.asarray(y, np.float64)
+
+    def rms(dev):
+        r = np.asarray(measurement.residual(robot, dev, q, jnp.asarray(y)), np.float64)
+        e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)
+        return float(np.sqrt(np.mean(e**2)))
+
+    before = rms(start)
+    if isinstance(measurement, CableLength):
+        anchor0 = np.asarray(measurement.anchor, np.float64) + np.asarray(start.anchor, np.float64)
+        offset0 = float(start.cable_offset)
+        est_anchor, est_offset = "anchor" in estimate, "cable_offset" in estimate
+        keep = np.ones(P.shape[0], bool)
+        for _ in range(2):
+            if est_anchor:
+                c, o, _ = multilaterate(P[keep], Y[keep] - (0.0 if est_offset else offset0), offset=est_offset,
+                                        guess=anchor0)
+                o = o if est_offset else offset0
+            else:
+                c = anchor0
+                o = float(np.median(Y[keep] - np.linalg.norm(P[keep] - c, axis=1))) if est_offset else offset0
+            res = np.linalg.norm(P - c, axis=1) + o - Y
+            new_keep = _trim(res)
+            if np.array_equal(new_keep, keep):
+                break
+            keep = new_keep
+        dev = Deviations(start.alpha, start.a, start.d, start.theta, start.beta,
+                         jnp.asarray(c - np.asarray(measurement.anchor, np.float64), dtype), start.tool,
+                         jnp.asarray(o, dtype), start.base_rotation, start.base_translation)
+        what = []
+        if est_anchor:
+            what.append(f"anchor ({', '.join(f'{v:.1f}' for v in c)}) mm, {np.linalg.norm(c - anchor0):.1f} mm "
+                        "from the guess")
+        if est_offset:
+            what.append(f"cable offset {o:+.2f} mm")
+    elif isinstance(measurement, (Position, Pose)):
+        Ym = Y[:, :3, 3] if kind == "pose" else Y
+        keep = np.ones(P.shape[0], bool)
+        for _ in range(2):
+            R, t = kabsch(P[keep], Ym[keep])
+            res = np.linalg.norm(P @ R.T + t - Ym, axis=1)
+            new_keep = _trim(res)
+            if np.array_equal(new_keep, keep):
+                break
+            keep = new_keep
+        R0 = np.asarray(measurement.rotation, np.float64)
+        t0 = np.asarray(measurement.translation, np.float64)
+        w = _matrix_to_rotvec(R @ R0.T)
+        dev = Deviations(start.alpha, start.a, start.d, start.theta, start.beta, start.anchor, start.tool,
+                         start.cable_offset, jnp.asarray(w, dtype), jnp.asarray(t - t0, dtype))
+        R_guess = _rotvec(start.base_rotation) @ R0
+        angle = math.degrees(float(np.linalg.norm(_matrix_to_rotvec(R @ R_guess.T))))
+        what = [f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame, "
+                f"rotated {angle:.2f}° from the guess"]
+    else:  # pragma: no cover - every model is handled above
+        raise TypeError(f"no initialisation for {type(measurement).__name__}")
+    after = rms(dev)
+    n_trim = int((~keep).sum())
+    msg = ("extras from the data: " + "; ".join(what) + f" (RMS residual of the nominal robot {before:.2f} → "
+           f"{after:.2f} mm" + (f", {n_trim} sample(s) left out as gross outliers)" if n_trim else ")"))
+    return ExtrasEstimate(dev, before, after, n_trim, msg)
+
+
+def _rotvec(w) -> np.ndarray:
+    from ._kinematics import rotvec_to_matrix
+
+    return np.asarray(rotvec_to_matrix(jnp.asarray(w)), np.float64)
