@@ -142,16 +142,52 @@ def _cmd_simulate(args) -> int:
 # -- calibrate --------------------------------------------------------------------------------------
 
 
+def _split_indices(key, n: int, test_fraction: float):
+    """Row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test parts."""
+    import jax
+    import numpy as np
+
+    n_test = int(round(n * test_fraction))
+    perm = np.asarray(jax.random.permutation(key, n))
+    return perm[n_test:], perm[:n_test]
+
+
+def _rows(text: str | None) -> list[int]:
+    if not text:
+        return []
+    out = []
+    for part in text.replace(";", ",").split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                a, b = (int(v) for v in part.split("-", 1))
+                out += list(range(a, b + 1))
+            else:
+                out.append(int(part))
+        except ValueError:
+            raise _Usage(f"--exclude-rows takes data row numbers (1-based) and ranges like 5-9, got {part!r}") from None
+    return out
+
+
+def _fmt_value(v: float, sd: float | None, unit: str) -> str:
+    if sd is None:
+        return f"{v:+.4f}"
+    return f"{v:+.4f} ± {sd:.2g}" if sd < float("inf") else f"{v:+.4f} ± ∞"
+
+
 def _cmd_calibrate(args) -> int:
     import jax
     import numpy as np
 
     from ._calibrate import CalibrationWarning, calibrate
     from ._dataset import load_csv
-    from ._identifiability import identifiability
+    from ._diagnostics import Checks, wrap_angle_deg
     from ._io import save_result
-    from ._metrics import format_table
-    from ._params import ParameterSpace
+    from ._metrics import Metrics, compute_metrics, format_table
+    from ._objective import LOSSES, Prior
+    from ._problem import Problem
     from .methods import METHODS
 
     method = args.method.lower()
@@ -165,55 +201,85 @@ def _cmd_calibrate(args) -> int:
     if data.dof != robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    note = None
+    estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
+    bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
+    if bad:
+        raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
+    if args.measurement != "cable" and estimate & {"anchor", "offset", "cable_offset"}:
+        raise _Usage("--estimate anchor/offset apply to --measurement cable only")
+    if args.measurement == "cable" and "base" in estimate:
+        raise _Usage("--estimate base applies to --measurement position only")
+    notes = []
     if anchor is None and args.measurement == "cable":
         if "anchor_mm" in data.meta:
             anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
         else:
-            note = "no --anchor given: using the default anchor (reach/2, 0, 0) mm"
+            # nothing known about the anchor: estimate it (and the cable offset) from the data
+            estimate |= {"anchor", "offset"}
+            notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
+                         "from the data (multilateration on the nominal robot, then the joint fit)")
     measurement = _measurement(args.measurement, anchor, robot)
-    if note:
-        print(f"jaxcal: note: {note}", file=sys.stderr)
-    estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
-    bad = estimate - {"anchor", "tool", "offset"}
-    if bad:
-        raise _Usage(f"--estimate takes anchor, tool, offset; got {sorted(bad)}")
-    if args.measurement != "cable" and estimate & {"anchor", "offset"}:
-        raise _Usage("--estimate anchor/offset apply to --measurement cable only")
     if not (0.0 <= args.test_fraction < 1.0):
         raise _Usage(f"--test-fraction must be in [0, 1), got {args.test_fraction}")
+    if args.loss not in LOSSES:
+        raise _Usage(f"--loss must be one of {', '.join(LOSSES)}, got {args.loss!r}")
+    try:
+        prior = Prior.parse(args.prior)
+    except ValueError as e:
+        raise _Usage(f"--prior: {e}") from None
+    checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm)
     hyper = _hyper(args.set)
+    excluded = sorted(set(_rows(args.exclude_rows)))
+    if excluded and (excluded[0] < 1 or excluded[-1] > data.n):
+        raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
+    kept_rows = np.setdiff1d(np.arange(data.n), np.asarray(excluded, int) - 1)
+    if excluded:
+        notes.append(f"excluded data rows (your choice): {', '.join(map(str, excluded))}")
+    data = data.subset(kept_rows)
     key = jax.random.key(args.seed)
     k_split, k_method = jax.random.split(key)
-    train, test = data.split(k_split, args.test_fraction)
+    train_idx, test_idx = _split_indices(k_split, data.n, args.test_fraction)
+    train, test = data.subset(train_idx), data.subset(test_idx)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
-    full = ParameterSpace.for_robot(robot, anchor="anchor" in estimate, tool="tool" in estimate,
-                                    cable_offset="offset" in estimate)
-    report = identifiability(robot, measurement, train.q, full)
-    space = report.space
-    n_res = train.n * measurement.size
-    if n_res <= space.n_free + 1:
-        raise _Usage(f"too few samples: {train.n} training sample(s) give {n_res} residuals for {space.n_free} "
-                     "identifiable free parameters; measure more poses")
+    extras = sorted({"offset": "cable_offset"}.get(e, e) for e in estimate)
+    file_row = lambda i: int(kept_rows[train_idx[i]]) + 1  # noqa: E731  (1-based data row of a training row)
+
     print(f"data: {data.n} {measurement.kind} samples from {path} → {train.n} train / {test.n} test "
           f"(seed {args.seed}); robot {robot.name}; method {method}")
-    print(report)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", CalibrationWarning)
-        try:
-            res = calibrate(robot, measurement, train, method, key=k_method, space=space, **hyper)
-        except TypeError as e:
-            raise _Usage(str(e)) from None
-    for w in caught:
-        if not issubclass(w.category, CalibrationWarning):
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    from ._problem import Problem
+    for n in notes:
+        print(f"note: {n}")
+    print(f"objective: {'least squares' if args.loss == 'linear' else args.loss + ' loss'}"
+          + (f"; {prior.describe()}" if prior is not None else "; no prior (--prior default adds one)"))
+
+    def run(train_set):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            try:
+                res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
+                                loss=args.loss, checks=checks, **hyper)
+            except TypeError as e:
+                raise _Usage(str(e)) from None
+        for w in caught:
+            if not issubclass(w.category, CalibrationWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return res
+
+    res = run(train)
+    if args.exclude_outliers and res.diagnostics.outliers_after:
+        drop = [file_row(i) for i in res.diagnostics.outliers_after]
+        print(f"--exclude-outliers: refitting without data rows {', '.join(map(str, drop))}")
+        keep = np.setdiff1d(np.arange(train.n), np.asarray(res.diagnostics.outliers_after))
+        train_idx = train_idx[keep]
+        train = data.subset(train_idx)
+        res = run(train)
+    if res.identifiability is not None:
+        print(res.identifiability)
+    if res.diagnostics.extras:
+        print(res.diagnostics.extras)
 
     def before(ds):
-        from ._metrics import Metrics, compute_metrics
-
-        pr = Problem(robot, measurement, ds.q, ds.y, space)
+        pr = Problem(robot, measurement, ds.q, ds.y, res.space)
         return Metrics(*(float(v) for v in compute_metrics(pr.sample_errors(pr.x0()))))
 
     rows = [("train, before", before(train)), ("train, after", res.evaluate(train))]
@@ -225,30 +291,59 @@ def _cmd_calibrate(args) -> int:
                              f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
     nominal = robot.dh_table_deg()
     cal = res.dh_table()
-    free = set(space.free_names)
+    sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
     trows = []
     for j in range(robot.dof):
         cells = [str(j + 1)]
         for g, col in (("alpha", 0), ("a", 1), ("d", 2), ("theta", 3)):
-            star = "" if f"{g}_{j + 1}" in free else "*"
-            cells.append(f"{cal[j, col]:.4f}{star} ({cal[j, col] - nominal[j, col]:+.4f})")
+            name = f"{g}_{j + 1}"
+            delta = cal[j, col] - nominal[j, col]
+            if col in (0, 3):
+                delta = float(wrap_angle_deg(delta))
+            if name in sd:
+                cells.append(f"{cal[j, col]:.4f} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
+            else:
+                cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
         trows.append(cells)
     print()
-    print(format_table(trows, ["joint", "α/° (Δ)", "a/mm (Δ)", "d/mm (Δ)", "θ/° (Δ)"],
-                       title="Calibrated DH table (Δ = calibrated − nominal; * not identifiable, kept nominal)"))
-    extras = [n for n in space.free_names if n.startswith(("anchor", "tool", "cable"))]
-    if extras:
-        dev = dict(zip(space.free_names, np.asarray(res.x)))
-        print("estimated extras (deviation from nominal, mm): " + ", ".join(f"{n} {dev[n]:+.4f}" for n in extras))
+    print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
+                       title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
+                             "* not identifiable, kept nominal)"))
+    extra_names = [n for n in res.space.free_names if n.startswith(("anchor", "tool", "cable", "base"))]
+    if extra_names:
+        dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+        parts = []
+        for n in extra_names:
+            unit = "mm" if not n.startswith("base_r") else "°"
+            v = dev[n] if unit == "mm" else math.degrees(dev[n])
+            s_ = sd.get(n, (None,))[0]
+            parts.append(f"{n} {_fmt_value(v, s_, unit)} {unit}")
+        print("estimated extras (deviation from the nominal/guessed value): " + ", ".join(parts))
+    if res.uncertainty is not None:
+        print(f"residual σ̂ {res.uncertainty.noise_std:.4f} mm, effective parameters "
+              f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}")
+    diag = res.diagnostics
+    if diag.outliers_after:
+        listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
+        print(f"outliers after the fit (> {checks.outlier_k:g} robust σ = {diag.outlier_scale_mm:.3g} mm): data rows "
+              f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
+              + ("" if args.exclude_outliers else " (kept; --exclude-outliers or --loss huber to guard against them)"))
+    for w in res.warnings:
+        print(f"jaxcal: warning: {w}", file=sys.stderr)
     if args.out:
         settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
                     "seed": args.seed, "test_fraction": args.test_fraction, "method": method,
-                    "estimate": sorted(estimate), "hyperparameters": hyper}
-        save_result(res, args.out, settings=settings, identifiability=report.to_dict(),
-                    metrics_mm={name: m._asdict() for name, m in rows})
+                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": args.loss,
+                    "excluded_rows": excluded,
+                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
+        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows})
         print(f"\nwrote {args.out}")
     if not res.ok:
         print(f"jaxcal: calibration failed: {res.message}", file=sys.stderr)
+        return _EXIT_FAILED
+    if not res.plausible and not args.accept_implausible:
+        print("jaxcal: calibration implausible (see the warning above); exit status 1 — use "
+              "--accept-implausible to accept it, or a stronger --prior", file=sys.stderr)
         return _EXIT_FAILED
     return 0
 
@@ -393,17 +488,37 @@ def build_parser() -> argparse.ArgumentParser:
                     "measured data: split off --test-fraction of the samples (at random, --seed), calibrate on the "
                     "rest, print RMSE/MEAN/MAX (mm) before and after on both parts and the calibrated DH table, "
                     "and write a JSON result (--out) that jaxcal.load_result reads back.",
-        epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT + "\n\nexit status: 0 ok, 1 calibration failed/diverged, "
-               "2 bad input.",
+        epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT + "\n\nexit status: 0 ok, 1 calibration failed, diverged, "
+               "stopped at its step budget, or implausible (see --accept-implausible), 2 bad input.",
     )
     c.add_argument("data", help="CSV data file (format below)")
     c.add_argument("--robot", required=True, help="preset name or DH table CSV file (format below)")
     c.add_argument("--measurement", choices=("cable", "position"), default="cable",
-                   help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm)")
+                   help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
+                        "sensor frame (identity = robot base unless --estimate base)")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
     c.add_argument("--estimate", metavar="LIST",
-                   help="also estimate extras: comma list of anchor (wire exit point), tool (tool point in the "
-                        "flange frame), offset (cable zero offset)")
+                   help="also estimate extras: comma list of anchor (wire exit point), offset (cable zero offset), "
+                        "tool (tool point in the flange frame), base (position sensor's frame relative to the robot "
+                        "base, 6 parameters). Anchor, offset and base start from the data in closed form, so a "
+                        "rough --anchor guess is fine. Without --anchor (and no anchor_mm line in the file) the "
+                        "anchor and offset are estimated.")
+    c.add_argument("--prior", default="default", metavar="SPEC",
+                   help="Gaussian prior toward the nominal robot (MAP): 'default' (σ 0.5° on angles, 2 mm on DH "
+                        "lengths, none on extras; the default), 'none' (plain least squares), or key=value pairs: "
+                        "angle_deg=0.5,length_mm=2,extras_mm=500,noise_std=0.3 or a parameter name, e.g. d_1=10")
+    c.add_argument("--loss", default="linear", choices=("linear", "huber", "cauchy"),
+                   help="linear (least squares, default) or a robust loss against gross outliers")
+    c.add_argument("--exclude-outliers", action="store_true",
+                   help="refit without the training rows flagged as outliers (> 5 robust σ) after the first fit; they "
+                        "are listed")
+    c.add_argument("--exclude-rows", metavar="ROWS", help="data rows to leave out (1-based, e.g. 3,17,40-45)")
+    c.add_argument("--max-angle-deg", type=float, default=5.0,
+                   help="plausibility bound on DH angle deviations (default 5°)")
+    c.add_argument("--max-length-mm", type=float, default=20.0,
+                   help="plausibility bound on DH length deviations (default 20 mm)")
+    c.add_argument("--accept-implausible", action="store_true",
+                   help="exit 0 even when a deviation exceeds the plausibility bounds (default: exit 1)")
     c.add_argument("--method", default="lm", help="calibration method: lm (default), gn, adam, adamw, adamod, adamodw, ga, ekf, bso, iwoa, "
                         "rbfnn (an unknown name lists the registered ones)")
     c.add_argument("--set", action="append", metavar="NAME=VALUE",

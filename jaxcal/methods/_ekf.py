@@ -95,22 +95,34 @@ class ExtendedKalmanFilter(BoxSearch):
         z0 = jnp.zeros(p, dtype)
         rmse0 = start_rmse(problem)
 
+        # with a MAP prior each pass is an iterated EKF (Gauss-Newton on the MAP objective): it
+        # starts from the prior mean with P0 and uses the residuals linearised at the previous
+        # pass's estimate, so the prior stays centred where it belongs; without a prior, each
+        # pass restarts from the previous estimate and relinearises per sample (the paper's M2)
+        map_prior = ob is not None and ob.has_prior
+        z_prior = (ob.prior_mean - problem.x_start) / problem.scale if map_prior else z0
+
         def update(carry, sample):
-            z, P = carry
+            z, P, z_lin = carry
             q_i, y_i = sample
             # one forward pass: r [m], H [m, p]
-            r, H = problem.residual_and_jacobian(z, pr.with_data(q_i[None], y_i[None]))
+            if map_prior:
+                r, H = problem.residual_and_jacobian(z_lin, pr.with_data(q_i[None], y_i[None]))
+                r = r + H @ (z - z_lin)
+            else:
+                r, H = problem.residual_and_jacobian(z, pr.with_data(q_i[None], y_i[None]))
             PHt = P @ H.T
             S = H @ PHt + R
             K = jnp.linalg.solve(S, PHt.T).T  # [p, m]  (S symmetric)
             z = z - K @ r
             A = eye - K @ H
             P = A @ P @ A.T + K @ R @ K.T + Q
-            return (z, 0.5 * (P + P.T)), None
+            return (z, 0.5 * (P + P.T), z_lin), None
 
         def one_pass(carry, _):
             z, diverged = carry
-            (z_new, P_new), _ = jax.lax.scan(update, (z, P0), (pr.q, pr.y))
+            z_first = z_prior if map_prior else z
+            (z_new, P_new, _), _ = jax.lax.scan(update, (z_first, P0, z), (pr.q, pr.y))
             rmse = problem.rmse(z_new)
             bad = (
                 ~jnp.all(jnp.isfinite(z_new))
