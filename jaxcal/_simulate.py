@@ -49,13 +49,29 @@ class Experiment(eqx.Module):
 
 
 def sample_joint_angles(
-    key: Array, robot: DHRobot, n: int, *, coverage: float = 1.0, dtype=None
+    key: Array, robot: DHRobot, n: int, *, coverage: float = 1.0, ranges=None, dtype=None
 ) -> Float[Array, "n dof"]:
-    """``[n, dof]`` joint angles uniform over the central ``coverage`` fraction of each range."""
-    lo, hi = robot.q_min, robot.q_max
-    mid, half = (lo + hi) / 2, (hi - lo) / 2 * coverage
+    """``[n, dof]`` joint angles uniform over the central ``coverage`` fraction of each range.
+
+    ``ranges``: optional ``(lo, hi)`` pair of ``[dof]`` arrays (rad) used instead of the
+    robot's joint limits.
+    """
     dtype = dtype or jnp.result_type(float)
+    lo, hi = (robot.q_min, robot.q_max) if ranges is None else ranges
+    lo, hi = jnp.asarray(lo).astype(dtype), jnp.asarray(hi).astype(dtype)
+    mid, half = (lo + hi) / 2, (hi - lo) / 2 * coverage
     return jax.random.uniform(key, (n, robot.dof), dtype, mid - half, mid + half)
+
+
+def workspace_mask(p, anchor, wire_range: tuple[float, float], min_height_mm: float = 0.0):
+    """``[n]`` bool: tool points ``p`` (three ``[n]`` arrays, mm, base frame) at least
+    ``min_height_mm`` high and, when ``anchor`` (``[3]`` mm) is given, at a wire length
+    ``‖p − anchor‖`` within ``wire_range`` (mm)."""
+    ok = p[2] >= min_height_mm
+    if anchor is not None:
+        dist = jnp.sqrt(sum((p[k] - anchor[k]) ** 2 for k in range(3)))
+        ok = ok & (dist >= wire_range[0]) & (dist <= wire_range[1])
+    return ok
 
 
 def draw_deviations(
@@ -194,8 +210,7 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     cand = sample_joint_angles(k_q, robot, n_cand, coverage=cfg.coverage, dtype=dtype)
     p = tool_point_soa(robot, true_deviations, cand)
     anchor = jnp.asarray(getattr(measurement, "anchor", jnp.zeros(3)), dtype) + true_deviations.anchor
-    dist = jnp.sqrt(sum((p[k] - anchor[k]) ** 2 for k in range(3)))
-    ok = (p[2] >= cfg.min_height_mm) & (dist >= cfg.wire_range[0]) & (dist <= cfg.wire_range[1])
+    ok = workspace_mask(p, anchor, cfg.wire_range, cfg.min_height_mm)
     (idx,) = jnp.nonzero(ok, size=cfg.n_samples, fill_value=0)
     n_ok = jnp.sum(ok)
     idx = eqx.error_if(
