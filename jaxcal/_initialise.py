@@ -104,7 +104,7 @@ def multilaterate(points, lengths, *, offset: bool = True, guess=None, iteration
                 J = np.concatenate([J, np.ones((n, 1))], axis=1)
             H = J.T @ J
             g = J.T @ r
-            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
+            step = np.linalg.lstsq(H + lam * np.diag(np.diag(H) + 1e-12), -g, rcond=None)[0]
             c_new = c + step[:3]
             o_new = o + (step[3] if offset else 0.0)
             r_new = residual(c_new, o_new)
@@ -127,7 +127,7 @@ def multilaterate(points, lengths, *, offset: bool = True, guess=None, iteration
     if guess is not None:
         g = np.asarray(guess, np.float64)
         starts.append((g, float(np.median(L - np.linalg.norm(P - g, axis=1))) if offset else 0.0))
-    fits = [refine(c, o) for c, o in starts]
+    fits = [refine(c, o) for c, o in starts if np.all(np.isfinite(c)) and np.isfinite(o)]
     best = min(f[2] for f in fits)
     close = [f for f in fits if f[2] <= best * (1 + 1e-6) + 1e-9]
     ref = np.asarray(guess, np.float64) if guess is not None else c_lin
