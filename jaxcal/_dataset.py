@@ -6,6 +6,7 @@ import csv
 import io
 import math
 import os
+import re
 import warnings
 from collections.abc import Mapping
 
@@ -14,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+
+from ._csvfile import read_table
 
 __all__ = ["Dataset", "load_csv", "save_csv", "KINDS"]
 
@@ -199,8 +202,64 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         f.write(buf.getvalue())
 
 
-def load_csv(path, *, kind: str | None = None, dof: int | None = None, dtype=None) -> Dataset:
-    """Read a CSV data file (see :func:`save_csv` for the layout) into a :class:`Dataset`.
+#: columns that data files often carry for bookkeeping; not used, still named in the warning.
+_BOOKKEEPING = ("index", "row", "sample", "id", "time", "time_s", "timestamp")
+_JOINT = re.compile(r"q(\d+)_(deg|rad)")
+
+
+def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
+    """The joint-angle column names ordered by joint number, and their unit."""
+    found = {h: _JOINT.fullmatch(h) for h in header}
+    found = {h: (int(m[1]), m[2]) for h, m in found.items() if m}
+    if not found:
+        raise ValueError(f"{path}: no joint-angle columns (expected q1_deg, q2_deg, ... or q1_rad, ...); "
+                         f"header: {list(header)}")
+    units = {u for _, u in found.values()}
+    if len(units) != 1:
+        raise ValueError(f"{path}: joint-angle columns mix degrees and radians: {list(found)}")
+    unit = units.pop()
+    by_joint: dict[int, list[str]] = {}
+    for h, (j, _) in found.items():
+        by_joint.setdefault(j, []).append(h)
+    twice = [names for names in by_joint.values() if len(names) > 1]
+    if twice:
+        raise ValueError(f"{path}: joint-angle columns {twice[0]} name the same joint")
+    n = max(by_joint)
+    missing = [f"q{j}_{unit}" for j in range(1, n + 1) if j not in by_joint]
+    if missing or 0 in by_joint:
+        raise ValueError(
+            f"{path}: joint-angle columns must be numbered 1..N without gaps; "
+            + (f"missing {missing}" if missing else "found q0") + f" (have {list(found)})"
+        )
+    if dof is not None and n != dof:
+        raise ValueError(f"{path}: file has {n} joint-angle columns but the robot has {dof} joints")
+    return [by_joint[j][0] for j in range(1, n + 1)], unit
+
+
+def load_csv(
+    path, *, kind: str | None = None, dof: int | None = None, dtype=None, delimiter: str | None = None,
+    strict: bool = False,
+) -> Dataset:
+    """Read a CSV data file into a :class:`Dataset`, as :func:`save_csv` or a spreadsheet writes it.
+
+    Columns, matched by name in any order (names are stripped and case-insensitive):
+
+    * joint angles ``q1_deg … qN_deg`` or ``q1_rad … qN_rad`` (one unit for all), numbered
+      1..N without gaps or duplicates;
+    * the measurement columns of :data:`KINDS`: ``length_mm`` (cable); ``x_mm,y_mm,z_mm``
+      (position); poses add a rotation vector ``rx_deg,ry_deg,rz_deg``;
+    * any other column is not used: a ``UserWarning`` names it (``strict=True``: an error).
+      Bookkeeping columns (``index``, ``row``, ``sample``, ``id``, ``time``, ``time_s``,
+      ``timestamp``) are named in the warning too.
+
+    File format: UTF-8 with or without a byte-order mark (Excel's "CSV UTF-8"), or UTF-16 with
+    one; delimiter ``,``, ``;`` or tab, recognised from the header line (or ``delimiter=``).
+    In ``;``-delimited files numbers may use a decimal comma (``1,5``); elsewhere a comma in
+    a number is an error. Blank lines and ``#`` lines are skipped anywhere; ``# key: value``
+    lines are kept as metadata (``# kind: cable`` gives the kind). Rows whose cells are all
+    empty and trailing nameless empty columns (spreadsheet exports) are skipped. Nothing else
+    is dropped: a bad cell is an error naming the data row (1-based), its file line, the
+    column and the text.
 
     Args:
         path: file path.
@@ -208,80 +267,50 @@ def load_csv(path, *, kind: str | None = None, dof: int | None = None, dtype=Non
             the value columns present.
         dof: expected number of joints (e.g. ``robot.dof``); a mismatch raises.
         dtype: array dtype (default: JAX's default float).
+        delimiter: the column delimiter (one character); default: recognised from the header.
+        strict: raise instead of warning when a column is not used.
 
     Raises:
-        ValueError: missing/unknown columns, mixed angle units, wrong joint count, empty file,
-            unparsable or NaN/inf values (with row numbers), or radian columns whose values
-            look like degrees.
+        FileNotFoundError: no such file.
+        ValueError: missing/unknown columns, mixed angle units, gaps in the joint numbering,
+            wrong joint count, empty file, unparsable or NaN/inf values (naming row, line and
+            column), or radian columns whose values look like degrees.
     """
-    path = os.fspath(path)
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"data file not found: {path}")
-    meta: dict[str, str] = {}
-    with open(path, encoding="utf-8") as f:
-        lines = f.read().splitlines()
-    body = []
-    for line in lines:
-        s = line.strip()
-        if not s:
-            continue
-        if s.startswith("#"):
-            if ":" in s:
-                k, v = s[1:].split(":", 1)
-                meta[k.strip()] = v.strip()
-            continue
-        body.append(line)
-    if not body:
-        raise ValueError(f"{path}: no header row found")
-    rows = list(csv.reader(body))
-    header = [h.strip() for h in rows[0]]
-    qcols = [h for h in header if h.startswith("q") and (h.endswith("_deg") or h.endswith("_rad"))]
-    if not qcols:
-        raise ValueError(f"{path}: no joint-angle columns (expected q1_deg, q2_deg, ... or q1_rad, ...); header: {header}")
-    units = {h.rsplit("_", 1)[1] for h in qcols}
-    if len(units) != 1:
-        raise ValueError(f"{path}: joint-angle columns mix degrees and radians: {qcols}")
-    unit = units.pop()
-    n_joints = len(qcols)
-    expected_q = [f"q{j + 1}_{unit}" for j in range(n_joints)]
-    if qcols != expected_q:
-        raise ValueError(f"{path}: joint-angle columns must be {expected_q} in order, got {qcols}")
-    if dof is not None and n_joints != dof:
-        raise ValueError(f"{path}: file has {n_joints} joint-angle columns but the robot has {dof} joints")
-    if kind is None:
-        kind = meta.get("kind")
+    t = read_table(path, delimiter=delimiter, what="data file", row_name="data row")
+    path, header, meta = t.path, t.header, dict(t.meta)
+    qcols, unit = _joint_columns(path, header, dof)
+    meta_kind = next((k for k in meta if k.lower() == "kind"), None)
+    if kind is None and meta_kind is not None:
+        kind = meta[meta_kind].lower()
     if kind is None:
         kind = next((k for k in ("pose", "position", "cable") if all(c in header for c in KINDS[k])), None)
         if kind is None:
             raise ValueError(
                 f"{path}: no measurement columns found; expected one of "
                 + "; ".join(f"{k}: {','.join(c)}" for k, c in KINDS.items())
+                + f"; header: {list(header)}"
             )
     if kind not in KINDS:
         raise ValueError(f"{path}: unknown measurement kind {kind!r}; expected one of {list(KINDS)}")
     missing = [c for c in KINDS[kind] if c not in header]
     if missing:
-        raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {header}")
-    extra = [h for h in header if h not in qcols and h not in KINDS[kind]]
-    if extra:
-        warnings.warn(f"{path}: ignoring unknown column(s) {extra}", stacklevel=2)
-    idx = [header.index(c) for c in expected_q + list(KINDS[kind])]
-    table = np.empty((len(rows) - 1, len(idx)))
-    for r, row in enumerate(rows[1:]):
-        if len(row) != len(header):
-            raise ValueError(f"{path}: data row {r + 1} has {len(row)} fields, header has {len(header)}")
-        try:
-            table[r] = [float(row[i]) for i in idx]
-        except ValueError as e:
-            raise ValueError(f"{path}: data row {r + 1}: {e}") from None
-    if table.shape[0] == 0:
-        raise ValueError(f"{path}: no data rows")
-    bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
-    if bad.size:
-        raise ValueError(
-            f"{path}: {bad.size} row(s) contain NaN/inf (data rows {(bad + 1)[:10].tolist()}); "
-            "remove or fix them — nothing is dropped silently"
+        raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
+    used = qcols + list(KINDS[kind])
+    unused = [h for h in header if h not in used]
+    if unused:
+        odd = [h for h in unused if h not in _BOOKKEEPING]
+        book = [h for h in unused if h in _BOOKKEEPING]
+        named = " and ".join(
+            part for part in (odd and f"unknown column(s) {odd}", book and f"bookkeeping column(s) {book}") if part
         )
+        msg = f"{path}: {named} are not used; {kind} data uses {','.join(used)}"
+        if strict:
+            raise ValueError(msg + " (strict=True)")
+        warnings.warn(msg + " (strict=True makes this an error)", UserWarning, stacklevel=2)
+    if not t.rows:
+        raise ValueError(f"{path}: no data rows")
+    table = t.floats(used)
+    n_joints = len(qcols)
     qv = table[:, :n_joints]
     if unit == "rad" and np.abs(qv).max() > _MAX_RAD:
         raise ValueError(
@@ -299,7 +328,7 @@ def load_csv(path, *, kind: str | None = None, dof: int | None = None, dtype=Non
         y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))
         y[:, :3, 3] = vals[:, :3]
         y[:, 3, 3] = 1.0
-    meta.pop("kind", None)
-    meta.pop("jaxcal dataset v1", None)
+    if meta_kind is not None:
+        meta.pop(meta_kind)
     dt = dtype or jnp.result_type(float)
     return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), kind, meta)

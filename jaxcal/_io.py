@@ -21,6 +21,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from ._csvfile import read_table
 from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
@@ -79,66 +80,100 @@ def robot_from_dict(d: dict) -> DHRobot:
 
 
 _DH_COLUMNS = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
+#: accepted names of the joint-limit columns, before ``_deg``/``_rad``.
+_LIMIT_NAMES = {"q_min": ("q_min", "qmin", "min", "lower", "q_lower"),
+                "q_max": ("q_max", "qmax", "max", "upper", "q_upper")}
+#: every accepted DH-file column: name -> (quantity, unit).
+_DH_FILE_COLUMNS = {"a_mm": ("a", "mm"), "d_mm": ("d", "mm"), "joint": ("joint", "")} | {
+    f"{name}_{unit}": (quantity, unit)
+    for quantity, names in {"alpha": ("alpha",), "theta": ("theta",), "beta": ("beta",), **_LIMIT_NAMES}.items()
+    for name in names
+    for unit in ("deg", "rad")
+}
+_DH_ACCEPTED = (
+    "alpha_deg, a_mm, d_mm, theta_deg (or alpha_rad, theta_rad); optional: beta_deg (or beta_rad), "
+    "a joint-limit pair " + ", ".join(f"{lo}_deg/{hi}_deg" for lo, hi in zip(*_LIMIT_NAMES.values()))
+    + " (each also *_rad), joint (1..N)"
+)
 
 
-def load_robot_csv(path) -> DHRobot:
-    """A robot from a DH table file (standard DH, degrees and mm).
+def _tool_mm(path, text: str) -> tuple[float, float, float]:
+    """``# tool_mm: x,y,z`` (or ``x;y;z``, where numbers may have decimal commas)."""
+    sep = ";" if ";" in text else ","
+    try:
+        parts = [float(p.replace(",", ".") if sep == ";" else p) for p in text.split(sep)]
+    except ValueError:
+        parts = []
+    if len(parts) != 3:
+        raise ValueError(f"{path}: '# tool_mm: {text}' needs 3 numbers separated by ',' (or ';' with decimal commas)")
+    return tuple(parts)
+
+
+def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
+    """A robot from a DH table file (standard DH; lengths in mm, angles in degrees or radians).
 
     Layout: optional ``# name: NAME`` and ``# tool_mm: x,y,z`` comment lines (tool point in the
-    flange frame), a header row ``alpha_deg,a_mm,d_mm,theta_deg`` (plus optional
-    ``q_min_deg,q_max_deg`` joint limits, default ±180°), then one row per joint::
+    flange frame, mm; default the flange origin), a header row, then one row per joint::
 
         # name: hsr_jr680
         alpha_deg,a_mm,d_mm,theta_deg,q_min_deg,q_max_deg
         -90,250,653.5,0,-170,170
         ...
-    """
-    import csv
 
-    path = pathlib.Path(path)
-    meta, lines = {}, []
-    for raw in path.read_text(encoding="utf-8").splitlines():
-        line = raw.strip()
-        if not line:
-            continue
-        if line.startswith("#"):
-            if ":" in line:
-                k, v = line[1:].split(":", 1)
-                meta[k.strip().lower()] = v.strip()
-            continue
-        lines.append(line)
-    if not lines:
-        raise ValueError(f"{path}: no DH table (expected a header row {','.join(_DH_COLUMNS)})")
-    rows = list(csv.reader(lines))
-    header = [h.strip().lower() for h in rows[0]]
-    missing = [c for c in _DH_COLUMNS if c not in header]
+    Columns, in any order, names stripped and case-insensitive:
+
+    * required: ``alpha_deg`` (or ``alpha_rad``), ``a_mm``, ``d_mm``, ``theta_deg`` (or
+      ``theta_rad``);
+    * joint limits, both or neither (default ±180°): ``q_min_deg/q_max_deg``, or the synonyms
+      ``qmin_deg/qmax_deg``, ``min_deg/max_deg``, ``lower_deg/upper_deg``,
+      ``q_lower_deg/q_upper_deg``, each also in radians (``q_min_rad``, ``lower_rad``, ...);
+    * ``beta_deg`` (or ``beta_rad``): nominal Hayati β; the joints where it is nonzero become
+      the robot's ``beta_joints`` (to estimate β at a joint whose nominal β is 0, use
+      ``robot.with_hayati(j)``);
+    * ``joint``: joint numbers, checked to be 1, 2, ..., N.
+
+    Any other column is an error (never dropped silently), as is a quantity given twice (e.g.
+    ``q_min_deg`` and ``lower_deg``). The file may have a UTF-8 byte-order mark and use ``,``,
+    ``;`` or tab as delimiter (recognised from the header, or ``delimiter=``); in ``;`` files
+    numbers may use decimal commas. Errors name the file, the joint row, its line and column.
+    """
+    t = read_table(path, delimiter=delimiter, what="DH table file", row_name="joint row")
+    path = t.path
+    meta = {k.lower(): v for k, v in t.meta.items()}
+    unknown = [h for h in t.header if h not in _DH_FILE_COLUMNS]
+    if unknown:
+        raise ValueError(f"{path}: unknown DH table column(s) {unknown}; accepted: {_DH_ACCEPTED}")
+    named: dict[str, list[str]] = {}
+    for h in t.header:
+        named.setdefault(_DH_FILE_COLUMNS[h][0], []).append(h)
+    twice = [cols for cols in named.values() if len(cols) > 1]
+    if twice:
+        raise ValueError(f"{path}: columns {twice[0]} give the same quantity; keep one")
+    missing = [c for c in _DH_COLUMNS if _DH_FILE_COLUMNS[c][0] not in named]
     if missing:
-        raise ValueError(f"{path}: DH table lacks column(s) {missing}; header must include {','.join(_DH_COLUMNS)}")
-    body = rows[1:]
-    if not body:
+        raise ValueError(f"{path}: DH table lacks column(s) {missing}; header must include {','.join(_DH_COLUMNS)}"
+                         " (angles may be *_rad)")
+    if ("q_min" in named) != ("q_max" in named):
+        have, lack = ("q_min", "q_max") if "q_min" in named else ("q_max", "q_min")
+        raise ValueError(f"{path}: joint limit column {named[have][0]} needs its partner "
+                         f"({'/'.join(n + '_deg' for n in _LIMIT_NAMES[lack])} or *_rad)")
+    if not t.rows:
         raise ValueError(f"{path}: DH table has no joint rows")
-    cols: dict[str, list[float]] = {h: [] for h in header}
-    for i, row in enumerate(body, start=2):
-        if len(row) != len(header):
-            raise ValueError(f"{path}: row {i} has {len(row)} values, the header has {len(header)}")
-        for h, v in zip(header, row):
-            try:
-                x = float(v)
-            except ValueError:
-                raise ValueError(f"{path}: row {i}, column {h}: {v!r} is not a number") from None
-            if not math.isfinite(x):
-                raise ValueError(f"{path}: row {i}, column {h} is not finite")
-            cols[h].append(x)
-    tool = (0.0, 0.0, 0.0)
-    if "tool_mm" in meta:
-        parts = [p for p in meta["tool_mm"].replace(";", ",").split(",") if p.strip()]
-        if len(parts) != 3:
-            raise ValueError(f"{path}: '# tool_mm:' needs 3 comma-separated numbers")
-        tool = tuple(float(p) for p in parts)
+    values = t.floats(t.header)
+    cols = {}
+    for k, h in enumerate(t.header):
+        quantity, unit = _DH_FILE_COLUMNS[h]
+        cols[quantity] = np.rad2deg(values[:, k]) if unit == "rad" else values[:, k]
+    if "joint" in cols and not np.array_equal(cols["joint"], np.arange(1, len(t.rows) + 1)):
+        raise ValueError(f"{path}: the joint column must number the rows 1..{len(t.rows)}, "
+                         f"got {cols['joint'].tolist()}")
+    beta = cols.get("beta")
     return DHRobot.from_degrees(
-        alpha_deg=cols["alpha_deg"], a_mm=cols["a_mm"], d_mm=cols["d_mm"], theta_deg=cols["theta_deg"],
-        q_min_deg=cols.get("q_min_deg"), q_max_deg=cols.get("q_max_deg"), tool_mm=tool,
-        name=meta.get("name", path.stem),
+        alpha_deg=cols["alpha"], a_mm=cols["a"], d_mm=cols["d"], theta_deg=cols["theta"],
+        q_min_deg=cols.get("q_min"), q_max_deg=cols.get("q_max"), beta_deg=beta,
+        beta_joints=() if beta is None else (np.flatnonzero(beta) + 1).tolist(),
+        tool_mm=_tool_mm(path, meta["tool_mm"]) if "tool_mm" in meta else (0.0, 0.0, 0.0),
+        name=meta.get("name", pathlib.Path(path).stem),
     )
 
 
