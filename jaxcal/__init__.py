@@ -37,6 +37,10 @@ from ._measurement import MeasurementModel as MeasurementModel
 from ._measurement import Pose as Pose
 from ._measurement import Position as Position
 from ._measurement import residuals as residuals
+from ._messy import MessyExperiment as MessyExperiment
+from ._messy import region_folds as region_folds
+from ._messy import region_split as region_split
+from ._messy import simulate_messy as simulate_messy
 from ._metrics import Metrics as Metrics
 from ._metrics import compute_metrics as compute_metrics
 from ._metrics import format_table as format_table
@@ -56,10 +60,18 @@ from ._simulate import simulate_experiment as simulate_experiment
 from ._sweep import PAPER_METHODS as PAPER_METHODS
 from ._sweep import SweepResult as SweepResult
 from ._sweep import sweep as sweep
+from ._validation import PriorCV as PriorCV
+from ._validation import cross_validate_prior as cross_validate_prior
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "MessyExperiment",
+    "PriorCV",
+    "cross_validate_prior",
+    "region_folds",
+    "region_split",
+    "simulate_messy",
     "Checks",
     "Diagnostics",
     "ExtrasEstimate",

@@ -66,18 +66,21 @@ class IdentifiabilityReport:
                     lines.append(f"  {n}: acts like {combo}")
         return "\n".join(lines)
 
-    def equivalent(self, deviations) -> np.ndarray:
+    def equivalent(self, deviations, held=None) -> np.ndarray:
         """The values ``[p_identifiable]`` the identifiable parameters take when the unidentifiable
-        ones are held at zero and ``deviations`` is the truth, to first order:
-        ``x_k + Σ_j coefficient_jk·x_j`` over the dependencies. This is what a calibration of the
-        identifiable subset estimates (compare estimates with it, not with the raw truth)."""
+        ones are held at ``held`` (default zero; a calibration holds them at its start,
+        ``result.start``) and ``deviations`` is the truth, to first order:
+        ``x_k + Σ_j coefficient_jk·(x_j − held_j)`` over the dependencies. This is what a
+        calibration of the identifiable subset estimates (compare estimates with it, not with the
+        raw truth)."""
         names = list(self.space.names)
         flat = np.asarray(deviations.ravel(), np.float64)
+        base = np.zeros_like(flat) if held is None else np.asarray(held.ravel(), np.float64)
         value = {n: flat[names.index(n)] for n in self.names}
         out = {n: value[n] for n in self.identifiable}
         for dropped, deps in self.dependencies.items():
             for coef, kept in deps:
-                out[kept] += coef * value[dropped]
+                out[kept] += coef * (value[dropped] - base[names.index(dropped)])
         return np.asarray([out[n] for n in self.identifiable])
 
     def to_dict(self) -> dict:
