@@ -55,6 +55,7 @@ from ._io import measurement_to_dict, robot_to_dict
 from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel
 from ._metrics import Floor, Metrics, compute_metrics, statistical_floor
+from ._objective import LOSSES, Objective, resolve_prior
 from ._params import Deviations, ParameterSpace
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
@@ -240,6 +241,7 @@ class _MethodTrial(eqx.Module):
     static_hyper: tuple = eqx.field(static=True, default=())
     keep_errors: bool = eqx.field(static=True, default=True)
     keep_history: bool = eqx.field(static=True, default=True)
+    objective: Objective | None = None
 
     def __call__(self, split: _Split, k_method, hyper=None) -> _TrialOut:
         if self.method_name is None:
@@ -248,7 +250,7 @@ class _MethodTrial(eqx.Module):
             with warnings.catch_warnings():  # traced values in the method's report-only settings
                 warnings.filterwarnings("ignore", "A JAX array is being set as static")
                 method = make_method(self.method_name, **dict(self.static_hyper), **(hyper or {}))
-        cal = Calibrator(self.robot, self.measurement, method, self.start, self.space)
+        cal = Calibrator(self.robot, self.measurement, method, self.start, self.space, self.objective)
         out = cal(split.q_train, split.y_train, jax.random.wrap_key_data(k_method))
         e = method.sample_errors(cal.problem(split.q_test, split.y_test), out.x, out.extra)
         hist = out.history if self.keep_history else out.history[-1:]
@@ -705,6 +707,9 @@ def sweep(
     progress: bool = True,
     keep_errors: bool = True,
     keep_history: bool = True,
+    prior=None,
+    loss: str = "linear",
+    loss_scale: float | None = None,
 ) -> SweepResult:
     """Run ``n_seeds`` seeded trials of each method; each chunk of trials is one jitted ``vmap``.
 
@@ -764,6 +769,10 @@ def sweep(
         progress: one line per chunk on stderr.
         keep_errors: keep per-sample test errors (``[n, n_test]`` per run; Fig. 4).
         keep_history: keep per-iteration training RMSE (``[n, T+1]`` per run; Fig. 3).
+        prior, loss, loss_scale: the objective of every trial, as in :func:`jaxcal.calibrate`,
+            with fixed scales (a sweep does not re-estimate them): the prior is weighed against
+            ``Prior.noise_std`` or else the sweep's ``noise_std``; the robust loss's scale
+            defaults to its constant (1.345 Huber, 2.385 Cauchy) times that σ.
 
     Returns:
         :class:`SweepResult`.
@@ -808,8 +817,12 @@ def sweep(
         "keep_errors": keep_errors,
         "keep_history": keep_history,
     }
+    prior = resolve_prior(prior)
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
+    settings["objective"] = {"prior": None if prior is None else repr(prior), "loss": loss, "loss_scale": loss_scale}
     common = {k: settings[k] for k in ("format_version", "key_data", "dtype", "chunk_size", "source", "robot",
-                                       "measurement", "start", "keep_errors", "keep_history")}
+                                       "measurement", "start", "keep_errors", "keep_history", "objective")}
 
     def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of):
         """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
@@ -870,7 +883,16 @@ def sweep(
     common["space"] = settings["space"]
 
     # 3. the plan: compiled units (a method, or a group of grid points vmapped together)
-    mk = functools.partial(_MethodTrial, robot, measurement, start, keep_errors=keep_errors, keep_history=keep_history)
+    objective = None
+    if prior is not None or loss != "linear":
+        sigma = prior.noise_std if prior is not None and prior.noise_std is not None else noise_std
+        if sigma is None:
+            raise ValueError("a prior or robust loss in a sweep of given data needs noise_std (mm) or Prior.noise_std")
+        scale = loss_scale if loss_scale is not None else (LOSSES[loss] * sigma if loss != "linear" else None)
+        objective = Objective.build(space, prior, sigma, loss, scale, dtype)
+        objective = None if objective.plain_least_squares else objective
+    mk = functools.partial(_MethodTrial, robot, measurement, start, keep_errors=keep_errors, keep_history=keep_history,
+                           objective=objective)
     trial_args = (dlike.split, dlike.k_method)  # shapes of one trial's method inputs
     units: list[_Unit] = []
     for s in specs:

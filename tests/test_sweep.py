@@ -279,3 +279,15 @@ def test_four_devices_equal_one_device_every_method(tmp_path):
         # compilation and may round a reduction differently (seen: 1 ulp in an RBF history entry)
         for f in ("x", "history", "test_errors"):
             np.testing.assert_allclose(dist[f"{m}.{f}"], getattr(one[m], f), rtol=1e-13, atol=1e-13, err_msg=f"{m}.{f}")
+
+
+def test_prior_in_a_sweep_equals_calibrate_with_that_prior():
+    """``sweep(prior=...)``: each trial is the MAP fit calibrate() gives with the same fixed noise σ."""
+    prior = jaxcal.Prior(angle_deg=0.05, length_mm=0.2)
+    res = sweep(["lm"], 1, prior=prior, **KW)
+    ex, k_method = _trial_data(0)
+    one = calibrate(ex.robot, ex.measurement, ex.train, "lm", key=k_method, space=res.space,
+                    prior=jaxcal.Prior(angle_deg=0.05, length_mm=0.2, noise_std=0.5))
+    np.testing.assert_allclose(res["lm"].x[0], one.x, rtol=1e-7, atol=1e-10)
+    plain = sweep(["lm"], 1, **KW)
+    assert np.linalg.norm(res["lm"].x[0]) < np.linalg.norm(plain["lm"].x[0])
