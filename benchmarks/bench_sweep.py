@@ -12,6 +12,14 @@ all trials is simulated beforehand (not timed).
   run one after the other inside one compiled function (``sweep``'s default on one CPU device).
 * **loop**: ``jax.jit(trial)`` compiled once, a warm-up call, then a Python loop over the ``n``
   seeds (repeated to make at least 16 calls) with a ``block_until_ready`` per trial.
+* **sweep API ÷ compiled**: the wall time of a warm ``jaxcal.sweep([method], n, n_samples=...)``
+  (defaults: ``lax.map`` chunks of 16, per-sample errors and histories kept; median of 3 calls,
+  one call when a call takes more than 5 s) divided by the time of the same work as two bare
+  compiled functions: the simulation (``jit(lax.map(data trial))`` over the ``n`` keys, what the
+  sweep's data unit computes) plus the trials (``jit(lax.map(trial))`` with the sweep's settings).
+  What the ratio exceeds 1 by is the sweep's own overhead: chunking and host copies, the
+  identifiability analysis of trial 0, result assembly. Measured for ``n ≥ 16`` (smaller ``n``
+  would compile other chunk sizes).
 
 Under ``vmap`` LM's ``while_loop`` runs until the *slowest* trial of the batch converges
 (finished trials idle, masked by ``select``), so a vmapped LM batch costs about
@@ -52,6 +60,7 @@ SAMPLES = (200, 2000)
 METHODS = ("lm", "adamodw")
 LOOP_CAP = 16
 SKIP = {("adamodw", 2000, 256)}
+HYPER: dict = {}  # registry defaults
 
 
 def machine_info() -> list[str]:
@@ -87,6 +96,40 @@ def simulate(n_samples: int, n: int):
     return robot, m, space, out.split, out.k_method
 
 
+def sweep_vs_compiled(name: str, n_samples: int, n: int, robot, m, space, hyper: dict) -> tuple[float, float, float]:
+    """``(sweep wall, simulation wall, trials wall)`` in s for ``n`` trials: a warm
+    ``jaxcal.sweep`` against the same work as two bare compiled ``lax.map`` functions."""
+    from jaxcal import Deviations, ParameterSpace
+    from jaxcal._sweep import _Simulated, _simulation_options
+
+    opts = _simulation_options(robot, n_samples, 0.5, 0.2, {})
+    src = _Simulated(robot, m, None, tuple(sorted(opts.items())))
+    dtrial = _DataTrial(src, robot, m, Deviations.zeros(6), ParameterSpace.for_robot(robot), True)
+    trial = _MethodTrial(robot, m, Deviations.zeros(6), make_method(name, **hyper), space)
+    keys = jax.block_until_ready(trial_keys(jax.random.key(0), 0, n))
+    sim = eqx.filter_jit(lambda t, ks: jax.lax.map(t, ks))
+    run = eqx.filter_jit(lambda t, s, k: jax.lax.map(lambda a: t(*a), (s, k)))
+    call = lambda: jaxcal.sweep([name], n, n_samples=n_samples, hyperparameters={name: hyper},  # noqa: E731
+                                progress=False)
+    out = jax.block_until_ready(sim(dtrial, keys))  # compile + warm-up
+    jax.block_until_ready(run(trial, out.split, out.k_method))
+    call()  # warm-up (compiles the sweep's units the first time)
+    walls = {"sweep": [], "sim": [], "trials": []}
+    for _rep in range(3):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(sim(dtrial, keys))
+        walls["sim"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        jax.block_until_ready(run(trial, out.split, out.k_method))
+        walls["trials"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        call()
+        walls["sweep"].append(time.perf_counter() - t0)
+        if walls["sweep"][-1] > 5.0:
+            break
+    return tuple(float(np.median(walls[k])) for k in ("sweep", "sim", "trials"))
+
+
 def main(argv) -> None:
     quick = "--quick" in argv
     seeds = (1, 4, 16) if quick else SEEDS
@@ -99,7 +142,9 @@ def main(argv) -> None:
         "`jit(lax.map(trial))` call (the trials one after the other inside one compiled function: what",
         "`sweep` does on a single CPU device); *loop*: a Python loop of a jitted single trial. Compilation",
         "is excluded (listed separately). A vmapped LM batch runs until its slowest trial converges",
-        "(`its max/mean`); AdaModW always runs 500 steps.",
+        "(`its max/mean`); AdaModW always runs 500 steps. *sweep ÷ compiled*: a warm `jaxcal.sweep([method], n)`",
+        "(defaults) over the same work done by two bare compiled functions, simulation + trials (both",
+        "`lax.map`; walls in seconds in the last column); 1.00 = no overhead of the sweep's own.",
         "",
     ]
     for n_samples in samples:
@@ -148,14 +193,22 @@ def main(argv) -> None:
                 else:
                     loop_cell = f"{loop_tp:.2f}*"
                 (vm_tp, vm_c, its), (mp_tp, mp_c, _) = timed["vmap"], timed["map"]
+                if n >= LOOP_CAP:
+                    sw, sim, tr = sweep_vs_compiled(name, n_samples, n, robot, m, space, HYPER.get(name, {}))
+                    sw_cells = [f"{sw / (sim + tr):.2f}", f"{sw:.2f} / {sim:.2f} + {tr:.2f}"]
+                    print(f"  sweep {sw:.2f} s vs simulation {sim:.2f} s + trials {tr:.2f} s", file=sys.stderr, flush=True)
+                else:
+                    sw_cells = ["—", "—"]
                 rows.append([n, f"{vm_tp:.2f}", f"{mp_tp:.2f}", loop_cell, f"{vm_tp / loop_tp:.2f}",
-                             f"{mp_tp / loop_tp:.2f}", f"{its.max()}/{its.mean():.1f}", f"{vm_c:.1f} / {mp_c:.1f}"])
+                             f"{mp_tp / loop_tp:.2f}", f"{its.max()}/{its.mean():.1f}", f"{vm_c:.1f} / {mp_c:.1f}",
+                             *sw_cells])
                 print(f"{name} samples={n_samples} n={n}: vmap {vm_tp:.2f}/s, lax.map {mp_tp:.2f}/s, loop {loop_cell}/s",
                       file=sys.stderr, flush=True)
             lines += [f"## {name}, {n_samples} samples per experiment ({int(0.8 * n_samples)} for training)", ""]
             lines.append(jaxcal.format_table(
                 rows, ["seeds", "vmap trials/s", "lax.map trials/s", "loop trials/s", "vmap ÷ loop", "map ÷ loop",
-                       "its max/mean", "compile vmap / map (s)"], markdown=True))
+                       "its max/mean", "compile vmap / map (s)", "sweep ÷ compiled",
+                       "sweep / sim + trials (s)"], markdown=True))
             lines += ["", f"Single-trial compile: {compile_single:.1f} s.", ""]
     skipped = [f"{m} × {s} samples × {n} seeds" for m, s, n in sorted(SKIP) if s in samples and n in seeds]
     if skipped:

@@ -33,6 +33,7 @@ from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
 from ._result import CalibrationResult, Status, iterations_to_converge
 from ._robot import DHRobot
+from ._xla import compile_lowered
 from .methods import Method, ScaledProblem, make_method
 
 __all__ = ["calibrate", "Calibrator", "CalibrationOutput", "CalibrationWarning", "CalibrationError", "resolve_space",
@@ -178,7 +179,7 @@ def _run_once(cal: Calibrator, q, y, key):
     with dtype_scope(q.dtype):
         dyn = cast_floating(dyn, q.dtype)
         t0 = time.perf_counter()
-        compiled = _run_calibrator.lower(dyn, stat, q, y, key).compile()
+        compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key))
         t1 = time.perf_counter()
         out = jax.block_until_ready(compiled(dyn, q, y, key))
         t2 = time.perf_counter()

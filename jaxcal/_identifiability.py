@@ -136,10 +136,17 @@ def identifiability(
     norms = np.linalg.norm(J, axis=0)
     scale = np.where(norms > 0, norms, 1.0)
     Js = J / scale
-    s = np.linalg.svd(Js, compute_uv=False)
-    rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
-    _, _, piv = _pivoted_qr(jnp.asarray(Js))
+    # Js[:, piv] = Q R with orthonormal Q: Js, J and their column subsets have the singular
+    # values and least-squares solutions of the columns of the small triangular factor, so the
+    # SVDs and least squares below run on R (p×p), not on the N×p Jacobian. NumPy's
+    # multithreaded LAPACK on the tall matrices took 0.2–1 s per call on a busy 2-core machine.
+    _, R, piv = _pivoted_qr(jnp.asarray(Js))
     piv = np.asarray(piv)
+    Rs = np.zeros((R.shape[0], len(piv)))
+    Rs[:, piv] = np.asarray(R, dtype=np.float64)  # Js = Q Rs
+    s = np.linalg.svd(Rs, compute_uv=False)
+    rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
+    Rj = Rs * scale  # J = Q Rj
     names = space.free_names
     keep_idx = np.sort(piv[:rank])
     drop_idx = [i for i in range(len(names)) if i not in set(keep_idx.tolist())]
@@ -147,17 +154,17 @@ def identifiability(
     keep[keep_idx] = True
     deps = {}
     if drop_idx:
-        A = J[:, keep_idx]
+        A = Rj[:, keep_idx]
         for j in drop_idx:
             if norms[j] == 0:
                 deps[names[j]] = []
                 continue
-            coef, *_ = np.linalg.lstsq(A, J[:, j], rcond=None)
+            coef, *_ = np.linalg.lstsq(A, Rj[:, j], rcond=None)
             # significance judged on the scaled coefficients
             sig = np.abs(coef * norms[keep_idx] / norms[j]) > 1e-6
             order = np.argsort(-np.abs(coef * norms[keep_idx]))
             deps[names[j]] = [(float(coef[k]), names[keep_idx[k]]) for k in order if sig[k]][:6]
-    sub = Js[:, keep_idx]
+    sub = Rs[:, keep_idx]
     sv = np.linalg.svd(sub, compute_uv=False) if keep_idx.size else np.array([1.0])
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     return IdentifiabilityReport(

@@ -1,0 +1,84 @@
+"""XLA compiler options for jaxcal's own compilations (sweep chunks and :func:`jaxcal.calibrate`).
+
+On a GPU, XLA autotunes the kernels of every fusion it compiles. For jaxcal's programs (long
+``while_loop``/``scan`` bodies of small reductions over the samples) that step dominates: on an
+H100 (JAX 0.11.2) the vmapped chunk of 1 000 LM trials compiled in more than 2 minutes with the
+default flags, almost all of it autotuning reduction fusions ("Compiling module
+input_reduce_fusion… very slow compile"), and in 4.3 s with ``--xla_gpu_autotune_level=0``
+(DESIGN.md §6). So jaxcal compiles its own programs on GPUs with ``xla_gpu_autotune_level=0``.
+The option is passed per compilation (``jax.stages.Lowered.compile(compiler_options)``), not
+through the process-wide ``XLA_FLAGS``, so the user's other JAX programs are untouched.
+
+Overriding: set ``JAXCAL_XLA_OPTIONS`` to a comma-separated list of ``name=value`` XLA debug
+options (e.g. ``JAXCAL_XLA_OPTIONS=xla_gpu_autotune_level=4``) to replace the defaults on every
+platform, or to ``none`` (or an empty string) for XLA's defaults. An option the user already sets
+in ``XLA_FLAGS`` is never overridden.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["ENV_VAR", "GPU_DEFAULTS", "compiler_options", "compile_lowered"]
+
+#: environment variable that replaces :data:`GPU_DEFAULTS` (``name=value,...`` or ``none``).
+ENV_VAR = "JAXCAL_XLA_OPTIONS"
+
+#: options jaxcal passes when it compiles for a GPU.
+GPU_DEFAULTS: dict[str, object] = {"xla_gpu_autotune_level": 0}
+
+
+def _parse_value(text: str):
+    t = text.strip()
+    if t.lower() in ("true", "false"):
+        return t.lower() == "true"
+    try:
+        return int(t)
+    except ValueError:
+        pass
+    try:
+        return float(t)
+    except ValueError:
+        return t
+
+
+def _parse(text: str) -> dict[str, object]:
+    text = text.strip()
+    if text.lower() in ("", "none", "default", "defaults"):
+        return {}
+    out = {}
+    for item in text.split(","):
+        if not item.strip():
+            continue
+        if "=" not in item:
+            raise ValueError(f"{ENV_VAR} expects name=value[,name=value...] or 'none', got {item.strip()!r}")
+        k, v = item.split("=", 1)
+        out[k.strip().lstrip("-")] = _parse_value(v)
+    return out
+
+
+def compiler_options(platform: str) -> dict[str, object] | None:
+    """XLA options for a jaxcal compilation on ``platform`` (``"cpu"``, ``"gpu"``/``"cuda"``/``"rocm"``,
+    ...), or ``None`` for XLA's defaults. ``$JAXCAL_XLA_OPTIONS`` replaces the defaults; options
+    named in ``$XLA_FLAGS`` are left to it."""
+    env = os.environ.get(ENV_VAR)
+    if env is not None:
+        opts = _parse(env)
+    elif platform.lower() in ("gpu", "cuda", "rocm"):
+        opts = dict(GPU_DEFAULTS)
+    else:
+        opts = {}
+    flags = os.environ.get("XLA_FLAGS", "")
+    opts = {k: v for k, v in opts.items() if f"--{k}" not in flags}
+    return opts or None
+
+
+def compile_lowered(lowered, platform: str | None = None):
+    """``lowered.compile(...)`` with :func:`compiler_options` for ``platform`` (default: JAX's
+    default backend)."""
+    if platform is None:
+        import jax
+
+        platform = jax.default_backend()
+    opts = compiler_options(platform)
+    return lowered.compile() if opts is None else lowered.compile(opts)
