@@ -233,7 +233,9 @@ def test_result_api(experiment, tmp_path):
     m = res.evaluate(ex.test)
     assert 0 < m.mean <= m.rmse <= m.max
     tab = res.dh_table()
-    assert tab.shape == (6, 4) and np.abs(tab - ex.robot.dh_table_deg()).max() < 5
+    diff = tab - ex.robot.dh_table_deg()
+    diff[:, [0, 3]] = (diff[:, [0, 3]] + 180.0) % 360.0 - 180.0  # angles are wrapped to (-180°, 180°]
+    assert tab.shape == (6, 4) and np.abs(diff).max() < 5 and np.all(np.abs(tab[:, [0, 3]]) <= 180.0)
     d = res.to_dict()
     json.dumps(d)
     assert d["status"] == "converged" and len(d["free_parameters"]) == 19
