@@ -670,18 +670,26 @@ def _one_trial_like(runner, eval_shape, dtype):
 class _Runner:
     """Compiles and runs the chunks of one unit (data pass, method, or grid group)."""
 
-    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool, sequential: bool):
+    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool, sequential: bool, device=None):
         self.dyn, self.static = eqx.partition(trial, eqx.is_array)
         self.dyn = cast_floating(self.dyn, dtype)
         if mesh is not None:  # the trial's own arrays are replicated on every device
             self.dyn = jax.device_put(self.dyn, NamedSharding(mesh, P()))
+        elif device is not None:  # one given device (e.g. the CPU of a GPU machine): run there
+            self.dyn = jax.device_put(self.dyn, device)
         self.mesh, self.dtype, self.grid, self.sequential = mesh, dtype, grid, sequential
-        self.platform = jax.default_backend() if mesh is None else mesh.devices.flat[0].platform
+        self.device = device
+        if mesh is not None:
+            self.platform = mesh.devices.flat[0].platform
+        else:
+            self.platform = jax.default_backend() if device is None else device.platform
         self.compiled = None
         self.compile_time_s = 0.0
 
     def _place(self, inputs, hyper):
         if self.mesh is None:
+            if self.device is not None:
+                return jax.device_put((inputs, hyper), self.device)
             return inputs, hyper
         rep = NamedSharding(self.mesh, P())
         inputs = jax.device_put(inputs, NamedSharding(self.mesh, P("trials")))
@@ -834,7 +842,7 @@ def sweep(
     def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of):
         """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
         per trial ``[n]``, the compile time and the per-chunk arrays."""
-        runner = _Runner(trial, mesh, dtype, hyper is not None, sequential)
+        runner = _Runner(trial, mesh, dtype, hyper is not None, sequential, None if mesh is not None else devs[0])
         shown = "data" if unit == "_data" else unit
         chunks, walls = [], []
         for c in range(n_chunks):
