@@ -52,32 +52,26 @@ def _machine() -> list[str]:
 def _compiled_trials(n: int, n_samples: int):
     """``(compile s, run s)`` of ``jit(vmap(trial))`` over ``n`` LM trials (data simulated first)."""
     import equinox as eqx
+    from bench_sweep import simulate  # the same simulated trials as the CPU sweep benchmark
 
-    from jaxcal import CableLength, Deviations, ParameterSpace
-    from jaxcal._simulate import default_anchor
-    from jaxcal._sweep import _DataTrial, _MethodTrial, _Simulated, _simulation_options, trial_keys
+    from jaxcal import Deviations
+    from jaxcal._sweep import _MethodTrial, _Split
     from jaxcal._xla import compile_lowered
     from jaxcal.methods import make_method
 
-    robot = jaxcal.robots.hsr_jr680()
-    m = CableLength(default_anchor(robot))
-    opts = _simulation_options(robot, n_samples, 0.5, 0.2, {})
-    src = _Simulated(robot, m, None, tuple(sorted(opts.items())))
-    dtrial = _DataTrial(src, robot, m, Deviations.zeros(6), ParameterSpace.for_robot(robot), True)
-    out = jax.block_until_ready(eqx.filter_jit(eqx.filter_vmap(lambda k: dtrial(k)))(
-        trial_keys(jax.random.key(0), 0, n)))
-    space = jaxcal.identifiability(robot, m, out.split.q_train[0]).space
+    robot, m, space, split, k_method = simulate(n_samples, n)
+    out = _Split(split.q_train, split.y_train, split.q_test, split.y_test, None)
     trial = _MethodTrial(robot, m, Deviations.zeros(6), make_method("lm"), space)
     dyn, static = eqx.partition(trial, eqx.is_array)
     f = jax.jit(lambda d, s, k: jax.vmap(lambda a, b: eqx.combine(d, static)(a, b))(s, k))
     t0 = time.perf_counter()
-    comp = compile_lowered(f.lower(dyn, out.split, out.k_method))
+    comp = compile_lowered(f.lower(dyn, out, k_method))
     t_compile = time.perf_counter() - t0
-    jax.block_until_ready(comp(dyn, out.split, out.k_method))
+    jax.block_until_ready(comp(dyn, out, k_method))
     ts = []
     for _ in range(5):
         t0 = time.perf_counter()
-        res = jax.block_until_ready(comp(dyn, out.split, out.k_method))
+        res = jax.block_until_ready(comp(dyn, out, k_method))
         ts.append(time.perf_counter() - t0)
     its = np.asarray(res.n_iterations)
     return t_compile, float(np.median(ts)), its

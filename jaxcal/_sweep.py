@@ -783,8 +783,8 @@ def sweep(
             (the cartesian product), each as its own run labelled ``name[k=v, ...]``. Axes with
             float values are vmapped over inside one compilation; integer or string axes compile
             once per value.
-        chunk_size: maximum trials per device in one vmapped call (default: up to 16, spread
-            evenly over the devices). Batches are balanced (20 trials with a cap of 16 run as
+        chunk_size: maximum trials per device in one vmapped call (default: up to 16 on CPU,
+            1 024 on a GPU or TPU, spread evenly over the devices). Batches are balanced (20 trials with a cap of 16 run as
             2 × 10); a chunk is one batch per device, and the last chunk is padded (padded
             trials are computed and dropped). Vectorised code rounds differently for different
             batch sizes (~1e-13 relative; an LM stopping test can then flip by one iteration),
