@@ -115,7 +115,7 @@ def sweep_vs_compiled(name: str, n_samples: int, n: int, robot, m, space, hyper:
     jax.block_until_ready(run(trial, out.split, out.k_method))
     call()  # warm-up (compiles the sweep's units the first time)
     walls = {"sweep": [], "sim": [], "trials": []}
-    for _rep in range(3):
+    for _ in range(3):
         t0 = time.perf_counter()
         out = jax.block_until_ready(sim(dtrial, keys))
         walls["sim"].append(time.perf_counter() - t0)

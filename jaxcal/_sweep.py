@@ -615,6 +615,10 @@ class _Store:
         safe = "".join(c if c.isalnum() or c in "-_.=," else "_" for c in unit)
         return self.root / "chunks" / safe / f"trials_{start:06d}-{stop:06d}.npz"
 
+    def exists(self, unit, start, stop) -> bool:
+        p = self.path(unit, start, stop)
+        return p is not None and p.exists()
+
     def load(self, unit, start, stop, fingerprint):
         p = self.path(unit, start, stop)
         if p is None or not p.exists():
@@ -672,31 +676,53 @@ def _one_trial_like(runner, eval_shape, dtype):
 class _Runner:
     """Compiles and runs the chunks of one unit (data pass, method, or grid group)."""
 
-    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool, sequential: bool):
+    def __init__(self, trial: eqx.Module, mesh: Mesh | None, dtype, grid: bool, sequential: bool, device=None):
         self.dyn, self.static = eqx.partition(trial, eqx.is_array)
         self.dyn = cast_floating(self.dyn, dtype)
         if mesh is not None:  # the trial's own arrays are replicated on every device
             self.dyn = jax.device_put(self.dyn, NamedSharding(mesh, P()))
+        elif device is not None:  # one given device (e.g. the CPU of a GPU machine): run there
+            self.dyn = jax.device_put(self.dyn, device)
         self.mesh, self.dtype, self.grid, self.sequential = mesh, dtype, grid, sequential
-        self.platform = jax.default_backend() if mesh is None else mesh.devices.flat[0].platform
+        self.device = device
+        if mesh is not None:
+            self.platform = mesh.devices.flat[0].platform
+        else:
+            self.platform = jax.default_backend() if device is None else device.platform
         self.compiled = None
+        self._lowered = None
         self.compile_time_s = 0.0
 
     def _place(self, inputs, hyper):
         if self.mesh is None:
+            if self.device is not None:
+                return jax.device_put((inputs, hyper), self.device)
             return inputs, hyper
         rep = NamedSharding(self.mesh, P())
         inputs = jax.device_put(inputs, NamedSharding(self.mesh, P("trials")))
         return inputs, jax.device_put(hyper, rep)
 
-    def __call__(self, inputs, hyper):
+    def lower(self, inputs, hyper):
+        """Trace and lower the chunk function for ``inputs`` (Python-bound: the main thread)."""
+        t0 = time.perf_counter()
         with dtype_scope(self.dtype):
             inputs, hyper = self._place(inputs, hyper)
-            if self.compiled is None:
-                t0 = time.perf_counter()
-                self.compiled = compile_lowered(_run_chunk.lower(self.static, self.mesh, self.grid, self.sequential,
-                                                                 self.dyn, inputs, hyper), self.platform)
-                self.compile_time_s = time.perf_counter() - t0
+            self._lowered = _run_chunk.lower(self.static, self.mesh, self.grid, self.sequential, self.dyn, inputs, hyper)
+        self.compile_time_s = time.perf_counter() - t0
+
+    def compile(self):
+        """XLA-compile what :meth:`lower` traced (releases the GIL: units compile in parallel threads)."""
+        t0 = time.perf_counter()
+        self.compiled = compile_lowered(self._lowered, self.platform)
+        self._lowered = None
+        self.compile_time_s += time.perf_counter() - t0
+
+    def __call__(self, inputs, hyper):
+        if self.compiled is None:
+            self.lower(inputs, hyper)
+            self.compile()
+        with dtype_scope(self.dtype):
+            inputs, hyper = self._place(inputs, hyper)
             t0 = time.perf_counter()
             out = jax.block_until_ready(self.compiled(self.dyn, inputs, hyper))
             wall = time.perf_counter() - t0
@@ -762,8 +788,8 @@ def sweep(
             (the cartesian product), each as its own run labelled ``name[k=v, ...]``. Axes with
             float values are vmapped over inside one compilation; integer or string axes compile
             once per value.
-        chunk_size: maximum trials per device in one vmapped call (default: up to 16, spread
-            evenly over the devices). Batches are balanced (20 trials with a cap of 16 run as
+        chunk_size: maximum trials per device in one vmapped call (default: up to 16 on CPU,
+            1 024 on a GPU or TPU, spread evenly over the devices). Batches are balanced (20 trials with a cap of 16 run as
             2 × 10); a chunk is one batch per device, and the last chunk is padded (padded
             trials are computed and dropped). Vectorised code rounds differently for different
             batch sizes (~1e-13 relative; an LM stopping test can then flip by one iteration),
@@ -844,10 +870,13 @@ def sweep(
     common = {k: settings[k] for k in ("format_version", "key_data", "dtype", "chunk_size", "source", "robot",
                                        "measurement", "start", "keep_errors", "keep_history", "objective")}
 
-    def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of):
+    def new_runner(trial, hyper):
+        return _Runner(trial, mesh, dtype, hyper is not None, sequential, None if mesh is not None else devs[0])
+
+    def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of, runner=None):
         """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
         per trial ``[n]``, the compile time and the per-chunk arrays."""
-        runner = _Runner(trial, mesh, dtype, hyper is not None, sequential)
+        runner = new_runner(trial, hyper) if runner is None else runner
         shown = "data" if unit == "_data" else unit
         chunks, walls = [], []
         for c in range(n_chunks):
@@ -947,11 +976,19 @@ def sweep(
         pad = lambda x: np.concatenate([x, np.repeat(x[-1:], a + csize - b, axis=0)]) if b - a < csize else x  # noqa: E731
         return jax.tree.map(pad, (d.split, d.k_method))
 
-    # 4. every method (or grid group), chunk by chunk
+    # 4. compile every unit that has chunks to compute: traced one after the other, XLA-compiled in
+    #    parallel threads (compilation dominates a cold sweep: ~5 s per method on an H100, ~10–20 s
+    #    on 2 CPU cores; XLA releases the GIL while it compiles)
+    runners = _compile_units(units, new_runner, method_inputs(0, 0, min(csize, n_seeds)),
+                             lambda u: any(not store.exists(u.name, c * csize, min((c + 1) * csize, n_seeds))
+                                           for c in range(n_chunks)), progress)
+
+    # 5. every method (or grid group), chunk by chunk
     runs: dict[str, SweepRun] = {}
     for u in units:
         merged, times, ct, _ = run_unit(u.name, u.trial, u.hyper, u.fingerprint,
-                                        None if u.hyper is None else len(u.grid_index), method_inputs)
+                                        None if u.hyper is None else len(u.grid_index), method_inputs,
+                                        runners.get(u.name))
         for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index)):
             part = merged if g is None else {k: v[g] for k, v in merged.items()}
             pt = None if u.spec.points is None else u.spec.points[i]
@@ -971,6 +1008,33 @@ def sweep(
         true_deviations=None if dout.truth is None else jax.tree.map(np.asarray, dout.truth),
         settings=settings,
     )
+
+
+def _compile_units(units, new_runner, inputs, needed, progress: bool) -> dict:
+    """``{unit name: compiled _Runner}`` for the units ``needed(unit)`` says will run a chunk:
+    lowered in this thread, then compiled by a thread pool (one thread per unit, at most the
+    number of CPU cores; ``JAXCAL_COMPILE_THREADS`` overrides, 1 = one after the other)."""
+    todo = [u for u in units if needed(u)]
+    if not todo:
+        return {}
+    runners = {}
+    for u in todo:
+        r = new_runner(u.trial, u.hyper)
+        r.lower(inputs, u.hyper)
+        runners[u.name] = r
+    workers = int(os.environ.get("JAXCAL_COMPILE_THREADS") or min(len(todo), os.cpu_count() or 1))
+    t0 = time.perf_counter()
+    if workers <= 1 or len(todo) == 1:
+        for r in runners.values():
+            r.compile()
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(lambda r: r.compile(), runners.values()))
+    if len(todo) > 1:
+        _progress(progress, f"{len(todo)} units compiled in {time.perf_counter() - t0:.1f} s ({workers} thread(s))")
+    return runners
 
 
 @dataclasses.dataclass

@@ -474,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="base random seed (default 0)")
     r.add_argument("--out", default="jaxcal-reproduce", help="output directory (default ./jaxcal-reproduce)")
     r.add_argument("--quick", action="store_true", help="small, fast settings (a smoke run)")
-    r.add_argument("--chunk-size", type=int, default=None, help="max trials per device per compiled chunk (default 16)")
+    r.add_argument("--chunk-size", type=int, default=None, help="max trials per device per compiled chunk (default 16 on CPU, 1024 on a GPU)")
     r.add_argument("--batching", choices=("auto", "vmap", "map"), default="auto",
                    help="how a device runs its trials: vmap (vectorised; GPUs, several devices), map (lax.map, one "
                         "after the other), auto (map on one CPU device, else vmap)")

@@ -162,7 +162,8 @@ def test_load_sweep_and_tables(swept, tmp_path):
 def test_grid_is_vmapped_and_matches_plain_runs(swept):
     res, _ = swept
     grid = sweep([], 3, grid={"adamodw": {"b3": [0.9, 0.99], "weight_decay": [1e-4, 1e-2]}}, **KW)
-    assert grid.settings["batching"] == "map"  # the CPU default: lax.map over trials and grid points
+    # the default of the platform: lax.map over trials and grid points on one CPU device, else vmap
+    assert grid.settings["batching"] == ("map" if jax.default_backend() == "cpu" else "vmap")
     assert grid.labels == ["adamodw[b3=0.9, weight_decay=0.0001]", "adamodw[b3=0.9, weight_decay=0.01]",
                            "adamodw[b3=0.99, weight_decay=0.0001]", "adamodw[b3=0.99, weight_decay=0.01]"]
     units = {r["unit"] for r in grid.settings["runs"]}
@@ -228,6 +229,7 @@ def test_chunking():
 _DEVICE_SCRIPT = """
 import os, sys
 os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
+os.environ["JAX_PLATFORMS"] = "cpu"  # 4 CPU devices also on a GPU machine
 import jax, numpy as np
 jax.config.update("jax_enable_x64", True)
 from jaxcal._sweep import sweep
@@ -250,10 +252,17 @@ def _run_devices(methods, kw, tmp_path):
     return np.load(out)
 
 
+def _on_one_cpu(methods, n, **kw):
+    """The sweep on one CPU device, whatever the default backend (a GPU's results differ by rounding)."""
+    cpu = jax.devices("cpu")[:1]
+    with jax.default_device(cpu[0]):
+        return sweep(methods, n, devices=cpu, **kw)
+
+
 def test_four_devices_equal_one_device(swept, tmp_path):
     """LM (optimistix + lineax, which fail under shard_map) on 4 forced CPU devices: bitwise the
     single-device results (same per-device batches). Every method: the slow test below."""
-    res, _ = swept
+    res = swept[0] if jax.default_backend() == "cpu" else _on_one_cpu(["lm"], 3, **VMAP)
     dist = _run_devices(["lm"], VMAP, tmp_path)
     np.testing.assert_array_equal(dist["before"], res.before_errors)
     for m in ("lm",):
@@ -271,7 +280,7 @@ def test_four_devices_equal_one_device_every_method(tmp_path):
     kw = dict(seed=3, n_samples=N, chunk_size=1, progress=False, batching="vmap",
               hyperparameters={m: h for m, h in small.items() if m in methods})
     dist = _run_devices(methods, kw, tmp_path)
-    one = sweep(methods, 3, devices=1, **kw)
+    one = _on_one_cpu(methods, 3, **kw)
     for m in methods:
         for f in ("n_iterations", "status"):  # the same decisions
             np.testing.assert_array_equal(dist[f"{m}.{f}"], getattr(one[m], f), err_msg=f"{m}.{f}")
