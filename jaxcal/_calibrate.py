@@ -28,7 +28,7 @@ from ._initialise import INITIALISABLE, initial_extras
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
-from ._params import Deviations, ParameterSpace
+from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_of
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
 from ._result import CalibrationResult, Status, iterations_to_converge
@@ -153,18 +153,68 @@ def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
     return flags
 
 
-def resolve_space(robot, measurement, q, space, start=None, extras=()) -> tuple[ParameterSpace, object]:
-    """``space=None`` or ``"identifiable"``: the identifiable subset of all DH (+β) deviations and
-    the requested ``extras`` (QR with column pivoting, :func:`jaxcal.identifiability`); ``"all"``:
-    every DH (+β) deviation and the extras; or a :class:`ParameterSpace` as given. Returns
-    ``(space, report_or_None)``."""
+#: group names accepted by ``free=`` / ``fix=`` (besides single parameter names such as ``d_6``).
+SELECT_GROUPS = {
+    "dh": ("alpha", "a", "d", "theta"), "alpha": ("alpha",), "a": ("a",), "d": ("d",), "theta": ("theta",),
+    "beta": ("beta",), "anchor": ("anchor",), "tool": ("tool",), "cable_offset": ("cable_offset",),
+    "offset": ("cable_offset",), "base": ("base_rotation", "base_translation"),
+    "base_rotation": ("base_rotation",), "base_translation": ("base_translation",), "extras": EXTRA_GROUPS,
+}
+
+
+def _selection(items, names) -> set[str]:
+    """Parameter names selected by ``items`` (group names of :data:`SELECT_GROUPS` or parameter names)."""
+    if isinstance(items, str):
+        items = [i for i in items.split(",") if i.strip()]
+    out = set()
+    for it in items or ():
+        key = it.strip()
+        if key.lower() in SELECT_GROUPS:
+            groups = SELECT_GROUPS[key.lower()]
+            out |= {n for n in names if group_of(n) in groups}
+        elif key in names:
+            out.add(key)
+        else:
+            raise ValueError(f"unknown parameter or group {key!r}; groups: {', '.join(SELECT_GROUPS)}; "
+                             f"or a parameter name such as d_6, anchor_x, base_rz")
+    return out
+
+
+def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> ParameterSpace:
+    """The parameters a calibration may free, before the identifiability reduction: all DH (+β at
+    Hayati joints) — or instead the groups/names in ``free`` — plus the ``extras``, minus ``fix``."""
     flags = extras_flags(extras, measurement)
+    base = ParameterSpace.for_robot(robot, **flags)
+    if free is None and not fix:
+        return base
+    everything = ParameterSpace.for_robot(robot, anchor=True, tool=True, cable_offset=True, base=True)
+    names = everything.names
+    chosen = set(base.free_names)
+    if free is not None:  # free replaces the DH part; the requested extras stay
+        chosen = _selection(free, names) | {n for n in chosen if group_of(n) in EXTRA_GROUPS}
+    chosen -= _selection(fix, names)
+    wrong = sorted(n for n in chosen if group_of(n) in ("anchor", "cable_offset") and measurement.kind != "cable")
+    wrong += sorted(n for n in chosen if group_of(n).startswith("base") and measurement.kind == "cable")
+    if wrong:
+        raise ValueError(f"{', '.join(wrong)} do not apply to {measurement.kind} data")
+    if not chosen:
+        raise ValueError("no free parameters left after free=/fix=")
+    return ParameterSpace.from_names(robot.dof, [n for n in names if n in chosen])
+
+
+def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=()
+                  ) -> tuple[ParameterSpace, object]:
+    """``space=None`` or ``"identifiable"``: the identifiable subset of the candidates
+    (:func:`candidate_space`: all DH (+β) deviations and the requested ``extras``, or ``free`` minus
+    ``fix``; QR with column pivoting, :func:`jaxcal.identifiability`); ``"all"``: every candidate;
+    or a :class:`ParameterSpace` as given. Returns ``(space, report_or_None)``."""
+    cand = candidate_space(robot, measurement, extras, free, fix)
     if space is None or (isinstance(space, str) and space == "identifiable"):
-        report = identifiability(robot, measurement, q, ParameterSpace.for_robot(robot, **flags), start)
+        report = identifiability(robot, measurement, q, cand, start)
         return report.space, report
     if isinstance(space, str):
         if space == "all":
-            return ParameterSpace.for_robot(robot, **flags), None
+            return cand, None
         raise ValueError(f"space must be None, 'identifiable', 'all' or a ParameterSpace, got {space!r}")
     if not isinstance(space, ParameterSpace):
         raise TypeError(f"space must be a ParameterSpace, got {type(space)}")
@@ -203,6 +253,8 @@ def calibrate(
     space: ParameterSpace | str | None = None,
     start: Deviations | None = None,
     extras=(),
+    free=None,
+    fix=(),
     init: str = "auto",
     prior: Prior | str | None = None,
     loss: str = "linear",
@@ -229,6 +281,13 @@ def calibrate(
         extras: sensor/setup unknowns to estimate with the robot: ``"anchor"``,
             ``"cable_offset"`` (draw-wire), ``"tool"`` (tool point), ``"base"`` (position/pose
             sensor frame, 6 parameters), as a list or a comma-separated string.
+        free, fix: choose the candidate parameters by group (``"dh"``, ``"alpha"``, ``"a"``, ``"d"``,
+            ``"theta"``, ``"beta"``, ``"anchor"``, ``"cable_offset"``, ``"tool"``, ``"base"``,
+            ``"extras"``) or name (``"d_6"``): ``free`` replaces the default DH candidates (all DH
+            deviations; the ``extras`` stay; extras named in ``free`` are estimated too, e.g.
+            ``free="anchor,cable_offset"`` fits the sensor with the DH table fixed), ``fix``
+            removes some. The identifiable
+            subset of the candidates is then freed (``space`` default).
         init: ``"auto"`` (default): when anchor, cable offset or base frame are estimated,
             start them from the data in closed form (:func:`jaxcal.initial_extras`:
             multilateration / Kabsch on the nominal robot) — a guess far off is fine;
@@ -262,14 +321,15 @@ def calibrate(
         raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
     if init not in ("auto", "none"):
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
-    flags = extras_flags(extras, measurement)
+    cand = candidate_space(robot, measurement, extras, free, fix)
+    flags = {e: any(group_of(n) in SELECT_GROUPS[e] for n in cand.free_names) for e in ("anchor", "cable_offset", "base")}
     start = Deviations.zeros(robot.dof, q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:
         est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
         start, extras_msg = est.deviations, est.message
-    space, report = resolve_space(robot, measurement, q, space, start, extras)
+    space, report = resolve_space(robot, measurement, q, space, start, extras, free, fix)
     n_res = q.shape[0] * measurement.size
     if n_res <= space.n_free:
         raise ValueError(

@@ -229,6 +229,12 @@ def _cmd_calibrate(args) -> int:
         raise _Usage(f"--prior: {e}") from None
     checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm)
     hyper = _hyper(args.set)
+    from .methods import method_settings
+
+    valid = method_settings(method)
+    if valid is not None and set(hyper) - set(valid):
+        raise _Usage(f"--set: unknown setting(s) {sorted(set(hyper) - set(valid))} for method {method}; "
+                     f"its settings: {', '.join(valid)}")
     excluded = sorted(set(_rows(args.exclude_rows)))
     if excluded and (excluded[0] < 1 or excluded[-1] > data.n):
         raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
@@ -257,7 +263,7 @@ def _cmd_calibrate(args) -> int:
             warnings.simplefilter("always", CalibrationWarning)
             try:
                 res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
-                                loss=args.loss, checks=checks, **hyper)
+                                loss=args.loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
             except TypeError as e:
                 raise _Usage(str(e)) from None
         for w in caught:
@@ -503,6 +509,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "base, 6 parameters). Anchor, offset and base start from the data in closed form, so a "
                         "rough --anchor guess is fine. Without --anchor (and no anchor_mm line in the file) the "
                         "anchor and offset are estimated.")
+    c.add_argument("--free", metavar="LIST",
+                   help="parameters to fit instead of all DH deviations (groups dh, alpha, a, d, theta, beta, anchor, "
+                        "offset, tool, base, extras, or names such as d_6); e.g. --free anchor,offset fits only the "
+                        "sensor extras with the DH table fixed (a sensible first step on real data)")
+    c.add_argument("--fix", metavar="LIST",
+                   help="parameters to keep at nominal (same names/groups), e.g. --fix d_6 or --fix theta")
     c.add_argument("--prior", default="default", metavar="SPEC",
                    help="Gaussian prior toward the nominal robot (MAP): 'default' (σ 0.5° on angles, 2 mm on DH "
                         "lengths, none on extras; the default), 'none' (plain least squares), or key=value pairs: "

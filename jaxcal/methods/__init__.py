@@ -17,6 +17,7 @@ from ._base import RawRun as RawRun
 from ._base import ScaledProblem as ScaledProblem
 from ._base import default_half_width as default_half_width
 from ._base import make_method as make_method
+from ._base import method_settings as method_settings
 from ._base import register_method as register_method
 from ._bso import BeetleSwarm as BeetleSwarm
 from ._ekf import ExtendedKalmanFilter as ExtendedKalmanFilter
@@ -46,5 +47,6 @@ __all__ = [
     "ScaledProblem",
     "default_half_width",
     "make_method",
+    "method_settings",
     "register_method",
 ]

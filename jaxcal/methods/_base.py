@@ -24,6 +24,7 @@ __all__ = [
     "register_method",
     "METHODS",
     "make_method",
+    "method_settings",
     "default_half_width",
     "finish_history",
     "DIVERGENCE_FACTOR",
@@ -323,6 +324,10 @@ def make_method(method, **hyperparameters) -> Method:
         cache_key = None
     if cache_key is not None and cache_key in _METHOD_CACHE:
         return _METHOD_CACHE[cache_key]
+    valid = method_settings(key)
+    unknown = sorted(set(hyperparameters) - set(valid)) if valid is not None else []
+    if unknown:
+        raise TypeError(f"unknown setting(s) {unknown} for method {method!r}; its settings: {', '.join(valid)}")
     try:
         built = METHODS[key](**hyperparameters)
     except TypeError as e:
@@ -335,5 +340,14 @@ def make_method(method, **hyperparameters) -> Method:
 
 
 _METHOD_CACHE: dict = {}
+
+
+def method_settings(name: str) -> list[str] | None:
+    """The settings (hyperparameter names) a registered method accepts, or ``None`` if unknown."""
+    factory = METHODS[name.lower()]
+    names = getattr(factory, "settings", None)
+    if names is None and isinstance(factory, type) and dataclasses.is_dataclass(factory):
+        names = [f.name for f in dataclasses.fields(factory) if f.init]
+    return None if names is None else sorted(names)
 
 

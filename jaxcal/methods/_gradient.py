@@ -149,6 +149,9 @@ def _factory(name: str, build):
         report = {"steps": steps, "batch_size": batch_size} | settings
         return OptaxMethod(tx, steps, batch_size, name, tuple(report.items()))
 
+    make.settings = sorted({"steps", "batch_size", "b1", "b2", "eps", "learning_rate"} | set(defaults)
+                           | ({"b3"} if "adamod" in name else set())
+                           | ({"weight_decay"} if name.endswith("w") else set()))
     make.__name__ = name
     make.__doc__ = f"``{name}`` method; defaults {defaults} (any other optax keyword of the optimizer may be passed)."
     return make
