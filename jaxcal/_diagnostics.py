@@ -16,6 +16,7 @@ Without prior this is ``σ̂²(JᵀJ)⁻¹``, the Cramér–Rao bound with σ es
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -97,21 +98,22 @@ class Uncertainty:
         }
 
 
-@jax.jit
-def _jacobian_and_residual(problem, x):
+@functools.partial(jax.jit, static_argnames="loss")
+def _gram(problem, x, loss: str, loss_scale):
+    """One ``jacfwd`` pass at ``x``: column norms ``d`` of the Jacobian, the column-scaled ``JᵀWJ``
+    and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``) and ``Σ w r²``. Everything
+    N-sized stays inside XLA; the host only factorises p×p matrices."""
     J, r = jax.jacfwd(lambda x: (problem.residual(x),) * 2, has_aux=True)(x)
-    return J, r
-
-
-def _robust_weights(problem, r: np.ndarray, loss: str, loss_scale: float) -> np.ndarray:
-    """Per-residual IRLS weights ``f_i²`` (repeated over each sample's ``m`` entries)."""
     n, m = problem.n_samples, problem.measurement.size
     if loss == "linear":
-        return np.ones(n * m)
-    blocks = r.reshape(n, m)
-    e = np.asarray(problem.measurement.sample_error(jnp.asarray(blocks)))
-    f = np.asarray(robust_factor(loss, jnp.asarray(e * e), jnp.asarray(loss_scale)))
-    return np.repeat(f * f, m)
+        w = jnp.ones_like(r)
+    else:
+        e = problem.measurement.sample_error(r.reshape(n, m))
+        f = robust_factor(loss, e * e, loss_scale)
+        w = jnp.repeat(f * f, m)
+    d = jnp.sqrt(jnp.sum(J * J, axis=0))
+    Js = J / jnp.where(d > 0, d, 1.0)
+    return d, (Js * w[:, None]).T @ Js, Js.T @ Js, jnp.sum(w * r * r)
 
 
 def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0
@@ -125,19 +127,14 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     Returns:
         ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian.
     """
-    J, r = _jacobian_and_residual(problem, jnp.asarray(x, problem.dtype))
-    J = np.asarray(J, np.float64)
-    r = np.asarray(r, np.float64)
-    N, p = J.shape
-    w = _robust_weights(problem, r, loss, loss_scale)
+    d, A, G, rss = _gram(problem, jnp.asarray(x, problem.dtype), loss, jnp.asarray(loss_scale, problem.dtype))
+    d, A, G = (np.asarray(v, np.float64) for v in (d, A, G))
+    N, p = problem.n_residuals, A.shape[0]
+    rss = float(rss)
     lam = np.zeros(p) if prior_inv_std is None else np.asarray(prior_inv_std, np.float64) ** 2
-    norms = np.linalg.norm(J, axis=0)
-    d = np.where(norms > 0, norms, 1.0)
-    Js = J / d
-    sv = np.linalg.svd(Js, compute_uv=False)
-    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
-    A = (Js * w[:, None]).T @ Js  # column-scaled JᵀWJ
-    rss = float(np.sum(w * r * r))
+    d = np.where(d > 0, d, 1.0)
+    ev_g = np.linalg.eigvalsh(G)  # squared singular values of the column-scaled Jacobian
+    cond = float(np.sqrt(ev_g[-1] / ev_g[0])) if ev_g[0] > 0 else math.inf
     p_eff = float(p)
     sigma2 = rss / max(N - p, 1)
     for _ in range(3):
@@ -171,8 +168,9 @@ def outlier_rows(problem, x, k: float = 5.0) -> tuple[np.ndarray, np.ndarray, fl
         each row's largest residual entry, and the robust scale σ̂ = 1.4826·MAD of the residual
         entries (position part for poses).
     """
-    r = np.asarray(problem.measurement.residual(problem.robot, problem.deviations(jnp.asarray(x, problem.dtype)),
-                                                problem.q, problem.y), np.float64)
+    from ._calibrate import _residual_blocks
+
+    r = np.asarray(_residual_blocks(problem, jnp.asarray(x, problem.dtype)), np.float64)
     if problem.measurement.kind == "pose":
         r = r[:, :3]
     med = np.median(r)
