@@ -267,7 +267,7 @@ def test_bad_input(experiment):
     r, m = ex.robot, ex.measurement
     with pytest.raises(ValueError, match="unknown method 'newton'; available: .*adamodw.*lm"):
         calibrate(r, m, ex.train, "newton")
-    with pytest.raises(TypeError, match="bad hyperparameters for method 'lm'"):
+    with pytest.raises(TypeError, match=r"unknown setting\(s\) \['learning_rate'\] for method 'lm'; its settings: atol"):
         calibrate(r, m, ex.train, "lm", learning_rate=0.1)
     with pytest.raises(TypeError, match="unknown hyperparameter"):
         calibrate(r, m, ex.train, "adam", max_steps=3)
