@@ -269,7 +269,7 @@ def test_bad_input(experiment):
         calibrate(r, m, ex.train, "newton")
     with pytest.raises(TypeError, match=r"unknown setting\(s\) \['learning_rate'\] for method 'lm'; its settings: atol"):
         calibrate(r, m, ex.train, "lm", learning_rate=0.1)
-    with pytest.raises(TypeError, match="unknown hyperparameter"):
+    with pytest.raises(TypeError, match="unknown setting"):
         calibrate(r, m, ex.train, "adam", max_steps=3)
     with pytest.raises(ValueError, match="'cable' measurements but the measurement model is 'position'"):
         calibrate(r, jaxcal.Position(), ex.train)
