@@ -154,3 +154,19 @@ def test_cli_fit_with_stages(tmp_path, capsys):
     assert "ga>lm" in capsys.readouterr().out
     assert main(["calibrate", str(path), "--robot", "hsr_jr680", "--method", "ga>nope"]) == 2
     assert "unknown stage" in capsys.readouterr().err
+
+
+def test_rbfnn_base_fit_is_lm_then_rbfnn():
+    """rbfnn's built-in LM base fit is the stage composition ``lm>rbfnn`` (``rbfnn.base="nominal"``):
+    same network, same deviations, same test error (given the stage's key)."""
+    ex = jaxcal.simulate_experiment(jax.random.key(0), n_samples=200)
+    key = jax.random.key(5)
+    _, k2 = jax.random.split(key)
+    a = calibrate(ex.robot, ex.measurement, ex.train, "rbfnn", key=k2, n_centres=40)
+    b = calibrate(ex.robot, ex.measurement, ex.train, "lm>rbfnn", key=key,
+                  **{"rbfnn.base": "nominal", "rbfnn.n_centres": 40})
+    assert b.method == "lm>rbfnn[base=nominal]"
+    np.testing.assert_allclose(b.x, a.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(b.extra.extras[-1].weights, a.extra.weights, rtol=1e-9, atol=1e-9)
+    # predictions go through the last stage's predictor (base model + network)
+    assert b.evaluate(ex.test).rmse == pytest.approx(a.evaluate(ex.test).rmse, rel=1e-9)

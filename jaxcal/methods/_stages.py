@@ -102,7 +102,6 @@ class Staged(Method):
     def hyperparameters(self) -> dict[str, Any]:
         out: dict[str, Any] = {"stages": self.label()}
         for p, m in zip(self.prefixes, self.stages):
-            out[f"{p}.max_iterations"] = m.max_iterations
             out |= {f"{p}.{k}": v for k, v in m.hyperparameters().items()}
         return out
 
