@@ -125,7 +125,7 @@ def test_sweep_staged_under_vmap(tmp_path):
     """Two seeds vmapped in one sweep: labels, settings keyed by the staged name, stage ends kept
     (and saved/loaded), and Fig. 3 draws them."""
     res = jaxcal.sweep(["lm", "adamodw>lm"], 2, n_samples=200, hyperparameters={"adamodw>lm": {"adamodw.steps": 20}},
-                       out_dir=tmp_path / "sw", progress=False)
+                       out_dir=tmp_path / "sw", progress=False, batching="vmap")
     r = res["adamodw>lm"]
     assert res.labels == ["lm", "adamodw>lm"] and r.method == "adamodw>lm"
     assert r.hyperparameters["adamodw.steps"] == 20 and r.history.shape == (2, 20 + 100 + 1)
