@@ -348,7 +348,7 @@ def load_sweep(out_dir, *, partial: bool = False):
         partial: load only the trials finished by every run of an interrupted sweep (default:
             raise if any chunk is missing; rerun ``sweep`` with the same settings to resume).
     """
-    from ._sweep import _TRIAL_LIKE, SweepResult, SweepRun, _DataOut, _Split, _Store, _unflatten
+    from ._sweep import _TRIAL_LIKE, SweepResult, SweepRun, _DataOut, _Split, _stage_ends, _Store, _unflatten
 
     root = pathlib.Path(out_dir)
     meta_path = root / "sweep.json"
@@ -416,6 +416,7 @@ def load_sweep(out_dir, *, partial: bool = False):
             test=Metrics(*out.test), train=Metrics(*out.train), n_iterations=out.n_iterations,
             iterations_to_converge=out.iterations_to_converge, status=out.status, time_per_trial_s=times,
             compile_time_s=ct, x=out.x, history=out.history, test_errors=out.test_errors,
+            stage_ends=_stage_ends(merged),
         )
     space = ParameterSpace.from_names(dof, st["space"])
     start = Deviations.unravel(jnp.asarray(np.asarray(st["start_values"], dtype)), dof)

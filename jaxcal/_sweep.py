@@ -69,6 +69,7 @@ from ._simulate import (
 )
 from ._xla import compile_lowered
 from .methods import METHODS, Method, make_method
+from .methods._stages import StageInfo
 
 __all__ = [
     "sweep",
@@ -199,6 +200,8 @@ class _TrialOut(NamedTuple):
     x: Array
     history: Array
     test_errors: Array
+    #: staged methods only (``"ga>lm"``): ``[S]`` history index where each stage ended
+    stage_ends: Array | None = None
 
 
 #: the tree structure of a :class:`_TrialOut` (leaf values are placeholders): the template that
@@ -265,6 +268,7 @@ class _MethodTrial(eqx.Module):
         return _TrialOut(
             compute_metrics(e), out.train_metrics, out.n_iterations, out.iterations_to_converge,
             out.status, out.x, hist, e if self.keep_errors else jnp.zeros((0,), e.dtype),
+            out.extra.ends if isinstance(out.extra, StageInfo) else None,
         )
 
 
@@ -318,6 +322,8 @@ class SweepRun:
         history: ``[n, T+1]`` training RMSE per iteration (``[n, 1]``: final only, if not kept).
         test_errors: ``[n, n_test]`` per-sample test errors (mm; signed for wire lengths), or
             an empty ``[n, 0]`` array if not kept.
+        stage_ends: staged methods (``"ga>lm"``): ``[n, S]`` history index where each stage
+            ended; ``None`` otherwise.
     """
 
     label: str
@@ -334,6 +340,7 @@ class SweepRun:
     x: np.ndarray
     history: np.ndarray
     test_errors: np.ndarray
+    stage_ends: np.ndarray | None = None
 
     @property
     def n_seeds(self) -> int:
@@ -1055,7 +1062,16 @@ def _make_run(label, name, report, point, merged, times, compile_time) -> SweepR
         n_iterations=np.asarray(out.n_iterations), iterations_to_converge=np.asarray(out.iterations_to_converge),
         status=np.asarray(out.status), time_per_trial_s=np.asarray(times), compile_time_s=float(compile_time),
         x=np.asarray(out.x), history=np.asarray(out.history), test_errors=np.asarray(out.test_errors),
+        stage_ends=_stage_ends(merged),
     )
+
+
+def _stage_ends(merged: dict) -> np.ndarray | None:
+    """The ``stage_ends`` leaf of a flattened :class:`_TrialOut` (absent for single methods)."""
+    for k, v in merged.items():
+        if k.endswith("stage_ends"):
+            return np.asarray(v)
+    return None
 
 
 def _grid_trial(s: _RunSpec, mk, space, dtype, trial_args):

@@ -191,11 +191,12 @@ def _cmd_calibrate(args) -> int:
     from ._metrics import Metrics, compute_metrics, format_table
     from ._objective import LOSSES, Prior
     from ._problem import Problem
-    from .methods import METHODS
+    from .methods._stages import check_method_name
 
-    method = args.method.lower()
-    if method not in METHODS:
-        raise _Usage(f"unknown method {args.method!r}; available: {', '.join(sorted(METHODS))}")
+    try:
+        method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
+    except ValueError as e:
+        raise _Usage(str(e)) from None
     robot = _robot(args.robot)
     path = pathlib.Path(args.data)
     if not path.exists():
@@ -384,6 +385,16 @@ QUICK = {
 }
 
 
+def _staged_ok(name: str) -> bool:
+    """Whether ``name`` is stages of registered methods (``ga>lm``)."""
+    from .methods._stages import check_method_name, is_staged_name
+
+    try:
+        return is_staged_name(name) and bool(check_method_name(name))
+    except ValueError:
+        return False
+
+
 def _cmd_reproduce(args) -> int:
     from ._sweep import PAPER_METHODS, sweep
     from .methods import METHODS
@@ -393,7 +404,7 @@ def _cmd_reproduce(args) -> int:
     samples = args.samples if args.samples is not None else (QUICK["samples"] if quick else 2000)
     # the defaults (the paper's M1-M8, or the quick pair) are all registered
     methods = [m.lower() for m in args.methods or (QUICK["methods"] if quick else PAPER_METHODS)]
-    unknown = [m for m in methods if m not in METHODS]
+    unknown = [m for m in methods if m not in METHODS and not _staged_ok(m)]
     if unknown:
         raise _Usage(f"unknown method(s) {unknown}; available: {', '.join(sorted(METHODS))}")
     if seeds < 1:
@@ -546,9 +557,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--accept-implausible", action="store_true",
                    help="exit 0 even when a deviation exceeds the plausibility bounds (default: exit 1)")
     c.add_argument("--method", default="lm", help="calibration method: lm (default), gn, adam, adamw, adamod, adamodw, ga, ekf, bso, iwoa, "
-                        "rbfnn (an unknown name lists the registered ones)")
+                        "rbfnn (an unknown name lists the registered ones), or stages joined by '>', e.g. "
+                        "'ga>lm' (quote it in a shell): each stage starts where the last ended")
     c.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="method hyperparameter, e.g. --set steps=1000 --set learning_rate=0.05 (repeatable)")
+                   help="method hyperparameter, e.g. --set steps=1000 --set learning_rate=0.05 (repeatable); "
+                        "for stages STAGE.NAME=VALUE, e.g. --set ga.generations=100 --set lm.max_steps=50")
     c.add_argument("--test-fraction", type=float, default=0.2, help="held-out fraction in [0, 1) (default 0.2)")
     c.add_argument("--seed", type=int, default=0, help="seed of the split and the method (default 0)")
     c.add_argument("--out", metavar="RESULT.json", help="write the result as JSON")

@@ -166,6 +166,9 @@ def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
         ax.fill_between(it, np.maximum(mean - std, 1e-3), mean + std, color=c, alpha=0.15, lw=0)
         its = float(np.mean(r.iterations_to_converge))
         ax.plot([its], [np.interp(its, it, mean)], marker="v", color=c, ms=6, mec="black", mew=0.5)
+        if getattr(r, "stage_ends", None) is not None:  # staged method ("ga>lm"): where the stages switch
+            for b in np.mean(np.asarray(r.stage_ends, np.float64)[:, :-1], axis=0):
+                ax.axvline(b, color=c, ls=":", lw=1.2, alpha=0.9)
     if floor is not None:
         ax.axhline(floor, color="black", ls="--", lw=1, label=f"floor (train) {floor:.3f}")
     longest = max((int(np.max(r.n_iterations)) for r in runs), default=1)
@@ -186,8 +189,9 @@ def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
 
 def fig3_training(result: SweepResult, path=None, *, methods: Sequence[str] | None = None):
     """Fig. 3: (a, b) training RMSE vs iteration (mean over seeds, ± std band; ▼ marks the mean
-    iteration to converge), x axis linear up to 1 then logarithmic; (c) time per trial (s, log
-    scale, ± std)."""
+    iteration to converge; a dotted vertical line in the run's colour, the mean iteration where a
+    staged method such as ``"ga>lm"`` switches stage), x axis linear up to 1 then logarithmic;
+    (c) time per trial (s, log scale, ± std)."""
     runs = _runs(result, methods)
     fig = _figure((max(14.0, 10.0 + 0.75 * len(runs)), 4.4))
     axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.15, 1.15, max(1.0, 0.17 * len(runs))]})

@@ -29,6 +29,9 @@ from ._least_squares import GaussNewton as GaussNewton
 from ._least_squares import LevenbergMarquardt as LevenbergMarquardt
 from ._rbfnn import RBFNetwork as RBFNetwork
 from ._rbfnn import RBFNetworkMethod as RBFNetworkMethod
+from ._stages import Staged as Staged
+from ._stages import StageInfo as StageInfo
+from ._stages import stages as stages
 
 __all__ = [
     "GRADIENT_DEFAULTS",
@@ -45,8 +48,11 @@ __all__ = [
     "RBFNetworkMethod",
     "RawRun",
     "ScaledProblem",
+    "StageInfo",
+    "Staged",
     "default_half_width",
     "make_method",
     "method_settings",
     "register_method",
+    "stages",
 ]

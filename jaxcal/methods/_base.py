@@ -300,8 +300,9 @@ def register_method(name: str):
 
 
 def make_method(method, **hyperparameters) -> Method:
-    """A :class:`Method` from a registry name, a Method instance, or an
-    ``optax.GradientTransformation`` (run as a full-batch gradient method)."""
+    """A :class:`Method` from a registry name, stages of registry names joined by ``>``
+    (``"ga>lm"``, settings as ``"lm.max_steps"``; :func:`~jaxcal.methods.stages`), a Method
+    instance, or an ``optax.GradientTransformation`` (run as a full-batch gradient method)."""
     import optax
 
     from ._gradient import OptaxMethod
@@ -315,7 +316,11 @@ def make_method(method, **hyperparameters) -> Method:
     if not isinstance(method, str):
         raise TypeError(f"method must be a name, a jaxcal Method or an optax.GradientTransformation, got {type(method)}")
     key = method.lower()
-    if key not in METHODS:
+    if ">" in key:  # stages, e.g. "ga>lm" (see ._stages)
+        from ._stages import check_method_name
+
+        key = check_method_name(key)
+    elif key not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
     try:
         cache_key = (key, tuple(sorted(hyperparameters.items())))
@@ -329,8 +334,15 @@ def make_method(method, **hyperparameters) -> Method:
     if unknown:
         raise TypeError(f"unknown setting(s) {unknown} for method {method!r}; its settings: {', '.join(valid)}")
     try:
-        built = METHODS[key](**hyperparameters)
+        if ">" in key:
+            from ._stages import stages
+
+            built = stages(key, **hyperparameters)
+        else:
+            built = METHODS[key](**hyperparameters)
     except TypeError as e:
+        if ">" in key:
+            raise
         raise TypeError(f"bad hyperparameters for method {method!r}: {e}") from None
     if cache_key is not None:
         # the same name and settings give the same object, so jit caches hit (an optax

@@ -20,7 +20,10 @@ Moody & Darken 1989):
   on the nominal model alone reaches only ~1.3–1.7 mm test RMSE (400–800 centres) from 4.6 mm,
   whereas the paper's M6 (0.679 mm) sits next to its LM (0.682 mm), as a network on an
   LM-calibrated model does; with simulated data (no non-geometric error) the network then adds
-  little beyond LM.
+  little beyond LM. The ``"lm"`` base is the stage composition ``"lm>rbfnn"`` with
+  ``rbfnn.base="nominal"`` (:mod:`jaxcal.methods._stages`; same network given the stage's key,
+  tested); it stays built in so that ``"rbfnn"`` alone keeps the paper experiment's numbers (the
+  staged form splits the key) and its iterations count the width candidates only.
 - **Centres**: ``n_centres`` training configurations drawn at random (from the key), refined by
   ``lloyd_iterations`` Lloyd (k-means) iterations in the scaled joint space.
 - **Widths**: ``σ_k = width_scale · RMS distance from c_k to its n_neighbours nearest centres``
