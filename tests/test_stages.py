@@ -30,7 +30,7 @@ def _quiet(f, *a, **kw):
 
 
 @pytest.mark.parametrize("first, settings", [
-    ("ga", {"generations": 8, "population_size": 16}),
+    pytest.param("ga", {"generations": 8, "population_size": 16}, marks=pytest.mark.slow),  # ~20 s compiling
     ("adamodw", {"steps": 40}),
 ])
 def test_staged_equals_stages_by_hand(messy, first, settings):
