@@ -24,6 +24,7 @@ from ._diagnostics import Checks as Checks
 from ._diagnostics import Diagnostics as Diagnostics
 from ._diagnostics import Uncertainty as Uncertainty
 from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
+from ._identifiability import KEEP_PREFERENCE as KEEP_PREFERENCE
 from ._identifiability import identifiability as identifiability
 from ._initialise import ExtrasEstimate as ExtrasEstimate
 from ._initialise import initial_extras as initial_extras
@@ -114,6 +115,7 @@ __all__ = [
     "fk_position",
     "format_table",
     "identifiability",
+    "KEEP_PREFERENCE",
     "load_csv",
     "residuals",
     "robots",

@@ -122,9 +122,9 @@ POPULATION = [c.name for c in BASELINES if c.per_generation is not None]
 # ----------------------------------------------------------------------------------------------
 # Shared data and compiled runs
 # ----------------------------------------------------------------------------------------------
-#: The identifiable subset of the HSR-JR680's DH deviations with one draw-wire anchor (what
-#: ``jaxcal.identifiability`` returns for generic poses, tests/test_identifiability.py); fixed
-#: here to save its compilation.
+#: An identifiable subset of the HSR-JR680's DH deviations with one draw-wire anchor (rank 19,
+#: tests/test_identifiability.py; ``jaxcal.identifiability`` now keeps θ5/d5/d2 instead of
+#: a5/α5/d3 by ``KEEP_PREFERENCE`` — an equivalent subset); fixed here to save its compilation.
 SPACE_NAMES = (
     "alpha_1", "alpha_2", "alpha_3", "alpha_4", "alpha_5", "a_1", "a_2", "a_3", "a_4", "a_6",
     "d_1", "d_3", "d_4", "d_6", "theta_1", "theta_2", "theta_3", "theta_4", "theta_5",

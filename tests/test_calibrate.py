@@ -48,7 +48,7 @@ def assert_lm_at_floor_and_cramer_rao(ex, n_test_extra=20000, seed=11):
     floor = statistical_floor(float(ex.noise_std), space.n_free, ex.train.n).test
     assert abs(test_rmse / floor - 1) < 0.02, (test_rmse, floor)
     # the truth restricted to the identifiable subset: LM on noiseless data at the same poses.
-    # The left-out parameters are absorbed to first order only (e.g. a5 ≈ d6·θ5), leaving a
+    # The left-out parameters are absorbed to first order only (e.g. a5 acts like −θ5/L, L ≈ 200 mm), leaving a
     # ~1e-3 mm remainder, negligible against σ.
     y_clean = ex.measurement.predict(ex.robot, ex.true_deviations, ex.train.q)
     ref = calibrate(ex.robot, ex.measurement, (ex.train.q, y_clean), "lm", space=space)
