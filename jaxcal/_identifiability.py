@@ -194,7 +194,10 @@ def identifiability(
     space = ParameterSpace.for_robot(robot) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")
-    sample = jnp.zeros((q.shape[0], *measurement.sample_shape), q.dtype)
+    # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
+    # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
+    dev0 = Deviations.zeros(robot.dof, q.dtype) if deviations is None else deviations.astype(q.dtype)
+    sample = jnp.asarray(measurement.predict(robot, dev0, q), q.dtype).reshape(q.shape[0], *measurement.sample_shape)
     problem = Problem(robot, measurement, q, sample, space, deviations)
     J = np.asarray(_start_jacobian(problem), dtype=np.float64)
     if not np.all(np.isfinite(J)):
