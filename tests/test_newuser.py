@@ -90,3 +90,18 @@ def test_cli_help_and_messages(capsys, monkeypatch, tmp_path):
 
 def test_default_output_folder_is_ignored():
     assert "jaxcal-reproduce/" in (ROOT / ".gitignore").read_text().split()
+
+
+def test_adamodw_defaults_story_is_told_in_both_places():
+    """The optimizer keeps the paper's b3; the registry's tuned values are named in its docstring."""
+    import inspect
+
+    from jaxcal.methods import GRADIENT_DEFAULTS as DEFAULTS
+
+    sig = inspect.signature(jaxcal.optim.adamodw)
+    assert sig.parameters["b3"].default == 0.999
+    tuned = DEFAULTS["adamodw"]
+    doc = jaxcal.optim.adamodw.__doc__
+    assert f"learning_rate={tuned['learning_rate']:g}" in doc and f"b3={tuned['b3']:g}" in doc
+    readme = (ROOT / "README.md").read_text()
+    assert f"jaxcal.optim.adamodw({tuned['learning_rate']:g}, b3={tuned['b3']:g})" in readme
