@@ -260,6 +260,13 @@ def test_float32_runs_and_warns(experiment):
     assert res.x.dtype == np.float32
     ref = calibrate(ex.robot, ex.measurement, ex.train, "lm")
     assert abs(res.train_metrics.rmse / ref.train_metrics.rmse - 1) < 0.01
+    # float32: the same identifiable subset (dtype-aware rank threshold) and LM/GN stop at their
+    # (float32-raised) tolerance instead of a solver failure or the step budget
+    assert res.space.free_names == ref.space.free_names and res.status == Status.CONVERGED
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", jaxcal.PrecisionWarning)  # warned once per process
+        gn = calibrate(ex.robot, ex.measurement, (q32, y32), "gn")
+    assert gn.status == Status.CONVERGED and abs(gn.train_metrics.rmse / ref.train_metrics.rmse - 1) < 0.01
 
 
 def test_bad_input(experiment):
