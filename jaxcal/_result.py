@@ -23,8 +23,11 @@ __all__ = ["Status", "CalibrationResult", "DHTable", "iterations_to_converge", "
 #: within this relative tolerance of its final value. Used by every method, table and plot.
 CONVERGENCE_RTOL = 0.01
 #: A fixed-budget run is "still improving" when its last ``FINAL_FRACTION`` of iterations
-#: lowered the training objective below everything before by more than ``CONVERGENCE_RTOL``.
+#: lowered the training objective below everything before by more than ``CONVERGENCE_RTOL``
+#: (relative) plus ``STILL_IMPROVING_ATOL`` (mm: improvements under a micrometre do not count,
+#: so a noiseless fit creeping toward zero RMSE is not flagged).
 FINAL_FRACTION = 0.1
+STILL_IMPROVING_ATOL = 1e-3
 
 
 class Status(enum.IntEnum):
@@ -41,8 +44,8 @@ class Status(enum.IntEnum):
     #: the solver reported a failure (e.g. singular linear system).
     FAILED = 4
     #: a fixed-budget method ran all its iterations but was still improving at the end: the
-    #: best training RMSE of its last 10 % of iterations is more than 1 % below the best before
-    #: (see :func:`still_improving`). Not ``ok``: raise ``steps``/the learning rate.
+    #: best training RMSE of its last 10 % of iterations is more than 1 % (+ 1 µm) below the
+    #: best before (see :func:`still_improving`). Not ``ok``: raise ``steps``/the learning rate.
     STILL_IMPROVING = 5
 
     def message(self, method: str = "calibration") -> str:
@@ -158,7 +161,8 @@ def still_improving(
     fraction: float = FINAL_FRACTION,
 ) -> Array:
     """Whether the final ``fraction`` of a run still improved: ``min(history[:k+1]) >
-    (1 + rtol)·history[n]`` with ``n = n_iterations`` and ``k = n − ceil(fraction·n)``. Robust
+    (1 + rtol)·history[n] + atol`` with ``n = n_iterations``, ``k = n − ceil(fraction·n)`` and
+    ``atol = STILL_IMPROVING_ATOL`` (1e-3 mm). Robust
     to oscillating histories (compares with the best value before the final stretch). Pure and
     ``vmap``-able; False for runs of fewer than 10 iterations."""
     history = jnp.asarray(history)
@@ -167,7 +171,8 @@ def still_improving(
     final = jnp.take_along_axis(history, n[..., None], axis=-1)[..., 0]
     k = n - jnp.ceil(n.astype(history.dtype) * jnp.asarray(fraction, history.dtype)).astype(n.dtype)
     best_before = jnp.min(jnp.where(idx <= k[..., None], history, jnp.inf), axis=-1)
-    return (best_before > jnp.asarray(1 + rtol, history.dtype) * final) & (n >= 10)
+    atol = jnp.asarray(STILL_IMPROVING_ATOL, history.dtype)
+    return (best_before > jnp.asarray(1 + rtol, history.dtype) * final + atol) & (n >= 10)
 
 
 def budget_status(status: Int[Array, ""], history, n_iterations) -> Int[Array, ""]:
