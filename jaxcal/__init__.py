@@ -23,6 +23,7 @@ from ._dataset import save_csv as save_csv
 from ._diagnostics import Checks as Checks
 from ._diagnostics import Diagnostics as Diagnostics
 from ._diagnostics import Uncertainty as Uncertainty
+from ._identifiability import KEEP_PREFERENCE as KEEP_PREFERENCE
 from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
 from ._identifiability import identifiability as identifiability
 from ._initialise import ExtrasEstimate as ExtrasEstimate
@@ -52,6 +53,7 @@ from ._precision import PrecisionWarning as PrecisionWarning
 from ._precision import enable_x64 as enable_x64
 from ._problem import Problem as Problem
 from ._result import CalibrationResult as CalibrationResult
+from ._result import DHTable as DHTable
 from ._result import Status as Status
 from ._result import iterations_to_converge as iterations_to_converge
 from ._robot import DHRobot as DHRobot
@@ -114,6 +116,8 @@ __all__ = [
     "fk_position",
     "format_table",
     "identifiability",
+    "KEEP_PREFERENCE",
+    "DHTable",
     "load_csv",
     "residuals",
     "robots",

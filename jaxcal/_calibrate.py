@@ -31,7 +31,7 @@ from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_of
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
-from ._result import CalibrationResult, Status, iterations_to_converge
+from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
 from ._robot import DHRobot
 from ._xla import compile_lowered
 from .methods import Method, ScaledProblem, make_method
@@ -91,7 +91,8 @@ class Calibrator(eqx.Module):
         x = scaled.x(raw.z)
         its = iterations_to_converge(raw.history, raw.n_iterations)
         metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
-        return CalibrationOutput(x, raw.history, raw.n_iterations, its, raw.status, metrics, raw.extra)
+        status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING
+        return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra)
 
 
 @functools.partial(jax.jit, static_argnums=1)
@@ -454,6 +455,8 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     if result.status == Status.MAX_STEPS:
         msgs.append(f"{result.method}: step budget exhausted before the stopping tolerance was met — the fit may "
                     "not be finished (raise max_steps, or check the start and the data)")
+    if result.status == Status.STILL_IMPROVING:
+        msgs.append(result.message)
     flat = np.asarray(result.deviations.ravel(), np.float64)
     bad = implausible_deviations(space.names, space.units, flat, checks)
     if bad:

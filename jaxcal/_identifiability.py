@@ -15,7 +15,41 @@ from ._params import Deviations, ParameterSpace
 from ._problem import Problem
 from ._robot import DHRobot
 
-__all__ = ["IdentifiabilityReport", "identifiability"]
+__all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol"]
+
+#: Which of a group of (exactly) dependent parameters is kept free: the parameter whose group
+#: comes first here, then the lower joint index / component order. Joint offsets θ come first
+#: because encoder zero offsets are what a calibration is most often for; the sensor/setup
+#: extras come last, so an ambiguity is resolved in the robot's DH table consistently.
+KEEP_PREFERENCE: tuple[str, ...] = (
+    "theta", "d", "a", "alpha", "beta", "anchor", "tool", "cable_offset", "base_rotation", "base_translation",
+)
+#: a dependent parameter is swapped for a less preferred kept one only if its (column-scaled)
+#: coefficient on that one is at least this large: the swap then keeps the subset about as well
+#: conditioned (the volume of the kept columns shrinks by at most this factor).
+_SWAP_MIN_COEF = 0.1
+
+
+def default_rtol(dtype) -> float:
+    """The relative singular-value threshold for the rank: 1e-9 in float64, 1e-4 in float32
+    (a float32 Jacobian carries ~1e-6 relative round-off, which gives spurious singular values
+    of that size to exactly dependent columns)."""
+    return 1e-4 if np.dtype(dtype) == np.float32 else 1e-9
+
+
+def _preference_key(name: str) -> tuple[int, int]:
+    from ._params import group_of
+
+    g = group_of(name)
+    tail = name.rsplit("_", 1)[-1]
+    order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
+    return KEEP_PREFERENCE.index(g), order
+
+
+def _unit(name: str) -> str:
+    from ._params import group_of
+
+    return "rad" if group_of(name) in ("alpha", "theta", "beta", "base_rotation") else "mm"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,11 +60,15 @@ class IdentifiabilityReport:
         names: the free parameters examined (length ``p``).
         rank: numerical rank of the column-scaled identification Jacobian.
         singular_values: ``[p]`` singular values of the column-scaled Jacobian, descending.
-        identifiable: names of a maximal identifiable subset (chosen by QR with column pivoting).
+        identifiable: names of a maximal identifiable subset: QR with column pivoting finds
+            one, then within each group of dependent parameters the ones first in
+            :data:`KEEP_PREFERENCE` order are kept (θ, d, a, α, β, then the extras; lower joint
+            first), so the choice does not depend on round-off or the data.
         unidentifiable: the other names; each is (locally) a combination of identifiable ones.
         dependencies: for each unidentifiable name, ``[(coefficient, name), ...]`` such that a
             change ``δ`` of it has the same first-order effect as changing each listed
-            parameter by ``coefficient·δ`` (physical units); empty if it has no effect at all.
+            parameter by ``coefficient·δ`` (physical units: mm/rad, rad/mm, mm/mm, rad/rad, as
+            printed); empty if it has no effect at all.
         condition_number: condition number of the column-scaled Jacobian restricted to the
             identifiable subset.
         space: :class:`ParameterSpace` with only the identifiable subset free (the default mask
@@ -62,8 +100,9 @@ class IdentifiabilityReport:
                 if not deps:
                     lines.append(f"  {n}: has no effect on the measurements")
                 else:
-                    combo = " ".join(f"{c:+.4g}·{m}" for c, m in deps)
-                    lines.append(f"  {n}: acts like {combo}")
+                    combo = " ".join(f"{c:+.4g} {_unit(m)}/{_unit(n)}·{m}" for c, m in deps)
+                    lines.append(f"  {n}: a change δ acts like {combo}·δ" if len(deps) == 1
+                                 else f"  {n}: a change δ acts like ({combo})·δ")
         return "\n".join(lines)
 
     def equivalent(self, deviations, held=None) -> np.ndarray:
@@ -97,6 +136,31 @@ class IdentifiabilityReport:
         }
 
 
+def _prefer(Rs: np.ndarray, keep: list[int], pref: list) -> np.ndarray:
+    """Swap kept columns of ``Rs`` (unit-norm columns) for left-out ones that come earlier in
+    the preference order ``pref`` and depend on them (scaled coefficient ≥ _SWAP_MIN_COEF).
+    Each swap makes the kept set strictly earlier in preference order, so this terminates; the
+    span (and the rank) of the kept columns is unchanged up to round-off."""
+    p = Rs.shape[1]
+    keep = list(keep)
+    for _ in range(p * p):
+        swapped = False
+        kept = set(keep)
+        for j in sorted((i for i in range(p) if i not in kept), key=lambda i: pref[i]):
+            if not keep or np.linalg.norm(Rs[:, j]) == 0:
+                continue
+            coef, *_ = np.linalg.lstsq(Rs[:, keep], Rs[:, j], rcond=None)
+            worse = [(pref[k], i) for i, k in enumerate(keep) if pref[k] > pref[j] and abs(coef[i]) >= _SWAP_MIN_COEF]
+            if worse:
+                _, i = max(worse)
+                keep[i] = j
+                swapped = True
+                break
+        if not swapped:
+            break
+    return np.asarray(sorted(keep), dtype=int)
+
+
 _pivoted_qr = jax.jit(functools.partial(jsl.qr, mode="economic", pivoting=True))
 
 
@@ -112,23 +176,28 @@ def identifiability(
     space: ParameterSpace | None = None,
     deviations: Deviations | None = None,
     *,
-    rtol: float = 1e-9,
+    rtol: float | None = None,
 ) -> IdentifiabilityReport:
     """Rank, singular values and an identifiable subset of the free parameters.
 
     The identification Jacobian ``J = ∂residual/∂Δ`` ``[n·m, p]`` (``jax.jacfwd``) is taken at
     ``deviations`` (nominal by default) for joint angles ``q`` ``[n, dof]``; its columns are
     scaled to unit norm so that mm and rad columns compare. The rank counts singular values
-    above ``rtol·s_max``; QR with column pivoting picks a maximal well-conditioned subset;
-    each left-out column is expressed in the kept ones by least squares.
-
-    Run it in float64 (:func:`jaxcal.enable_x64`): in float32 the threshold must be ~1e-5.
+    above ``rtol·s_max`` (default :func:`default_rtol`: 1e-9 in float64, 1e-4 in float32);
+    QR with column pivoting picks a maximal well-conditioned subset; then, as long as a left-out
+    parameter depends on a kept one that comes later in :data:`KEEP_PREFERENCE` (coefficient
+    ≥ 0.1 on the scaled columns), the two are swapped — so of d2/d3 (parallel axes) d2 is kept,
+    whatever the poses or the round-off. Each left-out column is expressed in the kept ones by
+    least squares.
     """
     q = jnp.asarray(q)
     space = ParameterSpace.for_robot(robot) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")
-    sample = jnp.zeros((q.shape[0], *measurement.sample_shape), q.dtype)
+    # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
+    # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
+    dev0 = Deviations.zeros(robot.dof, q.dtype) if deviations is None else deviations.astype(q.dtype)
+    sample = jnp.asarray(measurement.predict(robot, dev0, q), q.dtype).reshape(q.shape[0], *measurement.sample_shape)
     problem = Problem(robot, measurement, q, sample, space, deviations)
     J = np.asarray(_start_jacobian(problem), dtype=np.float64)
     if not np.all(np.isfinite(J)):
@@ -145,10 +214,11 @@ def identifiability(
     Rs = np.zeros((R.shape[0], len(piv)))
     Rs[:, piv] = np.asarray(R, dtype=np.float64)  # Js = Q Rs
     s = np.linalg.svd(Rs, compute_uv=False)
+    rtol = default_rtol(q.dtype) if rtol is None else float(rtol)
     rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
     Rj = Rs * scale  # J = Q Rj
     names = space.free_names
-    keep_idx = np.sort(piv[:rank])
+    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), [_preference_key(n) for n in names])
     drop_idx = [i for i in range(len(names)) if i not in set(keep_idx.tolist())]
     keep = np.zeros(len(names), dtype=bool)
     keep[keep_idx] = True

@@ -16,11 +16,18 @@ from ._metrics import Metrics, compute_metrics
 from ._params import Deviations, ParameterSpace
 from ._robot import DHRobot
 
-__all__ = ["Status", "CalibrationResult", "iterations_to_converge", "CONVERGENCE_RTOL"]
+__all__ = ["Status", "CalibrationResult", "DHTable", "iterations_to_converge", "still_improving", "budget_status",
+           "CONVERGENCE_RTOL", "FINAL_FRACTION"]
 
 #: "Iterations to converge in RMSE": the first iteration from which the training RMSE stays
 #: within this relative tolerance of its final value. Used by every method, table and plot.
 CONVERGENCE_RTOL = 0.01
+#: A fixed-budget run is "still improving" when its last ``FINAL_FRACTION`` of iterations
+#: lowered the training objective below everything before by more than ``CONVERGENCE_RTOL``
+#: (relative) plus ``STILL_IMPROVING_ATOL`` (mm: improvements under a micrometre do not count,
+#: so a noiseless fit creeping toward zero RMSE is not flagged).
+FINAL_FRACTION = 0.1
+STILL_IMPROVING_ATOL = 1e-3
 
 
 class Status(enum.IntEnum):
@@ -36,6 +43,10 @@ class Status(enum.IntEnum):
     DIVERGED = 3
     #: the solver reported a failure (e.g. singular linear system).
     FAILED = 4
+    #: a fixed-budget method ran all its iterations but was still improving at the end: the
+    #: best training RMSE of its last 10 % of iterations is more than 1 % (+ 1 µm) below the
+    #: best before (see :func:`still_improving`). Not ``ok``: raise ``steps``/the learning rate.
+    STILL_IMPROVING = 5
 
     def message(self, method: str = "calibration") -> str:
         return {
@@ -44,6 +55,9 @@ class Status(enum.IntEnum):
             Status.MAX_STEPS: f"{method}: step budget exhausted before the stopping tolerance was met",
             Status.DIVERGED: f"{method}: diverged (NaN/inf or exploding loss); returned the last finite parameters",
             Status.FAILED: f"{method}: solver failure (e.g. singular linear system)",
+            Status.STILL_IMPROVING: f"{method}: iteration budget exhausted while still improving (the last "
+                                    f"{FINAL_FRACTION:.0%} of iterations lowered the training RMSE by more than "
+                                    f"{CONVERGENCE_RTOL:.0%}) — not converged; raise steps or the learning rate",
         }[self]
 
 
@@ -61,6 +75,110 @@ def iterations_to_converge(
     ok = (history <= final * (1 + rtol)) | (idx > jnp.asarray(n_iterations)[..., None])
     last_bad = jnp.max(jnp.where(ok, -1, idx), axis=-1)
     return last_bad + 1
+
+
+class DHTable:
+    """A DH table ``[dof, 4]`` in the paper's Table V layout: α/°, a/mm, d/mm, θ/° per joint
+    (angles wrapped to (−180°, 180°]).
+
+    Behaves as the array for numerics — ``np.asarray(t)``, ``t[j, col]``, ``t.shape``,
+    ``t - other`` — and prints as a table (``str(t)``, :meth:`to_markdown`); entries that were
+    not calibrated (fixed: not identifiable or not free) are marked ``*``.
+
+    Attributes:
+        values: ``[dof, 4]`` float array.
+        columns: ``("alpha_deg", "a_mm", "d_mm", "theta_deg")``.
+        rows: joint numbers ``(1, ..., dof)``.
+        fixed: ``[dof, 4]`` bool, True where the entry was not calibrated (or ``None``).
+    """
+
+    columns = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
+    headers = ("Joint i", "α_i/°", "a_i/mm", "d_i/mm", "θ_i/°")
+
+    def __init__(self, values, fixed=None, title: str | None = None):
+        self.values = np.asarray(values, dtype=np.float64)
+        self.fixed = None if fixed is None else np.asarray(fixed, dtype=bool)
+        self.title = title
+        self.rows = tuple(range(1, self.values.shape[0] + 1))
+
+    def __array__(self, dtype=None, copy=None):
+        return self.values if dtype is None else self.values.astype(dtype)
+
+    def __getitem__(self, index):
+        return self.values[index]
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def __iter__(self):
+        return iter(self.values)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.values.shape
+
+    def tolist(self) -> list:
+        return self.values.tolist()
+
+    def __sub__(self, other):
+        return self.values - np.asarray(other)
+
+    def __rsub__(self, other):
+        return np.asarray(other) - self.values
+
+    def __add__(self, other):
+        return self.values + np.asarray(other)
+
+    __radd__ = __add__
+
+    def _rows(self):
+        out = []
+        for j, row in enumerate(self.values):
+            marks = [""] * 4 if self.fixed is None else ["*" if f else "" for f in self.fixed[j]]
+            out.append([str(j + 1)] + [f"{v:.4f}{m}" for v, m in zip(row, marks)])
+        return out
+
+    def _note(self, sep: str = "\n") -> str:
+        return "" if self.fixed is None or not self.fixed.any() else \
+            sep + "\\* not calibrated (not identifiable or not free): the nominal/start value"
+
+    def to_markdown(self) -> str:
+        from ._metrics import format_table
+
+        return format_table(self._rows(), self.headers, markdown=True, title=self.title) + self._note("\n\n")
+
+    def __str__(self) -> str:
+        from ._metrics import format_table
+
+        return format_table(self._rows(), self.headers, title=self.title) + self._note().replace("\\*", "*")
+
+    def __repr__(self) -> str:
+        return f"DHTable(columns={self.columns}, values=\n{self.values!r})"
+
+
+def still_improving(
+    history: Float[Array, " T"], n_iterations: Int[Array, ""], rtol: float = CONVERGENCE_RTOL,
+    fraction: float = FINAL_FRACTION,
+) -> Array:
+    """Whether the final ``fraction`` of a run still improved: ``min(history[:k+1]) >
+    (1 + rtol)·history[n] + atol`` with ``n = n_iterations``, ``k = n − ceil(fraction·n)`` and
+    ``atol = STILL_IMPROVING_ATOL`` (1e-3 mm). Robust
+    to oscillating histories (compares with the best value before the final stretch). Pure and
+    ``vmap``-able; False for runs of fewer than 10 iterations."""
+    history = jnp.asarray(history)
+    n = jnp.asarray(n_iterations)
+    idx = jnp.arange(history.shape[-1])
+    final = jnp.take_along_axis(history, n[..., None], axis=-1)[..., 0]
+    k = n - jnp.ceil(n.astype(history.dtype) * jnp.asarray(fraction, history.dtype)).astype(n.dtype)
+    best_before = jnp.min(jnp.where(idx <= k[..., None], history, jnp.inf), axis=-1)
+    atol = jnp.asarray(STILL_IMPROVING_ATOL, history.dtype)
+    return (best_before > jnp.asarray(1 + rtol, history.dtype) * final + atol) & (n >= 10)
+
+
+def budget_status(status: Int[Array, ""], history, n_iterations) -> Int[Array, ""]:
+    """``COMPLETED`` → ``STILL_IMPROVING`` where :func:`still_improving`; others unchanged."""
+    return jnp.where((status == int(Status.COMPLETED)) & still_improving(history, n_iterations),
+                     int(Status.STILL_IMPROVING), status)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -120,8 +238,10 @@ class CalibrationResult:
 
     @property
     def ok(self) -> bool:
-        """The method finished: converged, or completed its fixed budget. ``MAX_STEPS`` (an
-        iterative solver stopped before its tolerance) is not success."""
+        """The method finished: converged, or completed its fixed budget with a flat end.
+        ``MAX_STEPS`` (an iterative solver stopped before its tolerance) and
+        ``STILL_IMPROVING`` (a fixed budget ran out while the fit was still descending) are not
+        success; :func:`jaxcal.calibrate` warns about them."""
         return self.status in (Status.CONVERGED, Status.COMPLETED)
 
     @property
@@ -178,16 +298,20 @@ class CalibrationResult:
         """RMSE/MEAN/MAX (mm) on ``data`` (e.g. the held-out test split)."""
         return Metrics(*(float(v) for v in compute_metrics(self.sample_errors(data))))
 
-    def dh_table(self) -> np.ndarray:
-        """Calibrated DH table ``[dof, 4]``: α/°, a/mm, d/mm, θ/° (the paper's Table V); angles
-        wrapped to (−180°, 180°]."""
+    def dh_table(self) -> DHTable:
+        """Calibrated DH table ``[dof, 4]``: α/°, a/mm, d/mm, θ/° per joint (the paper's
+        Table V), angles wrapped to (−180°, 180°]: a :class:`DHTable` that prints as the table
+        (uncalibrated entries marked ``*``) and indexes like the array (``np.asarray(t)``,
+        ``t[j, col]``)."""
         from ._diagnostics import wrap_angle_deg
 
         r, d = self.robot, self.deviations
-        return np.stack([
+        free = dict(zip(self.space.names, np.asarray(self.space.free, bool)))
+        fixed = np.asarray([[not free[f"{g}_{j + 1}"] for g in ("alpha", "a", "d", "theta")] for j in range(r.dof)])
+        return DHTable(np.stack([
             wrap_angle_deg(np.rad2deg(np.asarray(r.alpha + d.alpha))), np.asarray(r.a + d.a),
             np.asarray(r.d + d.d), wrap_angle_deg(np.rad2deg(np.asarray(r.theta + d.theta))),
-        ], axis=1)
+        ], axis=1), fixed, title=f"Calibrated DH table ({self.method})")
 
     def to_dict(self) -> dict:
         """JSON-friendly summary (parameters in rad/mm by name, history, metrics, status)."""

@@ -96,7 +96,7 @@ def _robot(spec: str):
 
 
 def _measurement(kind: str, anchor, robot):
-    from ._measurement import CableLength, Position
+    from ._measurement import CableLength, Pose, Position
     from ._simulate import default_anchor
 
     if kind == "cable":
@@ -105,7 +105,7 @@ def _measurement(kind: str, anchor, robot):
         return CableLength(jnp.asarray(anchor) if anchor is not None else default_anchor(robot))
     if anchor is not None:
         raise _Usage("--anchor applies to --measurement cable only")
-    return Position()
+    return Pose() if kind == "pose" else Position()
 
 
 def _metrics_rows(pairs):
@@ -371,18 +371,18 @@ def _cmd_calibrate(args) -> int:
 
 # -- reproduce ----------------------------------------------------------------------------------------
 
-#: ``--quick`` settings: few seeds and samples, shortened budgets (converged well before them).
+#: ``--quick`` settings: few seeds and samples, two methods (LM and AdaModW: compilation, ~10-20 s
+#: per method on 2 CPU cores, dominates a small run). The population methods keep their full
+#: budgets (with 150 generations they ended "still improving"; a trial costs ~1 s at 400 samples).
 QUICK = {
     "seeds": 3,
     "samples": 400,
     "methods": ("lm", "adamodw"),
     "hyperparameters": {
-        "ga": {"generations": 150, "population_size": 40},
-        "bso": {"generations": 150, "population_size": 20},
-        "iwoa": {"iterations": 150, "population_size": 20},
         "rbfnn": {"n_centres": 60},
     },
 }
+ALL_EIGHT = "ga ekf bso lm iwoa rbfnn adam adamodw"
 
 
 def _staged_ok(name: str) -> bool:
@@ -411,9 +411,19 @@ def _cmd_reproduce(args) -> int:
         raise _Usage(f"--seeds must be >= 1, got {seeds}")
     hyper = {m: h for m, h in QUICK["hyperparameters"].items() if m in methods} if quick else {}
     out = pathlib.Path(args.out)
+    if quick and not args.methods and not args.quiet:
+        print(f"jaxcal reproduce --quick: {' and '.join(methods)} only, {seeds} seeds × {samples} samples (a smoke "
+              f"run). All eight methods at this scale: --quick --methods {ALL_EIGHT} (~3 min on 2 CPU cores, mostly "
+              "compilation); the paper's scale: no --quick.")
     t0 = time.perf_counter()
-    res = sweep(methods, seeds, seed=args.seed, n_samples=samples, noise_std=args.noise_std, hyperparameters=hyper,
-                chunk_size=args.chunk_size, batching=args.batching, out_dir=out / "sweep", progress=not args.quiet)
+    try:
+        res = sweep(methods, seeds, seed=args.seed, n_samples=samples, noise_std=args.noise_std, hyperparameters=hyper,
+                    chunk_size=args.chunk_size, batching=args.batching, out_dir=out / "sweep", progress=not args.quiet)
+    except ValueError as e:
+        if "other settings" not in str(e):
+            raise
+        raise _Usage(f"{out}/sweep holds chunks of a run with other settings (seeds, samples, methods, noise, ...); "
+                     f"pass another --out DIR, or delete {out} to start over") from None
     t_sweep = time.perf_counter() - t0
     files = _write_outputs(res, out, figures=not args.no_figures)
     total = time.perf_counter() - t0
@@ -489,14 +499,15 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser(
         "reproduce", formatter_class=fmt, help="reproduce the paper's Tables III–V and Figs. 2–4 (seed sweep)",
         description="Simulate the paper's experiment (HSR-JR680, draw-wire sensor, σ = --noise-std mm) once per seed, "
-                    "calibrate with each method on 80 %% of the samples, evaluate on the other 20 %%, and print "
+                    "calibrate with each method on 80 % of the samples, evaluate on the other 20 %, and print "
                     "Table III (accuracy: mean ± std over seeds, with the statistical floor and the true model), "
                     "Table IV (iterations and time) and Table V (AdaModW's DH table, trial 0).",
         epilog="writes into --out: table3_accuracy/table4_convergence/table5_dh .txt/.md/.csv, summary.json, "
                "report.md, fig2_accuracy/fig3_training/fig4_positioning .png/.pdf, and sweep/ (one .npz per chunk; "
                "rerunning with the same settings resumes). Default methods: the paper's M1–M8 = ga ekf bso lm "
-               "iwoa rbfnn adam adamodw. --quick: 3 seeds, 400 samples, lm and adamodw (M4 and M8; each "
-               "method costs ~10-20 s of compilation on a 2-core CPU, so a quick run cannot afford all eight).",
+               "iwoa rbfnn adam adamodw. --quick: 3 seeds, 400 samples, lm and adamodw only (M4 and M8; each "
+               "method costs ~10-20 s of compilation on a 2-core CPU); all eight at that scale: --quick --methods "
+               "ga ekf bso lm iwoa rbfnn adam adamodw (~3 min on 2 cores).",
     )
     r.add_argument("--seeds", type=int, default=None, help="number of seeded trials (default 20; --quick: 3)")
     r.add_argument("--methods", nargs="+", metavar="M", help="methods to compare (default: the paper's M1–M8)")
@@ -524,9 +535,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument("data", help="CSV data file (format below)")
     c.add_argument("--robot", required=True, help="preset name or DH table CSV file (format below)")
-    c.add_argument("--measurement", choices=("cable", "position"), default="cable",
+    c.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
-                        "sensor frame (identity = robot base unless --estimate base)")
+                        "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
+                        "rotation vector rx,ry,rz (deg) of the flange orientation")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
     c.add_argument("--estimate", metavar="LIST",
                    help="also estimate extras: comma list of anchor (wire exit point), offset (cable zero offset), "
@@ -579,7 +591,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
     s.add_argument("--robot", default="hsr_jr680", help="preset name or DH table CSV file (default hsr_jr680)")
-    s.add_argument("--measurement", choices=("cable", "position"), default="cable", help="sensor (default cable)")
+    s.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
+                   help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default cable)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
     s.set_defaults(func=_cmd_simulate)
 

@@ -3,7 +3,7 @@
 * :func:`fig2_accuracy` — Fig. 2: RMSE / MEAN / MAX per method on held-out data, bars with
   ± std error bars over seeds, the statistical floor and the oracle as reference lines.
 * :func:`fig3_training` — Fig. 3: training RMSE vs iteration (log–log-ish axes; mean over seeds
-  with a ± std band), in two panels as in the paper, and time per trial per method.
+  with the min–max range over seeds shaded), in two panels as in the paper, and time per trial.
 * :func:`fig4_positioning` — Fig. 4: errors at 30 random test points of one trial per method,
   dashed lines at each method's mean.
 * :func:`grid_figure` — test RMSE over a two-axis hyperparameter grid (the ablation).
@@ -70,10 +70,11 @@ def _save(fig, path) -> None:
 def fig2_accuracy(result: SweepResult, path=None, *, methods: Sequence[str] | None = None):
     """Fig. 2: test RMSE, MEAN and MAX (mm) per method, mean ± std over seeds.
 
-    The y axes start near the smallest bar (the methods differ by a few percent, the nominal
-    model by an order of magnitude; its value is printed in the title instead). Dashed line:
-    statistical floor (RMSE, and √(2/π)× it for MEAN); dotted line: the true model (oracle)
-    on the same test data.
+    The bars start at zero, so their heights compare honestly (the good methods differ by a few
+    tenths of a percent, less than the ± std error bars; the values are printed above the bars;
+    the nominal model, an order of magnitude worse, is printed in the title instead of drawn).
+    Dashed line: statistical floor (RMSE, and √(2/π)× it for MEAN); dotted line: the true model
+    (oracle) on the same test data.
     """
     runs = _runs(result, methods)
     fig = _figure((max(12.0, 1.75 * len(runs) + 1.5), 4.2))
@@ -85,7 +86,6 @@ def fig2_accuracy(result: SweepResult, path=None, *, methods: Sequence[str] | No
         stds = np.array([np.nanstd(getattr(r.test, f), ddof=1) if r.n_seeds > 1 else 0.0 for r in runs])
         colors = [method_color(r.method, i) for i, r in enumerate(runs)]
         ax.bar(x, means, yerr=stds, color=colors, capsize=4, edgecolor="black", linewidth=0.5, zorder=2)
-        lo = [np.nanmin(means - stds)]
         ref = []
         if floor is not None and f in ("rmse", "mean"):
             fv = floor if f == "rmse" else floor * math.sqrt(2 / math.pi)
@@ -96,13 +96,10 @@ def fig2_accuracy(result: SweepResult, path=None, *, methods: Sequence[str] | No
             ov = float(np.nanmean(oracle))
             ax.axhline(ov, color="dimgray", ls=":", lw=1.2, label=f"true model {ov:.3f}", zorder=3)
             ref.append(ov)
-        lo = min(lo + ref)
         hi = max(float(np.nanmax(means + stds)), *ref)
-        span = hi - lo if hi > lo else 0.1 * hi
-        y0 = max(0.0, lo - 0.25 * span)
-        ax.set_ylim(y0, hi + 0.35 * span)  # headroom for the legend
-        for xi, m in zip(x, means):  # the value inside the bar, near its (cut) base
-            ax.text(xi, y0 + 0.03 * span, f"{m:.3f}", ha="center", va="bottom", fontsize=7,
+        ax.set_ylim(0.0, 1.3 * hi)  # bars from zero; headroom for the values and the legend
+        for xi, m, sd in zip(x, means, stds):  # the value above the error bar
+            ax.text(xi, m + sd + 0.02 * hi, f"{m:.3f}", ha="center", va="bottom", fontsize=7, rotation=90,
                     bbox={"facecolor": "white", "edgecolor": "none", "pad": 1.0, "alpha": 0.85}, zorder=4)
         ax.set_xticks(x, [_tick(r) for r in runs], fontsize=8)
         bc = float(np.nanmean(getattr(result.before, f)))
@@ -148,6 +145,9 @@ _MARKERS = ("o", "s", "^", "D")
 
 
 def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     for i, r in enumerate(runs):
         h = np.asarray(r.history, np.float64)
         if h.shape[1] < 2:
@@ -156,21 +156,30 @@ def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
         h = h[:, :T]
         it = np.arange(T)
         mean = np.nanmean(h, axis=0)
-        std = np.nanstd(h, axis=0, ddof=1) if h.shape[0] > 1 else np.zeros_like(mean)
         c = method_color(r.method, i)
-        lab = _tick(r).replace("\n", " ")
-        # curves that coincide (LM, EKF and the RBF network all reach the floor in 1-2 steps)
-        # stay visible: the first drawn is the widest, each has its own dash and marker
+        lab = f"{_tick(r).replace(chr(10), ' ')} (→ {mean[-1]:.3f})"
+        # curves that coincide (LM, EKF and the RBF network all reach the floor in 1-5 steps)
+        # stay visible: the first drawn is the widest with the largest hollow marker, later ones
+        # are thinner with smaller markers on top (concentric), each with its own dash
+        every = None if T <= 12 else np.unique(np.geomspace(1, T - 1, 8).astype(int))
         ax.plot(it, mean, color=c, lw=max(2.4 - 0.35 * i, 1.3), ls=_LINESTYLES[i % len(_LINESTYLES)], label=lab,
-                marker=_MARKERS[i % len(_MARKERS)] if T <= 12 else None, ms=max(6 - i, 3))
-        ax.fill_between(it, np.maximum(mean - std, 1e-3), mean + std, color=c, alpha=0.15, lw=0)
+                marker=_MARKERS[i % len(_MARKERS)], markevery=every, ms=max(10 - 2.2 * i, 3.5),
+                mfc="none" if i < len(runs) - 1 else c, mew=1.3, zorder=3 + i)
+        lo, hi = np.nanmin(h, axis=0), np.nanmax(h, axis=0)
+        ax.fill_between(it, lo, hi, color=c, alpha=0.12, lw=0)
         its = float(np.mean(r.iterations_to_converge))
-        ax.plot([its], [np.interp(its, it, mean)], marker="v", color=c, ms=6, mec="black", mew=0.5)
+        ax.plot([its], [np.interp(its, it, mean)], marker="v", color=c, ms=7, mec="black", mew=0.5, ls="none",
+                zorder=10)
         if getattr(r, "stage_ends", None) is not None:  # staged method ("ga>lm"): where the stages switch
             for b in np.mean(np.asarray(r.stage_ends, np.float64)[:, :-1], axis=0):
                 ax.axvline(b, color=c, ls=":", lw=1.2, alpha=0.9)
     if floor is not None:
         ax.axhline(floor, color="black", ls="--", lw=1, label=f"floor (train) {floor:.3f}")
+    handles, labels = ax.get_legend_handles_labels()
+    handles += [Patch(color="gray", alpha=0.25, lw=0),
+                Line2D([], [], marker="v", color="gray", mec="black", mew=0.5, ls="none", ms=7)]
+    labels += ["band: range over seeds (min–max;\nsingle seeds end below the floor,\nan expectation)",
+               "mean iteration to converge"]
     longest = max((int(np.max(r.n_iterations)) for r in runs), default=1)
     if longest > 30:  # linear up to 1, logarithmic beyond: LM's 5 steps and GA's 600 both show
         ax.set_xscale("symlog", linthresh=1)
@@ -183,15 +192,17 @@ def _curve_panel(ax, runs: list[SweepRun], floor, letter: str):
     ax.set_xlabel("iteration")
     ax.set_ylabel("training RMSE / mm")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
-    ax.set_title(f"({letter}) training curves", fontsize=10)
+    ax.legend(handles, labels, fontsize=7)
+    names = ", ".join(_tick(r).replace("\n", " ") for r in runs)
+    ax.set_title(f"({letter}) training curves: {names}", fontsize=9)
 
 
 def fig3_training(result: SweepResult, path=None, *, methods: Sequence[str] | None = None):
-    """Fig. 3: (a, b) training RMSE vs iteration (mean over seeds, ± std band; ▼ marks the mean
-    iteration to converge; a dotted vertical line in the run's colour, the mean iteration where a
-    staged method such as ``"ga>lm"`` switches stage), x axis linear up to 1 then logarithmic;
-    (c) time per trial (s, log scale, ± std)."""
+    """Fig. 3: (a, b) training RMSE vs iteration (mean over seeds, with the min–max range over
+    seeds shaded; ▼ marks the mean iteration to converge; both in the legend; the final mean in
+    each label; a dotted vertical line in the run's colour marks the mean iteration where a staged
+    method such as ``"ga>lm"`` switches stage), x axis linear up to 1 then logarithmic; (c) time
+    per trial (s, log scale)."""
     runs = _runs(result, methods)
     fig = _figure((max(14.0, 10.0 + 0.75 * len(runs)), 4.4))
     axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.15, 1.15, max(1.0, 0.17 * len(runs))]})

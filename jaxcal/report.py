@@ -292,7 +292,9 @@ def dh_table(result: SweepResult, method: str | None = None, trial: int = 0, *, 
     notes = [
         "* not identifiable from these measurements (see the identifiability report): fixed at the nominal value. "
         "Its true deviation is absorbed by identifiable parameters (d2 and d3 act only as d2 + d3 when axes 2 and "
-        "3 are parallel; a5 takes up about d6·Δθ5), so those show errors too: large individual errors there do "
+        "3 are parallel, d2 is kept; θ5 takes up Δa5 as −Δa5/L and d5 takes up Δα5 as L·Δα5, L the distance from "
+        "joint 5 to the tool point; jaxcal.KEEP_PREFERENCE says which is kept), so those show errors too: large "
+        "individual errors there do "
         "not mean a worse fit — the predicted measurements are the same.",
     ]
     sep = "\n\n"

@@ -48,7 +48,7 @@ def assert_lm_at_floor_and_cramer_rao(ex, n_test_extra=20000, seed=11):
     floor = statistical_floor(float(ex.noise_std), space.n_free, ex.train.n).test
     assert abs(test_rmse / floor - 1) < 0.02, (test_rmse, floor)
     # the truth restricted to the identifiable subset: LM on noiseless data at the same poses.
-    # The left-out parameters are absorbed to first order only (e.g. a5 ≈ d6·θ5), leaving a
+    # The left-out parameters are absorbed to first order only (e.g. a5 acts like −θ5/L, L ≈ 200 mm), leaving a
     # ~1e-3 mm remainder, negligible against σ.
     y_clean = ex.measurement.predict(ex.robot, ex.true_deviations, ex.train.q)
     ref = calibrate(ex.robot, ex.measurement, (ex.train.q, y_clean), "lm", space=space)
@@ -260,6 +260,13 @@ def test_float32_runs_and_warns(experiment):
     assert res.x.dtype == np.float32
     ref = calibrate(ex.robot, ex.measurement, ex.train, "lm")
     assert abs(res.train_metrics.rmse / ref.train_metrics.rmse - 1) < 0.01
+    # float32: the same identifiable subset (dtype-aware rank threshold) and LM/GN stop at their
+    # (float32-raised) tolerance instead of a solver failure or the step budget
+    assert res.space.free_names == ref.space.free_names and res.status == Status.CONVERGED
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", jaxcal.PrecisionWarning)  # warned once per process
+        gn = calibrate(ex.robot, ex.measurement, (q32, y32), "gn")
+    assert gn.status == Status.CONVERGED and abs(gn.train_metrics.rmse / ref.train_metrics.rmse - 1) < 0.01
 
 
 def test_bad_input(experiment):

@@ -17,16 +17,19 @@ def test_default_experiment_rank_19_of_24(experiment):
     ex = experiment
     rep = identifiability(ex.robot, ex.measurement, ex.train.q)
     # 24 − α6, θ6 (no effect: the wire attaches on the 6th axis) − 1 (d2, d3 act as a sum:
-    # axes 2 ∥ 3) − 2 (a5 ≈ d6·θ5 and d5 ≈ d6·α5 with the tool point on the 5th link's z axis)
+    # axes 2 ∥ 3) − 2 (a5 acts like −θ5/L and α5 like L·d5, L the distance from joint 5 to the
+    # tool point on the 5th link's z axis)
     assert rep.rank == 19 and len(rep.names) == 24
     assert len(rep.identifiable) == 19 and rep.space.n_free == 19
-    assert {"d_2", "d_3"} & set(rep.unidentifiable)
-    assert {"alpha_6", "theta_6"} <= set(rep.unidentifiable)
-    dep = "d_2" if "d_2" in rep.unidentifiable else "d_3"
-    (coef, other), = rep.dependencies[dep]
-    assert other in ("d_2", "d_3") and coef == pytest.approx(1.0, abs=1e-9)
+    # the documented rule (KEEP_PREFERENCE): θ, d, a, α; lower joint first
+    assert rep.unidentifiable == ("alpha_5", "alpha_6", "a_5", "d_3", "theta_6")
+    (coef, other), = rep.dependencies["d_3"]
+    assert other == "d_2" and coef == pytest.approx(1.0, abs=1e-9)
+    (coef, other), = rep.dependencies["a_5"]
+    assert other == "theta_5" and coef == pytest.approx(-1 / float(ex.robot.d[5] + ex.robot.tool[2]), rel=0.05)
     text = str(rep)
     assert "rank 19 of 24" in text and "has no effect" in text
+    assert "mm/mm·d_2" in text and "rad/mm·theta_5" in text and "mm/rad·d_5" in text
     assert rep.to_dict()["rank"] == 19
 
 
@@ -46,8 +49,26 @@ def test_float32_and_errors(experiment):
     ex = experiment
     with pytest.raises(ValueError, match="no free parameters"):
         identifiability(ex.robot, ex.measurement, ex.train.q, ParameterSpace(6, np.zeros(43, bool)))
-    rep = identifiability(ex.robot, ex.measurement, ex.train.q.astype(np.float32), rtol=1e-5)
-    assert rep.rank == 19
+    rep = identifiability(ex.robot, ex.measurement, ex.train.q.astype(np.float32))
+    assert rep.rank == 19 and rep.rtol == 1e-4  # dtype-aware default threshold
+    assert rep.unidentifiable == identifiability(ex.robot, ex.measurement, ex.train.q).unidentifiable
+
+
+def test_dependent_choice_is_deterministic(experiment):
+    """Which of a dependent group is kept follows KEEP_PREFERENCE, not the data or round-off:
+    the same on other poses, another seed and a permuted sample order."""
+    ex = experiment
+    ref = identifiability(ex.robot, ex.measurement, ex.train.q).unidentifiable
+    other = simulate_experiment(jax.random.PRNGKey(7), n_samples=300)
+    assert identifiability(ex.robot, ex.measurement, other.train.q).unidentifiable == ref
+    perm = np.random.default_rng(1).permutation(ex.train.q.shape[0])
+    assert identifiability(ex.robot, ex.measurement, ex.train.q[perm]).unidentifiable == ref
+    robot = ex.robot.with_hayati(2).with_tool((60.0, 40.0, 120.0))
+    space = ParameterSpace.for_robot(robot, anchor=True, tool=True, cable_offset=True)
+    rep = identifiability(robot, ex.measurement, ex.train.q, space)
+    # the sensor extras give way to the robot's parameters
+    assert {"anchor_z", "tool_x", "tool_y", "tool_z", "d_3"} <= set(rep.unidentifiable)
+    assert {"d_1", "theta_1", "theta_6"} <= set(rep.identifiable)
 
 
 def test_every_robot_position_rank(robot):

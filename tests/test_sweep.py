@@ -300,3 +300,19 @@ def test_prior_in_a_sweep_equals_calibrate_with_that_prior():
     np.testing.assert_allclose(res["lm"].x[0], one.x, rtol=1e-7, atol=1e-10)
     plain = sweep(["lm"], 1, **KW)
     assert np.linalg.norm(res["lm"].x[0]) < np.linalg.norm(plain["lm"].x[0])
+
+
+def test_figures_are_honest(swept):
+    """Fig. 2 bars start at zero; Fig. 3 explains its band and ▼ markers and titles its panels apart."""
+    pytest.importorskip("matplotlib")
+    from jaxcal import plots
+
+    res, _ = swept
+    fig = plots.fig2_accuracy(res)
+    assert all(ax.get_ylim()[0] == 0.0 for ax in fig.axes[:3])
+    fig = plots.fig3_training(res)
+    a, b = fig.axes[:2]
+    assert a.get_title() != b.get_title()
+    for ax in (a, b):
+        labels = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert any("range over seeds" in t for t in labels) and "mean iteration to converge" in labels

@@ -34,6 +34,10 @@ __all__ = ["OptaxMethod", "DEFAULTS"]
 #: training RMSE is within 0.1 % of LM's (results: benchmarks/results/tune_gradient.md).
 #: They converge in 70–90 iterations; 500 steps leave a 5x margin. AdaMod's published default
 #: b3 = 0.999 (an implicit ~1000-step warm-up) converges ~8x slower here (695 iterations).
+#: These are NOT the defaults of ``jaxcal.optim.adamodw`` / ``adamod``, which keep the paper's
+#: (b3 = 0.999, no learning-rate default): the registry names ("adamodw") are jaxcal's tuned
+#: variant, the optimizer functions the paper's; ``jaxcal.optim.adamodw(0.1, b3=0.9)`` is the
+#: registered optimizer.
 DEFAULTS: dict[str, dict[str, Any]] = {
     "adam": dict(learning_rate=0.1, steps=500),
     "adamw": dict(learning_rate=0.1, steps=500, weight_decay=1e-3),

@@ -166,6 +166,10 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     return RawRun(z, hist, k, status)
 
 
+#: Least-squares termination tolerances are at least this in float32 (see ``_OptimistixMethod``).
+FLOAT32_TOL = 1e-3
+
+
 class _OptimistixMethod(Method):
     """Shared fields and run loop of the optimistix least-squares methods.
 
@@ -174,7 +178,10 @@ class _OptimistixMethod(Method):
             every scaled parameter (a unit moves the RMS residual ~1 mm) and every residual
             (mm) by less than ``atol + rtol·|value|``. At 1e-5 the training RMSE is within
             ~1e-8 mm of the optimum; tighter values make LM spend steps being rejected at
-            round-off level (optimistix counts rejected steps).
+            round-off level (optimistix counts rejected steps). In float32 both are raised to at
+            least ``FLOAT32_TOL`` = 1e-3: the float32 residuals carry ~1e-4 relative round-off,
+            so 1e-5 is never met and LM/GN would end at their step budget (MAX_STEPS) at the
+            optimum.
         max_steps: step budget (accepted and rejected steps both count).
         linear_solver: ``"cholesky"`` (default, p×p normal equations) or ``"qr"``.
     """
@@ -197,16 +204,19 @@ class _OptimistixMethod(Method):
     def max_iterations(self) -> int:
         return self.max_steps
 
-    def solver(self) -> optx.AbstractLeastSquaresSolver:
-        """The optimistix solver."""
-        solver = type(self).solver_cls(self.rtol, self.atol, linear_solver=make_linear_solver(self.linear_solver))
+    def solver(self, dtype=None) -> optx.AbstractLeastSquaresSolver:
+        """The optimistix solver (tolerances raised to ``FLOAT32_TOL`` for a float32 ``dtype``)."""
+        rtol, atol = self.rtol, self.atol
+        if dtype is not None and jnp.finfo(dtype).bits < 64:
+            rtol, atol = max(rtol, FLOAT32_TOL), max(atol, FLOAT32_TOL)
+        solver = type(self).solver_cls(rtol, atol, linear_solver=make_linear_solver(self.linear_solver))
         if isinstance(solver.search, optx.ClassicalTrustRegion):  # LM
             solver = eqx.tree_at(lambda s: s.search, solver, RoundoffAwareTrustRegion())
         return solver
 
     def run(self, problem: ScaledProblem, key) -> RawRun:
         del key  # deterministic
-        return optimistix_run(self.solver(), problem, self.max_steps)
+        return optimistix_run(self.solver(problem.dtype), problem, self.max_steps)
 
 
 @register_method("lm")

@@ -215,7 +215,8 @@ class RBFNetworkMethod(Method):
         rmse0 = start_rmse(problem)
 
         if self.base == "lm":
-            lm = optimistix_run(LevenbergMarquardt(max_steps=self.lm_max_steps).solver(), problem, self.lm_max_steps)
+            lm = optimistix_run(LevenbergMarquardt(max_steps=self.lm_max_steps).solver(problem.dtype), problem,
+                                      self.lm_max_steps)
             z_base, base_its, base_status = lm.z, lm.n_iterations, lm.status
         else:
             z_base = jnp.zeros(problem.n_free, dtype)

@@ -285,12 +285,24 @@ def adamodw(
     and the stability bound :math:`\hat\kappa_t \xi < 2` for parameters with (near-)zero
     gradient, where :math:`\hat\kappa_t` grows toward :math:`\eta/\sigma`.
 
+    **Defaults: the paper's, not jaxcal's tuned ones.** ``b1, b2, b3 = 0.9, 0.999, 0.999`` are
+    AdaMod's published values (the paper's AdaModW uses them; it gives no learning rate or
+    weight decay). ``b3 = 0.999`` means a ~1000-step warm-up: in a 500-step calibration it has
+    not finished. The registered method ``calibrate(..., "adamodw")`` instead uses settings tuned
+    on the simulated experiment (``jaxcal.methods.GRADIENT_DEFAULTS["adamodw"]``: ``learning_rate=0.1,
+    b3=0.9, weight_decay=1e-4, steps=500``; ``benchmarks/results/tune_gradient.md``), in
+    ``calibrate``'s scaled coordinates. For your own chain with the tuned behaviour, use
+    ``adamodw(0.1, b3=0.9)``; ``adamodw(1e-2)`` with the paper's ``b3`` is still descending after
+    500 steps (``calibrate`` then reports ``Status.STILL_IMPROVING``).
+
     Args:
       learning_rate: :math:`\eta_t`, a scalar or an optax schedule (evaluated at the 0-based
-        count before the increment: step ``t`` uses ``learning_rate(t - 1)``).
+        count before the increment: step ``t`` uses ``learning_rate(t - 1)``). No default (the
+        paper gives none; 0.1 is jaxcal's tuned value for calibration).
       b1: :math:`\beta_1`, first-moment decay (eq. 6). Default 0.9.
       b2: :math:`\beta_2`, second-moment decay (eq. 7). Default 0.999.
-      b3: :math:`\beta_3`, step-bound decay (eq. 11). Default 0.999.
+      b3: :math:`\beta_3`, step-bound decay (eq. 11). Default 0.999 (the paper's / AdaMod's;
+        the registered ``"adamodw"`` method uses the tuned 0.9).
       eps: :math:`\sigma` of eq. 10. Default 1e-8.
       weight_decay: :math:`\xi` of eq. 15, a scalar or a schedule. Default 1e-4, optax.adamw's
         default (the paper gives no value); as the decay is scaled by :math:`\hat\kappa_t`,
