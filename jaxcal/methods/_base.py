@@ -355,8 +355,11 @@ _METHOD_CACHE: dict = {}
 
 
 def method_settings(name: str) -> list[str] | None:
-    """The settings (hyperparameter names) a registered method accepts, or ``None`` if unknown."""
-    factory = METHODS[name.lower()]
+    """The settings (hyperparameter names) a registered method accepts, or ``None`` if unknown
+    (a staged name such as ``"ga>lm"`` checks its ``stage.setting`` names itself)."""
+    factory = METHODS.get(name.lower())
+    if factory is None:
+        return None
     names = getattr(factory, "settings", None)
     if names is None and isinstance(factory, type) and dataclasses.is_dataclass(factory):
         names = [f.name for f in dataclasses.fields(factory) if f.init]

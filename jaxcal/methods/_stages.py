@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Int
 
-from .._result import Status
+from .._result import Status, budget_status
 from ._base import METHODS, Method, RawRun, ScaledProblem, finish_history
 
 __all__ = ["Staged", "StageInfo", "stages", "is_staged_name", "check_method_name", "SEPARATOR"]
@@ -122,7 +122,8 @@ class Staged(Method):
             offset = offset + n
             finite = jnp.all(jnp.isfinite(raw.z))
             x = jnp.where(finite, cur.x(jnp.where(finite, raw.z, 0.0)), cur.x_start)
-            st = jnp.asarray(raw.status)
+            # as a run of that method alone would report it (a fixed budget still improving included)
+            st = jnp.asarray(budget_status(raw.status, raw.history, raw.n_iterations))
             bad = (st == int(Status.DIVERGED)) | (st == int(Status.FAILED))
             first_bad = jnp.where((first_bad < 0) & bad, st, first_bad)
             ends.append(offset)
