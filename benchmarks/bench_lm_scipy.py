@@ -11,6 +11,7 @@ Run:  python benchmarks/bench_lm_scipy.py   (writes benchmarks/results/lm_vs_sci
 
 from __future__ import annotations
 
+import os
 import pathlib
 import time
 
@@ -107,8 +108,10 @@ def main(repeats: int = 7):
         f"| scipy `least_squares(method=\"lm\")`, 2-point numeric Jacobian, NumPy FK | {sol.nfev} fev | "
         f"{t_sp * 1e3:.1f} | {float(np.sqrt(np.mean(sol.fun ** 2))):.6f} | {sp_test:.6f} |",
         "",
-        f"**Speed ratio (scipy / jaxcal): {t_sp / t_jax:.1f}×** (goal ≥ 20×). "
-        f"Test RMSE difference: {abs(jax_test - sp_test):.2e} mm.",
+        f"**Speed ratio (scipy / jaxcal): {t_sp / t_jax:.1f}×** (goal ≥ 30×). "
+        f"Test RMSE difference: {abs(jax_test - sp_test):.2e} mm. Load average (1 min) at the end: "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (the machine is shared; above ~2 other jobs "
+        "shared the cores, and both timings are upper bounds).",
         "",
         "Per-iteration cost of the gradient methods (full batch, forward-mode gradient, same data):",
         "",

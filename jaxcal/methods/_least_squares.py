@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
+from optimistix._misc import cauchy_termination as optx_cauchy_termination
 
 from .._measurement import Pose
 from .._result import Status
@@ -99,57 +100,100 @@ class RoundoffAwareTrustRegion(optx.ClassicalTrustRegion):
         return step_size, accept | roundoff, result, new_state
 
 
-def _rmse_from_state(problem: ScaledProblem, z, state):
-    """Training RMSE at the accepted point, reusing the residual the solver already holds
-    (saves one FK evaluation per step); pose data need the position-only sample errors."""
+def _rmse_from_residual(problem: ScaledProblem, z, r):
+    """Training RMSE at the accepted point ``z`` from its objective residual ``r``, which the
+    solver already holds (saves one FK evaluation per step); pose data need the position-only
+    sample errors."""
     measurement = problem.problem.measurement
-    f_info = getattr(state, "f_info", None)
-    if isinstance(measurement, Pose) or f_info is None:
+    if isinstance(measurement, Pose):
         return problem.rmse(z)
-    r = f_info.residual
     if problem.plain:
         return jnp.sqrt(measurement.size * jnp.mean(r * r))
     # data residuals (robust-scaled) and prior residuals, per data residual
     return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_residuals)
 
 
-def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
-    """Run an optimistix least-squares solver step by step, recording the training RMSE.
-
-    Mirrors ``optimistix.least_squares`` (init / step / terminate in a while loop) but keeps a
-    per-iteration history ``[max_steps + 1]``. Pure and vmappable (under ``vmap`` the loop
-    runs until the slowest member terminates; finished members do not move).
-    """
-    tags = frozenset()
-    options: dict = {}
+def _start_residual_and_jacobian(problem: ScaledProblem):
+    """``(r, ∂r/∂z)`` at ``z = 0``. For plain least squares the Jacobian is ``J_x·diag(scale)``
+    with ``J_x = problem.problem.jacobian(x_start)``, the very computation
+    :meth:`ScaledProblem.build` made for the column scales (XLA merges the two), so the start
+    costs no second ``jacfwd``; equal to ``jacfwd`` in ``z`` up to round-off."""
     z0 = jnp.zeros(problem.n_free, problem.dtype)
-    residual = residual_with_jacfwd(problem)
-    fn = lambda z, args: (residual(z), None)  # noqa: E731
-    f_struct = jax.ShapeDtypeStruct((problem.n_objective_residuals,), problem.dtype)
-    state = solver.init(fn, z0, None, options, f_struct, None, tags)
-    dyn0, static = eqx.partition(state, eqx.is_array)
-    done0, result0 = solver.terminate(fn, z0, None, options, state, tags)
+    if problem.plain:
+        r0 = problem.problem.residual(problem.x_start)
+        J0 = problem.problem.jacobian(problem.x_start) * problem.scale
+        return r0, J0
+    return problem.objective_residual_and_jacobian(z0)
+
+
+def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
+    """Run an optimistix Gauss–Newton-type least-squares solver (LM, GN) step by step,
+    recording the training RMSE.
+
+    The loop is optimistix's own step (``AbstractGaussNewton.step``: its search — the trust
+    region —, its descent — the damped Newton step through ``linear_solver`` — and its Cauchy
+    termination), with the evaluations arranged so that no Jacobian is computed that is not
+    used: each step evaluates the residual at the candidate point, lets the search accept or
+    reject it from the residual alone (the trust-region ratio needs the loss there and the
+    Jacobian of the last *accepted* point), tests termination, and computes the Jacobian
+    (``jax.jacfwd``) only for an accepted, non-final point; the start's Jacobian is the one
+    :meth:`ScaledProblem.build` computed for the scales. ``optimistix.least_squares`` would
+    linearise at every candidate, rejected and final ones included (default experiment: 6
+    Jacobians where 4 are needed). Same iterates up to round-off. Keeps a per-iteration
+    history ``[max_steps + 1]``. Pure and vmappable (under ``vmap`` the loop runs until the
+    slowest member terminates; finished members do not move, and the conditional Jacobian is
+    computed for every member).
+    """
+    search, descent = solver.search, solver.descent
+    z0 = jnp.zeros(problem.n_free, problem.dtype)
+    r0, J0 = _start_residual_and_jacobian(problem)
+    info_struct = jax.eval_shape(lambda: optx.FunctionInfo.ResidualJac(r0, lx.MatrixLinearOperator(J0)))
+    f_info0 = optx.FunctionInfo.ResidualJac(jnp.zeros_like(r0), lx.MatrixLinearOperator(jnp.zeros_like(J0)))
+    search_state0 = search.init(z0, info_struct)
+    descent_state0 = descent.init(z0, info_struct)
     rmse0 = problem.rmse(z0)
     hist0 = jnp.full(max_steps + 1, jnp.nan, problem.dtype).at[0].set(rmse0)
 
+    def jacobian_at(z):
+        return problem.objective_residual_and_jacobian(z)[1]
+
     def cond(c):
-        _, k, _, done, result, _ = c
+        k, done, result = c[3], c[-3], c[-2]
         return (~done) & (result == optx.RESULTS.successful) & (k < max_steps)
 
     def body(c):
-        z, k, dyn, _, _, hist = c
-        st = eqx.combine(static, dyn)
-        z_new, st_new, _ = solver.step(fn, z, None, options, st, tags)
-        done, result = solver.terminate(fn, z, None, options, st_new, tags)
-        finite = jnp.all(jnp.isfinite(z_new))
+        z, z_eval, first, k, f_info, s_state, d_state, _, _, hist = c
+        r_eval = jax.lax.cond(first, lambda _: r0, lambda z: problem.objective_residual(z), z_eval)
+        # the search reads only the loss at the candidate (and the accepted point's Jacobian)
+        probe = optx.FunctionInfo.ResidualJac(r_eval, f_info.jac)
+        step_size, accept, search_result, s_state = search.step(first, z, z_eval, f_info, probe, s_state)
+        terminate = accept & optx_cauchy_termination(
+            solver.rtol, solver.atol, solver.norm, z_eval, z_eval - z, r_eval, r_eval - f_info.residual
+        )
+        need_jac = accept & ~terminate & ~first
+        J_eval = jax.lax.cond(need_jac, jacobian_at, lambda _: jnp.where(first, J0, f_info.jac.matrix), z_eval)
+        eval_info = optx.FunctionInfo.ResidualJac(r_eval, lx.MatrixLinearOperator(J_eval))
+        d_state = jax.lax.cond(accept, lambda d: descent.query(z_eval, eval_info, d), lambda d: d, d_state)
+        z_acc = jnp.where(accept, z_eval, z)
+        f_info = jax.tree.map(lambda a, b: jnp.where(accept, a, b), eval_info, f_info)
+        # the step from a point where the solve terminates is never taken: skip its linear solve
+        y_descent, descent_result = jax.lax.cond(
+            terminate,
+            lambda _: (jnp.zeros_like(z_acc), optx.RESULTS.successful),
+            lambda d: descent.step(step_size, d),
+            d_state,
+        )
+        result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result, search_result)
+        z_next = z_acc + y_descent
+        finite = jnp.all(jnp.isfinite(z_acc))  # as optimistix: the accepted point, not the candidate
         result = optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
-        rmse = _rmse_from_state(problem, z_new, st_new)
-        dyn_new, _ = eqx.partition(st_new, eqx.is_array)
-        return z_new, k + 1, dyn_new, done, result, hist.at[k + 1].set(rmse)
+        rmse = _rmse_from_residual(problem, z_acc, f_info.residual)
+        return (z_acc, z_next, jnp.asarray(False), k + 1, f_info, s_state, d_state, terminate, result,
+                hist.at[k + 1].set(rmse))
 
-    z, k, _, done, result, hist = jax.lax.while_loop(
-        cond, body, (z0, jnp.asarray(0), dyn0, done0, result0, hist0)
-    )
+    carry0 = (z0, z0, jnp.asarray(True), jnp.asarray(0), f_info0, search_state0, descent_state0,
+              jnp.asarray(False), optx.RESULTS.successful, hist0)
+    z, _, _, k, _, _, _, done, result, hist = jax.lax.while_loop(cond, body, carry0)
     hist = finish_history(hist, k)
     finite = jnp.all(jnp.isfinite(hist[: max_steps + 1])) & jnp.all(jnp.isfinite(z))
     exploded = hist[k] > DIVERGENCE_FACTOR * rmse0
