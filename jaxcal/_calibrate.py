@@ -30,7 +30,7 @@ from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_of
 from ._precision import cast_floating, dtype_scope, warn_if_float32
-from ._problem import Problem
+from ._problem import Problem, signed_residuals
 from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
 from ._robot import DHRobot
 from ._xla import compile_lowered
@@ -259,17 +259,6 @@ def _run_once(cal: Calibrator, q, y, key):
     return out, t1 - t0, t2 - t1
 
 
-@jax.jit
-def _residual_blocks(problem: Problem, x):
-    return problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
-
-
-def _sample_residuals(problem: Problem, x) -> np.ndarray:
-    """Signed residual entries (mm; the position part of a pose) for robust scales."""
-    r = np.asarray(_residual_blocks(problem, jnp.asarray(x, problem.dtype)))
-    return r[:, :3] if problem.measurement.kind == "pose" else r
-
-
 def calibrate(
     robot: DHRobot,
     measurement: MeasurementModel,
@@ -374,7 +363,7 @@ def calibrate(
     noise = scale = None
     histories = []
     while True:
-        resid = _sample_residuals(problem.with_space(space), space.to_vector(cur))
+        resid = signed_residuals(problem, space.to_vector(cur))
         s_hat = robust_scale(resid)
         s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
         new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
@@ -425,7 +414,7 @@ def calibrate(
         if throw:
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=2)
-    diag, unc = _diagnose(result, problem.with_space(space), before_rows, checks, extras_msg, rounds, noise)
+    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -439,7 +428,7 @@ def _close(a, b, rtol: float = 0.05) -> bool:
     return abs(a - b) <= rtol * abs(b)
 
 
-def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds, noise):
+def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds):
     """Uncertainty and the plausibility / conditioning / coverage / outlier findings."""
     space = result.space
     x = np.asarray(result.x, np.float64)

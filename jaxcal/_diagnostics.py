@@ -25,6 +25,7 @@ import numpy as np
 
 from ._objective import robust_factor, robust_scale
 from ._params import EXTRA_GROUPS, group_of
+from ._problem import signed_residuals
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
 
@@ -168,11 +169,7 @@ def outlier_rows(problem, x, k: float = 5.0) -> tuple[np.ndarray, np.ndarray, fl
         each row's largest residual entry, and the robust scale σ̂ = 1.4826·MAD of the residual
         entries (position part for poses).
     """
-    from ._calibrate import _residual_blocks
-
-    r = np.asarray(_residual_blocks(problem, jnp.asarray(x, problem.dtype)), np.float64)
-    if problem.measurement.kind == "pose":
-        r = r[:, :3]
+    r = signed_residuals(problem, x)
     med = np.median(r)
     s = robust_scale(r)
     dev = np.abs(r - med)

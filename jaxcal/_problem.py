@@ -5,13 +5,14 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace
 from ._robot import DHRobot
 
-__all__ = ["Problem"]
+__all__ = ["Problem", "residual_blocks", "signed_residuals"]
 
 
 class Problem(eqx.Module):
@@ -86,3 +87,18 @@ class Problem(eqx.Module):
 
     def with_space(self, space: ParameterSpace) -> Problem:
         return Problem(self.robot, self.measurement, self.q, self.y, space, self.base)
+
+
+@jax.jit
+def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n m"]:
+    """``prediction − measured`` as ``[n, m]`` (mm) at free parameters ``x``, jitted (compiled once
+    per shape): the host-side checks, metrics and diagnostics call this instead of evaluating
+    the kinematics op by op."""
+    return problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
+
+
+def signed_residuals(problem: Problem, x) -> np.ndarray:
+    """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
+    robust scales and outlier scans."""
+    r = np.asarray(residual_blocks(problem, jnp.asarray(x, problem.dtype)), np.float64)
+    return r[:, :3] if problem.measurement.kind == "pose" else r

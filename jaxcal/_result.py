@@ -285,11 +285,10 @@ class CalibrationResult:
         pred = self.predict(data.q)
         q = jnp.asarray(data.q)
         if self.predictor is None:
-            from ._calibrate import _residual_blocks
-            from ._problem import Problem
+            from ._problem import Problem, residual_blocks
 
             pr = Problem(self.robot, self.measurement, q, data.y, self.space, self.deviations.astype(q.dtype))
-            r = _residual_blocks(pr, pr.x0())  # jitted (cached per shape): fast on repeated use
+            r = residual_blocks(pr, pr.x0())  # jitted (cached per shape): fast on repeated use
         else:
             r = (pred - data.y).reshape(q.shape[0], self.measurement.size)
         return self.measurement.sample_error(r)

@@ -291,10 +291,10 @@ def _cmd_calibrate(args) -> int:
         print(res.diagnostics.extras)
 
     def before(ds):
-        from ._calibrate import _residual_blocks
+        from ._problem import residual_blocks
 
         pr = Problem(robot, measurement, ds.q, ds.y, res.space)
-        e = measurement.sample_error(_residual_blocks(pr, pr.x0()))
+        e = measurement.sample_error(residual_blocks(pr, pr.x0()))
         return Metrics(*(float(v) for v in compute_metrics(e)))
 
     rows = [("train, before", before(train)), ("train, after", res.evaluate(train))]
