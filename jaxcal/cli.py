@@ -344,6 +344,9 @@ def _cmd_calibrate(args) -> int:
               f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
               + ("" if args.exclude_outliers else " (kept; --exclude-outliers or --loss huber to guard against them)"))
     for w in res.warnings:
+        if diag.outliers_after and "outlier sample(s)" in w:
+            w = (f"{len(diag.outliers_after)} outlier sample(s) at data rows "
+                 f"{', '.join(str(file_row(i)) for i in diag.outliers_after[:20])} (see above)")
         print(f"jaxcal: warning: {w}", file=sys.stderr)
     if args.out:
         settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
