@@ -30,7 +30,7 @@ import numpy as np
 
 from ._chain import SerialChain, _dev_get, align_z, matrix_rpy, rpy_matrix, snap
 
-__all__ = ["load_urdf", "chain_from_dh", "export_urdf", "urdf_chain_links"]
+__all__ = ["load_urdf", "chain_from_dh", "export_urdf", "urdf_chain_links", "chain_to_dict", "chain_from_dict"]
 
 _M_TO_MM = 1000.0
 
@@ -331,19 +331,6 @@ def chain_from_dh(robot, deviations=None) -> SerialChain:
     )
 
 
-def _dh_robot_from_chain_dh(dh, chain):
-    import jax.numpy as jnp
-
-    from ._robot import DHRobot
-
-    convention, alpha, a, d, theta, beta, beta_joints = dh
-    return DHRobot(
-        jnp.asarray(alpha), jnp.asarray(a), jnp.asarray(d), jnp.asarray(theta), jnp.asarray(beta),
-        chain.q_min, chain.q_max, chain.tool, convention=convention, beta_joints=tuple(beta_joints),
-        name=chain.name,
-    )
-
-
 # ---------------------------------------------------------------------------- export
 
 
@@ -478,3 +465,47 @@ def export_urdf(model, deviations=None, path=None) -> str:
     if path is not None:
         pathlib.Path(path).write_text(text)
     return text
+
+
+# ---------------------------------------------------------------------------- result files
+
+
+def chain_to_dict(chain: SerialChain) -> dict:
+    """JSON-friendly chain that :func:`chain_from_dict` rebuilds exactly: the URDF text (the
+    loaded file, or the chain written as URDF) with base and tip link names, tool point (mm), and
+    for a chain built from DH its table (rad / mm)."""
+    out = {
+        "type": "serial_chain",
+        "name": chain.name,
+        "base": chain.base,
+        "tip": chain.tip,
+        "tool_mm": np.asarray(chain.tool, np.float64).tolist(),
+        "joint_names": list(chain.joint_names),
+        "joint_types": list(chain.joint_types),
+    }
+    if chain.dh is not None:
+        conv, alpha, a, d, theta, beta, bj = chain.dh
+        out["dh"] = {"convention": conv, "alpha_rad": list(alpha), "a_mm": list(a), "d_mm": list(d),
+                     "theta_rad": list(theta), "beta_rad": list(beta), "beta_joints": list(bj),
+                     "q_min": np.asarray(chain.q_min, np.float64).tolist(),
+                     "q_max": np.asarray(chain.q_max, np.float64).tolist()}
+    else:
+        out["urdf"] = chain.urdf if chain.urdf is not None else export_urdf(chain)
+    return out
+
+
+def chain_from_dict(d: dict) -> SerialChain:
+    """Inverse of :func:`chain_to_dict`."""
+    if "dh" in d:
+        import jax.numpy as jnp
+
+        from ._robot import DHRobot
+
+        t = d["dh"]
+        robot = DHRobot(
+            jnp.asarray(t["alpha_rad"]), jnp.asarray(t["a_mm"]), jnp.asarray(t["d_mm"]), jnp.asarray(t["theta_rad"]),
+            jnp.asarray(t["beta_rad"]), jnp.asarray(t["q_min"]), jnp.asarray(t["q_max"]), jnp.asarray(d["tool_mm"]),
+            convention=t["convention"], beta_joints=tuple(t["beta_joints"]), name=d.get("name", "robot"),
+        )
+        return chain_from_dh(robot)
+    return load_urdf(d["urdf"], base=d["base"], tip=d["tip"], tool=d["tool_mm"], name=d.get("name"))

@@ -326,3 +326,23 @@ def test_pinocchio_agrees_if_installed():
     for k in range(q.shape[0]):
         pin.framesForwardKinematics(model, data, q[k])
         np.testing.assert_allclose(T[k, :3, 3], data.oMf[fid].translation * 1000.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("make", ["fetch", "dh", "built"])
+def test_chain_dict_round_trip(make):
+    import json
+
+    from jaxcal._urdf import chain_from_dict, chain_to_dict
+
+    if make == "fetch":
+        chain = load_urdf(URDFS["fetch"][0], base="base_link", tip="gripper_link", tool=(1.0, 2.0, 3.0))
+    elif make == "dh":
+        chain = chain_from_dh(robots.hsr_jr680().with_hayati(2))
+    else:
+        chain = SerialChain.build(origin_R=[np.eye(3), np.eye(3)], origin_t=[[0, 0, 100.0], [300.0, 0, 0]],
+                                  joint_types=["prismatic", "revolute"], q_min=[0, -3], q_max=[500, 3])
+    back = chain_from_dict(json.loads(json.dumps(chain_to_dict(chain))))
+    assert back.dh == chain.dh and back.joint_types == chain.joint_types
+    q = jnp.asarray(_random_q(chain, 20))
+    np.testing.assert_allclose(np.stack(back.point_in_base(None, q, back.tool), -1),
+                               np.stack(chain.point_in_base(None, q, chain.tool), -1), rtol=0, atol=1e-9)
