@@ -365,14 +365,16 @@ def _flange_urdf(chain: SerialChain) -> np.ndarray:
     return T
 
 
-def export_urdf(model, deviations=None, path=None) -> str:
+def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_tool_point") -> str:
     """Write a calibrated model as URDF; returns the text (and writes it to ``path`` if given).
 
     Args:
         model: a :class:`~jaxcal.SerialChain` or a :class:`~jaxcal.DHRobot`.
         deviations: calibrated deviations (chain groups ``offset, dx … drz``, or DH groups for a
-            DH robot), or ``None`` for the nominal model.
+            DH robot; a ``tool`` group moves the tool point), or ``None`` for the nominal model.
         path: output file (optional).
+        tool_link: name of a link fixed to the tip link at the (calibrated) tool point, added when
+            the tool point is not the tip link origin (URDF has no other place for it).
 
     For a chain loaded from a URDF, the original file is kept (meshes, inertials, other
     branches) and only the ``<origin>`` of each moving joint between base and tip is replaced by
@@ -385,6 +387,9 @@ def export_urdf(model, deviations=None, path=None) -> str:
     from ._robot import DHRobot
 
     dh_table = None
+    tool = np.asarray(model.tool, np.float64)
+    if _dev_get(deviations, "tool") is not None:
+        tool = tool + np.asarray(_dev_get(deviations, "tool"), np.float64)
     if isinstance(model, DHRobot):
         alpha, a, d, theta, beta = _dh_values(model, deviations)
         dh_table = (model.convention, alpha, a, d, theta, beta, model.beta_joints)
@@ -421,6 +426,7 @@ def export_urdf(model, deviations=None, path=None) -> str:
             for k, v in _origin_attrs(T).items():
                 o.set(k, v)
         root.insert(0, ET.Comment(" " + note + " "))
+        _add_tool_link(root, chain.tip, tool, tool_link)
         text = ET.tostring(root, encoding="unicode")
         text = '<?xml version="1.0"?>\n' + text + "\n"
     else:
@@ -460,11 +466,22 @@ def export_urdf(model, deviations=None, path=None) -> str:
         ET.SubElement(j, "origin", **_origin_attrs(_flange_urdf(chain)))
         ET.SubElement(j, "parent", link=parent)
         ET.SubElement(j, "child", link=chain.tip)
+        _add_tool_link(root, chain.tip, tool, tool_link)
         ET.indent(root)
         text = '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
     if path is not None:
         pathlib.Path(path).write_text(text)
     return text
+
+
+def _add_tool_link(root, tip: str, tool, name: str) -> None:
+    if not np.any(np.asarray(tool) != 0) or not name:
+        return
+    ET.SubElement(root, "link", name=name)
+    j = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+    ET.SubElement(j, "origin", xyz=_fmt(np.asarray(tool) / _M_TO_MM), rpy="0 0 0")
+    ET.SubElement(j, "parent", link=tip)
+    ET.SubElement(j, "child", link=name)
 
 
 # ---------------------------------------------------------------------------- result files

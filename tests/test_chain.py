@@ -249,6 +249,10 @@ def test_dh_robot_and_its_chain_give_identical_fk(robot, tmp_path):
     assert "DH table" in text
     back = load_urdf(tmp_path / "dh.urdf", base="base_link", tip="flange")
     np.testing.assert_allclose(np.stack(back.point_in_base(None, q, robot.tool), -1), ref[:, :3, 3], rtol=0, atol=1e-9)
+    if np.any(np.asarray(robot.tool) != 0):  # the tool point is written as a fixed link
+        tp = load_urdf(tmp_path / "dh.urdf", base="base_link", tip="jaxcal_tool_point")
+        np.testing.assert_allclose(np.stack(tp.point_in_base(None, q, jnp.zeros(3)), -1), ref[:, :3, 3],
+                                   rtol=0, atol=1e-9)
 
 
 # ---------------------------------------------------------------- round trip and errors
