@@ -52,7 +52,12 @@ RESULT_FORMAT = "jaxcal-calibration-result/1"
 
 
 def robot_to_dict(robot: DHRobot) -> dict:
-    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm."""
+    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm (a
+    :class:`~jaxcal.SerialChain`: its URDF text with base/tip links, see ``chain_to_dict``)."""
+    if not isinstance(robot, DHRobot):
+        from ._urdf import chain_to_dict
+
+        return chain_to_dict(robot)
     deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
     return {
         "name": robot.name,
@@ -71,6 +76,10 @@ def robot_to_dict(robot: DHRobot) -> dict:
 
 def robot_from_dict(d: dict) -> DHRobot:
     """Inverse of :func:`robot_to_dict` (values within rounding of deg↔rad)."""
+    if d.get("type") == "serial_chain":
+        from ._urdf import chain_from_dict
+
+        return chain_from_dict(d)
     return DHRobot.from_degrees(
         alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
         q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),
@@ -254,10 +263,11 @@ def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
     out["robot"] = robot_to_dict(result.robot)
     out["measurement"] = measurement_to_dict(result.measurement)
     out["free_names"] = list(result.space.free_names)
-    out["calibrated_dh_table"] = {
-        "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
-        "rows": np.asarray(result.dh_table()).tolist(),
-    }
+    if isinstance(result.robot, DHRobot):
+        out["calibrated_dh_table"] = {
+            "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
+            "rows": np.asarray(result.dh_table()).tolist(),
+        }
     ident = getattr(result, "identifiability", None)
     if ident is not None:
         out["identifiability"] = ident.to_dict()

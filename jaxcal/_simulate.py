@@ -240,7 +240,10 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     else:  # pose: noise on the position only; orientation readings stay exact
         noise = sigma * jax.random.normal(k_noise, y_true[:, :3, 3].shape, dtype)
         y = y_true.at[:, :3, 3].add(noise)
-    data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name})
+    from ._dataset import mm_joints_metadata
+
+    data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name,
+                                            **mm_joints_metadata(robot)})
     n_test = int(round(cfg.n_samples * cfg.test_fraction))
     perm = jax.random.permutation(k_split, cfg.n_samples)
     train = data.subset(perm[n_test:])

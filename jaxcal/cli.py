@@ -133,7 +133,7 @@ def _cmd_simulate(args) -> int:
     from ._dataset import Dataset
     from ._simulate import simulate_experiment
 
-    robot = _robot(args.robot)
+    robot = _robot(args.robot, args.base, args.tip)
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     measurement = _measurement(args.measurement, anchor, robot)
     if args.samples < 2:
@@ -144,7 +144,10 @@ def _cmd_simulate(args) -> int:
 
     q = jnp.concatenate([ex.train.q, ex.test.q])
     y = jnp.concatenate([ex.train.y, ex.test.y])
-    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std}
+    from ._dataset import mm_joints_metadata
+
+    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std,
+            **mm_joints_metadata(robot)}
     if args.measurement == "cable":
         meta["anchor_mm"] = ",".join(f"{float(v):.6g}" for v in measurement.anchor)
     Dataset(q, y, measurement.kind, meta).to_csv(args.out)
@@ -698,7 +701,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
-    s.add_argument("--robot", default="hsr_jr680", help="preset name or DH table CSV file (default hsr_jr680)")
+    s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
+    s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
+    s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
     s.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
                    help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default cable)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
