@@ -32,9 +32,14 @@ chosen over DH-style 4-parameter errors because it stays well conditioned for an
 physical correction of one URDF ``<origin>``.
 
 The kernel works on a point in structure-of-arrays form (three ``[n]`` arrays) from the tip
-inward, like the DH kernel (DESIGN.md §2): per joint one plane rotation by ``q``, two small
-plane rotations by the error angles, the constant ``R_o`` with its exact zeros and ones skipped
-statically (URDF origins are mostly signed permutations), and three additions.
+inward, like the DH kernel (DESIGN.md §2): per joint one plane rotation by ``q`` and three
+additions. Nominal FK (no deviations) applies the constant ``R_o`` with its exact zeros and ones
+skipped statically (URDF origins are mostly signed permutations). With deviations, the per-joint
+constant ``R_o·Rx(drx)·Ry(dry)`` is formed as a ``[3, 3]`` matrix and applied as one matrix
+product to the stacked ``[3, n]`` point, which makes XLA materialise the point per joint: fully
+fused elementwise updates were as fast for a single output (a wire length) but made XLA CPU
+recompute the whole chain per output under ``jax.jacfwd`` when the three coordinates are
+stacked (a position residual): 1.7 s instead of 10 ms for 2 000 × 36 (measured here, Nov 2026).
 """
 
 from __future__ import annotations
