@@ -84,8 +84,8 @@ class Uncertainty:
     n_residuals: int
 
     def std_display(self) -> dict[str, tuple[float, str]]:
-        """``{name: (σ, unit)}`` with angles in degrees."""
-        return {n: ((math.degrees(s), "deg") if u == "rad" else (float(s), "mm"))
+        """``{name: (σ, unit)}`` with angles in degrees (other units as they are: mm, rad/(N*m)...)."""
+        return {n: ((math.degrees(s), "deg") if u == "rad" else (float(s), u))
                 for n, s, u in zip(self.names, self.std, self.units)}
 
     def to_dict(self) -> dict:

@@ -42,13 +42,22 @@ def default_rtol(dtype) -> float:
 _KIND_RANK = {"geometric": 4.5, "nongeometric": 4.7, "extra": len(KEEP_PREFERENCE)}
 
 
+#: the built-in non-geometric groups (:mod:`jaxcal._nongeometric`) rank after every geometric
+#: group of :data:`KEEP_PREFERENCE` and before the extras: compliance (a physical model with a mass
+#: model) first, then the harmonic transmission errors, once-per-revolution before twice
+NONGEOMETRIC_PREFERENCE: tuple[str, ...] = ("compliance", "h1s", "h1c", "h2s", "h2c")
+
+
 def _preference_key(name: str) -> tuple[float, int]:
     from ._params import group_kind, group_of
 
     g = group_of(name)
     tail = name.rsplit("_", 1)[-1]
     order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
-    rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(g)]
+    if g in NONGEOMETRIC_PREFERENCE:
+        rank = KEEP_PREFERENCE.index("anchor") - 0.5 + 0.01 * NONGEOMETRIC_PREFERENCE.index(g)
+    else:
+        rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(g)]
     return rank, order
 
 

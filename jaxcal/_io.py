@@ -25,6 +25,7 @@ from ._csvfile import read_table
 from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
+from ._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from ._params import Deviations, ParameterSpace, layout_for
 from ._result import CalibrationResult, Status
 from ._robot import DHRobot
@@ -66,17 +67,19 @@ def robot_to_dict(robot: DHRobot) -> dict:
         "q_min_deg": deg(robot.q_min),
         "q_max_deg": deg(robot.q_max),
         "tool_mm": np.asarray(robot.tool, np.float64).tolist(),
+        **({"nongeometric": ng} if (ng := nongeometric_to_dict(robot)) is not None else {}),
     }
 
 
 def robot_from_dict(d: dict) -> DHRobot:
     """Inverse of :func:`robot_to_dict` (values within rounding of deg↔rad)."""
-    return DHRobot.from_degrees(
+    robot = DHRobot.from_degrees(
         alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
         q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),
         beta_deg=d.get("beta_deg"), convention=d.get("convention", "standard"),
         beta_joints=d.get("beta_joints", ()), name=d.get("name", "robot"),
     )
+    return nongeometric_from_dict(robot, d.get("nongeometric"))  # compliance / harmonic models
 
 
 _DH_COLUMNS = ("alpha_deg", "a_mm", "d_mm", "theta_deg")

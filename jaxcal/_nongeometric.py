@@ -412,3 +412,28 @@ class NonGeometricMixin:
     def without_nongeometric(self):
         """A copy with no non-geometric error model (the geometric-only robot)."""
         return eqx.tree_at(lambda r: r.nongeometric, self, None, is_leaf=lambda x: x is None)
+
+
+def nongeometric_to_dict(robot) -> dict | None:
+    """JSON form of ``robot.nongeometric`` (``None`` when the robot has none), for result files."""
+    ng = getattr(robot, "nongeometric", None)
+    if ng is None:
+        return None
+    return {"mass_model": None if ng.mass_model is None else ng.mass_model.to_json(),
+            "compliance_joints": list(ng.compliance_joints), "harmonic_joints": list(ng.harmonic_joints),
+            "harmonic_orders": list(ng.harmonic_orders)}
+
+
+def nongeometric_from_dict(robot, d: dict | None):
+    """``robot`` with the models of :func:`nongeometric_to_dict`'s ``d`` (``None``: unchanged)."""
+    if not d:
+        return robot
+    mm = d.get("mass_model")
+    mm = None if mm is None else MassModel.from_arrays(mm["mass_kg"], mm["com_mm"], mm.get("payload_kg", 0.0),
+                                                       mm.get("payload_com_mm", (0.0, 0.0, 0.0)),
+                                                       mm.get("gravity_m_s2", GRAVITY))
+    if mm is not None and d.get("compliance_joints"):
+        robot = robot.with_compliance(mm, joints=d["compliance_joints"])
+    if d.get("harmonic_joints"):
+        robot = robot.with_harmonics(d["harmonic_joints"], orders=d.get("harmonic_orders", (1, 2)))
+    return robot

@@ -179,6 +179,26 @@ def _fmt_value(v: float, sd: float | None, unit: str) -> str:
     return f"{v:+.4f} ± {sd:.2g}" if sd < float("inf") else f"{v:+.4f} ± ∞"
 
 
+def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
+    """``robot`` with the non-geometric error models of ``--compliance`` / ``--harmonics``."""
+    try:
+        if compliance:
+            spec = compliance.strip()
+            if spec.lower() != "default" and not pathlib.Path(spec).exists():
+                raise _Usage(f"--compliance: mass model file {spec!r} not found (or 'default')")
+            robot = robot.with_compliance(None if spec.lower() == "default" else spec)
+        if harmonics:
+            spec, orders = harmonics.strip().lower(), (1, 2)
+            if ":" in spec:
+                spec, o = spec.split(":", 1)
+                orders = tuple(int(x) for x in o.split(",") if x.strip())
+            joints = None if spec in ("", "all") else [int(j) for j in spec.split(",") if j.strip()]
+            robot = robot.with_harmonics(joints, orders=orders)
+    except (ValueError, OSError) as e:
+        raise _Usage(f"--compliance/--harmonics: {e}") from None
+    return robot
+
+
 def _cmd_calibrate(args) -> int:
     t_start = time.perf_counter()
     import jax
@@ -197,7 +217,7 @@ def _cmd_calibrate(args) -> int:
         method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
     except ValueError as e:
         raise _Usage(str(e)) from None
-    robot = _robot(args.robot)
+    robot = _nongeometric_robot(_robot(args.robot), args.compliance, args.harmonics)
     path = pathlib.Path(args.data)
     if not path.exists():
         raise _Usage(f"data file {args.data!r} not found")
@@ -334,6 +354,20 @@ def _cmd_calibrate(args) -> int:
             s_ = sd.get(n, (None,))[0]
             parts.append(f"{n} {_fmt_value(v, s_, unit)} {unit}")
         print("estimated extras (deviation from the nominal/guessed value): " + ", ".join(parts))
+    from ._params import group_kind
+
+    ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
+    if ng_names:
+        dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+        units = dict(zip(res.space.names, res.space.units))
+        parts = []
+        for n in ng_names:
+            s_ = sd.get(n, (None,))[0]
+            if units[n] == "rad":
+                parts.append(f"{n} {_fmt_value(math.degrees(dev[n]), s_, '°')}°")
+            else:  # compliance: µrad/(N·m)
+                parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
+        print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
     if res.uncertainty is not None:
         print(f"residual σ̂ {res.uncertainty.noise_std:.4f} mm, effective parameters "
               f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}")
@@ -352,7 +386,7 @@ def _cmd_calibrate(args) -> int:
         settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
                     "seed": args.seed, "test_fraction": args.test_fraction, "method": method,
                     "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": args.loss,
-                    "excluded_rows": excluded,
+                    "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
                     "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
         save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows})
         print(f"\nwrote {args.out}")
@@ -553,6 +587,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="parameters to fit instead of all DH deviations (groups dh, alpha, a, d, theta, beta, anchor, "
                         "offset, tool, base, extras, or names such as d_6); e.g. --free anchor,offset fits only the "
                         "sensor extras with the DH table fixed (a sensible first step on real data)")
+    c.add_argument("--compliance", metavar="FILE",
+                   help="also fit joint compliance (rad/(N·m)) under gravity: Δq_i = c_i·τ_i(q), τ from a nominal "
+                        "mass model FILE (JSON or CSV, see jaxcal.MassModel.load) or 'default' (the preset's "
+                        "assumed masses; hsr_jr680 only) at every joint that carries a gravity torque")
+    c.add_argument("--harmonics", metavar="JOINTS", nargs="?", const="all",
+                   help="also fit harmonic transmission errors Δq_i = h1s sin q + h1c cos q + h2s sin 2q + h2c cos 2q "
+                        "(rad): at all joints, or a comma list of 1-based joints; ':1' after it keeps only the "
+                        "once-per-revolution terms (e.g. --harmonics 2,3:1)")
     c.add_argument("--fix", metavar="LIST",
                    help="parameters to keep at nominal (same names/groups), e.g. --fix d_6 or --fix theta")
     c.add_argument("--prior", default="default", metavar="SPEC",

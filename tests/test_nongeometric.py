@@ -258,3 +258,30 @@ def test_mass_model_files(tmp_path):
     c.write_text("link,mass_kg,com_x_mm,com_y_mm,com_z_mm\n1,3,0,0,0\n3,2,0,0,0\n")
     with pytest.raises(ValueError, match="numbered 1..2"):
         MassModel.load(c)
+
+
+def test_identifiability_keeps_geometric_before_nongeometric_before_extras():
+    from jaxcal._identifiability import _preference_key
+
+    keys = [_preference_key(n) for n in ("beta_2", "compliance_2", "h1s_1", "h2c_1", "anchor_x")]
+    assert keys == sorted(keys)
+
+
+def test_cli_calibrate_with_compliance_and_harmonics_and_result_roundtrip(tmp_path, capsys):
+    from jaxcal.cli import main
+
+    data = tmp_path / "data.csv"
+    assert main(["simulate", "--out", str(data), "--samples", "300", "--seed", "1"]) == 0
+    out = tmp_path / "result.json"
+    rc = main(["calibrate", str(data), "--robot", "hsr_jr680", "--compliance", "default", "--harmonics", "2,3:1",
+               "--prior", "none", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "non-geometric errors" in text and "compliance_2" in text and "µrad/(N·m)" in text
+    res = jaxcal.load_result(out)
+    ng = res.robot.nongeometric
+    assert ng.compliance_joints == (2, 3, 4, 5) and ng.harmonic_joints == (2, 3) and ng.harmonic_orders == (1,)
+    assert "compliance_3" in res.space.free_names and res.deviations.h1c.shape == (2,)
+    np.testing.assert_allclose(np.asarray(ng.mass_model.mass), np.asarray(MassModel.default_for(jaxcal.robots.hsr_jr680()).mass))
+    assert main(["calibrate", str(data), "--robot", "hsr_jr680", "--compliance", "nofile.json"]) == 2
+    assert main(["calibrate", str(data), "--robot", "hsr_jr680", "--harmonics", "9"]) == 2
