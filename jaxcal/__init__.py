@@ -46,6 +46,8 @@ from ._metrics import Metrics as Metrics
 from ._metrics import compute_metrics as compute_metrics
 from ._metrics import format_table as format_table
 from ._metrics import statistical_floor as statistical_floor
+from ._nongeometric import MassModel as MassModel
+from ._nongeometric import gravity_torques as gravity_torques
 from ._objective import Prior as Prior
 from ._params import Deviations as Deviations
 from ._params import ParameterSpace as ParameterSpace
@@ -117,6 +119,8 @@ __all__ = [
     "format_table",
     "identifiability",
     "KEEP_PREFERENCE",
+    "MassModel",
+    "gravity_torques",
     "DHTable",
     "load_csv",
     "residuals",

@@ -13,7 +13,7 @@ import pytest
 
 import jaxcal
 from jaxcal import Deviations, ParameterSpace
-from jaxcal._nongeometric import MassModel, gravity_torques
+from jaxcal import MassModel, gravity_torques
 from jaxcal._params import layout_for
 
 
