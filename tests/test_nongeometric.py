@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 import jaxcal
-from jaxcal import Deviations, ParameterSpace
-from jaxcal import MassModel, gravity_torques
+from jaxcal import Deviations, MassModel, ParameterSpace, gravity_torques
 from jaxcal._params import layout_for
 
 
@@ -285,3 +284,34 @@ def test_cli_calibrate_with_compliance_and_harmonics_and_result_roundtrip(tmp_pa
     np.testing.assert_allclose(np.asarray(ng.mass_model.mass), np.asarray(MassModel.default_for(jaxcal.robots.hsr_jr680()).mass))
     assert main(["calibrate", str(data), "--robot", "hsr_jr680", "--compliance", "nofile.json"]) == 2
     assert main(["calibrate", str(data), "--robot", "hsr_jr680", "--harmonics", "9"]) == 2
+
+
+def _messy_mass_model(robot):
+    """``jaxcal._messy``'s point-mass arm as a MassModel: link j of 20 kg/m × its DH length at the
+    midpoint of its segment, 30 kg at the wrist centre carried by every joint but the last (put
+    on link dof−1 at the origin of frame dof−2)."""
+    from jaxcal import _messy
+
+    mm = MassModel.default_for(robot, masses=np.ones(robot.dof))
+    a, d = np.asarray(robot.a), np.asarray(robot.d)
+    m = _messy.LINK_MASS_KG_PER_M * np.hypot(a, d) / 1000.0
+    com = np.asarray(mm.com).copy()
+    k = robot.dof - 2
+    al = float(robot.alpha[k])
+    wrist = -np.array([a[k], math.sin(al) * d[k], math.cos(al) * d[k]])  # frame k−1 origin (0-based) in frame k
+    w = _messy.WRIST_MASS_KG
+    com[k] = (m[k] * com[k] + w * wrist) / (m[k] + w)
+    m[k] += w
+    return MassModel.from_arrays(m, com)
+
+
+@pytest.mark.parametrize("name", ["hsr_jr680", "puma560", "ur5"])
+def test_gravity_torques_match_the_messy_simulation(name):
+    """An independent implementation (NumPy 4×4 products, kN·m) of the same point-mass arm."""
+    from jaxcal import _messy
+
+    robot = jaxcal.robots.get_robot(name)
+    q = np.random.default_rng(11).uniform(-3, 3, (25, robot.dof))
+    ref = np.asarray(_messy.gravity_torques(robot, q)) * 1e3
+    np.testing.assert_allclose(np.asarray(gravity_torques(robot, _messy_mass_model(robot), jnp.asarray(q))), ref,
+                               rtol=1e-9, atol=1e-9 * np.abs(ref).max())
