@@ -222,13 +222,54 @@ def _dh_link_frames(robot, q):
     return axes, frames
 
 
+def _serial_chain_frames(chain, q):
+    """Nominal generic chain (:class:`~jaxcal.SerialChain`: ``origin_R``, ``origin_t``,
+    ``flange_R``, ``flange_t``, ``prismatic``): per joint the axis (``z`` of the joint frame
+    before motion, through its origin) and the joint frame after motion (the body moved by the
+    joint, where ``chain.com`` lives); plus the tip link frame. Dense 3×3 products (host
+    constants), the same recursion as ``SerialChain.frame_soa`` without deviations."""
+    n = q.shape[0]
+    dtype = q.dtype
+    R = np.asarray(chain.origin_R, np.float64)
+    t = np.asarray(chain.origin_t, np.float64)
+    one, zero = jnp.ones((n,), dtype), jnp.zeros((n,), dtype)
+    cols = ((one, zero, zero), (zero, one, zero), (zero, zero, one))
+    P = (zero, zero, zero)
+
+    def mul(cols, M):  # F ← F·M for a constant 3×3 M
+        return tuple(tuple(sum(cols[m][k] * float(M[m, c]) for m in range(3) if M[m, c] != 0.0)
+                           for k in range(3)) for c in range(3))  # a rotation has no zero column
+
+    axes, frames = [], []
+    for i in range(chain.dof):
+        P = tuple(P[k] + sum(cols[m][k] * float(t[i, m]) for m in range(3)) for k in range(3))
+        X, Y, Z = mul(cols, R[i])
+        axes.append((P, Z))
+        if chain.prismatic[i]:
+            P = tuple(P[k] + Z[k] * q[:, i] for k in range(3))
+        else:
+            c, s_ = jnp.cos(q[:, i]), jnp.sin(q[:, i])
+            X, Y = _rot(X, Y, c, s_)
+        cols = (X, Y, Z)
+        frames.append((X, Y, Z, P))
+    ft = np.asarray(chain.flange_t, np.float64)
+    P = tuple(P[k] + sum(cols[m][k] * float(ft[m]) for m in range(3)) for k in range(3))
+    tip = (*mul(cols, np.asarray(chain.flange_R, np.float64)), P)
+    return axes, frames, tip
+
+
 def joint_axes_soa(robot, q: Float[Array, "n dof"]):
     """Per joint of the nominal robot: ``(o_i, z_i)`` (a point on the axis in mm and the unit
-    axis, base frame, three ``[n]`` each), the link frames ``(X, Y, Z, P)`` of the bodies moved
-    by each joint, as lists over joints. Robots other than DH provide ``link_frames_soa(q)``."""
+    axis, base frame, three ``[n]`` each) and the frame ``(X, Y, Z, P)`` of the body moved by the
+    joint (where :attr:`MassModel.com` is given), as lists over joints, and the flange/tip frame
+    (where the payload sits). DH robots and generic chains (``origin_R``...) are handled here;
+    other robot types provide ``link_frames_soa(q)`` returning the same triple."""
     if hasattr(robot, "link_frames_soa"):
         return robot.link_frames_soa(q)
-    return _dh_link_frames(robot, q)
+    if hasattr(robot, "origin_R"):
+        return _serial_chain_frames(robot, q)
+    axes, frames = _dh_link_frames(robot, q)
+    return axes, frames, frames[-1]
 
 
 def gravity_torques(robot, mass_model: MassModel, q: Float[Array, "n dof"]) -> Float[Array, "n dof"]:
@@ -246,13 +287,14 @@ def gravity_torques(robot, mass_model: MassModel, q: Float[Array, "n dof"]) -> F
         q: ``[n, dof]`` joint positions (rad).
 
     Returns:
-        ``[n, dof]`` torques (N·m) in the dtype of ``q``.
+        ``[n, dof]`` torques (N·m) in the dtype of ``q`` (at a prismatic joint of a generic
+        chain: the gravity force along its axis, N).
     """
     if mass_model.dof != robot.dof:
         raise ValueError(f"mass model has {mass_model.dof} links, robot {robot.name!r} has {robot.dof} joints")
     q = jnp.asarray(q)
     dtype = q.dtype
-    axes, frames = joint_axes_soa(robot, q)
+    axes, frames, tip = joint_axes_soa(robot, q)
     m = jnp.asarray(mass_model.mass).astype(dtype)
     c = jnp.asarray(mass_model.com).astype(dtype) * 1e-3  # m
     g = jnp.asarray(mass_model.gravity).astype(dtype)
@@ -264,18 +306,24 @@ def gravity_torques(robot, mass_model: MassModel, q: Float[Array, "n dof"]) -> F
         return tuple(P[k] * 1e-3 + v[0] * X[k] + v[1] * Y[k] + v[2] * Z[k] for k in range(3))
 
     # suffix sums from the flange inward, starting with the payload
-    pay = point(frames[-1], pc)
+    pay = point(tip, pc)
     M = pm
     S = tuple(pm * pay[k] for k in range(3))
     tau = [None] * robot.dof
+    M_at = [None] * robot.dof
     for i in reversed(range(robot.dof)):
         ci = point(frames[i], c[i])
         M = M + m[i]
+        M_at[i] = M
         S = tuple(S[k] + m[i] * ci[k] for k in range(3))
         o, z = axes[i]
         r = tuple(S[k] - M * o[k] * 1e-3 for k in range(3))  # Σ m_j (c_j − o_i)
         mom = (r[1] * g[2] - r[2] * g[1], r[2] * g[0] - r[0] * g[2], r[0] * g[1] - r[1] * g[0])
         tau[i] = z[0] * mom[0] + z[1] * mom[1] + z[2] * mom[2]
+    for i, p in enumerate(getattr(robot, "prismatic", ())):
+        if p:  # a prismatic joint carries the gravity force along its axis (N), not a torque
+            z = axes[i][1]
+            tau[i] = M_at[i] * (z[0] * g[0] + z[1] * g[1] + z[2] * g[2])
     n = q.shape[0]
     return jnp.stack([jnp.broadcast_to(t, (n,)) for t in tau], axis=-1)
 

@@ -315,3 +315,39 @@ def test_gravity_torques_match_the_messy_simulation(name):
     ref = np.asarray(_messy.gravity_torques(robot, q)) * 1e3
     np.testing.assert_allclose(np.asarray(gravity_torques(robot, _messy_mass_model(robot), jnp.asarray(q))), ref,
                                rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+def _rot3(axis, t):
+    c, s = math.cos(t), math.sin(t)
+    if axis == "x":
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def test_gravity_torques_of_a_generic_chain_match_its_dh_robot():
+    """A duck-typed generic chain (the ``SerialChain`` attributes: joint origins before motion,
+    motion about z, a flange) built from the standard DH table: O_i = Tx(a_{i-1})·Rx(α_{i-1})·
+    Tz(d_i)·Rz(θ_i); its body frames differ from the DH link frames by Tx(a_i)·Rx(α_i), so the
+    centres of mass convert by that transform. A prismatic joint carries the weight as a force."""
+    from types import SimpleNamespace
+
+    robot = jaxcal.robots.hsr_jr680()
+    al, a, d, th = (np.asarray(getattr(robot, k)) for k in ("alpha", "a", "d", "theta"))
+    Rs, ts, Rprev, tprev = [], [], np.eye(3), np.zeros(3)
+    for i in range(6):
+        Rs.append(Rprev @ _rot3("z", th[i]))
+        ts.append(tprev + Rprev @ np.array([0, 0, d[i]]))
+        Rprev, tprev = _rot3("x", al[i]), np.array([a[i], 0, 0])
+    chain = SimpleNamespace(origin_R=np.stack(Rs), origin_t=np.stack(ts), flange_R=Rprev, flange_t=tprev,
+                            prismatic=(False,) * 6, dof=6, name="chain")
+    rng = np.random.default_rng(12)
+    mm = MassModel.from_arrays(rng.uniform(1, 50, 6), rng.normal(0, 200, (6, 3)), 7.0, (10.0, -20.0, 50.0))
+    com = [np.array([a[i], 0, 0]) + _rot3("x", al[i]) @ np.asarray(mm.com[i]) for i in range(6)]
+    q = jnp.asarray(rng.uniform(-3, 3, (9, 6)))
+    ref = np.asarray(gravity_torques(robot, mm, q))
+    got = np.asarray(gravity_torques(chain, MassModel.from_arrays(mm.mass, com, 7.0, (10.0, -20.0, 50.0)), q))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9 * np.abs(ref).max())
+    slide = SimpleNamespace(origin_R=np.eye(3)[None], origin_t=np.zeros((1, 3)), flange_R=np.eye(3),
+                            flange_t=np.zeros(3), prismatic=(True,), dof=1, name="slide")
+    np.testing.assert_allclose(np.asarray(gravity_torques(slide, MassModel.from_arrays([10.0], [[0, 0, 0]]), jnp.zeros((2, 1)))),
+                               -98.1, rtol=1e-12)
