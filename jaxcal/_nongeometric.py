@@ -23,8 +23,13 @@ second-order approximation (relative error ~ the geometric errors, ≤ 1e-3).
 A robot turns the models on with ``robot.with_compliance(mass_model, joints=...)`` /
 ``robot.with_harmonics(joints=..., orders=(1, 2))`` (:class:`NonGeometricMixin`, shared by all
 robot types); :func:`nongeometric_groups` adds the groups to ``robot.error_groups()``. A robot
-type provides the per-link frames for τ by a ``link_frames_soa(q)`` method, or is a
-:class:`~jaxcal.DHRobot` (handled here).
+type opts in with three lines: ``NonGeometricMixin`` as a base class, a field
+``nongeometric: NonGeometric | None = None``, and ``+ nongeometric_groups(self)`` in its
+``error_groups()``; its kernels already call ``effective_joint_angles``. The frames for τ are
+computed here for :class:`~jaxcal.DHRobot` and for generic chains (the ``SerialChain``
+attributes ``origin_R``, ``origin_t``, ``flange_R``, ``flange_t``, ``prismatic``; the mass model
+then defaults to the chain's URDF ``<inertial>`` data); any other robot type provides
+``link_frames_soa(q)`` (see :func:`joint_axes_soa`).
 """
 
 from __future__ import annotations
