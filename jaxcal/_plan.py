@@ -49,6 +49,10 @@ __all__ = [
     "simulate_readings",
     "planning_jacobian",
     "CRITERIA",
+    "AccuracyCurve",
+    "accuracy_curve",
+    "save_plan_csv",
+    "load_joint_angles",
 ]
 
 #: selection criteria: D (max log det M), A (min tr M⁻¹ in scaled units), E (max λ_min(M)),
@@ -526,7 +530,7 @@ def relaxed_design(
     w, dmax = _multiplicative(jnp.asarray(Jc), 1e-10, iters)
     w = np.asarray(w)
     p = Jc.shape[2]
-    bound = float(math.exp(1.0 - float(dmax) / p))
+    bound = min(1.0, float(math.exp(1.0 - float(dmax) / p)))  # ε-regularised: round-off can pass 1
     sel = np.argsort(-w, kind="stable")[:n]
     method = "relaxation"
     n_ex = 0
@@ -608,19 +612,11 @@ def predicted_accuracy(
     (checked against simulated calibrations in ``tests/test_plan.py`` and
     ``benchmarks/bench_plan.py``).
     """
-    from ._objective import resolve_prior
-
     q = np.asarray(q, np.float64)
     base = ParameterSpace.for_robot(robot) if space is None else space
     space = _identifiable_space(robot, measurement, base, q)
     J = planning_jacobian(robot, measurement, q, space).reshape(-1, space.n_free)
-    info = J.T @ J / noise_std**2
-    prior = resolve_prior(prior)
-    if prior is not None:
-        sd = prior.std(space)
-        info = info + np.diag(np.where(np.isfinite(sd), 1.0 / sd**2, 0.0))
-    cov = np.linalg.inv(info)
-    cov = 0.5 * (cov + cov.T)
+    cov = _covariance(J, noise_std, _prior_precision(space, prior))
     if q_test is None:
         q_test = candidate_poses(jax.random.key(1) if key is None else key, robot, measurement, n_test)
     Jt = planning_jacobian(robot, measurement, q_test, space)[:, _error_rows(measurement), :]
@@ -651,3 +647,157 @@ def simulate_readings(key, robot: DHRobot, measurement: MeasurementModel, q, noi
     else:
         y = y.at[:, :3, 3].add(noise_std * jax.random.normal(k_noise, y[:, :3, 3].shape, dtype))
     return Dataset(q, y, measurement.kind), truth
+
+
+# -- how many poses ---------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class AccuracyCurve:
+    """Predicted test RMSE (mm) vs number of poses: selected (greedy prefixes of one ranking)
+    and random (prefixes of a random order of the candidates). See :func:`accuracy_curve`.
+
+    Attributes:
+        n: ``[k]`` numbers of poses.
+        selected, random: ``[k]`` predicted test RMSE (mm).
+        simulated_selected, simulated_random: ``[k]`` mean simulated test RMSE (mm) or ``None``.
+        criterion: the selection criterion.
+        noise_std: σ (mm).
+    """
+
+    n: np.ndarray
+    selected: np.ndarray
+    random: np.ndarray
+    criterion: str
+    noise_std: float
+    simulated_selected: np.ndarray | None = None
+    simulated_random: np.ndarray | None = None
+
+    def poses_needed(self, target_rmse: float) -> int | None:
+        """The smallest ``n`` of the curve whose predicted (selected) test RMSE ≤ ``target_rmse``."""
+        ok = np.flatnonzero(self.selected <= target_rmse)
+        return int(self.n[ok[0]]) if ok.size else None
+
+    def plot(self, ax=None, target_rmse: float | None = None):
+        """Draw the curve (matplotlib); returns the Figure."""
+        from matplotlib.figure import Figure
+
+        if ax is None:
+            fig = Figure(figsize=(6.4, 4.0))
+            ax = fig.add_subplot()
+        else:
+            fig = ax.figure
+        ax.plot(self.n, self.selected, "-", color="C0", label=f"{self.criterion}-optimal (predicted)")
+        ax.plot(self.n, self.random, "-", color="C1", label="random (predicted)")
+        if self.simulated_selected is not None:
+            ax.plot(self.n, self.simulated_selected, "o", color="C0", label=f"{self.criterion}-optimal (simulated mean)")
+        if self.simulated_random is not None:
+            ax.plot(self.n, self.simulated_random, "s", color="C1", mfc="none", label="random (simulated mean)")
+        if target_rmse is not None:
+            ax.axhline(target_rmse, color="0.5", ls="--", lw=1, label=f"target {target_rmse:.3f} mm")
+        ax.axhline(self.noise_std, color="0.7", ls=":", lw=1, label=f"noise σ = {self.noise_std:g} mm")
+        ax.set_xlabel("number of measured poses")
+        ax.set_ylabel("test RMSE / mm")
+        ax.set_xscale("log")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        return fig
+
+
+def accuracy_curve(
+    robot: DHRobot,
+    measurement: MeasurementModel,
+    candidates,
+    ns,
+    noise_std: float,
+    *,
+    q_test=None,
+    criterion: str = "D",
+    space: ParameterSpace | None = None,
+    prior=None,
+    key=None,
+) -> AccuracyCurve:
+    """Predicted test RMSE vs the number of poses ``ns`` for greedy selection from
+    ``candidates`` (the first ``n`` greedy picks; no exchange, so the sets are nested) and for
+    random poses (the first ``n`` of a permutation of the candidates drawn from ``key``)."""
+    ns = np.asarray(sorted(int(n) for n in ns))
+    sel = select_poses(robot, measurement, candidates, int(ns[-1]), criterion=criterion, exchange=False,
+                       space=space, prior=prior, noise_std=noise_std)
+    order = np.asarray(jax.random.permutation(jax.random.key(0) if key is None else key, len(candidates)))
+    if q_test is None:
+        q_test = candidate_poses(jax.random.key(1), robot, measurement, 2000)
+    # one Jacobian of all candidates (on the candidates' identifiable subset), rows taken per set
+    J = planning_jacobian(robot, measurement, candidates, sel.space)
+    Jt = planning_jacobian(robot, measurement, q_test, sel.space)[:, _error_rows(measurement), :]
+    info0 = _prior_precision(sel.space, prior)
+    f = lambda idx: _test_rmse(J[idx].reshape(-1, J.shape[2]), Jt, noise_std, info0)  # noqa: E731
+    return AccuracyCurve(ns, np.asarray([f(sel.index[:n]) for n in ns]), np.asarray([f(order[:n]) for n in ns]),
+                         criterion, float(noise_std))
+
+
+def _prior_precision(space, prior) -> np.ndarray:
+    """``[p]`` prior precisions ``1/σ_j²`` (0 = no prior)."""
+    from ._objective import resolve_prior
+
+    prior = resolve_prior(prior)
+    if prior is None:
+        return np.zeros(space.n_free)
+    sd = prior.std(space)
+    return np.where(np.isfinite(sd), 1.0 / sd**2, 0.0)
+
+
+def _covariance(J, noise_std, prior_precision) -> np.ndarray:
+    info = J.T @ J / noise_std**2 + np.diag(prior_precision)
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return np.full(info.shape, np.inf)
+    return 0.5 * (cov + cov.T)
+
+
+def _test_rmse(J, Jt, noise_std, prior_precision) -> float:
+    cov = _covariance(J, noise_std, prior_precision)
+    var = np.einsum("tap,pq,taq->t", Jt, cov, Jt)
+    return math.sqrt(Jt.shape[1] * noise_std**2 + float(np.mean(var)))
+
+
+# -- files ------------------------------------------------------------------------------------------
+
+
+def save_plan_csv(path, q, kind: str, metadata=()) -> None:
+    """Write planned joint angles ``q`` ``[n, dof]`` (rad) as a data file with empty measurement
+    columns: once the readings are filled in, :func:`jaxcal.load_csv` and ``jaxcal calibrate``
+    read it (joint angles in degrees, the shortest decimals that read back to the same float)."""
+    from ._dataset import KINDS, _rad_to_deg_roundtrip
+
+    q = np.asarray(q, np.float64)
+    lines = ["# jaxcal dataset v1", f"# kind: {kind}"] + [f"# {k}: {v}" for k, v in metadata]
+    lines.append(",".join([f"q{j + 1}_deg" for j in range(q.shape[1])] + list(KINDS[kind])))
+    blanks = "," * len(KINDS[kind])
+    lines += [",".join(repr(float(v)) for v in row) + blanks for row in _rad_to_deg_roundtrip(q)]
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+def load_joint_angles(path, dof: int) -> np.ndarray:
+    """Joint angles ``[n, dof]`` (rad) from a CSV file with columns ``q1_deg … qN_deg`` (or
+    ``q1_rad …``); other columns are ignored, ``#`` lines skipped."""
+    import csv
+
+    from ._dataset import _joint_columns
+
+    with open(path, encoding="utf-8-sig") as f:
+        rows = [r for r in csv.reader(ln for ln in f if ln.strip() and not ln.lstrip().startswith("#"))]
+    if not rows:
+        raise ValueError(f"{path}: no header row")
+    header = [h.strip().lower() for h in rows[0]]
+    cols, unit = _joint_columns(str(path), header, dof)
+    idx = [header.index(c) for c in cols]
+    try:
+        q = np.asarray([[float(r[i]) for i in idx] for r in rows[1:]], np.float64)
+    except (ValueError, IndexError) as e:
+        raise ValueError(f"{path}: bad joint-angle value ({e})") from None
+    if q.shape[0] == 0 or not np.all(np.isfinite(q)):
+        raise ValueError(f"{path}: no rows, or non-finite joint angles")
+    return np.deg2rad(q) if unit == "deg" else q
