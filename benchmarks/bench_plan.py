@@ -95,7 +95,7 @@ def main() -> None:
     times["relaxation (500 multiplicative steps)"] = (time.perf_counter() - t, 0)
     c2 = np.asarray(jaxcal.candidate_poses(jax.random.key(0), robot, meas, args.candidates))
     same = np.array_equal(jaxcal.select_poses(robot, meas, c2, 100).index, s.index)
-    lines += ["## 1. Selection time: 100 of {:,} candidates (after compilation, median of 5)".format(args.candidates),
+    lines += [f"## 1. Selection time: 100 of {args.candidates:,} candidates (after compilation, median of 5)",
               "", "Whole call: identifiable subset (pivoted QR) and Jacobians of all candidates (`jacfwd` on the "
               "batch), then the selection.", "", "| selection | time / s | exchange iterations |", "|---|---|---|"]
     lines += [f"| {k} | {v:.3f} | {n} |" for k, (v, n) in times.items()]
@@ -151,7 +151,7 @@ def main() -> None:
     print(lines[-2])
 
     # 4. comparison at equal n
-    for n in (100, needed.get("D-optimal, greedy + exchange", (150,))[0]):
+    for part, n in zip("ab", (100, needed.get("D-optimal, greedy + exchange", (150,))[0])):
         rows = {
             "random": cand[perm[:n]],
             "greedy D": jaxcal.select_poses(robot, meas, cand, n, exchange=False).q,
@@ -163,7 +163,7 @@ def main() -> None:
             "greedy I + exchange": jaxcal.select_poses(robot, meas, cand, n, criterion="I").q,
         }
         ref = jaxcal.select_poses(robot, meas, cand, 10, exchange=False)  # the candidates' scales
-        lines += [f"## 4. Selections of {n} poses compared", "",
+        lines += [f"## 4{part}. Selections of {n} poses compared", "",
                   "O1/O3 with the candidates' column scales (comparable across rows); test RMSE predicted and "
                   f"simulated ({args.seeds} seeds, the same truths and noise keys for every row).", "",
                   "| selection | O1 | O3 | predicted test RMSE / mm | simulated mean ± std / mm |", "|---|---|---|---|---|"]
