@@ -222,7 +222,21 @@ def test_cli_plan_writes_poses_calibrate_accepts(tmp_path, capsys):
         r.rstrip(",") + "," + repr(float(y)) for r, y in zip(data_rows, np.asarray(ds.y))]
     out.write_text("\n".join(filled) + "\n")
     assert main(["--no-cache", "calibrate", str(out), "--robot", "hsr_jr680", "--test-fraction", "0.2"]) == 0
-    # candidates from a file, and the plot
+
+
+def test_cli_plan_bad_input(tmp_path, capsys):
+    from jaxcal.cli import main
+
+    assert main(["plan", "--poses", "10", "--candidates", "nofile.csv", "--out", str(tmp_path / "p.csv")]) == 2
+    assert "neither a number nor an existing file" in capsys.readouterr().err
+    assert main(["plan", "--poses", "0", "--out", str(tmp_path / "p.csv")]) == 2
+
+
+@pytest.mark.slow
+def test_cli_plan_candidates_file_and_plot(tmp_path):
+    from jaxcal.cli import main
+
+    robot = jaxcal.robots.hsr_jr680()
     cand = tmp_path / "cand.csv"
     cand.write_text("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n" + "\n".join(
         ",".join(repr(float(v)) for v in np.rad2deg(row))
