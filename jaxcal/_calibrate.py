@@ -28,7 +28,7 @@ from ._initialise import INITIALISABLE, initial_extras
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
-from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_of
+from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem, signed_residuals
 from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
@@ -163,21 +163,28 @@ SELECT_GROUPS = {
 }
 
 
-def _selection(items, names) -> set[str]:
-    """Parameter names selected by ``items`` (group names of :data:`SELECT_GROUPS` or parameter names)."""
+def _selection(items, layout) -> set[str]:
+    """Parameter names selected by ``items``: aliases of :data:`SELECT_GROUPS`, a kind
+    (``geometric``, ``nongeometric``, ``extras``), any group name of ``layout`` or parameter names."""
     if isinstance(items, str):
         items = [i for i in items.split(",") if i.strip()]
+    names, groups_of = layout.names, layout.entry_groups
     out = set()
     for it in items or ():
         key = it.strip()
         if key.lower() in SELECT_GROUPS:
             groups = SELECT_GROUPS[key.lower()]
-            out |= {n for n in names if group_of(n) in groups}
+            out |= {n for n, g in zip(names, groups_of) if g in groups}
+        elif key.lower() in ("geometric", "nongeometric"):
+            out |= {n for n, k in zip(names, layout.kinds) if k == key.lower()}
+        elif key in layout.group_names:
+            out |= {n for n, g in zip(names, groups_of) if g == key}
         elif key in names:
             out.add(key)
         else:
-            raise ValueError(f"unknown parameter or group {key!r}; groups: {', '.join(SELECT_GROUPS)}; "
-                             f"or a parameter name such as d_6, anchor_x, base_rz")
+            raise ValueError(f"unknown parameter or group {key!r}; groups: "
+                             f"{', '.join(dict.fromkeys([*SELECT_GROUPS, 'geometric', 'nongeometric', *layout.group_names]))}; "
+                             f"or a parameter name such as {', '.join(names[:2])}, anchor_x, base_rz")
     return out
 
 
@@ -185,22 +192,22 @@ def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> Paramet
     """The parameters a calibration may free, before the identifiability reduction: all DH (+β at
     Hayati joints) — or instead the groups/names in ``free`` — plus the ``extras``, minus ``fix``."""
     flags = extras_flags(extras, measurement)
-    base = ParameterSpace.for_robot(robot, **flags)
+    base = ParameterSpace.for_robot(robot, measurement=measurement, **flags)
     if free is None and not fix:
         return base
-    everything = ParameterSpace.for_robot(robot, anchor=True, tool=True, cable_offset=True, base=True)
-    names = everything.names
+    layout = base.layout
+    names = layout.names
     chosen = set(base.free_names)
-    if free is not None:  # free replaces the DH part; the requested extras stay
-        chosen = _selection(free, names) | {n for n in chosen if group_of(n) in EXTRA_GROUPS}
-    chosen -= _selection(fix, names)
+    if free is not None:  # free replaces the robot part; the requested extras stay
+        chosen = _selection(free, layout) | {n for n in chosen if group_kind(n) == "extra"}
+    chosen -= _selection(fix, layout)
     wrong = sorted(n for n in chosen if group_of(n) in ("anchor", "cable_offset") and measurement.kind != "cable")
     wrong += sorted(n for n in chosen if group_of(n).startswith("base") and measurement.kind == "cable")
     if wrong:
         raise ValueError(f"{', '.join(wrong)} do not apply to {measurement.kind} data")
     if not chosen:
         raise ValueError("no free parameters left after free=/fix=")
-    return ParameterSpace.from_names(robot.dof, [n for n in names if n in chosen])
+    return ParameterSpace.from_names(layout, [n for n in names if n in chosen])
 
 
 def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=()
@@ -219,8 +226,10 @@ def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None
         raise ValueError(f"space must be None, 'identifiable', 'all' or a ParameterSpace, got {space!r}")
     if not isinstance(space, ParameterSpace):
         raise TypeError(f"space must be a ParameterSpace, got {type(space)}")
-    if space.dof != robot.dof:
-        raise ValueError(f"parameter space is for {space.dof} joints but the robot has {robot.dof}")
+    if space.layout != cand.layout:
+        raise ValueError(f"parameter space has groups {list(space.layout.group_names)} for {space.dof} joints, but "
+                         f"robot {robot.name!r} with this measurement has {list(cand.layout.group_names)} for "
+                         f"{robot.dof} joints")
     return space, None
 
 
@@ -339,7 +348,7 @@ def calibrate(
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
     cand = candidate_space(robot, measurement, extras, free, fix)
     flags = {e: any(group_of(n) in SELECT_GROUPS[e] for n in cand.free_names) for e in ("anchor", "cable_offset", "base")}
-    start = Deviations.zeros(robot.dof, q.dtype) if start is None else start.astype(q.dtype)
+    start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:

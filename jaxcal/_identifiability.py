@@ -11,7 +11,7 @@ import jax.scipy.linalg as jsl
 import numpy as np
 
 from ._measurement import MeasurementModel
-from ._params import Deviations, ParameterSpace
+from ._params import Deviations, ParameterSpace, layout_for
 from ._problem import Problem
 from ._robot import DHRobot
 
@@ -37,19 +37,19 @@ def default_rtol(dtype) -> float:
     return 1e-4 if np.dtype(dtype) == np.float32 else 1e-9
 
 
-def _preference_key(name: str) -> tuple[int, int]:
-    from ._params import group_of
+#: where groups missing from :data:`KEEP_PREFERENCE` rank, by kind: other robots' geometric
+#: groups after β, non-geometric groups after them, other extras (e.g. markers) last
+_KIND_RANK = {"geometric": 4.5, "nongeometric": 4.7, "extra": len(KEEP_PREFERENCE)}
+
+
+def _preference_key(name: str) -> tuple[float, int]:
+    from ._params import group_kind, group_of
 
     g = group_of(name)
     tail = name.rsplit("_", 1)[-1]
     order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
-    return KEEP_PREFERENCE.index(g), order
-
-
-def _unit(name: str) -> str:
-    from ._params import group_of
-
-    return "rad" if group_of(name) in ("alpha", "theta", "beta", "base_rotation") else "mm"
+    rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(g)]
+    return rank, order
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,7 +100,8 @@ class IdentifiabilityReport:
                 if not deps:
                     lines.append(f"  {n}: has no effect on the measurements")
                 else:
-                    combo = " ".join(f"{c:+.4g} {_unit(m)}/{_unit(n)}·{m}" for c, m in deps)
+                    unit = dict(zip(self.space.layout.names, self.space.layout.units))
+                    combo = " ".join(f"{c:+.4g} {unit[m]}/{unit[n]}·{m}" for c, m in deps)
                     lines.append(f"  {n}: a change δ acts like {combo}·δ" if len(deps) == 1
                                  else f"  {n}: a change δ acts like ({combo})·δ")
         return "\n".join(lines)
@@ -191,12 +192,12 @@ def identifiability(
     least squares.
     """
     q = jnp.asarray(q)
-    space = ParameterSpace.for_robot(robot) if space is None else space
+    space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
     # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
-    dev0 = Deviations.zeros(robot.dof, q.dtype) if deviations is None else deviations.astype(q.dtype)
+    dev0 = Deviations.zeros(layout_for(robot, measurement), q.dtype) if deviations is None else deviations.astype(q.dtype)
     sample = jnp.asarray(measurement.predict(robot, dev0, q), q.dtype).reshape(q.shape[0], *measurement.sample_shape)
     problem = Problem(robot, measurement, q, sample, space, deviations)
     J = np.asarray(_start_jacobian(problem), dtype=np.float64)

@@ -32,7 +32,7 @@ from ._dataset import _matrix_to_rotvec
 from ._kinematics import fk_position
 from ._measurement import CableLength, MeasurementModel, Pose, Position
 from ._objective import robust_scale
-from ._params import Deviations
+from ._params import Deviations, layout_for
 from ._robot import DHRobot
 
 __all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "kabsch"]
@@ -174,7 +174,7 @@ def initial_extras(
     q, y = (data.q, data.y) if hasattr(data, "q") else data
     q = jnp.asarray(q)
     dtype = q.dtype
-    start = Deviations.zeros(robot.dof, dtype) if start is None else start.astype(dtype)
+    start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
     kind = measurement.kind
     estimate = set(INITIALISABLE[kind] if estimate is None else estimate)
     bad = estimate - set(INITIALISABLE[kind])
@@ -207,9 +207,8 @@ def initial_extras(
             if np.array_equal(new_keep, keep):
                 break
             keep = new_keep
-        dev = Deviations(start.alpha, start.a, start.d, start.theta, start.beta,
-                         jnp.asarray(c - np.asarray(measurement.anchor, np.float64), dtype), start.tool,
-                         jnp.asarray(o, dtype), start.base_rotation, start.base_translation)
+        dev = start.replace(anchor=jnp.asarray(c - np.asarray(measurement.anchor, np.float64), dtype),
+                            cable_offset=jnp.asarray(o, dtype))
         what = []
         if est_anchor:
             what.append(f"anchor ({', '.join(f'{v:.1f}' for v in c)}) mm, {np.linalg.norm(c - anchor0):.1f} mm "
@@ -229,8 +228,7 @@ def initial_extras(
         R0 = np.asarray(measurement.rotation, np.float64)
         t0 = np.asarray(measurement.translation, np.float64)
         w = _matrix_to_rotvec(R @ R0.T)
-        dev = Deviations(start.alpha, start.a, start.d, start.theta, start.beta, start.anchor, start.tool,
-                         start.cable_offset, jnp.asarray(w, dtype), jnp.asarray(t - t0, dtype))
+        dev = start.replace(base_rotation=jnp.asarray(w, dtype), base_translation=jnp.asarray(t - t0, dtype))
         R_guess = _rotvec(start.base_rotation) @ R0
         angle = math.degrees(float(np.linalg.norm(_matrix_to_rotvec(R @ R_guess.T))))
         what = [f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame, "

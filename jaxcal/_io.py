@@ -25,7 +25,7 @@ from ._csvfile import read_table
 from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
-from ._params import Deviations, ParameterSpace
+from ._params import Deviations, ParameterSpace, layout_for
 from ._result import CalibrationResult, Status
 from ._robot import DHRobot
 
@@ -302,8 +302,8 @@ def load_result(path) -> CalibrationResult:
     d = load_result_dict(path)
     robot = robot_from_dict(d["robot"])
     measurement = measurement_from_dict(d["measurement"])
-    dof = robot.dof
-    names = ParameterSpace.for_robot(robot).names
+    layout = layout_for(robot, measurement)
+    names = layout.names
     dev = dict(d["deviations"])
     for n in names:  # files written before the sensor-frame extras existed
         if n.startswith("base_") and n not in dev:
@@ -311,8 +311,8 @@ def load_result(path) -> CalibrationResult:
     missing = [n for n in names if n not in dev]
     if missing:
         raise ValueError(f"{path}: deviations lack {missing}")
-    deviations = Deviations.unravel(jnp.asarray(np.asarray([dev[n] for n in names], np.float64)), dof)
-    space = ParameterSpace.from_names(dof, d["free_names"])
+    deviations = Deviations.unravel(jnp.asarray(np.asarray([dev[n] for n in names], np.float64)), layout)
+    space = ParameterSpace.from_names(layout, d["free_names"])
     extra, predictor = _extra_from_dict(d.get("method_state"))
     tm = d.get("train_metrics_mm", {})
     result = CalibrationResult(
@@ -397,10 +397,10 @@ def load_sweep(out_dir, *, partial: bool = False):
                 float(ch[0][1].get("compile_time_s", 0.0)))
 
     dtype = np.float64 if st["dtype"] == "float64" else np.float32
-    dof = robot.dof
+    layout = layout_for(robot, measurement)
     has_truth = st["source"]["kind"] in ("simulated", "experiment")
     met = Metrics(0.0, 0.0, 0.0)
-    dlike = _DataOut(met, met, Deviations.zeros(dof) if has_truth else None, 0.0,
+    dlike = _DataOut(met, met, Deviations.zeros(layout) if has_truth else None, 0.0,
                      _Split(0.0, 0.0, 0.0, 0.0, None), 0)
     dmerged, _, _ = merge("_data", 0)
     dout = _unflatten(dlike, dmerged)
@@ -418,8 +418,8 @@ def load_sweep(out_dir, *, partial: bool = False):
             compile_time_s=ct, x=out.x, history=out.history, test_errors=out.test_errors,
             stage_ends=_stage_ends(merged),
         )
-    space = ParameterSpace.from_names(dof, st["space"])
-    start = Deviations.unravel(jnp.asarray(np.asarray(st["start_values"], dtype)), dof)
+    space = ParameterSpace.from_names(layout, st["space"])
+    start = Deviations.unravel(jnp.asarray(np.asarray(st["start_values"], dtype)), layout)
     noise = st["noise_std"]
     floor = None if noise is None else statistical_floor(float(noise), space.n_free, int(st["n_train"]),
                                                          measurement.size)

@@ -20,9 +20,34 @@ from jaxtyping import Array, Float
 from ._params import Deviations
 from ._robot import DHRobot
 
-__all__ = ["fk_position", "fk_pose", "tool_point_soa", "check_joint_angles", "rotvec_to_matrix"]
+__all__ = [
+    "fk_position", "fk_pose", "tool_point_soa", "check_joint_angles", "rotvec_to_matrix",
+    "effective_joint_angles", "register_joint_correction",
+]
 
 Vec3 = tuple  # three [n] arrays (or python floats before the first joint)
+
+#: joint-space (non-geometric) error models: group name -> ``fn(robot, deviations, q) -> Δq [n, dof]``
+_JOINT_CORRECTIONS: dict = {}
+
+
+def register_joint_correction(group: str, fn) -> None:
+    """Register a joint-space error model: when a :class:`~jaxcal.Deviations` has the group
+    ``group``, every kinematics kernel uses ``q + fn(robot, deviations, q)`` (``[n, dof]``) as
+    the joint positions. This is how non-geometric errors (compliance, transmission errors)
+    enter the forward kinematics of every robot type."""
+    _JOINT_CORRECTIONS[group] = fn
+
+
+def effective_joint_angles(robot, dev, q: Float[Array, "n dof"]) -> Float[Array, "n dof"]:
+    """``q`` plus every registered joint-space correction whose group ``dev`` has (``q`` itself
+    when there is none, so plain geometric models compute exactly what they did)."""
+    if dev is None:
+        return q
+    for group, fn in _JOINT_CORRECTIONS.items():
+        if group in dev.values:
+            q = q + fn(robot, dev, q)
+    return q
 
 
 def check_joint_angles(robot: DHRobot, q) -> Array:
@@ -60,12 +85,14 @@ def _joint_terms(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"
         alpha, a, d, theta, beta = (
             cast(getattr(robot, g)) + cast(getattr(dev, g)) for g in ("alpha", "a", "d", "theta", "beta")
         )
-    th = q.T + theta[:, None]  # [dof, n], rows contiguous
+    th = effective_joint_angles(robot, dev, q).T + theta[:, None]  # [dof, n], rows contiguous
     return jnp.cos(th), jnp.sin(th), jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta), a, d
 
 
 def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
     """Flange frame as SoA: columns X, Y, Z and origin P, each a triple of ``[n]`` arrays."""
+    if hasattr(robot, "frame_soa"):  # other robot types bring their own kernel
+        return robot.frame_soa(dev, q)
     ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
     X: Vec3 = (1.0, 0.0, 0.0)
     Y: Vec3 = (0.0, 1.0, 0.0)
@@ -115,6 +142,8 @@ def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n do
     and ``jax.jacfwd`` pushes every tangent through the same cheap recursion. Equal to the
     flange frame of :func:`_chain` applied to the point (tested to round-off).
     """
+    if hasattr(robot, "point_in_base"):  # other robot types bring their own kernel
+        return robot.point_in_base(dev, q, point)
     ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
     x, y, z = (point[k] for k in range(3))
     standard = robot.convention == "standard"

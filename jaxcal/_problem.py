@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._measurement import MeasurementModel
-from ._params import Deviations, ParameterSpace
+from ._params import Deviations, ParameterSpace, layout_for
 from ._robot import DHRobot
 
 __all__ = ["Problem", "residual_blocks", "signed_residuals"]
@@ -42,10 +42,13 @@ class Problem(eqx.Module):
         self.measurement = measurement
         self.q = jnp.asarray(q)
         self.y = jnp.asarray(y, dtype=self.q.dtype)
-        self.space = ParameterSpace.for_robot(robot) if space is None else space
-        if self.space.dof != robot.dof:
-            raise ValueError(f"parameter space is for {self.space.dof} joints, robot has {robot.dof}")
-        self.base = Deviations.zeros(robot.dof, self.q.dtype) if base is None else base.astype(self.q.dtype)
+        self.space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
+        layout = layout_for(robot, measurement)
+        if self.space.layout != layout:
+            raise ValueError(f"parameter space has groups {list(self.space.layout.group_names)} for {self.space.dof} "
+                             f"joints, but robot {robot.name!r} with this measurement has {list(layout.group_names)} "
+                             f"for {robot.dof} joints")
+        self.base = Deviations.zeros(layout, self.q.dtype) if base is None else base.astype(self.q.dtype)
 
     @property
     def n_samples(self) -> int:

@@ -131,6 +131,13 @@ class DHRobot(eqx.Module):
             name=name,
         )
 
+    def error_groups(self) -> tuple:
+        """The robot's calibratable groups: DH deviations α, a, d, θ, β (``[dof]`` each; see
+        :func:`jaxcal._params.layout_for` for the full layout with the sensor extras)."""
+        from ._params import Layout
+
+        return Layout.dh(self.dof).groups[:5]
+
     def with_hayati(self, *joints: int) -> DHRobot:
         """A copy with Hayati's β enabled at the given 1-based joints (β stays 0 nominally)."""
         merged = tuple(sorted(set(self.beta_joints) | {int(j) for j in joints}))

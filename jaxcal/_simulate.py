@@ -12,7 +12,7 @@ from jaxtyping import Array, Float
 from ._dataset import Dataset
 from ._kinematics import tool_point_soa
 from ._measurement import CableLength, MeasurementModel, Position
-from ._params import Deviations
+from ._params import Deviations, Layout, layout_for
 from ._precision import warn_if_float32
 from ._robot import DHRobot
 
@@ -88,15 +88,29 @@ def draw_deviations(
     """Random "true" deviations: Gaussian DH errors (and optional sensor extras).
 
     β is drawn only at the robot's Hayati joints. Magnitudes default to those of the paper's
-    Table V (tenths of a degree; tenths of a mm to ~2 mm).
+    Table V (tenths of a degree; tenths of a mm to ~2 mm). A robot that is not a plain DH
+    table (a generic chain) gets every geometric entry its ``free_by_default`` allows drawn
+    with ``angle_std_deg`` (rad entries) or ``length_std_mm`` (mm entries); non-geometric
+    groups stay zero.
     """
     dtype = dtype or jnp.result_type(float)
     k = jax.random.split(key, 8)
     dof = robot.dof
     ang = math.radians(angle_std_deg)
     n = lambda kk, shape, s: s * jax.random.normal(kk, shape, dtype)  # noqa: E731
+    layout = layout_for(robot)
+    if layout.groups[:5] != Layout.dh(dof).groups[:5]:
+        vals = {"anchor": n(k[5], (3,), anchor_std_mm), "tool": n(k[6], (3,), tool_std_mm),
+                "cable_offset": n(k[7], (), cable_offset_std_mm)}
+        allow = getattr(robot, "free_by_default", lambda name: True)
+        geo = [g for g in layout.groups if g.kind == "geometric"]
+        for kk, g in zip(jax.random.split(k[0], len(geo)), geo):
+            std = jnp.asarray([(ang if u == "rad" else length_std_mm if u == "mm" else 0.0) * bool(allow(nm))
+                               for nm, u in zip(g.names, g.units)], dtype).reshape(g.shape)
+            vals[g.name] = std * jax.random.normal(kk, g.shape, dtype)
+        return Deviations(vals, layout)
     beta_on = jnp.asarray([(j + 1) in robot.beta_joints for j in range(dof)], dtype)
-    return Deviations(
+    return Deviations.from_dh(
         alpha=n(k[0], (dof,), ang),
         a=n(k[1], (dof,), length_std_mm),
         d=n(k[2], (dof,), length_std_mm),

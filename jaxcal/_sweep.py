@@ -56,7 +56,7 @@ from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel
 from ._metrics import Floor, Metrics, compute_metrics, statistical_floor
 from ._objective import LOSSES, Objective, resolve_prior
-from ._params import Deviations, ParameterSpace
+from ._params import Deviations, ParameterSpace, layout_for
 from ._precision import cast_floating, dtype_scope, warn_if_float32
 from ._problem import Problem
 from ._robot import DHRobot
@@ -839,7 +839,7 @@ def sweep(
     specs = _method_specs(methods, hyperparameters, grid)
     source, robot, measurement, source_settings = _make_source(
         robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype)
-    start = Deviations.zeros(robot.dof, dtype) if start is None else start.astype(dtype)
+    start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
     devs = _resolve_devices(devices)
     mesh = Mesh(np.asarray(devs), ("trials",)) if len(devs) > 1 else None
     if batching not in ("auto", "vmap", "map"):
@@ -917,7 +917,7 @@ def sweep(
     #    before-calibration and oracle metrics, the true deviations
     _progress(progress, f"{n_seeds} trial(s) in chunks of {csize} = {len(devs)} device(s) × {per_device} "
               f"({'lax.map' if sequential else 'vmap'})")
-    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot), keep_errors)
+    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot, measurement=measurement), keep_errors)
     units_run: dict[str, _Runner] = {}
     dmerged, _, _, dchunks = run_unit("_data", dtrial, None, _fingerprint(common | {"unit": "data"}), None,
                                       lambda c, a, b: (trial_keys(base_key, a, a + csize),))

@@ -251,7 +251,7 @@ def check_best_so_far(runs, name, b):
 def check_bad_start(runs, name, b):
     """A start far from the robot (25° twists, 400 mm links, −40° offsets): never a silent NaN —
     finite parameters always, finite history and metrics unless the status says DIVERGED."""
-    flat = np.zeros(5 * 6 + 7)
+    flat = np.zeros(jaxcal._params.Layout.dh(6).size)
     flat[:6] = np.deg2rad(25.0)  # alpha
     flat[6:12] = 400.0  # a (mm)
     flat[18:24] = np.deg2rad(-40.0)  # theta

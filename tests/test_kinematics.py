@@ -21,7 +21,7 @@ def _random_dev(robot, seed=1, scale=1.0):
     rng = np.random.default_rng(seed)
     f = lambda *s: jnp.asarray(scale * rng.normal(size=s))  # noqa: E731
     dof = robot.dof
-    return Deviations(1e-2 * f(dof), f(dof), f(dof), 1e-2 * f(dof), 1e-2 * f(dof), f(3), f(3), f())
+    return Deviations.from_dh(1e-2 * f(dof), f(dof), f(dof), 1e-2 * f(dof), 1e-2 * f(dof), f(3), f(3), f())
 
 
 def _ref(robot, q, dev=None, tool=True):
@@ -80,7 +80,7 @@ def test_hayati_beta_zero_equals_dh():
     hay = base.with_hayati(2, 3)
     q = jnp.asarray(_random_q(base, 50))
     dev = _random_dev(base)
-    dev_no_beta = Deviations(dev.alpha, dev.a, dev.d, dev.theta, jnp.zeros(6), dev.anchor, dev.tool, dev.cable_offset)
+    dev_no_beta = dev.replace(beta=jnp.zeros(6))
     np.testing.assert_array_equal(np.asarray(fk_pose(hay, q, dev_no_beta)), np.asarray(fk_pose(base, q, dev_no_beta)))
 
 

@@ -25,8 +25,8 @@ def test_cable_length_exact_3_4_5():
 def test_cable_extras_closed_form():
     r = _one_link()
     dev = Deviations.zeros(1)
-    dev = Deviations(dev.alpha, dev.a, dev.d, dev.theta, dev.beta, jnp.asarray([0.0, 0.0, 100.0]),
-                     jnp.asarray([0.0, 0.0, 200.0]), jnp.asarray(-12.5))
+    dev = dev.replace(anchor=jnp.asarray([0.0, 0.0, 100.0]), tool=jnp.asarray([0.0, 0.0, 200.0]),
+                      cable_offset=jnp.asarray(-12.5))
     # anchor moves to (0,0,100), tool to flange + (0,0,200): point (300,0,600), offset -12.5
     L = CableLength(jnp.zeros(3)).predict(r, dev, jnp.zeros((1, 1)))
     np.testing.assert_allclose(np.asarray(L), [np.hypot(300.0, 500.0) - 12.5], rtol=1e-15)
@@ -68,15 +68,21 @@ def test_measurement_shape_checks():
 
 
 def test_deviations_ravel_roundtrip():
-    dev = Deviations(*(jnp.arange(k, k + s, dtype=float) for k, s in
-                       [(0, 6), (10, 6), (20, 6), (30, 6), (40, 6), (50, 3), (60, 3), (70, 1), (80, 3), (90, 3)]))
-    dev = Deviations(dev.alpha, dev.a, dev.d, dev.theta, dev.beta, dev.anchor, dev.tool, dev.cable_offset[0],
-                     dev.base_rotation, dev.base_translation)
+    parts = [jnp.arange(k, k + s, dtype=float) for k, s in
+             [(0, 6), (10, 6), (20, 6), (30, 6), (40, 6), (50, 3), (60, 3), (70, 1), (80, 3), (90, 3)]]
+    parts[7] = parts[7][0]
+    dev = Deviations.from_dh(*parts)
     flat = dev.ravel()
     assert flat.shape == (43,)
+    np.testing.assert_array_equal(np.asarray(flat[:6]), np.arange(6.0))  # DH layout order: alpha first
+    np.testing.assert_array_equal(np.asarray(flat[37:]), [80, 81, 82, 90, 91, 92])
     back = Deviations.unravel(flat, 6)
-    for a, b in zip(jaxcal.Deviations.__dataclass_fields__, jaxcal.Deviations.__dataclass_fields__):
-        np.testing.assert_array_equal(np.asarray(getattr(back, a)), np.asarray(getattr(dev, b)))
+    for g, _ in jaxcal._params.GROUPS:
+        np.testing.assert_array_equal(np.asarray(getattr(back, g)), np.asarray(getattr(dev, g)))
+    # a batch of deviations ravels/unravels along the last axis
+    batch = Deviations.unravel(jnp.stack([flat, 2 * flat]), 6)
+    assert batch.alpha.shape == (2, 6) and batch.cable_offset.shape == (2,)
+    np.testing.assert_array_equal(np.asarray(batch.ravel()[1]), 2 * np.asarray(flat))
 
 
 def test_parameter_space_maps(robot):

@@ -22,8 +22,8 @@ def _quiet(fn, *a, **k):
 
 def _true_extras_start(true: Deviations) -> Deviations:
     z = Deviations.zeros(true.dof, true.anchor.dtype)
-    return Deviations(z.alpha, z.a, z.d, z.theta, z.beta, true.anchor, z.tool, true.cable_offset,
-                      true.base_rotation, true.base_translation)
+    return z.replace(anchor=true.anchor, cable_offset=true.cable_offset, base_rotation=true.base_rotation,
+                     base_translation=true.base_translation)
 
 
 @pytest.fixture(scope="module")
