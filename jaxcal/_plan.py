@@ -172,7 +172,8 @@ def _generic_space(robot, measurement, space=None) -> ParameterSpace:
     from ._simulate import sample_joint_angles
 
     q = sample_joint_angles(jax.random.key(12), robot, 512, dtype=jnp.result_type(float))
-    return _identifiable_space(robot, measurement, ParameterSpace.for_robot(robot) if space is None else space, q)
+    space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
+    return _identifiable_space(robot, measurement, space, q)
 
 
 def observability_indices(
@@ -416,7 +417,7 @@ def _setup(robot, measurement, candidates, space, prior, noise_std):
     q = np.asarray(candidates, np.float64)
     if q.ndim != 2 or q.shape[1] != robot.dof:
         raise ValueError(f"candidates must be [N, {robot.dof}] joint angles (rad), got shape {q.shape}")
-    base = ParameterSpace.for_robot(robot) if space is None else space
+    base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     space = _identifiable_space(robot, measurement, base, q)
     J = planning_jacobian(robot, measurement, q, space)
     rows = J.shape[0] * J.shape[1]
@@ -613,7 +614,7 @@ def predicted_accuracy(
     ``benchmarks/bench_plan.py``).
     """
     q = np.asarray(q, np.float64)
-    base = ParameterSpace.for_robot(robot) if space is None else space
+    base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     space = _identifiable_space(robot, measurement, base, q)
     J = planning_jacobian(robot, measurement, q, space).reshape(-1, space.n_free)
     cov = _covariance(J, noise_std, _prior_precision(space, prior))
