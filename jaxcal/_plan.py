@@ -117,9 +117,9 @@ def indices_from_jacobian(J, scale=None) -> ObservabilityIndices:
 
     ``scale`` ``[p]``: the column scales ``s`` (``J_s = J/s``); default the set's own column
     RMS ``‖J_j‖/√N`` (columns of zero norm get scale 1). Pass common scales (e.g.
-    :attr:`PoseSelection.scale`) to compare different pose sets. With the default scaling
-    repeating every pose of a set leaves all indices but O3/O4/O5 unchanged... and O1 exactly
-    unchanged (the normalisation by √N).
+    :attr:`PoseSelection.scale`) to compare different pose sets. Measuring every pose of a set
+    twice multiplies each σ_i by √2 (with either scaling): O1 (normalised by √N) and O2 do not
+    change, O3, O4 and O5 (not normalised) grow by √2.
     """
     J = np.asarray(J, np.float64)
     J = J.reshape(-1, J.shape[-1])

@@ -720,7 +720,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--wire-range", metavar="LO,HI", help="draw-wire length window, mm (default 0.05–1.2 × reach)")
     pl.add_argument("--box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="workspace box for the tool point, mm (base frame)")
     pl.add_argument("--tracker", metavar="X,Y,Z", help="tracker position, mm: keep poses inside its line-of-sight cone")
-    pl.add_argument("--tracker-axis", default="0,0,1", metavar="X,Y,Z", help="the cone's axis (default 0,0,1)")
+    pl.add_argument("--tracker-axis", default="0,0,1", metavar="X,Y,Z",
+                    help="the cone's axis (default 0,0,1; a leading minus needs the = form: --tracker-axis=-1,0,0)")
     pl.add_argument("--cone-deg", type=float, default=60.0, help="the cone's half angle, degrees (default 60)")
     pl.add_argument("--seed", type=int, default=0, help="seed of the candidates and the random comparison (default 0)")
     pl.add_argument("--out", required=True, metavar="POSES.csv", help="CSV file to write the selected poses to")
