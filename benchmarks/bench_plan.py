@@ -25,6 +25,7 @@ Run: ``python benchmarks/bench_plan.py [--seeds 20 --candidates 20000]``.
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import time
 import warnings
@@ -95,9 +96,12 @@ def main() -> None:
     times["relaxation (500 multiplicative steps)"] = (time.perf_counter() - t, 0)
     c2 = np.asarray(jaxcal.candidate_poses(jax.random.key(0), robot, meas, args.candidates))
     same = np.array_equal(jaxcal.select_poses(robot, meas, c2, 100).index, s.index)
+    load = os.getloadavg()[0]
     lines += [f"## 1. Selection time: 100 of {args.candidates:,} candidates (after compilation, median of 5)",
               "", "Whole call: identifiable subset (pivoted QR) and Jacobians of all candidates (`jacfwd` on the "
-              "batch), then the selection.", "", "| selection | time / s | exchange iterations |", "|---|---|---|"]
+              "batch), then the selection. 1-minute load average while timing: "
+              f"{load:.1f} on 2 cores (> 2: other jobs were running and the times are inflated).",
+              "", "| selection | time / s | exchange iterations |", "|---|---|---|"]
     lines += [f"| {k} | {v:.3f} | {n} |" for k, (v, n) in times.items()]
     lines += ["", f"Reproducible from the seed: candidates regenerated from key 0 give the identical selection: "
               f"**{same}**.", ""]
