@@ -274,25 +274,30 @@ def _objective(M, criterion: str, W):
     return -jnp.trace(W @ Minv)
 
 
-def _deltas(Minv, M, Jc, sign, criterion: str, W):
-    """Change of the criterion when ``M → M + sign·J_kᵀJ_k`` for every ``k`` (``Jc`` ``[K, m, p]``),
+def _delta_one(Jk, Minv, W, v_min, *, sign: float, criterion: str):
+    """Change of the criterion when ``M → M + sign·J_kᵀJ_k`` for one candidate ``J_k`` ``[m, p]``,
     by the matrix determinant lemma / Woodbury identity (exact for D, A, I; first order for E)."""
-    m = Jc.shape[1]
-    B = jnp.einsum("kap,pq->kaq", Jc, Minv)  # J_k M⁻¹
-    K = jnp.einsum("kaq,kbq->kab", B, Jc)  # J_k M⁻¹ J_kᵀ  [K, m, m]
-    A = jnp.eye(m, dtype=Jc.dtype) + sign * K
+    m = Jk.shape[0]
+    B = Jk @ Minv  # J_k M⁻¹  [m, p]
+    A = jnp.eye(m, dtype=Jk.dtype) + sign * B @ Jk.T  # I + sign·J_k M⁻¹ J_kᵀ
     if criterion == "D":
         if m == 1:
-            return jnp.log(jnp.maximum(A[:, 0, 0], 1e-300))
+            return jnp.log(jnp.maximum(A[0, 0], 1e-300))
         sgn, logdet = jnp.linalg.slogdet(A)
         return jnp.where(sgn > 0, logdet, -jnp.inf)
     if criterion == "E":
-        _, V = jnp.linalg.eigh(M)
-        return sign * jnp.sum(jnp.einsum("kap,p->ka", Jc, V[:, 0]) ** 2, axis=1)
-    C = jnp.einsum("kap,pq,kbq->kab", B, W, B)  # J_k M⁻¹ W M⁻¹ J_kᵀ
+        return sign * jnp.sum((Jk @ v_min) ** 2)
+    C = B @ W @ B.T  # J_k M⁻¹ W M⁻¹ J_kᵀ
     if m == 1:
-        return sign * C[:, 0, 0] / A[:, 0, 0]
-    return sign * jnp.trace(jnp.linalg.solve(A, C), axis1=1, axis2=2)
+        return sign * C[0, 0] / A[0, 0]
+    return sign * jnp.trace(jnp.linalg.solve(A, C))
+
+
+def _deltas(Minv, M, Jc, sign, criterion: str, W):
+    """:func:`_delta_one` for every candidate of ``Jc`` ``[K, m, p]`` at once (``jax.vmap``)."""
+    v_min = jnp.linalg.eigh(M)[1][:, 0] if criterion == "E" else jnp.zeros(M.shape[0], M.dtype)
+    one = functools.partial(_delta_one, sign=sign, criterion=criterion)
+    return jax.vmap(one, in_axes=(0, None, None, None))(Jc, Minv, W, v_min)
 
 
 def _woodbury(Minv, Jk, sign):
