@@ -457,7 +457,7 @@ def select_poses(
        column-scaled (module docstring).
     2. Greedy selection: starting from the prior information ``Λ`` (``prior``, weighed against
        ``noise_std`` mm; without a prior ``ε·I`` so that the first picks are defined), add the
-       candidate with the largest gain, for every candidate at once (``[N]`` vectorised): D:
+       candidate with the largest gain, every candidate scored at once (``jax.vmap``): D:
        ``log det(I_m + J_k M⁻¹ J_kᵀ)`` (matrix determinant lemma); A / I: the decrease of
        ``tr(W M⁻¹)`` by the Woodbury identity (``W = I`` / the workspace average
        ``mean_t J_tᵀJ_t``); E: the first-order increase ``‖J_k v_min‖²`` of ``λ_min(M)``.
