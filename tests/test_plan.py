@@ -245,3 +245,17 @@ def test_cli_plan_candidates_file_and_plot(tmp_path):
     assert main(["--no-cache", "plan", "--robot", "hsr_jr680", "--poses", "25", "--candidates", str(cand),
                  "--out", str(tmp_path / "p2.csv"), "--plot", str(png)]) == 0
     assert png.exists() and png.stat().st_size > 1000
+
+
+def test_prior_information_tightens_the_prediction(hsr):
+    robot, meas, cand = hsr
+    q = np.asarray(cand[:30])  # few poses: the prior matters
+    plain = jaxcal.predicted_accuracy(robot, meas, q, 0.5, q_test=cand[-500:])
+    prior = jaxcal.predicted_accuracy(robot, meas, q, 0.5, q_test=cand[-500:], prior="default")
+    assert prior.names == plain.names
+    assert np.all(prior.param_std <= plain.param_std + 1e-15) and prior.test_rmse < plain.test_rmse
+    std = jaxcal.Prior().std(jaxcal.ParameterSpace.from_names(robot.dof, prior.names))
+    assert np.all(prior.param_std < std)
+    # selection with the prior as the starting information: still n distinct poses
+    sel = jaxcal.select_poses(robot, meas, cand, 20, prior="default", exchange=False)
+    assert len(set(sel.index.tolist())) == 20
