@@ -8,6 +8,8 @@ Subcommands (``jaxcal SUBCOMMAND --help`` explains units and file formats):
 * ``jaxcal simulate --out data.csv``: a simulated draw-wire (or position) data set to try
   ``calibrate`` on.
 * ``jaxcal report SWEEP_DIR``: tables and figures again from a finished (or interrupted) sweep.
+* ``jaxcal plan --poses N --out poses.csv``: which poses to measure, their observability indices and
+  the predicted accuracy, before measuring.
 
 Errors in the input (unknown robot or method, bad CSV, too few samples) print one line on
 stderr and exit with status 2; a failed calibration exits with status 1.
@@ -521,6 +523,86 @@ def _cmd_report(args) -> int:
 # -- parser ---------------------------------------------------------------------------------------------
 
 
+# -- plan -------------------------------------------------------------------------------------------
+
+
+def _cmd_plan(args) -> int:
+    """Which poses to measure: candidates, selection, indices, predicted accuracy (issue 12)."""
+    import jax
+    import numpy as np
+
+    from . import _plan
+
+    robot = _robot(args.robot)
+    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
+    measurement = _measurement(args.measurement, anchor, robot)
+    if args.poses < 1:
+        raise _Usage(f"--poses must be at least 1, got {args.poses}")
+    if not (args.noise_std > 0 and math.isfinite(args.noise_std)):
+        raise _Usage(f"--noise-std must be a finite number > 0 (mm), got {args.noise_std}")
+    key = jax.random.key(args.seed)
+    k_cand, k_test, k_perm = jax.random.split(key, 3)
+    filters = {}
+    if args.wire_range:
+        filters["wire_range_mm"] = tuple(_floats(args.wire_range, 2, "--wire-range"))
+    if args.box:
+        b = _floats(args.box, 6, "--box")
+        filters["box_mm"] = (b[:3], b[3:])
+    if args.tracker:
+        filters["tracker_mm"] = _floats(args.tracker, 3, "--tracker")
+        filters["tracker_axis"] = _floats(args.tracker_axis, 3, "--tracker-axis")
+        filters["cone_half_angle_deg"] = args.cone_deg
+    spec = args.candidates
+    if spec.isdigit():
+        cand = np.asarray(_plan.candidate_poses(k_cand, robot, measurement, int(spec), **filters))
+        source = f"{int(spec)} random candidates within the joint limits and the sensor's range (seed {args.seed})"
+    else:
+        if not pathlib.Path(spec).exists():
+            raise _Usage(f"--candidates: {spec!r} is neither a number nor an existing file")
+        cand = _plan.load_joint_angles(spec, robot.dof)
+        source = f"{cand.shape[0]} candidates from {spec}"
+    if args.poses > cand.shape[0]:
+        raise _Usage(f"--poses {args.poses} is more than the {cand.shape[0]} candidates")
+    sel = _plan.select_poses(robot, measurement, cand, args.poses, criterion=args.criterion,
+                             exchange=not args.no_exchange, noise_std=args.noise_std)
+    q_test = _plan.candidate_poses(k_test, robot, measurement, 2000, **filters)
+    pred = _plan.predicted_accuracy(robot, measurement, sel.q, args.noise_std, q_test=q_test)
+    rnd_idx = np.asarray(jax.random.permutation(k_perm, cand.shape[0]))[: args.poses]
+    rnd = _plan.predicted_accuracy(robot, measurement, cand[rnd_idx], args.noise_std, q_test=q_test)
+    rnd_ind = _plan.indices_from_jacobian(
+        _plan.planning_jacobian(robot, measurement, cand[rnd_idx], sel.space), sel.scale)
+    meta = [("source", "jaxcal plan"), ("robot", robot.name), ("planned_poses", args.poses),
+            ("criterion", f"{args.criterion}-optimal ({sel.method})"), ("seed", args.seed),
+            ("predicted_test_rmse_mm", f"{pred.test_rmse:.4f}"), ("noise_std_mm", args.noise_std)]
+    if args.measurement == "cable":
+        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
+    _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
+          f"for {len(sel.space.free_names)} identifiable parameters")
+    rows = [["selected", *[f"{v:.4g}" for v in (sel.indices.o1, sel.indices.o2, sel.indices.o3, sel.indices.o4,
+                                                 sel.indices.o5)], f"{pred.test_rmse:.4f}"],
+            ["random", *[f"{v:.4g}" for v in (rnd_ind.o1, rnd_ind.o2, rnd_ind.o3, rnd_ind.o4, rnd_ind.o5)],
+             f"{rnd.test_rmse:.4f}"]]
+    print("\n| poses | O1 (D) | O2 (1/cond) | O3 (σ_min) | O4 (noise ampl.) | O5 | predicted test RMSE / mm |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print("| " + " | ".join(r) + " |")
+    print(f"\n(indices of the column-scaled Jacobian; {args.poses} random poses for comparison; test RMSE over 2000 "
+          f"random workspace poses, σ = {args.noise_std:g} mm)\n")
+    print(pred.table())
+    print(f"\nwrote {sel.n} poses to {args.out}: fill in the {measurement.kind} readings, then "
+          f"`jaxcal calibrate {args.out} --robot {args.robot} --measurement {args.measurement}`")
+    if args.plot:
+        top = min(cand.shape[0], max(4 * args.poses, 100))
+        ns = sorted({int(round(v)) for v in np.geomspace(max(len(sel.space.free_names) + 2, 5), top, 12)})
+        curve = _plan.accuracy_curve(robot, measurement, cand, ns, args.noise_std, q_test=q_test,
+                                     criterion=args.criterion, key=k_perm)
+        fig = curve.plot()
+        fig.savefig(args.plot, dpi=120)
+        print(f"wrote the predicted RMSE-vs-poses curve to {args.plot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     p = argparse.ArgumentParser(
@@ -651,6 +733,42 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--partial", action="store_true", help="use the trials finished so far of an interrupted sweep")
     rp.add_argument("--no-figures", action="store_true", help="skip the figures")
     rp.set_defaults(func=_cmd_report)
+
+    pl = sub.add_parser(
+        "plan", formatter_class=fmt, help="choose the poses to measure and predict the accuracy (before measuring)",
+        description="Measurement planning: draw candidate poses within the joint limits and the sensor's range "
+                    "(or read them), select --poses of them (greedy D/A/E/I-optimal selection with rank-m updates, "
+                    "then a DETMAX exchange), print the observability indices O1-O5 and the predicted test RMSE "
+                    "and per-parameter σ (linearised covariance σ²(JᵀJ)⁻¹; no measurement needed), and write the "
+                    "poses as a data file with empty reading columns.",
+        epilog="O1 = (σ1⋯σp)^(1/p)/√N (Borm & Menq 1991, D-optimality), O2 = σp/σ1 (inverse condition number, "
+               "Driels & Pathre 1990), O3 = σp (Nahvi et al. 1994), O4 = σp²/σ1 (noise amplification, Nahvi & "
+               "Hollerbach 1996), O5 = 1/Σ(1/σi) (Sun & Hollerbach 2008), of the column-scaled identification "
+               "Jacobian on the identifiable parameters.\n\n" + _ROBOT_FORMAT,
+    )
+    pl.add_argument("--robot", default="hsr_jr680", help="preset name or DH table CSV file (default hsr_jr680)")
+    pl.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
+                    help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable)")
+    pl.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
+    pl.add_argument("--poses", type=int, required=True, help="number of poses to select")
+    pl.add_argument("--candidates", default="20000", metavar="FILE|N",
+                    help="number of random candidate poses (default 20000) or a CSV file with q1_deg…qN_deg columns")
+    pl.add_argument("--criterion", choices=("D", "A", "E", "I"), default="D",
+                    help="D: max det (default); A: min trace of the covariance (scaled units); E: max smallest "
+                         "eigenvalue (greedy to first order); I: min the average prediction variance over the "
+                         "candidate workspace (the predicted test error)")
+    pl.add_argument("--no-exchange", action="store_true", help="greedy selection only (no DETMAX exchange)")
+    pl.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
+    pl.add_argument("--wire-range", metavar="LO,HI", help="draw-wire length window, mm (default 0.05–1.2 × reach)")
+    pl.add_argument("--box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="workspace box for the tool point, mm (base frame)")
+    pl.add_argument("--tracker", metavar="X,Y,Z", help="tracker position, mm: keep poses inside its line-of-sight cone")
+    pl.add_argument("--tracker-axis", default="0,0,1", metavar="X,Y,Z",
+                    help="the cone's axis (default 0,0,1; a leading minus needs the = form: --tracker-axis=-1,0,0)")
+    pl.add_argument("--cone-deg", type=float, default=60.0, help="the cone's half angle, degrees (default 60)")
+    pl.add_argument("--seed", type=int, default=0, help="seed of the candidates and the random comparison (default 0)")
+    pl.add_argument("--out", required=True, metavar="POSES.csv", help="CSV file to write the selected poses to")
+    pl.add_argument("--plot", metavar="FILE.png", help="also draw predicted test RMSE vs number of poses (selected vs random)")
+    pl.set_defaults(func=_cmd_plan)
     return p
 
 
