@@ -25,6 +25,7 @@ from ._csvfile import read_table
 from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
+from ._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from ._params import Deviations, ParameterSpace, layout_for
 from ._result import CalibrationResult, Status
 from ._robot import DHRobot
@@ -57,7 +58,10 @@ def robot_to_dict(robot: DHRobot) -> dict:
     if not isinstance(robot, DHRobot):
         from ._urdf import chain_to_dict
 
-        return chain_to_dict(robot)
+        out = chain_to_dict(robot)
+        if (ng := nongeometric_to_dict(robot)) is not None:
+            out["nongeometric"] = ng
+        return out
     deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
     return {
         "name": robot.name,
@@ -71,6 +75,7 @@ def robot_to_dict(robot: DHRobot) -> dict:
         "q_min_deg": deg(robot.q_min),
         "q_max_deg": deg(robot.q_max),
         "tool_mm": np.asarray(robot.tool, np.float64).tolist(),
+        **({"nongeometric": ng} if (ng := nongeometric_to_dict(robot)) is not None else {}),
     }
 
 
@@ -79,13 +84,14 @@ def robot_from_dict(d: dict) -> DHRobot:
     if d.get("type") == "serial_chain":
         from ._urdf import chain_from_dict
 
-        return chain_from_dict(d)
-    return DHRobot.from_degrees(
+        return nongeometric_from_dict(chain_from_dict(d), d.get("nongeometric"))
+    robot = DHRobot.from_degrees(
         alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
         q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),
         beta_deg=d.get("beta_deg"), convention=d.get("convention", "standard"),
         beta_joints=d.get("beta_joints", ()), name=d.get("name", "robot"),
     )
+    return nongeometric_from_dict(robot, d.get("nongeometric"))  # compliance / harmonic models
 
 
 _DH_COLUMNS = ("alpha_deg", "a_mm", "d_mm", "theta_deg")

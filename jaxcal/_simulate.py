@@ -110,7 +110,7 @@ def draw_deviations(
             vals[g.name] = std * jax.random.normal(kk, g.shape, dtype)
         return Deviations(vals, layout)
     beta_on = jnp.asarray([(j + 1) in robot.beta_joints for j in range(dof)], dtype)
-    return Deviations.from_dh(
+    out = Deviations.from_dh(
         alpha=n(k[0], (dof,), ang),
         a=n(k[1], (dof,), length_std_mm),
         d=n(k[2], (dof,), length_std_mm),
@@ -120,6 +120,7 @@ def draw_deviations(
         tool=n(k[6], (3,), tool_std_mm),
         cable_offset=n(k[7], (), cable_offset_std_mm),
     )
+    return out if layout == out.layout else Deviations(out.values, layout)  # + zero non-geometric groups
 
 
 def check_simulation_settings(n_samples: int, test_fraction: float, noise_std: float, oversample: float) -> None:
