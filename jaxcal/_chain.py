@@ -51,6 +51,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
+
 __all__ = ["SerialChain", "GEOMETRIC_GROUPS", "rpy_matrix", "matrix_rpy"]
 
 JOINT_TYPES = ("revolute", "prismatic")
@@ -187,7 +189,7 @@ def _dev_get(dev, name: str):
     return getattr(dev, name, None)
 
 
-class SerialChain(eqx.Module):
+class SerialChain(NonGeometricMixin, eqx.Module):
     """A serial chain of revolute and prismatic joints (see the module docstring for the model).
 
     Build it with :func:`jaxcal.load_urdf`, :func:`jaxcal.chain_from_dh` or
@@ -210,6 +212,8 @@ class SerialChain(eqx.Module):
         urdf: the URDF text the chain was loaded from, for export and result files (static).
         dh: ``(convention, alpha, a, d, theta, beta, beta_joints)`` of the DH table the chain was
             built from (static, rad / mm), or ``None``.
+        nongeometric: joint compliance / harmonic transmission-error models
+            (:meth:`with_compliance`, :meth:`with_harmonics`; :mod:`jaxcal._nongeometric`), or ``None``.
     """
 
     origin_R: Float[Array, "dof 3 3"]
@@ -232,6 +236,7 @@ class SerialChain(eqx.Module):
     name: str = eqx.field(static=True, default="chain")
     urdf: str | None = eqx.field(static=True, default=None)
     dh: tuple | None = eqx.field(static=True, default=None)
+    nongeometric: NonGeometric | None = None
 
     @classmethod
     def build(
@@ -318,7 +323,7 @@ class SerialChain(eqx.Module):
         for g, unit in GEOMETRIC_GROUPS:
             units = self.joint_units() if unit == "rad|mm" else unit
             out.append(Group.per_joint(g, self.dof, units, kind="geometric"))
-        return tuple(out)
+        return tuple(out) + nongeometric_groups(self)
 
     def free_by_default(self, entry_name: str) -> bool:
         """``drz`` at a revolute joint duplicates the joint offset: never free by default."""

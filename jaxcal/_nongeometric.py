@@ -232,22 +232,22 @@ def _serial_chain_frames(chain, q):
     ``flange_R``, ``flange_t``, ``prismatic``): per joint the axis (``z`` of the joint frame
     before motion, through its origin) and the joint frame after motion (the body moved by the
     joint, where ``chain.com`` lives); plus the tip link frame. Dense 3×3 products (host
-    constants), the same recursion as ``SerialChain.frame_soa`` without deviations."""
+    constants when concrete, traced when the chain is a jit argument), the same recursion as
+    ``SerialChain.frame_soa`` without deviations."""
     n = q.shape[0]
     dtype = q.dtype
-    R = np.asarray(chain.origin_R, np.float64)
-    t = np.asarray(chain.origin_t, np.float64)
+    R = jnp.asarray(chain.origin_R).astype(dtype)
+    t = jnp.asarray(chain.origin_t).astype(dtype)
     one, zero = jnp.ones((n,), dtype), jnp.zeros((n,), dtype)
     cols = ((one, zero, zero), (zero, one, zero), (zero, zero, one))
     P = (zero, zero, zero)
 
-    def mul(cols, M):  # F ← F·M for a constant 3×3 M
-        return tuple(tuple(sum(cols[m][k] * float(M[m, c]) for m in range(3) if M[m, c] != 0.0)
-                           for k in range(3)) for c in range(3))  # a rotation has no zero column
+    def mul(cols, M):  # F ← F·M for a 3×3 M
+        return tuple(tuple(sum(cols[m][k] * M[m, c] for m in range(3)) for k in range(3)) for c in range(3))
 
     axes, frames = [], []
     for i in range(chain.dof):
-        P = tuple(P[k] + sum(cols[m][k] * float(t[i, m]) for m in range(3)) for k in range(3))
+        P = tuple(P[k] + sum(cols[m][k] * t[i, m] for m in range(3)) for k in range(3))
         X, Y, Z = mul(cols, R[i])
         axes.append((P, Z))
         if chain.prismatic[i]:
@@ -257,9 +257,9 @@ def _serial_chain_frames(chain, q):
             X, Y = _rot(X, Y, c, s_)
         cols = (X, Y, Z)
         frames.append((X, Y, Z, P))
-    ft = np.asarray(chain.flange_t, np.float64)
-    P = tuple(P[k] + sum(cols[m][k] * float(ft[m]) for m in range(3)) for k in range(3))
-    tip = (*mul(cols, np.asarray(chain.flange_R, np.float64)), P)
+    ft = jnp.asarray(chain.flange_t).astype(dtype)
+    P = tuple(P[k] + sum(cols[m][k] * ft[m] for m in range(3)) for k in range(3))
+    tip = (*mul(cols, jnp.asarray(chain.flange_R).astype(dtype)), P)
     return axes, frames, tip
 
 
