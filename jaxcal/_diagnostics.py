@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._objective import robust_factor, robust_scale
-from ._params import EXTRA_GROUPS, group_of
+from ._params import group_kind
 from ._problem import signed_residuals
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
@@ -236,7 +236,7 @@ def implausible_deviations(names, units, values, checks: Checks) -> tuple:
     wrapped degrees; non-finite values always count."""
     out = []
     for n, u, v in zip(names, units, values):
-        if group_of(n) in EXTRA_GROUPS:
+        if group_kind(n) == "extra":  # sensor/set-up extras (anchor, base, markers...)
             continue
         v = float(v)
         if not math.isfinite(v):
@@ -269,7 +269,7 @@ def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, .
         elif math.isfinite(s0):
             if s > checks.weak_fraction * s0:
                 out.append(n)
-        elif group_of(n) not in EXTRA_GROUPS:
+        elif group_kind(n) != "extra":
             bound = math.radians(checks.angle_deg) if u == "rad" else checks.length_mm
             if s > bound / 3:
                 out.append(n)

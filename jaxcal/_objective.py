@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_of
+from ._params import Deviations, ParameterSpace, group_kind, group_of
 
 __all__ = ["Prior", "Objective", "LOSSES", "robust_factor", "robust_scale", "resolve_prior"]
 
@@ -125,8 +125,7 @@ class Prior:
             if name in over:
                 out.append(float(over[name]))
                 continue
-            g = group_of(name)
-            if g in EXTRA_GROUPS:
+            if group_kind(name) == "extra":  # anchor, base frame, marker positions ...
                 out.append(math.radians(self.extras_deg) if unit == "rad" else self.extras_mm)
             else:
                 out.append(math.radians(self.angle_deg) if unit == "rad" else self.length_mm)

@@ -105,11 +105,11 @@ class PriorCV:
 
 def _max_dev(res) -> tuple[float, float]:
     from ._diagnostics import wrap_angle_deg
-    from ._params import EXTRA_GROUPS, group_of
+    from ._params import group_kind
 
     ang, length = 0.0, 0.0
     for n, u, v in zip(res.space.names, res.space.units, np.asarray(res.deviations.ravel(), np.float64)):
-        if group_of(n) in EXTRA_GROUPS:
+        if group_kind(n) == "extra":
             continue
         if u == "rad":
             ang = max(ang, abs(float(wrap_angle_deg(math.degrees(v)))))
