@@ -17,6 +17,7 @@ from ._calibrate import CalibrationError as CalibrationError
 from ._calibrate import CalibrationWarning as CalibrationWarning
 from ._calibrate import Calibrator as Calibrator
 from ._calibrate import calibrate as calibrate
+from ._chain import SerialChain as SerialChain
 from ._dataset import Dataset as Dataset
 from ._dataset import load_csv as load_csv
 from ._dataset import save_csv as save_csv
@@ -64,12 +65,19 @@ from ._simulate import simulate_experiment as simulate_experiment
 from ._sweep import PAPER_METHODS as PAPER_METHODS
 from ._sweep import SweepResult as SweepResult
 from ._sweep import sweep as sweep
+from ._urdf import chain_from_dh as chain_from_dh
+from ._urdf import export_urdf as export_urdf
+from ._urdf import load_urdf as load_urdf
 from ._validation import PriorCV as PriorCV
 from ._validation import cross_validate_prior as cross_validate_prior
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "SerialChain",
+    "chain_from_dh",
+    "export_urdf",
+    "load_urdf",
     "MessyExperiment",
     "PriorCV",
     "cross_validate_prior",

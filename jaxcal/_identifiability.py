@@ -20,9 +20,12 @@ __all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "defau
 #: Which of a group of (exactly) dependent parameters is kept free: the parameter whose group
 #: comes first here, then the lower joint index / component order. Joint offsets θ come first
 #: because encoder zero offsets are what a calibration is most often for; the sensor/setup
-#: extras come last, so an ambiguity is resolved in the robot's DH table consistently.
+#: extras come last, so an ambiguity is resolved in the robot's DH table consistently. Generic
+#: chains (:class:`~jaxcal.SerialChain`) follow the same idea: joint offsets, then the origins'
+#: translations dx, dy, dz, then their rotations drx, dry, drz.
 KEEP_PREFERENCE: tuple[str, ...] = (
-    "theta", "d", "a", "alpha", "beta", "anchor", "tool", "cable_offset", "base_rotation", "base_translation",
+    "theta", "d", "a", "alpha", "beta", "offset", "dx", "dy", "dz", "drx", "dry", "drz",
+    "anchor", "tool", "cable_offset", "base_rotation", "base_translation",
 )
 #: a dependent parameter is swapped for a less preferred kept one only if its (column-scaled)
 #: coefficient on that one is at least this large: the swap then keeps the subset about as well

@@ -8,6 +8,8 @@ Subcommands (``jaxcal SUBCOMMAND --help`` explains units and file formats):
 * ``jaxcal simulate --out data.csv``: a simulated draw-wire (or position) data set to try
   ``calibrate`` on.
 * ``jaxcal report SWEEP_DIR``: tables and figures again from a finished (or interrupted) sweep.
+* ``jaxcal export RESULT.json --out calibrated.urdf``: the calibrated model as URDF (and the
+  calibrated DH table with ``--dh-out`` where the model is a DH table).
 
 Errors in the input (unknown robot or method, bad CSV, too few samples) print one line on
 stderr and exit with status 2; a failed calibration exits with status 1.
@@ -42,7 +44,9 @@ _ROBOT_FORMAT = """\
 robot: a preset name (hsr_jr680, puma560, ur5, abb_irb120) or a DH table file (CSV): optional
 '# name: NAME' and '# tool_mm: x,y,z' (tool point in the flange frame, mm) lines, a header
 row alpha_deg,a_mm,d_mm,theta_deg[,q_min_deg,q_max_deg] and one row per joint (standard DH:
-A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i); joint limits default to ±180°)."""
+A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i); joint limits default to ±180°), or a URDF
+file (.urdf) with --base LINK and --tip LINK naming the serial chain to calibrate (lengths in the
+URDF are metres; jaxcal reports mm; prismatic joint columns are in mm)."""
 
 
 def _die(msg: str, code: int = _EXIT_USAGE) -> int:
@@ -81,13 +85,21 @@ def _hyper(items: list[str] | None) -> dict:
     return out
 
 
-def _robot(spec: str):
+def _robot(spec: str, base: str | None = None, tip: str | None = None):
     from . import robots
     from ._io import load_robot_csv
 
+    p = pathlib.Path(spec)
+    if p.suffix.lower() == ".urdf":
+        from ._urdf import load_urdf
+
+        if not p.exists():
+            raise _Usage(f"robot file {spec!r} not found")
+        return load_urdf(p, base=base, tip=tip)
+    if base is not None or tip is not None:
+        raise _Usage("--base/--tip apply to a URDF robot (--robot FILE.urdf) only")
     if spec in robots.PRESETS:
         return robots.get_robot(spec)
-    p = pathlib.Path(spec)
     if p.suffix.lower() in (".csv", ".txt") or p.exists():
         if not p.exists():
             raise _Usage(f"robot file {spec!r} not found")
@@ -184,6 +196,65 @@ def _fmt_value(v: float, sd: float | None, unit: str) -> str:
     return f"{v:+.4f} ± {sd:.2g}" if sd < float("inf") else f"{v:+.4f} ± ∞"
 
 
+def _print_dh_table(robot, res, sd) -> None:
+    from ._diagnostics import wrap_angle_deg
+    from ._metrics import format_table
+
+    nominal = robot.dh_table_deg()
+    cal = res.dh_table()
+    trows = []
+    for j in range(robot.dof):
+        cells = [str(j + 1)]
+        for g, col in (("alpha", 0), ("a", 1), ("d", 2), ("theta", 3)):
+            name = f"{g}_{j + 1}"
+            delta = cal[j, col] - nominal[j, col]
+            if col in (0, 3):
+                delta = float(wrap_angle_deg(delta))
+            if name in sd:
+                cells.append(f"{cal[j, col]:.4f} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
+            else:
+                cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
+        trows.append(cells)
+    print()
+    print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
+                       title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
+                             "* not identifiable, kept nominal)"))
+
+
+def _print_chain_table(robot, res, sd) -> None:
+    """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
+    (mm), drx, dry, drz (°); ± one posterior σ; * = not calibrated (not identifiable or fixed)."""
+    import numpy as np
+
+    from ._chain import GEOMETRIC_GROUPS, _dev_get
+    from ._metrics import format_table
+
+    free = set(res.space.free_names)
+    rows = []
+    for j in range(robot.dof):
+        cells = [f"{j + 1} {robot.joint_names[j]}"]
+        for g, unit in GEOMETRIC_GROUPS:
+            if g == "drz" and not robot.prismatic[j]:
+                cells.append("")
+                continue
+            name = f"{g}_{j + 1}"
+            v = _dev_get(res.deviations, g)
+            v = 0.0 if v is None else float(np.asarray(v)[j])
+            angle = unit == "rad" or (unit == "rad|mm" and not robot.prismatic[j])
+            if angle:
+                v = float(np.degrees(v))
+            if name in free:
+                cells.append(_fmt_value(v, sd.get(name, (None,))[0], ""))
+            else:
+                cells.append(f"{v:+.4f}*")
+        rows.append(cells)
+    print()
+    print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
+                       title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "
+                             "posterior standard deviation; * not calibrated: not identifiable or fixed; "
+                             "`jaxcal export` writes the corrected URDF)"))
+
+
 def _cmd_calibrate(args) -> int:
     t_start = time.perf_counter()
     import jax
@@ -191,7 +262,7 @@ def _cmd_calibrate(args) -> int:
 
     from ._calibrate import CalibrationWarning, calibrate
     from ._dataset import load_csv
-    from ._diagnostics import Checks, wrap_angle_deg
+    from ._diagnostics import Checks
     from ._io import save_result
     from ._metrics import Metrics, compute_metrics, format_table
     from ._objective import LOSSES, Prior
@@ -202,7 +273,7 @@ def _cmd_calibrate(args) -> int:
         method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
     except ValueError as e:
         raise _Usage(str(e)) from None
-    robot = _robot(args.robot)
+    robot = _robot(args.robot, args.base, args.tip)
     path = pathlib.Path(args.data)
     if not path.exists():
         raise _Usage(f"data file {args.data!r} not found")
@@ -325,26 +396,11 @@ def _cmd_calibrate(args) -> int:
     print(format_table(_metrics_rows(rows), ["data", "RMSE/mm", "MEAN/mm", "MAX/mm"],
                        title=f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
                              f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
-    nominal = robot.dh_table_deg()
-    cal = res.dh_table()
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
-    trows = []
-    for j in range(robot.dof):
-        cells = [str(j + 1)]
-        for g, col in (("alpha", 0), ("a", 1), ("d", 2), ("theta", 3)):
-            name = f"{g}_{j + 1}"
-            delta = cal[j, col] - nominal[j, col]
-            if col in (0, 3):
-                delta = float(wrap_angle_deg(delta))
-            if name in sd:
-                cells.append(f"{cal[j, col]:.4f} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
-            else:
-                cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
-        trows.append(cells)
-    print()
-    print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
-                       title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
-                             "* not identifiable, kept nominal)"))
+    if hasattr(robot, "dh_table_deg"):
+        _print_dh_table(robot, res, sd)
+    else:
+        _print_chain_table(robot, res, sd)
     extra_names = [n for n in res.space.free_names if n.startswith(("anchor", "tool", "cable", "base"))]
     if extra_names:
         dev = dict(zip(res.space.free_names, np.asarray(res.x)))
@@ -391,6 +447,52 @@ def _cmd_calibrate(args) -> int:
               "--accept-implausible to accept it, or a stronger --prior", file=sys.stderr)
         return _EXIT_FAILED
     return 0
+
+
+# -- export -------------------------------------------------------------------------------------------
+
+
+def _cmd_export(args) -> int:
+    from ._io import load_result
+    from ._robot import DHRobot
+    from ._urdf import export_urdf
+
+    if not args.out and not args.dh_out:
+        raise _Usage("export: give --out FILE.urdf and/or --dh-out FILE.csv")
+    src = pathlib.Path(args.result)
+    if not src.exists():
+        raise _Usage(f"result file {args.result!r} not found")
+    res = load_result(src)
+    if args.out:
+        export_urdf(res.robot, res.deviations, args.out)
+        print(f"wrote {args.out} (calibrated {res.robot.name}, {res.robot.dof} joints)")
+    if args.dh_out:
+        if not isinstance(res.robot, DHRobot):
+            raise _Usage("--dh-out: this result's robot is a generic chain, not a DH table; use --out FILE.urdf")
+        from ._io import save_robot_csv
+
+        save_robot_csv(_calibrated_dh_robot(res.robot, res.deviations), args.dh_out)
+        print(f"wrote {args.dh_out} (calibrated DH table)")
+    return 0
+
+
+def _calibrated_dh_robot(robot, dev):
+    """The DH robot with the calibrated table (nominal + deviations) and tool point."""
+    import jax.numpy as jnp
+
+    from ._chain import _dev_get
+    from ._robot import DHRobot
+
+    vals = []
+    for g in ("alpha", "a", "d", "theta", "beta"):
+        v = jnp.asarray(getattr(robot, g))
+        dv = _dev_get(dev, g)
+        vals.append(v if dv is None else v + jnp.asarray(dv))
+    tool = jnp.asarray(robot.tool)
+    if _dev_get(dev, "tool") is not None:
+        tool = tool + jnp.asarray(_dev_get(dev, "tool"))
+    return DHRobot(*vals, robot.q_min, robot.q_max, tool, convention=robot.convention,
+                   beta_joints=robot.beta_joints, name=robot.name)
 
 
 # -- reproduce ----------------------------------------------------------------------------------------
@@ -558,7 +660,10 @@ def build_parser() -> argparse.ArgumentParser:
                "stopped at its step budget, or implausible (see --accept-implausible), 2 bad input.",
     )
     c.add_argument("data", help="CSV data file (format below)")
-    c.add_argument("--robot", required=True, help="preset name or DH table CSV file (format below)")
+    c.add_argument("--robot", required=True, help="preset name, DH table CSV file or URDF file (format below)")
+    c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
+    c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
+                                                 "is given in its frame)")
     c.add_argument("--measurement", choices=("cable", "position", "pose", "markers"), default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
@@ -634,6 +739,20 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--partial", action="store_true", help="use the trials finished so far of an interrupted sweep")
     rp.add_argument("--no-figures", action="store_true", help="skip the figures")
     rp.set_defaults(func=_cmd_report)
+
+    e = sub.add_parser(
+        "export", formatter_class=fmt, help="write a calibrated model (URDF, DH table) from a result file",
+        description="Write the calibrated model of a `jaxcal calibrate --out RESULT.json` as URDF: for a robot "
+                    "loaded from a URDF, the same file with the moving joints' <origin>s between base and tip "
+                    "corrected (joint offsets folded in, listed in a comment); for a DH robot, a URDF chain "
+                    "base_link -> link_i -> flange with the calibrated DH table in a comment. The calibrated tool "
+                    "point becomes a fixed link 'jaxcal_tool_point'. --dh-out writes the calibrated DH table "
+                    "(the CSV format --robot reads) where the model is a DH table.",
+    )
+    e.add_argument("result", help="RESULT.json written by `jaxcal calibrate --out`")
+    e.add_argument("--out", metavar="FILE.urdf", help="URDF file to write")
+    e.add_argument("--dh-out", metavar="FILE.csv", help="calibrated DH table (DH robots only)")
+    e.set_defaults(func=_cmd_export)
     return p
 
 

@@ -1,0 +1,528 @@
+"""URDF serial chains: loading (base link → tip link), DH tables as chains, and export.
+
+Parser choice: the standard library's ``xml.etree.ElementTree``. A serial-chain loader needs
+``<link>`` (name, ``<inertial>``) and ``<joint>`` (type, parent, child, origin, axis, limit,
+mimic) only — about a hundred lines. The pure-Python parsers available were heavier than that:
+``yourdfpy`` pulls ``trimesh`` and ``lxml`` (meshes we never use), ``urchin``/``urdfpy`` add
+``networkx``, ``pycollada`` and ``trimesh``, and ``urdf_parser_py`` is a ROS package that is not
+maintained on PyPI for current Pythons. jaxcal keeps its dependencies lean (DESIGN.md §9), so a
+stdlib loader it is. ``xacro`` files must be expanded first (``xacro robot.urdf.xacro > robot.urdf``).
+
+Units: URDF lengths are metres; jaxcal works in mm. The loader multiplies every length (joint
+origins, prismatic limits, link centres of mass) by 1000 here, at the file edge, and
+:func:`export_urdf` divides by 1000 on the way out. Angles stay in rad.
+
+Joint types: ``revolute`` and ``prismatic`` joints move; ``continuous`` joints are treated as
+revolute with limits ±π (joint limits only bound sampling and planning; a continuous joint's
+reading is still used as given); ``fixed`` joints are folded into the neighbouring transforms.
+``floating`` and ``planar`` joints, and ``mimic`` joints, between base and tip are refused with
+an error naming the joint: a calibration chain needs one independent reading per joint.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._chain import SerialChain, _dev_get, align_z, matrix_rpy, rpy_matrix, snap
+
+__all__ = ["load_urdf", "chain_from_dh", "export_urdf", "urdf_chain_links", "chain_to_dict", "chain_from_dict"]
+
+_M_TO_MM = 1000.0
+
+
+def _floats(text: str | None, default: Sequence[float], what: str) -> np.ndarray:
+    if text is None:
+        return np.asarray(default, dtype=np.float64)
+    try:
+        v = np.asarray([float(s) for s in text.split()], dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"URDF: cannot read numbers {text!r} in {what}") from None
+    if v.shape != (len(default),):
+        raise ValueError(f"URDF: {what} needs {len(default)} numbers, got {text!r}")
+    return v
+
+
+def _origin(el, what: str) -> np.ndarray:
+    """``<origin xyz rpy>`` of ``el`` as a ``[4, 4]`` transform (translation converted to mm)."""
+    T = np.eye(4)
+    o = el.find("origin")
+    if o is not None:
+        T[:3, :3] = rpy_matrix(_floats(o.get("rpy"), (0, 0, 0), f"{what} <origin rpy>"))
+        T[:3, 3] = _floats(o.get("xyz"), (0, 0, 0), f"{what} <origin xyz>") * _M_TO_MM
+    return T
+
+
+def _parse_root(source) -> tuple[ET.Element, str]:
+    """The ``<robot>`` element and the URDF text from a path or an XML string."""
+    if isinstance(source, os.PathLike) or (isinstance(source, str) and not source.lstrip().startswith("<")):
+        path = pathlib.Path(source)
+        if not path.exists():
+            raise FileNotFoundError(f"URDF file not found: {path}")
+        text = path.read_text()
+    else:
+        text = str(source)
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise ValueError(f"URDF: not well-formed XML ({e})") from None
+    if root.tag != "robot":
+        raise ValueError(f"URDF: the root element must be <robot>, got <{root.tag}>")
+    return root, text
+
+
+def urdf_chain_links(source) -> dict:
+    """Summary of a URDF's tree: ``{"links": [...], "roots": [...], "leaves": [...]}`` (link
+    names), to choose ``base`` and ``tip`` for :func:`load_urdf`."""
+    root, _ = _parse_root(source)
+    links = [el.get("name") for el in root.findall("link")]
+    parents = {j.find("child").get("link"): j.find("parent").get("link") for j in root.findall("joint")}
+    has_child = set(parents.values())
+    return {
+        "links": links,
+        "roots": [name for name in links if name not in parents],
+        "leaves": [name for name in links if name not in has_child],
+    }
+
+
+def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(0.0, 0.0, 0.0),
+              name: str | None = None) -> SerialChain:
+    """Load the serial chain from link ``base`` to link ``tip`` of a URDF.
+
+    Args:
+        source: a path to a ``.urdf`` file or the URDF XML text.
+        base: base link name (default: the tree's root link).
+        tip: tip link name (default: the single leaf below ``base`` if there is exactly one).
+        tool: nominal tool point ``[3]`` in the tip link frame (**mm**).
+        name: display name (default: the ``<robot name>``).
+
+    Returns:
+        A :class:`~jaxcal.SerialChain` in mm / rad whose base frame is the ``base`` link frame and
+        whose flange frame is the ``tip`` link frame; joint ``i`` of ``q`` is the ``i``-th moving
+        joint from base to tip (``chain.joint_names``). Per moving joint the mass [kg] and centre
+        of mass [mm, joint frame] of its child link, merged with links fixed to it along the
+        path, are kept in ``chain.mass`` / ``chain.com``.
+
+    Raises:
+        ValueError: unknown link names (the message lists the valid ones); ``tip`` not below
+            ``base``; a link with two parents; a ``mimic``, ``floating`` or ``planar`` joint on the
+            path; a revolute/prismatic joint without ``<limit lower upper>``; no moving joint.
+    """
+    root, text = _parse_root(source)
+    links = {}
+    for el in root.findall("link"):
+        links[el.get("name")] = el
+    joints_by_child: dict[str, ET.Element] = {}
+    for j in root.findall("joint"):
+        jname = j.get("name")
+        p, c = j.find("parent"), j.find("child")
+        if p is None or c is None:
+            raise ValueError(f"URDF: joint {jname!r} needs <parent link> and <child link>")
+        child = c.get("link")
+        if child in joints_by_child:
+            raise ValueError(
+                f"URDF: link {child!r} has two parent joints ({joints_by_child[child].get('name')!r} and "
+                f"{jname!r}); a kinematic loop is not a serial chain"
+            )
+        joints_by_child[child] = j
+    valid = sorted(links)
+    roots = [n for n in links if n not in joints_by_child]
+    if base is None:
+        if len(roots) != 1:
+            raise ValueError(f"URDF: choose base= among the root links {roots}")
+        base = roots[0]
+    for label, link in (("base", base), ("tip", tip)):
+        if link is not None and link not in links:
+            raise ValueError(f"URDF: unknown {label} link {link!r}; links in this file: {valid}")
+    if tip is None:
+        children: dict[str, list[str]] = {}
+        for c, j in joints_by_child.items():
+            children.setdefault(j.find("parent").get("link"), []).append(c)
+        leaves, stack = [], [base]
+        while stack:
+            k = stack.pop()
+            if children.get(k):
+                stack.extend(children[k])
+            else:
+                leaves.append(k)
+        if len(leaves) != 1:
+            raise ValueError(f"URDF: the tree below {base!r} branches; choose tip= among its leaf links {sorted(leaves)}")
+        tip = leaves[0]
+    # walk up from the tip to the base
+    path: list[ET.Element] = []
+    link = tip
+    while link != base:
+        j = joints_by_child.get(link)
+        if j is None:
+            up = [tip]
+            k = tip
+            while k in joints_by_child:
+                k = joints_by_child[k].find("parent").get("link")
+                up.append(k)
+            raise ValueError(
+                f"URDF: tip link {tip!r} is not below base link {base!r} (its ancestors are {up[1:]}); "
+                "a serial chain runs from a base link down to one of its descendants"
+            )
+        path.append(j)
+        link = j.find("parent").get("link")
+    path.reverse()
+
+    origin_R, origin_t, align, types, q_min, q_max, jnames, lnames = [], [], [], [], [], [], [], []
+    mass, com = [], []
+    pending = np.eye(4)  # fixed transforms since the last moving joint's frame (or the base)
+    R_prev = np.eye(3)   # alignment of the last moving joint
+    acc_mass, acc_mc = 0.0, np.zeros(3)  # mass and Σ m·c (in the last joint frame) of the current body
+    for j in path:
+        jname, jtype = j.get("name"), j.get("type")
+        child = j.find("child").get("link")
+        T = _origin(j, f"joint {jname!r}")
+        if j.find("mimic") is not None:
+            raise ValueError(
+                f"URDF: joint {jname!r} between {base!r} and {tip!r} is a mimic joint; jaxcal chains need one "
+                "independent joint reading per joint (mimic couplings are not supported)"
+            )
+        if jtype in ("floating", "planar"):
+            raise ValueError(
+                f"URDF: joint {jname!r} between {base!r} and {tip!r} is {jtype}; only revolute, continuous, "
+                "prismatic and fixed joints are supported in a serial chain"
+            )
+        if jtype == "fixed":
+            pending = pending @ T
+            acc_mass, acc_mc = _add_inertial(links.get(child), R_prev, pending, acc_mass, acc_mc)
+            continue
+        if jtype not in ("revolute", "continuous", "prismatic"):
+            raise ValueError(f"URDF: joint {jname!r} has unknown type {jtype!r}")
+        axis = _floats(j.find("axis").get("xyz") if j.find("axis") is not None else None, (1, 0, 0),
+                       f"joint {jname!r} <axis xyz>")
+        if np.linalg.norm(axis) < 1e-12:
+            raise ValueError(f"URDF: joint {jname!r} has a zero axis")
+        if jtype == "continuous":
+            lo, hi = -np.pi, np.pi
+        else:
+            lim = j.find("limit")
+            if lim is None or lim.get("lower") is None or lim.get("upper") is None:
+                raise ValueError(f"URDF: {jtype} joint {jname!r} needs <limit lower=... upper=...>")
+            lo, hi = float(lim.get("lower")), float(lim.get("upper"))
+            if jtype == "prismatic":
+                lo, hi = lo * _M_TO_MM, hi * _M_TO_MM
+            if not lo < hi:
+                raise ValueError(f"URDF: joint {jname!r} has limits lower={lo} >= upper={hi}")
+        if types:  # close the previous body
+            mass.append(acc_mass)
+            com.append(acc_mc / acc_mass if acc_mass > 0 else np.zeros(3))
+        Ra = align_z(axis)
+        O = pending @ T
+        R_o = R_prev.T @ O[:3, :3] @ Ra
+        t_o = R_prev.T @ O[:3, 3]
+        origin_R.append(snap(R_o))
+        origin_t.append(t_o)
+        align.append(Ra)
+        types.append("prismatic" if jtype == "prismatic" else "revolute")
+        q_min.append(lo)
+        q_max.append(hi)
+        jnames.append(jname)
+        lnames.append(child)
+        R_prev, pending = Ra, np.eye(4)
+        acc_mass, acc_mc = _add_inertial(links.get(child), R_prev, pending, 0.0, np.zeros(3))
+    if not types:
+        raise ValueError(f"URDF: no revolute, continuous or prismatic joint between {base!r} and {tip!r}")
+    mass.append(acc_mass)
+    com.append(acc_mc / acc_mass if acc_mass > 0 else np.zeros(3))
+    flange_R = R_prev.T @ pending[:3, :3]
+    flange_t = R_prev.T @ pending[:3, 3]
+    return SerialChain.build(
+        origin_R=origin_R, origin_t=origin_t, joint_types=types, q_min=q_min, q_max=q_max,
+        flange_R=flange_R, flange_t=flange_t, align=align, tool=tool, mass=mass, com=com,
+        joint_names=jnames, link_names=lnames, base=base, tip=tip,
+        name=name or root.get("name") or "urdf", urdf=text,
+    )
+
+
+def _add_inertial(link_el, R_align, T_link, m_acc, mc_acc):
+    """Add a link's ``<inertial>`` mass [kg] and centre of mass (converted to mm, expressed in the
+    current joint frame: ``R_alignᵀ·(T_link · c)``) to the running body sums."""
+    if link_el is None:
+        return m_acc, mc_acc
+    inertial = link_el.find("inertial")
+    if inertial is None or inertial.find("mass") is None:
+        return m_acc, mc_acc
+    m = float(inertial.find("mass").get("value", 0.0))
+    c_link = _origin(inertial, f"link {link_el.get('name')!r} <inertial>")[:3, 3]
+    c = R_align.T @ (T_link[:3, :3] @ c_link + T_link[:3, 3])
+    return m_acc + m, mc_acc + m * c
+
+
+# ---------------------------------------------------------------------------- DH tables
+
+
+def _dh_values(robot, deviations=None):
+    """(alpha, a, d, theta, beta) of a DH robot as host arrays, deviated when given."""
+    vals = []
+    for g in ("alpha", "a", "d", "theta", "beta"):
+        v = np.asarray(getattr(robot, g), dtype=np.float64).copy()
+        dv = _dev_get(deviations, g)
+        if dv is not None:
+            v = v + np.asarray(dv, dtype=np.float64)
+        vals.append(v)
+    return vals
+
+
+def chain_from_dh(robot, deviations=None) -> SerialChain:
+    """The :class:`~jaxcal.SerialChain` equal to a :class:`~jaxcal.DHRobot` (standard, modified
+    or Hayati), optionally with DH deviations applied (``alpha, a, d, theta, beta`` groups).
+
+    Standard DH ``A_i = Rz(θ_i + q_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)·Ry(β_i)`` regroups (``Tz`` commutes
+    with ``Rz``) into origins ``O_1 = Tz(d_1)·Rz(θ_1)``, ``O_i = Tx(a_{i-1})·Rx(α_{i-1})·Ry(β_{i-1})·
+    Tz(d_i)·Rz(θ_i)`` and the flange ``Tx(a_n)·Rx(α_n)·Ry(β_n)``; modified DH
+    ``A_i = Rx(α_i)·Ry(β_i)·Tx(a_i)·Rz(θ_i + q_i)·Tz(d_i)`` gives ``O_i = Tz(d_{i-1})·Rx(α_i)·Ry(β_i)·
+    Tx(a_i)·Rz(θ_i)`` with ``d_0 = 0`` and the flange ``Tz(d_n)``. FK is identical to round-off;
+    the chain remembers its DH table (``chain.dh``) so that exports can write it again.
+    """
+    alpha, a, d, theta, beta = _dh_values(robot, deviations)
+    dof = robot.dof
+    hay = set(robot.beta_joints)
+
+    def tr(x=0.0, y=0.0, z=0.0):
+        T = np.eye(4)
+        T[:3, 3] = (x, y, z)
+        return T
+
+    def rot(R):
+        T = np.eye(4)
+        T[:3, :3] = R
+        return T
+
+    from ._chain import _rx, _ry, _rz
+
+    def tail(i):  # Tx(a_i)·Rx(α_i)·[Ry(β_i)] (standard)
+        T = tr(x=a[i]) @ rot(_rx(alpha[i]))
+        if (i + 1) in hay:
+            T = T @ rot(_ry(beta[i]))
+        return T
+
+    origins = []
+    if robot.convention == "standard":
+        prev = np.eye(4)
+        for i in range(dof):
+            origins.append(prev @ tr(z=d[i]) @ rot(_rz(theta[i])))
+            prev = tail(i)
+        flange = prev
+    else:
+        prev_d = 0.0
+        for i in range(dof):
+            T = tr(z=prev_d) @ rot(_rx(alpha[i]))
+            if (i + 1) in hay:
+                T = T @ rot(_ry(beta[i]))
+            origins.append(T @ tr(x=a[i]) @ rot(_rz(theta[i])))
+            prev_d = d[i]
+        flange = tr(z=prev_d)
+    fl = lambda v: tuple(float(x) for x in v)  # noqa: E731
+    dh = (robot.convention, fl(alpha), fl(a), fl(d), fl(theta), fl(beta), tuple(int(j) for j in robot.beta_joints))
+    return SerialChain.build(
+        origin_R=[O[:3, :3] for O in origins], origin_t=[O[:3, 3] for O in origins],
+        joint_types=["revolute"] * dof, q_min=np.asarray(robot.q_min), q_max=np.asarray(robot.q_max),
+        flange_R=flange[:3, :3], flange_t=flange[:3, 3], tool=np.asarray(robot.tool),
+        joint_names=[f"joint_{i + 1}" for i in range(dof)], link_names=[f"link_{i + 1}" for i in range(dof)],
+        base="base_link", tip="flange", name=robot.name, dh=dh,
+    )
+
+
+# ---------------------------------------------------------------------------- export
+
+
+def _fmt(v) -> str:
+    return " ".join(repr(float(x)) if x != 0 else "0" for x in v)
+
+
+def _origin_attrs(T) -> dict:
+    """URDF ``<origin>`` attributes of a ``[4, 4]`` transform in mm (written in metres)."""
+    return {"xyz": _fmt(np.asarray(T[:3, 3]) / _M_TO_MM), "rpy": _fmt(matrix_rpy(T[:3, :3]))}
+
+
+def _urdf_origins(chain: SerialChain, deviations=None) -> list[np.ndarray]:
+    """Per moving joint, the corrected transform in URDF frames: ``R_a(prev)·O_i'·R_a(i)ᵀ`` where
+    ``O_i'`` is the deviated joint-frame origin (errors and joint offset folded in)."""
+    al = np.asarray(chain.align)
+    out = []
+    for i, O in enumerate(chain.origins_numpy(deviations)):
+        A_prev = np.eye(4)
+        if i > 0:
+            A_prev[:3, :3] = al[i - 1]
+        A = np.eye(4)
+        A[:3, :3] = al[i]
+        out.append(A_prev @ O @ A.T)
+    return out
+
+
+def _flange_urdf(chain: SerialChain) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(chain.align)[-1] @ np.asarray(chain.flange_R)
+    T[:3, 3] = np.asarray(chain.align)[-1] @ np.asarray(chain.flange_t)
+    return T
+
+
+def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_tool_point") -> str:
+    """Write a calibrated model as URDF; returns the text (and writes it to ``path`` if given).
+
+    Args:
+        model: a :class:`~jaxcal.SerialChain` or a :class:`~jaxcal.DHRobot`.
+        deviations: calibrated deviations (chain groups ``offset, dx … drz``, or DH groups for a
+            DH robot; a ``tool`` group moves the tool point), or ``None`` for the nominal model.
+        path: output file (optional).
+        tool_link: name of a link fixed to the tip link at the (calibrated) tool point, added when
+            the tool point is not the tip link origin (URDF has no other place for it).
+
+    For a chain loaded from a URDF, the original file is kept (meshes, inertials, other
+    branches) and only the ``<origin>`` of each moving joint between base and tip is replaced by
+    the corrected one: the fixed transforms before it (folded into the chain) are taken out
+    again, and the error rotations and the joint offset are folded into the origin, so the
+    exported URDF gives the calibrated FK with the same raw joint readings. The offsets also
+    appear in a comment. A chain built from DH (or a DH robot) is written as a minimal URDF
+    ``base_link → link_1 … → flange`` with a comment holding the calibrated DH table.
+    """
+    from ._robot import DHRobot
+
+    dh_table = None
+    tool = np.asarray(model.tool, np.float64)
+    if _dev_get(deviations, "tool") is not None:
+        tool = tool + np.asarray(_dev_get(deviations, "tool"), np.float64)
+    if isinstance(model, DHRobot):
+        alpha, a, d, theta, beta = _dh_values(model, deviations)
+        dh_table = (model.convention, alpha, a, d, theta, beta, model.beta_joints)
+        chain = chain_from_dh(model, deviations)
+        deviations = None
+    else:
+        chain = model
+        if chain.dh is not None and deviations is None:
+            dh_table = chain.dh
+    origins = _urdf_origins(chain, deviations)
+    offsets = _dev_get(deviations, "offset")
+    note = "jaxcal calibrated model: moving joint origins corrected"
+    if offsets is not None:
+        note += "; joint offsets folded into the origins: " + ", ".join(
+            f"{n}={float(v):.9g} {u}" for n, v, u in zip(chain.joint_names, np.asarray(offsets), chain.joint_units()))
+    if chain.urdf is not None:
+        root = ET.fromstring(chain.urdf)
+        joints = {j.get("name"): j for j in root.findall("joint")}
+        children = {j.find("child").get("link"): j for j in root.findall("joint")}
+        for i, jname in enumerate(chain.joint_names):
+            j = joints[jname]
+            # fixed transforms from the previous moving joint's child link to this joint's parent
+            pending = np.eye(4)
+            link = j.find("parent").get("link")
+            stop = chain.link_names[i - 1] if i > 0 else chain.base
+            while link != stop:
+                fj = children[link]
+                pending = _origin(fj, "") @ pending
+                link = fj.find("parent").get("link")
+            T = np.linalg.solve(pending, origins[i])
+            o = j.find("origin")
+            if o is None:
+                o = ET.SubElement(j, "origin")
+            for k, v in _origin_attrs(T).items():
+                o.set(k, v)
+        root.insert(0, ET.Comment(" " + note + " "))
+        _add_tool_link(root, chain.tip, tool, tool_link)
+        text = ET.tostring(root, encoding="unicode")
+        text = '<?xml version="1.0"?>\n' + text + "\n"
+    else:
+        root = ET.Element("robot", name=chain.name)
+        root.append(ET.Comment(" " + note + " "))
+        if dh_table is not None:
+            conv, alpha, a, d, theta, beta, bj = dh_table
+            rows = "\n".join(
+                f"  {i + 1}: alpha={np.rad2deg(alpha[i]):.9g} deg, a={a[i]:.9g} mm, d={d[i]:.9g} mm, "
+                f"theta={np.rad2deg(theta[i]):.9g} deg" + (f", beta={np.rad2deg(beta[i]):.9g} deg" if (i + 1) in bj else "")
+                for i in range(len(alpha)))
+            root.append(ET.Comment(f" DH table ({conv} convention):\n{rows}\n "))
+        ET.SubElement(root, "link", name=chain.base)
+        parent = chain.base
+        al = np.asarray(chain.align)
+        for i in range(chain.dof):
+            child = chain.link_names[i]
+            link = ET.SubElement(root, "link", name=child)
+            m = float(np.asarray(chain.mass)[i])
+            if m > 0:
+                inertial = ET.SubElement(link, "inertial")
+                c = al[i] @ np.asarray(chain.com)[i] / _M_TO_MM
+                ET.SubElement(inertial, "origin", xyz=_fmt(c), rpy="0 0 0")
+                ET.SubElement(inertial, "mass", value=repr(m))
+            typ = chain.joint_types[i]
+            j = ET.SubElement(root, "joint", name=chain.joint_names[i], type=typ)
+            ET.SubElement(j, "origin", **_origin_attrs(origins[i]))
+            ET.SubElement(j, "parent", link=parent)
+            ET.SubElement(j, "child", link=child)
+            ET.SubElement(j, "axis", xyz=_fmt(snap(al[i][:, 2])))
+            scale = _M_TO_MM if typ == "prismatic" else 1.0
+            ET.SubElement(j, "limit", lower=repr(float(chain.q_min[i]) / scale),
+                          upper=repr(float(chain.q_max[i]) / scale), effort="0", velocity="0")
+            parent = child
+        ET.SubElement(root, "link", name=chain.tip)
+        j = ET.SubElement(root, "joint", name=f"{chain.tip}_joint", type="fixed")
+        ET.SubElement(j, "origin", **_origin_attrs(_flange_urdf(chain)))
+        ET.SubElement(j, "parent", link=parent)
+        ET.SubElement(j, "child", link=chain.tip)
+        _add_tool_link(root, chain.tip, tool, tool_link)
+        ET.indent(root)
+        text = '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+    if path is not None:
+        pathlib.Path(path).write_text(text)
+    return text
+
+
+def _add_tool_link(root, tip: str, tool, name: str) -> None:
+    if not np.any(np.asarray(tool) != 0) or not name:
+        return
+    ET.SubElement(root, "link", name=name)
+    j = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+    ET.SubElement(j, "origin", xyz=_fmt(np.asarray(tool) / _M_TO_MM), rpy="0 0 0")
+    ET.SubElement(j, "parent", link=tip)
+    ET.SubElement(j, "child", link=name)
+
+
+# ---------------------------------------------------------------------------- result files
+
+
+def chain_to_dict(chain: SerialChain) -> dict:
+    """JSON-friendly chain that :func:`chain_from_dict` rebuilds exactly: the URDF text (the
+    loaded file, or the chain written as URDF) with base and tip link names, tool point (mm), and
+    for a chain built from DH its table (rad / mm)."""
+    out = {
+        "type": "serial_chain",
+        "name": chain.name,
+        "base": chain.base,
+        "tip": chain.tip,
+        "tool_mm": np.asarray(chain.tool, np.float64).tolist(),
+        "joint_names": list(chain.joint_names),
+        "joint_types": list(chain.joint_types),
+    }
+    if chain.dh is not None:
+        conv, alpha, a, d, theta, beta, bj = chain.dh
+        out["dh"] = {"convention": conv, "alpha_rad": list(alpha), "a_mm": list(a), "d_mm": list(d),
+                     "theta_rad": list(theta), "beta_rad": list(beta), "beta_joints": list(bj),
+                     "q_min": np.asarray(chain.q_min, np.float64).tolist(),
+                     "q_max": np.asarray(chain.q_max, np.float64).tolist()}
+    else:
+        out["urdf"] = chain.urdf if chain.urdf is not None else export_urdf(chain)
+    return out
+
+
+def chain_from_dict(d: dict) -> SerialChain:
+    """Inverse of :func:`chain_to_dict`."""
+    if "dh" in d:
+        import jax.numpy as jnp
+
+        from ._robot import DHRobot
+
+        t = d["dh"]
+        robot = DHRobot(
+            jnp.asarray(t["alpha_rad"]), jnp.asarray(t["a_mm"]), jnp.asarray(t["d_mm"]), jnp.asarray(t["theta_rad"]),
+            jnp.asarray(t["beta_rad"]), jnp.asarray(t["q_min"]), jnp.asarray(t["q_max"]), jnp.asarray(d["tool_mm"]),
+            convention=t["convention"], beta_joints=tuple(t["beta_joints"]), name=d.get("name", "robot"),
+        )
+        return chain_from_dh(robot)
+    return load_urdf(d["urdf"], base=d["base"], tip=d["tip"], tool=d["tool_mm"], name=d.get("name"))
