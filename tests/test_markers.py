@@ -292,6 +292,7 @@ def test_figaroh_fixture_reads():
     assert np.ptp(np.delete(d12, b.OUTLIER_ROW)) < 5.0  # rigid on the hand (mm)
 
 
+@pytest.mark.slow  # ~1.5 min on 2 cores (compiling the chain Jacobians); run with -m slow
 def test_figaroh_tiago_end_to_end_small():
     """Nominal URDF + closed-form mocap frame/layout ≈ 11 mm; calibrated on 28 postures, better on
     the 7 held-out ones (a small version of benchmarks/bench_figaroh.py)."""
@@ -305,5 +306,5 @@ def test_figaroh_tiago_end_to_end_small():
     est = initial_extras(chain, m, (jnp.asarray(q), jnp.asarray(y)))
     assert 5.0 < est.rmse_after < 20.0 and est.n_trimmed >= 1, est.message  # the 60 mm outlier row
     (f,) = b.held_out(chain, m, q, y, 5, which=[4])  # rows 29-35 held out
-    assert f["after_train"] < 0.6 * f["before_train"], f
+    assert f["after_train_clean"] < 0.85 * f["before_train_clean"], f
     assert f["after_test"] < f["before_test"], f
