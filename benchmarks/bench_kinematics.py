@@ -6,8 +6,9 @@ Target on the project's 2-core CPU: Jacobian for 2 000 samples × 24 parameters 
 
 Generic chains (issue 11): the same robot as a :class:`jaxcal.SerialChain` (``chain_from_dh``),
 its per-joint errors (offset, dx, dy, dz, drx, dry: 36 columns) against the DH kernel's 24, and
-the chain with 24 columns (offset, dx, dy, drx) for a per-column comparison; DH and chain timed
-alternately in the same process. Target: chain Jacobian ≤ 1.5× the DH one.
+the chain with 24 columns (offset, dx, dy, drx) for a per-column comparison, for the draw-wire
+and the position model; DH and chain timed alternately in the same process. Target: chain
+Jacobian ≤ 1.5× the DH one.
 
 Run:  python benchmarks/bench_kinematics.py [--chain]   (writes benchmarks/results/kinematics_<platform>.md,
       and with --chain only benchmarks/results/kinematics_chain_<platform>.md)
@@ -29,51 +30,43 @@ jaxcal.enable_x64()
 
 
 def chain_rows():
-    """DH kernel vs generic-chain kernel, draw-wire Jacobian, float64."""
+    """DH kernel vs generic-chain kernel, identification Jacobian (``Problem.jacobian``), float64."""
     robot = jaxcal.robots.hsr_jr680()
     chain = jaxcal.chain_from_dh(robot)
-    meas = CableLength(jnp.asarray([1600.0, 0.0, 0.0]))
-    space = ParameterSpace.for_robot(robot)
     jac_fn = jax.jit(lambda p, x: p.jacobian(x))
-    anchor = meas.anchor
-
-    def chain_jac(groups):
-        def res(x, q, y):
-            dev = {g: x[i * chain.dof:(i + 1) * chain.dof] for i, g in enumerate(groups)}
-            p = chain.point_in_base(dev, q, chain.tool)
-            return jnp.sqrt(sum((p[k] - anchor[k]) ** 2 for k in range(3))) - y
-
-        return jax.jit(jax.jacfwd(res))
-
-    full = ("offset", "dx", "dy", "dz", "drx", "dry")
-    same = ("offset", "dx", "dy", "drx")
+    same = [f"{g}_{j + 1}" for g in ("offset", "dx", "dy", "drx") for j in range(6)]
     rows = []
-    for n in (2_000, 20_000):
-        q = jaxcal._simulate.sample_joint_angles(jax.random.PRNGKey(0), robot, n)
-        y = meas.predict(robot, None, q)
-        prob = Problem(robot, meas, q, y, space)
-        x = jnp.zeros(space.n_free)
-        fns = {"dh": (jac_fn, (prob, x)), "chain36": (chain_jac(full), (jnp.zeros(36), q, y)),
-               "chain24": (chain_jac(same), (jnp.zeros(24), q, y))}
-        times = {k: [] for k in fns}
-        for _ in range(5):  # alternate, so background load hits all alike
-            for k, (fn, args) in fns.items():
-                times[k].append(median_time(fn, *args, repeats=20 if n <= 2_000 else 10))
-        t = {k: float(min(v)) * 1e3 for k, v in times.items()}
-        rows.append((n, t["dh"], t["chain36"], t["chain24"]))
-        print(rows[-1], flush=True)
+    for kind, meas, ns in (("cable", CableLength(jnp.asarray([1600.0, 0.0, 0.0])), (2_000, 20_000)),
+                           ("position", jaxcal.Position(), (2_000,))):
+        for n in ns:
+            q = jaxcal._simulate.sample_joint_angles(jax.random.PRNGKey(0), robot, n)
+            y = meas.predict(robot, None, q)
+            s_dh = ParameterSpace.for_robot(robot, measurement=meas)
+            s_36 = ParameterSpace.for_robot(chain, measurement=meas)
+            s_24 = ParameterSpace.from_names(s_36.layout, same)
+            probs = {"dh": Problem(robot, meas, q, y, s_dh), "chain36": Problem(chain, meas, q, y, s_36),
+                     "chain24": Problem(chain, meas, q, y, s_24)}
+            times = {k: [] for k in probs}
+            for _ in range(5):  # alternate, so background load hits all alike
+                for k, pr in probs.items():
+                    x = jnp.zeros(pr.space.n_free)
+                    times[k].append(median_time(jac_fn, pr, x, repeats=20 if n <= 2_000 else 10))
+            t = {k: float(min(v)) * 1e3 for k, v in times.items()}
+            rows.append((kind, n, s_dh.n_free, t["dh"], s_36.n_free, t["chain36"], t["chain24"]))
+            print(rows[-1], flush=True)
     lines = [
-        "# Jacobian timing: DH kernel vs generic serial chain (draw-wire, HSR-JR680, float64)",
+        "# Jacobian timing: DH kernel vs generic serial chain (HSR-JR680, float64)",
         "",
         f"Machine: {machine()}.",
-        "`jax.jacfwd` of the residual vector after `jax.jit`; best of 5 alternating medians. The chain is",
-        "`chain_from_dh(hsr_jr680())` (identical FK); its errors per joint are offset, dx, dy, dz, drx, dry",
-        "(36 columns, the default free set) or offset, dx, dy, drx (24, as many columns as the DH kernel).",
+        "`Problem.jacobian` (`jax.jacfwd` of the residual vector) after `jax.jit`; best of 5 alternating",
+        "medians. The chain is `chain_from_dh(hsr_jr680())` (identical FK); its default free errors per joint",
+        "are offset, dx, dy, dz, drx, dry (36 columns), or offset, dx, dy, drx (24, as many as the DH kernel).",
         "",
-        "| samples | DH, 24 columns / ms | chain, 36 columns / ms | ratio | chain, 24 columns / ms | ratio |",
-        "|---:|---:|---:|---:|---:|---:|",
+        "| measurement | samples | DH: columns | DH / ms | chain: columns | chain / ms | ratio | chain, 24 columns / ms | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    lines += [f"| {n:,} | {d:.3f} | {c36:.3f} | {c36 / d:.2f} | {c24:.3f} | {c24 / d:.2f} |" for n, d, c36, c24 in rows]
+    lines += [f"| {k} | {n:,} | {pd} | {d:.3f} | {pc} | {c36:.3f} | {c36 / d:.2f} | {c24:.3f} | {c24 / d:.2f} |"
+              for k, n, pd, d, pc, c36, c24 in rows]
     plat = jax.devices()[0].platform
     out = pathlib.Path(__file__).parent / "results" / f"kinematics_chain_{plat}.md"
     out.write_text("\n".join(lines) + "\n")

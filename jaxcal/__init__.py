@@ -1,7 +1,7 @@
 """jaxcal: kinematic calibration of industrial robots in JAX.
 
 Differentiable batched DH kinematics, draw-wire / position / pose measurement models, the
-simulated experiment of Chen & Li (AdaModW), identifiability analysis, and calibration methods
+simulated experiment of Chen & Li (AdaModW), identifiability analysis, measurement planning, and calibration methods
 (LM, Gauss–Newton, AdaModW and other optax optimizers, population and filter baselines).
 
 Float64: ``import jaxcal`` changes nothing global; call :func:`jaxcal.enable_x64` once at
@@ -49,9 +49,21 @@ from ._metrics import Metrics as Metrics
 from ._metrics import compute_metrics as compute_metrics
 from ._metrics import format_table as format_table
 from ._metrics import statistical_floor as statistical_floor
+from ._nongeometric import MassModel as MassModel
+from ._nongeometric import gravity_torques as gravity_torques
 from ._objective import Prior as Prior
 from ._params import Deviations as Deviations
 from ._params import ParameterSpace as ParameterSpace
+from ._plan import AccuracyCurve as AccuracyCurve
+from ._plan import ObservabilityIndices as ObservabilityIndices
+from ._plan import PoseSelection as PoseSelection
+from ._plan import PredictedAccuracy as PredictedAccuracy
+from ._plan import accuracy_curve as accuracy_curve
+from ._plan import candidate_poses as candidate_poses
+from ._plan import observability_indices as observability_indices
+from ._plan import predicted_accuracy as predicted_accuracy
+from ._plan import relaxed_design as relaxed_design
+from ._plan import select_poses as select_poses
 from ._precision import PrecisionWarning as PrecisionWarning
 from ._precision import enable_x64 as enable_x64
 from ._problem import Problem as Problem
@@ -78,6 +90,16 @@ __all__ = [
     "chain_from_dh",
     "export_urdf",
     "load_urdf",
+    "AccuracyCurve",
+    "ObservabilityIndices",
+    "accuracy_curve",
+    "PoseSelection",
+    "PredictedAccuracy",
+    "candidate_poses",
+    "observability_indices",
+    "predicted_accuracy",
+    "relaxed_design",
+    "select_poses",
     "MessyExperiment",
     "PriorCV",
     "cross_validate_prior",
@@ -129,6 +151,8 @@ __all__ = [
     "format_table",
     "identifiability",
     "KEEP_PREFERENCE",
+    "MassModel",
+    "gravity_torques",
     "DHTable",
     "load_csv",
     "residuals",

@@ -110,7 +110,9 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
         q, y = data
         q = jnp.asarray(q)
         y = jnp.asarray(y, q.dtype)
-        Dataset(q, y, measurement.kind)  # validates shapes, NaN/inf, degrees
+        from ._dataset import mm_joints_metadata
+
+        Dataset(q, y, measurement.kind, mm_joints_metadata(robot))  # validates shapes, NaN/inf, degrees
     else:
         raise TypeError("data must be a jaxcal.Dataset or a (q, y) pair of arrays")
     if q.shape[1] != robot.dof:

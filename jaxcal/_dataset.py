@@ -38,6 +38,24 @@ def marker_columns(n_markers: int) -> list[str]:
 _MAX_RAD = 4 * math.pi
 
 
+#: metadata key listing the 1-based joints whose positions are lengths in mm (prismatic joints),
+#: e.g. ``"1"``: they are exempt from the degrees check and written as ``q1_mm`` columns.
+MM_JOINTS = "mm_joints"
+
+
+def mm_joints(metadata) -> tuple[int, ...]:
+    """The 0-based prismatic (mm) joints named by a dataset's ``mm_joints`` metadata."""
+    items = metadata.items() if isinstance(metadata, Mapping) else metadata
+    text = dict(items).get(MM_JOINTS, "")
+    return tuple(int(v) - 1 for v in str(text).replace(";", ",").split(",") if v.strip())
+
+
+def mm_joints_metadata(robot) -> dict[str, str]:
+    """``{"mm_joints": "1,…"}`` for a robot with prismatic joints (a :class:`~jaxcal.SerialChain`), else ``{}``."""
+    prism = [j + 1 for j, p in enumerate(getattr(robot, "prismatic", ())) if p]
+    return {MM_JOINTS: ",".join(map(str, prism))} if prism else {}
+
+
 def _is_tracer(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
@@ -48,7 +66,8 @@ class Dataset(eqx.Module):
     A pytree (``q`` and ``y`` are leaves), so datasets can be built inside ``jit``/``vmap``.
 
     Attributes:
-        q: ``[n, dof]`` joint angles (rad).
+        q: ``[n, dof]`` joint angles (rad; mm for the prismatic joints listed in the
+            ``mm_joints`` metadata, e.g. ``"1"``).
         y: measurements: ``[n]`` wire lengths (mm) for ``kind="cable"``, ``[n, 3]`` positions
             (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
             positions (mm, sensor frame) for ``"markers"``.
@@ -74,7 +93,7 @@ class Dataset(eqx.Module):
         if not jnp.issubdtype(q.dtype, jnp.floating):
             q = q.astype(jnp.result_type(float))
         y = jnp.asarray(y, dtype=q.dtype)
-        _validate(np.asarray(q), np.asarray(y), kind)
+        _validate(np.asarray(q), np.asarray(y), kind, mm_joints(self.metadata))
         self.q, self.y = q, y
 
     @property
@@ -112,7 +131,7 @@ class Dataset(eqx.Module):
         return load_csv(path, **kwargs)
 
 
-def _validate(q: np.ndarray, y: np.ndarray, kind: str) -> None:
+def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ()) -> None:
     if q.ndim != 2 or q.shape[1] < 1:
         raise ValueError(f"joint angles must have shape [n, dof], got {list(q.shape)}")
     n = q.shape[0]
@@ -131,9 +150,10 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str) -> None:
             f"data contain NaN/inf in {rows.size} sample(s) (rows {rows[:10].tolist()}"
             f"{'...' if rows.size > 10 else ''}); remove or fix them — nothing is dropped silently"
         )
-    if n and np.abs(q).max() > _MAX_RAD:
+    ang = np.delete(q, [j for j in mm if j < q.shape[1]], axis=1) if mm else q
+    if n and ang.size and np.abs(ang).max() > _MAX_RAD:
         raise ValueError(
-            f"joint angles up to {np.abs(q).max():.1f} rad were given where radians are expected; "
+            f"joint angles up to {np.abs(ang).max():.1f} rad were given where radians are expected; "
             "they look like degrees (convert with np.deg2rad, or use *_deg columns in CSV)"
         )
 
@@ -192,7 +212,10 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     if angle_unit not in ("deg", "rad"):
         raise ValueError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
     q = np.asarray(data.q, dtype=np.float64)
-    qcols = _rad_to_deg_roundtrip(q) if angle_unit == "deg" else q
+    qcols = _rad_to_deg_roundtrip(q) if angle_unit == "deg" else q.copy()
+    mm = mm_joints(data.metadata)
+    for j in mm:  # prismatic joints: mm, as they are
+        qcols[:, j] = q[:, j]
     y = np.asarray(data.y, dtype=np.float64)
     if data.kind == "cable":
         vals = y[:, None]
@@ -203,7 +226,7 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     else:
         vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
     value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
-    header = [f"q{j + 1}_{angle_unit}" for j in range(data.dof)] + value_cols
+    header = [f"q{j + 1}_{'mm' if j in mm else angle_unit}" for j in range(data.dof)] + value_cols
     buf = io.StringIO()
     buf.write("# jaxcal dataset v1\n")
     buf.write(f"# kind: {data.kind}\n")
@@ -220,7 +243,7 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
 
 #: columns that data files often carry for bookkeeping; not used, still named in the warning.
 _BOOKKEEPING = ("index", "row", "sample", "id", "time", "time_s", "timestamp")
-_JOINT = re.compile(r"q(\d+)_(deg|rad)")
+_JOINT = re.compile(r"q(\d+)_(deg|rad|mm)")
 
 
 def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
@@ -230,10 +253,10 @@ def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
     if not found:
         raise ValueError(f"{path}: no joint-angle columns (expected q1_deg, q2_deg, ... or q1_rad, ...); "
                          f"header: {list(header)}")
-    units = {u for _, u in found.values()}
-    if len(units) != 1:
+    units = {u for _, u in found.values()} - {"mm"}  # mm: prismatic joints, next to deg or rad columns
+    if len(units) > 1:
         raise ValueError(f"{path}: joint-angle columns mix degrees and radians: {list(found)}")
-    unit = units.pop()
+    unit = units.pop() if units else "rad"
     by_joint: dict[int, list[str]] = {}
     for h, (j, _) in found.items():
         by_joint.setdefault(j, []).append(h)
@@ -347,12 +370,17 @@ def load_csv(
     table = t.floats(used)
     n_joints = len(qcols)
     qv = table[:, :n_joints]
-    if unit == "rad" and np.abs(qv).max() > _MAX_RAD:
+    mm = [j for j, c in enumerate(qcols) if c.endswith("_mm")]
+    ang = np.delete(qv, mm, axis=1)
+    if unit == "rad" and ang.size and np.abs(ang).max() > _MAX_RAD:
         raise ValueError(
             f"{path}: columns are declared in radians (q*_rad) but hold values up to "
-            f"{np.abs(qv).max():.1f}; they look like degrees — rename the columns to q*_deg"
+            f"{np.abs(ang).max():.1f}; they look like degrees — rename the columns to q*_deg"
         )
-    q = np.deg2rad(qv) if unit == "deg" else qv
+    q = np.deg2rad(qv) if unit == "deg" else qv.copy()
+    q[:, mm] = qv[:, mm]
+    if mm:
+        meta[MM_JOINTS] = ",".join(str(j + 1) for j in mm)
     vals = table[:, n_joints:]
     if kind == "cable":
         y = vals[:, 0]

@@ -84,8 +84,8 @@ class Uncertainty:
     n_residuals: int
 
     def std_display(self) -> dict[str, tuple[float, str]]:
-        """``{name: (σ, unit)}`` with angles in degrees."""
-        return {n: ((math.degrees(s), "deg") if u == "rad" else (float(s), "mm"))
+        """``{name: (σ, unit)}`` with angles in degrees (other units as they are: mm, rad/(N*m)...)."""
+        return {n: ((math.degrees(s), "deg") if u == "rad" else (float(s), u))
                 for n, s, u in zip(self.names, self.std, self.units)}
 
     def to_dict(self) -> dict:
@@ -231,23 +231,25 @@ class Diagnostics:
         }
 
 
-def implausible_deviations(names, units, values, checks: Checks) -> tuple:
-    """DH deviations beyond the plausibility bounds: ``((name, value, unit), ...)`` with angles in
-    wrapped degrees; non-finite values always count."""
-    out = []
+def robot_deviations(names, units, values):
+    """The robot's own angle and length deviations (not the sensor/set-up extras, not entries in
+    other units such as compliances) as ``(name, value, unit)`` with angles in wrapped degrees
+    (``"deg"``) and lengths in ``"mm"``; non-finite values pass through."""
     for n, u, v in zip(names, units, values):
-        if group_kind(n) == "extra":  # sensor/set-up extras (anchor, base, markers...)
+        if u not in ("rad", "mm") or group_kind(n) == "extra":
             continue
         v = float(v)
-        if not math.isfinite(v):
-            out.append((n, v, "deg" if u == "rad" else "mm"))
-        elif u == "rad":
-            deg = float(wrap_angle_deg(math.degrees(v)))
-            if abs(deg) > checks.angle_deg:
-                out.append((n, deg, "deg"))
-        elif abs(v) > checks.length_mm:
-            out.append((n, v, "mm"))
-    return tuple(out)
+        if u == "rad":
+            yield n, (float(wrap_angle_deg(math.degrees(v))) if math.isfinite(v) else v), "deg"
+        else:
+            yield n, v, "mm"
+
+
+def implausible_deviations(names, units, values, checks: Checks) -> tuple:
+    """Robot deviations beyond the plausibility bounds (:func:`robot_deviations`):
+    ``((name, value, unit), ...)``; non-finite values always count."""
+    return tuple((n, v, u) for n, v, u in robot_deviations(names, units, values)
+                 if not math.isfinite(v) or abs(v) > (checks.angle_deg if u == "deg" else checks.length_mm))
 
 
 def coverage(robot, q) -> np.ndarray:
@@ -269,7 +271,7 @@ def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, .
         elif math.isfinite(s0):
             if s > checks.weak_fraction * s0:
                 out.append(n)
-        elif group_kind(n) != "extra":
+        elif u in ("rad", "mm") and group_kind(n) != "extra":
             bound = math.radians(checks.angle_deg) if u == "rad" else checks.length_mm
             if s > bound / 3:
                 out.append(n)

@@ -45,13 +45,22 @@ def default_rtol(dtype) -> float:
 _KIND_RANK = {"geometric": 4.5, "nongeometric": 4.7, "extra": len(KEEP_PREFERENCE)}
 
 
+#: the built-in non-geometric groups (:mod:`jaxcal._nongeometric`) rank after every geometric
+#: group of :data:`KEEP_PREFERENCE` and before the extras: compliance (a physical model with a mass
+#: model) first, then the harmonic transmission errors, once-per-revolution before twice
+NONGEOMETRIC_PREFERENCE: tuple[str, ...] = ("compliance", "h1s", "h1c", "h2s", "h2c")
+
+
 def _preference_key(name: str) -> tuple[float, int]:
     from ._params import group_kind, group_of
 
     g = group_of(name)
     tail = name.rsplit("_", 1)[-1]
     order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
-    rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(g)]
+    if g in NONGEOMETRIC_PREFERENCE:
+        rank = KEEP_PREFERENCE.index("anchor") - 0.5 + 0.01 * NONGEOMETRIC_PREFERENCE.index(g)
+    else:
+        rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(g)]
     return rank, order
 
 
@@ -165,12 +174,20 @@ def _prefer(Rs: np.ndarray, keep: list[int], pref: list) -> np.ndarray:
     return np.asarray(sorted(keep), dtype=int)
 
 
-_pivoted_qr = jax.jit(functools.partial(jsl.qr, mode="economic", pivoting=True))
 
 
 @jax.jit
 def _start_jacobian(problem: Problem):
     return problem.jacobian(problem.x0())
+
+
+#: a separate compiled QR: fused into the Jacobian's program it ran ~6x slower on 2 CPU cores
+_pivoted_qr = jax.jit(functools.partial(jsl.qr, mode="economic", pivoting=True))
+
+
+@jax.jit
+def _prediction(measurement, robot, deviations, q):
+    return measurement.predict(robot, deviations, q)
 
 
 def identifiability(
@@ -201,19 +218,18 @@ def identifiability(
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
     # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
     dev0 = Deviations.zeros(layout_for(robot, measurement), q.dtype) if deviations is None else deviations.astype(q.dtype)
-    sample = jnp.asarray(measurement.predict(robot, dev0, q), q.dtype).reshape(q.shape[0], *measurement.sample_shape)
+    sample = jnp.asarray(_prediction(measurement, robot, dev0, q), q.dtype).reshape(q.shape[0], *measurement.sample_shape)
     problem = Problem(robot, measurement, q, sample, space, deviations)
+    # Js = J/norms, Js[:, piv] = Q R with orthonormal Q: Js, J and their column subsets have the
+    # singular values and least-squares solutions of the columns of the small triangular factor,
+    # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian. NumPy's
+    # multithreaded LAPACK on the tall matrices took 0.2–1 s per call on a busy 2-core machine.
     J = np.asarray(_start_jacobian(problem), dtype=np.float64)
     if not np.all(np.isfinite(J)):
         raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
     norms = np.linalg.norm(J, axis=0)
     scale = np.where(norms > 0, norms, 1.0)
-    Js = J / scale
-    # Js[:, piv] = Q R with orthonormal Q: Js, J and their column subsets have the singular
-    # values and least-squares solutions of the columns of the small triangular factor, so the
-    # SVDs and least squares below run on R (p×p), not on the N×p Jacobian. NumPy's
-    # multithreaded LAPACK on the tall matrices took 0.2–1 s per call on a busy 2-core machine.
-    _, R, piv = _pivoted_qr(jnp.asarray(Js))
+    _, R, piv = _pivoted_qr(jnp.asarray(J / scale))
     piv = np.asarray(piv)
     Rs = np.zeros((R.shape[0], len(piv)))
     Rs[:, piv] = np.asarray(R, dtype=np.float64)  # Js = Q Rs

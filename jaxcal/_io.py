@@ -25,6 +25,7 @@ from ._csvfile import read_table
 from ._json import to_jsonable
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
+from ._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from ._params import Deviations, ParameterSpace, layout_for
 from ._result import CalibrationResult, Status
 from ._robot import DHRobot
@@ -52,7 +53,15 @@ RESULT_FORMAT = "jaxcal-calibration-result/1"
 
 
 def robot_to_dict(robot: DHRobot) -> dict:
-    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm."""
+    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm (a
+    :class:`~jaxcal.SerialChain`: its URDF text with base/tip links, see ``chain_to_dict``)."""
+    if not isinstance(robot, DHRobot):
+        from ._urdf import chain_to_dict
+
+        out = chain_to_dict(robot)
+        if (ng := nongeometric_to_dict(robot)) is not None:
+            out["nongeometric"] = ng
+        return out
     deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
     return {
         "name": robot.name,
@@ -66,17 +75,23 @@ def robot_to_dict(robot: DHRobot) -> dict:
         "q_min_deg": deg(robot.q_min),
         "q_max_deg": deg(robot.q_max),
         "tool_mm": np.asarray(robot.tool, np.float64).tolist(),
+        **({"nongeometric": ng} if (ng := nongeometric_to_dict(robot)) is not None else {}),
     }
 
 
 def robot_from_dict(d: dict) -> DHRobot:
     """Inverse of :func:`robot_to_dict` (values within rounding of deg↔rad)."""
-    return DHRobot.from_degrees(
+    if d.get("type") == "serial_chain":
+        from ._urdf import chain_from_dict
+
+        return nongeometric_from_dict(chain_from_dict(d), d.get("nongeometric"))
+    robot = DHRobot.from_degrees(
         alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
         q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),
         beta_deg=d.get("beta_deg"), convention=d.get("convention", "standard"),
         beta_joints=d.get("beta_joints", ()), name=d.get("name", "robot"),
     )
+    return nongeometric_from_dict(robot, d.get("nongeometric"))  # compliance / harmonic models
 
 
 _DH_COLUMNS = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
@@ -261,10 +276,11 @@ def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
     out["robot"] = robot_to_dict(result.robot)
     out["measurement"] = measurement_to_dict(result.measurement)
     out["free_names"] = list(result.space.free_names)
-    out["calibrated_dh_table"] = {
-        "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
-        "rows": np.asarray(result.dh_table()).tolist(),
-    }
+    if isinstance(result.robot, DHRobot):
+        out["calibrated_dh_table"] = {
+            "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
+            "rows": np.asarray(result.dh_table()).tolist(),
+        }
     ident = getattr(result, "identifiability", None)
     if ident is not None:
         out["identifiability"] = ident.to_dict()

@@ -39,15 +39,26 @@ def register_joint_correction(group: str, fn) -> None:
     _JOINT_CORRECTIONS[group] = fn
 
 
+def _register_builtin() -> None:
+    from ._nongeometric import register_corrections
+
+    register_corrections(register_joint_correction)
+
+
+_register_builtin()
+
+
 def effective_joint_angles(robot, dev, q: Float[Array, "n dof"]) -> Float[Array, "n dof"]:
     """``q`` plus every registered joint-space correction whose group ``dev`` has (``q`` itself
-    when there is none, so plain geometric models compute exactly what they did)."""
+    when there is none, so plain geometric models compute exactly what they did). Every
+    correction is a function of the commanded ``q`` (they add, none sees another's output)."""
     if dev is None:
         return q
+    q_eff = q
     for group, fn in _JOINT_CORRECTIONS.items():
         if group in dev.values:
-            q = q + fn(robot, dev, q)
-    return q
+            q_eff = q_eff + fn(robot, dev, q)
+    return q_eff
 
 
 def check_joint_angles(robot: DHRobot, q) -> Array:

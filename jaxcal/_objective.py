@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._params import Deviations, ParameterSpace, group_kind, group_of
+from ._params import Deviations, ParameterSpace, group_of
 
 __all__ = ["Prior", "Objective", "LOSSES", "robust_factor", "robust_scale", "resolve_prior"]
 
@@ -46,6 +46,9 @@ class Prior:
     Per-group standard deviations; ``math.inf`` (the default for the sensor extras) means no
     prior on that group. The defaults are the size of real manufacturing errors of industrial
     arms (tenths of a degree, a few mm), wide enough not to bias a well-determined parameter.
+    Robot groups in other units (a compliance in rad/(N·m)...) take their group's own default
+    σ (:attr:`jaxcal._params.Group.prior_std`, divided by ``strength``), or no prior if the
+    group has none.
 
     Attributes:
         angle_deg: σ of the DH angles α, θ and Hayati β (degrees).
@@ -57,6 +60,7 @@ class Prior:
         mean: prior means (default: the nominal robot, zero deviations).
         overrides: ``((name, σ), ...)`` per-parameter σ by name (rad/mm as the name's unit says:
             ``("d_1", 10.0)``, ``("theta_2", 0.01)``), taking precedence over the groups.
+        strength: divides the groups' own default σ (:meth:`scaled` multiplies it).
     """
 
     angle_deg: float = 0.5
@@ -66,6 +70,7 @@ class Prior:
     noise_std: float | None = None
     mean: Deviations | None = None
     overrides: tuple = ()
+    strength: float = 1.0
 
     def __post_init__(self):
         for name in ("angle_deg", "length_mm", "extras_mm", "extras_deg"):
@@ -111,7 +116,7 @@ class Prior:
         return dataclasses.replace(
             self, angle_deg=self.angle_deg / strength, length_mm=self.length_mm / strength,
             extras_mm=self.extras_mm / strength, extras_deg=self.extras_deg / strength,
-            overrides=tuple((n, s / strength) for n, s in self.overrides),
+            overrides=tuple((n, s / strength) for n, s in self.overrides), strength=self.strength * strength,
         )
 
     def std(self, space: ParameterSpace) -> np.ndarray:
@@ -125,10 +130,16 @@ class Prior:
             if name in over:
                 out.append(float(over[name]))
                 continue
-            if group_kind(name) == "extra":  # anchor, base frame, marker positions ...
-                out.append(math.radians(self.extras_deg) if unit == "rad" else self.extras_mm)
-            else:
+            group = space.layout.group(space.layout.group_of(name))
+            if group.kind == "extra":
+                own = math.radians(self.extras_deg) if unit == "rad" else self.extras_mm
+                out.append(own if unit in ("rad", "mm") else math.inf)
+            elif group.prior_std is not None:
+                out.append(group.prior_std / self.strength)
+            elif unit in ("rad", "mm"):
                 out.append(math.radians(self.angle_deg) if unit == "rad" else self.length_mm)
+            else:
+                out.append(math.inf)
         return np.asarray(out, dtype=np.float64)
 
     def describe(self) -> str:

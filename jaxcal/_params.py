@@ -45,6 +45,9 @@ class Group:
             tool point, cable offset, sensor-to-base frame, markers) or ``"nongeometric"``
             (compliance, transmission errors).
         shape: the value's shape: ``()`` for a scalar, ``(k,)`` for ``k`` entries.
+        prior_std: default prior σ of every entry in its unit (e.g. a compliance in rad/(N·m));
+            ``None``: :class:`jaxcal.Prior`'s angle/length σ by unit for robot groups, none for
+            extras and for other units.
     """
 
     name: str
@@ -52,6 +55,7 @@ class Group:
     units: tuple[str, ...]
     kind: str
     shape: tuple[int, ...]
+    prior_std: float | None = None
 
     def __post_init__(self):
         if self.kind not in _KINDS:
@@ -68,20 +72,22 @@ class Group:
         return len(self.names)
 
     @classmethod
-    def per_joint(cls, name: str, dof: int, units: str | Sequence[str], kind: str = "geometric") -> Group:
+    def per_joint(cls, name: str, dof: int, units: str | Sequence[str], kind: str = "geometric",
+                  prior_std: float | None = None) -> Group:
         """``dof`` entries named ``f"{name}_{j}"`` (``j`` = 1..dof); ``units`` one or per joint."""
         units = (units,) * dof if isinstance(units, str) else tuple(units)
-        return cls(name, tuple(f"{name}_{j + 1}" for j in range(dof)), units, kind, (dof,))
+        return cls(name, tuple(f"{name}_{j + 1}" for j in range(dof)), units, kind, (dof,), prior_std)
 
     @classmethod
-    def vector(cls, name: str, components: Sequence[str], unit: str, kind: str = "extra") -> Group:
+    def vector(cls, name: str, components: Sequence[str], unit: str, kind: str = "extra",
+               prior_std: float | None = None) -> Group:
         """A vector group whose entries are named ``components``."""
-        return cls(name, tuple(components), (unit,) * len(components), kind, (len(components),))
+        return cls(name, tuple(components), (unit,) * len(components), kind, (len(components),), prior_std)
 
     @classmethod
-    def scalar(cls, name: str, unit: str, kind: str = "extra") -> Group:
+    def scalar(cls, name: str, unit: str, kind: str = "extra", prior_std: float | None = None) -> Group:
         """A single entry named like the group."""
-        return cls(name, (name,), (unit,), kind, ())
+        return cls(name, (name,), (unit,), kind, (), prior_std)
 
 
 def _per_joint_name(entry: str, group: str) -> bool:

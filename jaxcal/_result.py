@@ -305,6 +305,9 @@ class CalibrationResult:
         from ._diagnostics import wrap_angle_deg
 
         r, d = self.robot, self.deviations
+        if not hasattr(r, "dh_table_deg"):
+            raise TypeError(f"robot {r.name!r} is a generic chain, not a DH table: its calibrated model is "
+                            "the per-joint corrections in .deviations; jaxcal.export_urdf writes it as URDF")
         free = dict(zip(self.space.names, np.asarray(self.space.free, bool)))
         fixed = np.asarray([[not free[f"{g}_{j + 1}"] for g in ("alpha", "a", "d", "theta")] for j in range(r.dof)])
         return DHTable(np.stack([

@@ -9,6 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
+
 __all__ = ["DHRobot"]
 
 _CONVENTIONS = ("standard", "modified")
@@ -25,7 +27,7 @@ def _as_vector(name: str, values, dof: int | None) -> np.ndarray:
     return arr
 
 
-class DHRobot(eqx.Module):
+class DHRobot(NonGeometricMixin, eqx.Module):
     """A serial robot with revolute joints described by a nominal DH table.
 
     Lengths are in mm and angles in radians. Joint ``i`` (1-based, as in DH tables) has the
@@ -53,6 +55,8 @@ class DHRobot(eqx.Module):
         convention: ``"standard"`` or ``"modified"`` (static).
         beta_joints: 1-based joint numbers that carry a Hayati β (static).
         name: display name (static).
+        nongeometric: the non-geometric error models (joint compliance, harmonic transmission
+            errors; :meth:`with_compliance`, :meth:`with_harmonics`), or ``None``.
     """
 
     alpha: Float[Array, " dof"]
@@ -66,6 +70,7 @@ class DHRobot(eqx.Module):
     convention: str = eqx.field(static=True, default="standard")
     beta_joints: tuple[int, ...] = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="robot")
+    nongeometric: NonGeometric | None = None
 
     def __check_init__(self):
         if self.convention not in _CONVENTIONS:
@@ -132,11 +137,12 @@ class DHRobot(eqx.Module):
         )
 
     def error_groups(self) -> tuple:
-        """The robot's calibratable groups: DH deviations α, a, d, θ, β (``[dof]`` each; see
-        :func:`jaxcal._params.layout_for` for the full layout with the sensor extras)."""
+        """The robot's calibratable groups: DH deviations α, a, d, θ, β (``[dof]`` each), then
+        any non-geometric groups (``compliance``, ``h1s``...; see :mod:`jaxcal._nongeometric`
+        and :func:`jaxcal._params.layout_for` for the full layout with the sensor extras)."""
         from ._params import Layout
 
-        return Layout.dh(self.dof).groups[:5]
+        return Layout.dh(self.dof).groups[:5] + nongeometric_groups(self)
 
     def with_hayati(self, *joints: int) -> DHRobot:
         """A copy with Hayati's β enabled at the given 1-based joints (β stays 0 nominally)."""
@@ -144,6 +150,7 @@ class DHRobot(eqx.Module):
         return DHRobot(
             self.alpha, self.a, self.d, self.theta, self.beta, self.q_min, self.q_max,
             self.tool, convention=self.convention, beta_joints=merged, name=self.name,
+            nongeometric=self.nongeometric,
         )
 
     def with_tool(self, tool_mm: Sequence[float]) -> DHRobot:

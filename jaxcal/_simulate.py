@@ -110,7 +110,7 @@ def draw_deviations(
             vals[g.name] = std * jax.random.normal(kk, g.shape, dtype)
         return Deviations(vals, layout)
     beta_on = jnp.asarray([(j + 1) in robot.beta_joints for j in range(dof)], dtype)
-    return Deviations.from_dh(
+    out = Deviations.from_dh(
         alpha=n(k[0], (dof,), ang),
         a=n(k[1], (dof,), length_std_mm),
         d=n(k[2], (dof,), length_std_mm),
@@ -120,6 +120,7 @@ def draw_deviations(
         tool=n(k[6], (3,), tool_std_mm),
         cable_offset=n(k[7], (), cable_offset_std_mm),
     )
+    return out if layout == out.layout else Deviations(out.values, layout)  # + zero non-geometric groups
 
 
 def check_simulation_settings(n_samples: int, test_fraction: float, noise_std: float, oversample: float) -> None:
@@ -240,7 +241,10 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     else:  # pose: noise on the position only; orientation readings stay exact
         noise = sigma * jax.random.normal(k_noise, y_true[:, :3, 3].shape, dtype)
         y = y_true.at[:, :3, 3].add(noise)
-    data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name})
+    from ._dataset import mm_joints_metadata
+
+    data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name,
+                                            **mm_joints_metadata(robot)})
     n_test = int(round(cfg.n_samples * cfg.test_fraction))
     perm = jax.random.permutation(k_split, cfg.n_samples)
     train = data.subset(perm[n_test:])

@@ -588,6 +588,8 @@ def _chunking(n: int, chunk_size: int | None, n_dev: int, platform: str = "cpu")
 
 
 def _robot_fingerprint(robot: DHRobot) -> dict:
+    if not isinstance(robot, DHRobot):  # a generic chain: its URDF text, base/tip and tool
+        return robot_to_dict(robot)
     return {
         "name": robot.name, "convention": robot.convention, "beta_joints": list(robot.beta_joints),
         **{f: np.asarray(getattr(robot, f), np.float64).round(12).tolist()

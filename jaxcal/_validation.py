@@ -12,7 +12,6 @@ RMSE over all folds (random and region alike).
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 
 import jax
@@ -104,15 +103,13 @@ class PriorCV:
 
 
 def _max_dev(res) -> tuple[float, float]:
-    from ._diagnostics import wrap_angle_deg
-    from ._params import group_kind
+    """Largest |robot deviation|: (degrees, mm)."""
+    from ._diagnostics import robot_deviations
 
     ang, length = 0.0, 0.0
-    for n, u, v in zip(res.space.names, res.space.units, np.asarray(res.deviations.ravel(), np.float64)):
-        if group_kind(n) == "extra":
-            continue
-        if u == "rad":
-            ang = max(ang, abs(float(wrap_angle_deg(math.degrees(v)))))
+    for _, v, u in robot_deviations(res.space.names, res.space.units, np.asarray(res.deviations.ravel(), np.float64)):
+        if u == "deg":
+            ang = max(ang, abs(v))
         else:
             length = max(length, abs(v))
     return ang, length

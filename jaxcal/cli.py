@@ -10,6 +10,8 @@ Subcommands (``jaxcal SUBCOMMAND --help`` explains units and file formats):
 * ``jaxcal report SWEEP_DIR``: tables and figures again from a finished (or interrupted) sweep.
 * ``jaxcal export RESULT.json --out calibrated.urdf``: the calibrated model as URDF (and the
   calibrated DH table with ``--dh-out`` where the model is a DH table).
+* ``jaxcal plan --poses N --out poses.csv``: which poses to measure, their observability indices and
+  the predicted accuracy, before measuring.
 
 Errors in the input (unknown robot or method, bad CSV, too few samples) print one line on
 stderr and exit with status 2; a failed calibration exits with status 1.
@@ -138,7 +140,7 @@ def _cmd_simulate(args) -> int:
     from ._dataset import Dataset
     from ._simulate import simulate_experiment
 
-    robot = _robot(args.robot)
+    robot = _robot(args.robot, args.base, args.tip)
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     measurement = _measurement(args.measurement, anchor, robot)
     if args.samples < 2:
@@ -149,7 +151,10 @@ def _cmd_simulate(args) -> int:
 
     q = jnp.concatenate([ex.train.q, ex.test.q])
     y = jnp.concatenate([ex.train.y, ex.test.y])
-    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std}
+    from ._dataset import mm_joints_metadata
+
+    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std,
+            **mm_joints_metadata(robot)}
     if args.measurement == "cable":
         meta["anchor_mm"] = ",".join(f"{float(v):.6g}" for v in measurement.anchor)
     Dataset(q, y, measurement.kind, meta).to_csv(args.out)
@@ -255,6 +260,26 @@ def _print_chain_table(robot, res, sd) -> None:
                              "`jaxcal export` writes the corrected URDF)"))
 
 
+def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
+    """``robot`` with the non-geometric error models of ``--compliance`` / ``--harmonics``."""
+    try:
+        if compliance:
+            spec = compliance.strip()
+            if spec.lower() != "default" and not pathlib.Path(spec).exists():
+                raise _Usage(f"--compliance: mass model file {spec!r} not found (or 'default')")
+            robot = robot.with_compliance(None if spec.lower() == "default" else spec)
+        if harmonics:
+            spec, orders = harmonics.strip().lower(), (1, 2)
+            if ":" in spec:
+                spec, o = spec.split(":", 1)
+                orders = tuple(int(x) for x in o.split(",") if x.strip())
+            joints = None if spec in ("", "all") else [int(j) for j in spec.split(",") if j.strip()]
+            robot = robot.with_harmonics(joints, orders=orders)
+    except (ValueError, OSError) as e:
+        raise _Usage(f"--compliance/--harmonics: {e}") from None
+    return robot
+
+
 def _cmd_calibrate(args) -> int:
     t_start = time.perf_counter()
     import jax
@@ -273,7 +298,7 @@ def _cmd_calibrate(args) -> int:
         method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
     except ValueError as e:
         raise _Usage(str(e)) from None
-    robot = _robot(args.robot, args.base, args.tip)
+    robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
     path = pathlib.Path(args.data)
     if not path.exists():
         raise _Usage(f"data file {args.data!r} not found")
@@ -411,6 +436,20 @@ def _cmd_calibrate(args) -> int:
             s_ = sd.get(n, (None,))[0]
             parts.append(f"{n} {_fmt_value(v, s_, unit)} {unit}")
         print("estimated extras (deviation from the nominal/guessed value): " + ", ".join(parts))
+    from ._params import group_kind
+
+    ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
+    if ng_names:
+        dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+        units = dict(zip(res.space.names, res.space.units))
+        parts = []
+        for n in ng_names:
+            s_ = sd.get(n, (None,))[0]
+            if units[n] == "rad":
+                parts.append(f"{n} {_fmt_value(math.degrees(dev[n]), s_, '°')}°")
+            else:  # compliance: µrad/(N·m)
+                parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
+        print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
     if res.uncertainty is not None:
         print(f"residual σ̂ {res.uncertainty.noise_std:.4f} mm, effective parameters "
               f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}")
@@ -429,7 +468,7 @@ def _cmd_calibrate(args) -> int:
         settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
                     "seed": args.seed, "test_fraction": args.test_fraction, "method": method,
                     "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": args.loss,
-                    "excluded_rows": excluded,
+                    "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
                     "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
         save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows})
         print(f"\nwrote {args.out}")
@@ -610,6 +649,86 @@ def _cmd_report(args) -> int:
 # -- parser ---------------------------------------------------------------------------------------------
 
 
+# -- plan -------------------------------------------------------------------------------------------
+
+
+def _cmd_plan(args) -> int:
+    """Which poses to measure: candidates, selection, indices, predicted accuracy (issue 12)."""
+    import jax
+    import numpy as np
+
+    from . import _plan
+
+    robot = _robot(args.robot)
+    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
+    measurement = _measurement(args.measurement, anchor, robot)
+    if args.poses < 1:
+        raise _Usage(f"--poses must be at least 1, got {args.poses}")
+    if not (args.noise_std > 0 and math.isfinite(args.noise_std)):
+        raise _Usage(f"--noise-std must be a finite number > 0 (mm), got {args.noise_std}")
+    key = jax.random.key(args.seed)
+    k_cand, k_test, k_perm = jax.random.split(key, 3)
+    filters = {}
+    if args.wire_range:
+        filters["wire_range_mm"] = tuple(_floats(args.wire_range, 2, "--wire-range"))
+    if args.box:
+        b = _floats(args.box, 6, "--box")
+        filters["box_mm"] = (b[:3], b[3:])
+    if args.tracker:
+        filters["tracker_mm"] = _floats(args.tracker, 3, "--tracker")
+        filters["tracker_axis"] = _floats(args.tracker_axis, 3, "--tracker-axis")
+        filters["cone_half_angle_deg"] = args.cone_deg
+    spec = args.candidates
+    if spec.isdigit():
+        cand = np.asarray(_plan.candidate_poses(k_cand, robot, measurement, int(spec), **filters))
+        source = f"{int(spec)} random candidates within the joint limits and the sensor's range (seed {args.seed})"
+    else:
+        if not pathlib.Path(spec).exists():
+            raise _Usage(f"--candidates: {spec!r} is neither a number nor an existing file")
+        cand = _plan.load_joint_angles(spec, robot.dof)
+        source = f"{cand.shape[0]} candidates from {spec}"
+    if args.poses > cand.shape[0]:
+        raise _Usage(f"--poses {args.poses} is more than the {cand.shape[0]} candidates")
+    sel = _plan.select_poses(robot, measurement, cand, args.poses, criterion=args.criterion,
+                             exchange=not args.no_exchange, noise_std=args.noise_std)
+    q_test = _plan.candidate_poses(k_test, robot, measurement, 2000, **filters)
+    pred = _plan.predicted_accuracy(robot, measurement, sel.q, args.noise_std, q_test=q_test)
+    rnd_idx = np.asarray(jax.random.permutation(k_perm, cand.shape[0]))[: args.poses]
+    rnd = _plan.predicted_accuracy(robot, measurement, cand[rnd_idx], args.noise_std, q_test=q_test)
+    rnd_ind = _plan.indices_from_jacobian(
+        _plan.planning_jacobian(robot, measurement, cand[rnd_idx], sel.space), sel.scale)
+    meta = [("source", "jaxcal plan"), ("robot", robot.name), ("planned_poses", args.poses),
+            ("criterion", f"{args.criterion}-optimal ({sel.method})"), ("seed", args.seed),
+            ("predicted_test_rmse_mm", f"{pred.test_rmse:.4f}"), ("noise_std_mm", args.noise_std)]
+    if args.measurement == "cable":
+        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
+    _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
+          f"for {len(sel.space.free_names)} identifiable parameters")
+    rows = [["selected", *[f"{v:.4g}" for v in (sel.indices.o1, sel.indices.o2, sel.indices.o3, sel.indices.o4,
+                                                 sel.indices.o5)], f"{pred.test_rmse:.4f}"],
+            ["random", *[f"{v:.4g}" for v in (rnd_ind.o1, rnd_ind.o2, rnd_ind.o3, rnd_ind.o4, rnd_ind.o5)],
+             f"{rnd.test_rmse:.4f}"]]
+    print("\n| poses | O1 (D) | O2 (1/cond) | O3 (σ_min) | O4 (noise ampl.) | O5 | predicted test RMSE / mm |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print("| " + " | ".join(r) + " |")
+    print(f"\n(indices of the column-scaled Jacobian; {args.poses} random poses for comparison; test RMSE over 2000 "
+          f"random workspace poses, σ = {args.noise_std:g} mm)\n")
+    print(pred.table())
+    print(f"\nwrote {sel.n} poses to {args.out}: fill in the {measurement.kind} readings, then "
+          f"`jaxcal calibrate {args.out} --robot {args.robot} --measurement {args.measurement}`")
+    if args.plot:
+        top = min(cand.shape[0], max(4 * args.poses, 100))
+        ns = sorted({int(round(v)) for v in np.geomspace(max(len(sel.space.free_names) + 2, 5), top, 12)})
+        curve = _plan.accuracy_curve(robot, measurement, cand, ns, args.noise_std, q_test=q_test,
+                                     criterion=args.criterion, key=k_perm)
+        fig = curve.plot()
+        fig.savefig(args.plot, dpi=120)
+        print(f"wrote the predicted RMSE-vs-poses curve to {args.plot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     p = argparse.ArgumentParser(
@@ -683,6 +802,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="parameters to fit instead of all DH deviations (groups dh, alpha, a, d, theta, beta, anchor, "
                         "offset, tool, base, extras, or names such as d_6); e.g. --free anchor,offset fits only the "
                         "sensor extras with the DH table fixed (a sensible first step on real data)")
+    c.add_argument("--compliance", metavar="FILE",
+                   help="also fit joint compliance (rad/(N·m)) under gravity: Δq_i = c_i·τ_i(q), τ from a nominal "
+                        "mass model FILE (JSON or CSV, see jaxcal.MassModel.load) or 'default' (the preset's "
+                        "assumed masses; hsr_jr680 only) at every joint that carries a gravity torque")
+    c.add_argument("--harmonics", metavar="JOINTS", nargs="?", const="all",
+                   help="also fit harmonic transmission errors Δq_i = h1s sin q + h1c cos q + h2s sin 2q + h2c cos 2q "
+                        "(rad): at all joints, or a comma list of 1-based joints; ':1' after it keeps only the "
+                        "once-per-revolution terms (e.g. --harmonics 2,3:1)")
     c.add_argument("--fix", metavar="LIST",
                    help="parameters to keep at nominal (same names/groups), e.g. --fix d_6 or --fix theta")
     c.add_argument("--prior", default="default", metavar="SPEC",
@@ -723,7 +850,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
-    s.add_argument("--robot", default="hsr_jr680", help="preset name or DH table CSV file (default hsr_jr680)")
+    s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
+    s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
+    s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
     s.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
                    help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default cable)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
@@ -753,6 +882,41 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", metavar="FILE.urdf", help="URDF file to write")
     e.add_argument("--dh-out", metavar="FILE.csv", help="calibrated DH table (DH robots only)")
     e.set_defaults(func=_cmd_export)
+    pl = sub.add_parser(
+        "plan", formatter_class=fmt, help="choose the poses to measure and predict the accuracy (before measuring)",
+        description="Measurement planning: draw candidate poses within the joint limits and the sensor's range "
+                    "(or read them), select --poses of them (greedy D/A/E/I-optimal selection with rank-m updates, "
+                    "then a DETMAX exchange), print the observability indices O1-O5 and the predicted test RMSE "
+                    "and per-parameter σ (linearised covariance σ²(JᵀJ)⁻¹; no measurement needed), and write the "
+                    "poses as a data file with empty reading columns.",
+        epilog="O1 = (σ1⋯σp)^(1/p)/√N (Borm & Menq 1991, D-optimality), O2 = σp/σ1 (inverse condition number, "
+               "Driels & Pathre 1990), O3 = σp (Nahvi et al. 1994), O4 = σp²/σ1 (noise amplification, Nahvi & "
+               "Hollerbach 1996), O5 = 1/Σ(1/σi) (Sun & Hollerbach 2008), of the column-scaled identification "
+               "Jacobian on the identifiable parameters.\n\n" + _ROBOT_FORMAT,
+    )
+    pl.add_argument("--robot", default="hsr_jr680", help="preset name or DH table CSV file (default hsr_jr680)")
+    pl.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
+                    help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable)")
+    pl.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
+    pl.add_argument("--poses", type=int, required=True, help="number of poses to select")
+    pl.add_argument("--candidates", default="20000", metavar="FILE|N",
+                    help="number of random candidate poses (default 20000) or a CSV file with q1_deg…qN_deg columns")
+    pl.add_argument("--criterion", choices=("D", "A", "E", "I"), default="D",
+                    help="D: max det (default); A: min trace of the covariance (scaled units); E: max smallest "
+                         "eigenvalue (greedy to first order); I: min the average prediction variance over the "
+                         "candidate workspace (the predicted test error)")
+    pl.add_argument("--no-exchange", action="store_true", help="greedy selection only (no DETMAX exchange)")
+    pl.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
+    pl.add_argument("--wire-range", metavar="LO,HI", help="draw-wire length window, mm (default 0.05–1.2 × reach)")
+    pl.add_argument("--box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="workspace box for the tool point, mm (base frame)")
+    pl.add_argument("--tracker", metavar="X,Y,Z", help="tracker position, mm: keep poses inside its line-of-sight cone")
+    pl.add_argument("--tracker-axis", default="0,0,1", metavar="X,Y,Z",
+                    help="the cone's axis (default 0,0,1; a leading minus needs the = form: --tracker-axis=-1,0,0)")
+    pl.add_argument("--cone-deg", type=float, default=60.0, help="the cone's half angle, degrees (default 60)")
+    pl.add_argument("--seed", type=int, default=0, help="seed of the candidates and the random comparison (default 0)")
+    pl.add_argument("--out", required=True, metavar="POSES.csv", help="CSV file to write the selected poses to")
+    pl.add_argument("--plot", metavar="FILE.png", help="also draw predicted test RMSE vs number of poses (selected vs random)")
+    pl.set_defaults(func=_cmd_plan)
     return p
 
 

@@ -586,12 +586,131 @@ and methods (results in `benchmarks/results/real_data_cpu.md`).
     ]
 
 
+# ---------------------------------------------------------------------------------------------------
+def plan_measurements():
+    return [
+        md("""
+# 06 · Plan the measurements: which poses, how many, and how accurate?
+
+Measuring is the expensive part of a calibration: every pose costs a robot move and a sensor
+reading. Before touching the robot, jaxcal answers three questions for the paper's HSR-JR680
+draw-wire set-up (σ = 0.5 mm):
+
+1. **how good is a pose set?** — observability indices O1–O5 of the column-scaled identification
+   Jacobian (`jaxcal.observability_indices`);
+2. **which poses?** — greedy D-optimal selection from candidates inside the joint limits and the
+   wire's range, refined by a DETMAX exchange (`jaxcal.select_poses`), compared with random poses
+   and with the convex relaxation FIGAROH uses (`jaxcal.relaxed_design`);
+3. **how accurate, with how many?** — the predicted test RMSE and per-parameter σ from the
+   linearised covariance σ²(JᵀJ)⁻¹ (`jaxcal.predicted_accuracy`), the curve against the number of
+   poses (`jaxcal.accuracy_curve`), and a check against simulated calibrations.
+"""),
+        code(setup(stdlib=("import warnings",), third=("import jax", "import numpy as np",
+                                                     "from IPython.display import Image, display"),
+                   first=("from jaxcal import _plan", "from jaxcal._simulate import default_anchor"))),
+        md("## Candidates: random poses inside the joint limits and the wire's length window"),
+        code("""
+robot = jaxcal.robots.hsr_jr680()
+meas = jaxcal.CableLength(default_anchor(robot))
+N_CAND = 2000 if QUICK else 20000
+cand = jaxcal.candidate_poses(jax.random.key(0), robot, meas, N_CAND)
+q_test = jaxcal.candidate_poses(jax.random.key(1), robot, meas, 1000 if QUICK else 2000)  # "the workspace"
+print(cand.shape, "candidates;", q_test.shape[0], "test poses")
+"""),
+        md("""
+## Select poses and read the indices
+
+`select_poses` computes the Jacobians of all candidates at once, keeps the identifiable
+parameters (19 of the 24 DH deviations for one draw wire), and adds, one at a time, the candidate
+that increases log det(JᵀJ) most (rank-one updates, every candidate scored at once); the DETMAX
+exchange then swaps poses while the determinant grows. O1 is the D-optimality index (≤ 1 with
+jaxcal's column scaling), O3 the smallest singular value (0 for a set that cannot identify
+everything).
+"""),
+        code("""
+N = 40 if QUICK else 100
+sel = jaxcal.select_poses(robot, meas, cand, N)
+print(sel.table())
+rand = np.asarray(cand)[:N]  # the candidates are random already
+print("random:", _plan.indices_from_jacobian(_plan.planning_jacobian(robot, meas, rand, sel.space), sel.scale))
+"""),
+        md("## Predicted accuracy, before measuring"),
+        code("""
+p_sel = jaxcal.predicted_accuracy(robot, meas, sel.q, 0.5, q_test=q_test)
+p_rnd = jaxcal.predicted_accuracy(robot, meas, rand, 0.5, q_test=q_test)
+print(f"predicted test RMSE: selected {p_sel.test_rmse:.4f} mm, random {p_rnd.test_rmse:.4f} mm")
+print(p_sel.table())
+"""),
+        md("""
+## Check the prediction: simulated calibrations at the planned poses
+
+Per seed: a "true" robot drawn with the paper's Table V magnitudes, noisy readings at the planned
+poses and at the test poses, `calibrate(..., "lm")`. The mean test RMSE over the seeds should
+match the prediction within a few per cent.
+"""),
+        code("""
+def simulated(q, seeds):
+    out = []
+    for seed in range(seeds):
+        k1, k2 = jax.random.split(jax.random.key(100 + seed))
+        train, truth = _plan.simulate_readings(k1, robot, meas, q, 0.5)
+        test, _ = _plan.simulate_readings(k2, robot, meas, q_test, 0.5, true_deviations=truth)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out.append(jaxcal.calibrate(robot, meas, train, "lm").evaluate(test).rmse)
+    return np.mean(out)
+
+
+SEEDS = 5 if QUICK else 20
+for name, q, p in [("selected", sel.q, p_sel), ("random", rand, p_rnd)]:
+    m = simulated(q, SEEDS)
+    print(f"{name:9s} predicted {p.test_rmse:.4f} mm, simulated mean over {SEEDS} seeds {m:.4f} mm "
+          f"({100 * (m / p.test_rmse - 1):+.1f} %)")
+"""),
+        md("""
+## How many poses? Predicted test RMSE vs number of poses
+
+Greedy prefixes vs random prefixes of the same candidates. The noise floor σ is the asymptote;
+the target line is 5 % above the predicted RMSE of 2 000 random poses.
+"""),
+        code("""
+ns = [25, 30, 40, 60, 100, 150, 200, 300, 500] + ([] if QUICK else [1000, 2000])
+curve = jaxcal.accuracy_curve(robot, meas, cand, ns, 0.5, q_test=q_test)
+target = 1.05 * jaxcal.predicted_accuracy(robot, meas, np.asarray(cand)[-2000:], 0.5, q_test=q_test).test_rmse
+print(f"target {target:.4f} mm; D-optimal poses needed (greedy prefixes, on this grid): {curve.poses_needed(target)}")
+show(curve.plot(target_rmse=target))
+"""),
+        md("""
+## The convex relaxation (FIGAROH's approach), solved by multiplicative weights
+
+Relax "pick n poses" to weights on the candidates and maximise log det Σ w_k J_kᵀJ_k (concave);
+FIGAROH solves it as an SOCP, jaxcal with the classical multiplicative algorithm, then keeps the
+n largest weights. On this set-up it is no better than the greedy selection (see
+`benchmarks/results/plan_cpu.md`).
+"""),
+        code("""
+rel, w, bound = jaxcal.relaxed_design(robot, meas, cand, N, iters=200 if QUICK else 500)
+p_rel = jaxcal.predicted_accuracy(robot, meas, rel.q, 0.5, q_test=q_test)
+print(f"D-efficiency bound of the weights {bound:.4f}; top-{N} rounding: O1 {rel.indices.o1:.4f} "
+      f"(greedy+exchange {sel.indices.o1:.4f}), predicted test RMSE {p_rel.test_rmse:.4f} mm")
+"""),
+        md("""
+## From the command line
+
+`jaxcal plan --robot hsr_jr680 --measurement cable --poses 100 --out poses.csv --plot curve.png`
+writes the poses as a data file with an empty `length_mm` column: fill in the readings, then
+`jaxcal calibrate poses.csv --robot hsr_jr680`.
+"""),
+    ]
+
+
 NOTEBOOKS = {
     "01_quickstart.ipynb": quickstart,
     "02_reproduce_paper.ipynb": reproduce,
     "03_optax_chains.ipynb": optax_chains,
     "04_seed_sweeps.ipynb": seed_sweeps,
     "05_real_data.ipynb": real_data,
+    "06_plan_measurements.ipynb": plan_measurements,
 }
 
 

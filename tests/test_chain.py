@@ -350,3 +350,72 @@ def test_chain_dict_round_trip(make):
     q = jnp.asarray(_random_q(chain, 20))
     np.testing.assert_allclose(np.stack(back.point_in_base(None, q, back.tool), -1),
                                np.stack(chain.point_in_base(None, q, chain.tool), -1), rtol=0, atol=1e-9)
+
+
+# ---------------------------------------------------------------- calibration through the layout
+
+
+def _dh_experiment(n=300):
+    robot = robots.hsr_jr680(tool_mm=(40.0, -30.0, 120.0))
+    meas = jaxcal.Position()
+    ex = jaxcal.simulate_experiment(jax.random.key(3), robot, measurement=meas, n_samples=n, noise_std=0.05)
+    return robot, meas, ex
+
+
+def test_dh_chain_and_its_urdf_export_calibrate_identically(tmp_path):
+    robot, meas, ex = _dh_experiment()
+    chain = chain_from_dh(robot)
+    export_urdf(chain, None, tmp_path / "hsr.urdf")
+    urdf = load_urdf(tmp_path / "hsr.urdf", base="base_link", tip="flange", tool=np.asarray(robot.tool))
+    r1 = jaxcal.calibrate(chain, meas, ex.train, "lm", prior=None)
+    r2 = jaxcal.calibrate(urdf, meas, ex.train, "lm", prior=None)
+    assert r1.ok and r2.ok
+    assert r1.space.free_names == r2.space.free_names
+    np.testing.assert_allclose(r1.x, r2.x, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(r1.evaluate(ex.test).rmse, r2.evaluate(ex.test).rmse, rtol=1e-9)
+    # and the DH robot itself (its own 4-parameter DH errors) reaches the same accuracy:
+    # the chain's error set contains every DH deviation, so both are at the noise floor
+    rd = jaxcal.calibrate(robot, meas, ex.train, "lm", prior=None)
+    floor = 0.05 * np.sqrt(3)
+    assert abs(rd.evaluate(ex.test).rmse - r1.evaluate(ex.test).rmse) < 0.05 * floor
+    assert r1.evaluate(ex.test).rmse < 1.1 * floor
+
+
+def test_chain_result_json_cli_export_round_trip(tmp_path):
+    """simulate (URDF, prismatic joint) → calibrate → JSON → export URDF → same predictions."""
+    from jaxcal.cli import main
+
+    urdf = str(URDFS["fetch"][0])
+    data = tmp_path / "d.csv"
+    args = ["--robot", urdf, "--base", "base_link", "--tip", "gripper_link", "--measurement", "position"]
+    assert main(["--no-cache", "simulate", "--out", str(data), "--samples", "200", "--noise-std", "0.05", *args]) == 0
+    assert "q1_mm" in data.read_text()  # the prismatic joint's column is in mm
+    out = tmp_path / "r.json"
+    assert main(["--no-cache", "calibrate", str(data), *args, "--out", str(out)]) == 0
+    assert main(["--no-cache", "export", str(out), "--out", str(tmp_path / "cal.urdf")]) == 0
+    assert main(["--no-cache", "export", str(out), "--dh-out", str(tmp_path / "x.csv")]) == 2  # not a DH table
+    res = jaxcal.load_result(out)
+    assert isinstance(res.robot, SerialChain) and res.robot.joint_types[0] == "prismatic"
+    ds = jaxcal.load_csv(data)
+    cal = load_urdf(tmp_path / "cal.urdf", base="base_link", tip="gripper_link")
+    np.testing.assert_allclose(jaxcal.fk_position(cal, ds.q), res.predict(ds.q), rtol=0, atol=1e-9)
+    with pytest.raises(TypeError, match="generic chain"):
+        res.dh_table()
+
+
+def test_dh_result_export_writes_urdf_and_dh_table(tmp_path):
+    robot, meas, ex = _dh_experiment(200)
+    res = jaxcal.calibrate(robot, meas, ex.train, "lm")
+    jaxcal.save_result(res, tmp_path / "r.json")
+    from jaxcal.cli import main
+
+    assert main(["--no-cache", "export", str(tmp_path / "r.json"), "--out", str(tmp_path / "c.urdf"),
+                 "--dh-out", str(tmp_path / "c.csv")]) == 0
+    cal = load_urdf(tmp_path / "c.urdf", base="base_link", tip="jaxcal_tool_point")
+    np.testing.assert_allclose(jaxcal.fk_position(cal, ex.test.q), jaxcal.fk_position(robot, ex.test.q, res.deviations),
+                               rtol=0, atol=1e-9)
+    from jaxcal._io import load_robot_csv
+
+    dh = load_robot_csv(tmp_path / "c.csv")
+    np.testing.assert_allclose(jaxcal.fk_position(dh, ex.test.q), jaxcal.fk_position(robot, ex.test.q, res.deviations),
+                               rtol=0, atol=1e-6)

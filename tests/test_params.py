@@ -94,3 +94,16 @@ def test_a_new_group_enters_kinematics_spaces_and_calibration():
     assert float(res.train_metrics.rmse) < 1e-6
     # and the JSON names carry the group
     assert "toy_bias_1" in res.to_dict()["deviations"]
+
+
+def test_prior_sigma_per_group():
+    lay = Layout.dh(2).extend([Group.per_joint("stiff", 2, "rad/(N*m)", kind="nongeometric", prior_std=1e-6),
+                               Group.per_joint("other", 2, "rad/(N*m)", kind="nongeometric"),
+                               Group.vector("mark", ("mark_x", "mark_y", "mark_z"), "mm")])
+    space = ParameterSpace.from_names(lay, ["theta_1", "d_2", "stiff_1", "other_2", "mark_y"])
+    std = jaxcal.Prior().std(space)
+    assert space.free_names[:3] == ("d_2", "theta_1", "stiff_1")  # layout order
+    np.testing.assert_allclose(std[:3], [2.0, np.radians(0.5), 1e-6])
+    assert np.isinf(std[3]) and np.isinf(std[4])  # no default for a unit without one; extras: none
+    np.testing.assert_allclose(jaxcal.Prior().scaled(2.0).std(space)[:3], [1.0, np.radians(0.25), 5e-7])
+    np.testing.assert_allclose(jaxcal.Prior(extras_mm=3.0).std(space)[4], 3.0)
