@@ -173,14 +173,27 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--urdf", help="TIAGo URDF (default: $JAXCAL_TIAGO_URDF or the figaroh-examples mirror)")
     ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--prior", default="default", help="prior spec as for the CLI (default: jaxcal's default)")
+    ap.add_argument("--write-csv", metavar="PATH",
+                    help="only write the data as a jaxcal marker CSV (q1_mm torso, q2..q8_rad, marker_k_*_mm) "
+                         "for `jaxcal calibrate PATH --robot tiago_no_hand.urdf --base base_footprint "
+                         "--tip wrist_ft_tool_link --measurement markers`, and exit")
     ap.add_argument("--out", default=str(HERE / "results" / "figaroh_cpu.md"))
     args = ap.parse_args()
+    if args.write_csv:
+        q, y, _ = load_figaroh_markers()
+        jaxcal.Dataset(q, y, "markers", {"mm_joints": "1", "source": "FIGAROH qualysis_base_hand_calibration.csv "
+                                         "(tests/data/figaroh_tiago/SOURCE.md)"}).to_csv(args.write_csv,
+                                                                                       angle_unit="rad")
+        print(f"wrote {args.write_csv}")
+        return
     text = tiago_urdf_text(args.urdf)
     if text is None:
         sys.exit("TIAGo URDF not found: pass --urdf or set JAXCAL_TIAGO_URDF (figaroh-examples, "
                  f"{URDF_PATH})")
     t0 = time.perf_counter()
     allow_prismatic_mm()
+    prior = jaxcal.Prior.parse(args.prior)
     chain = tiago_chain(text)
     q, y, names = load_figaroh_markers()
     assert tuple(names) == JOINTS == tuple(chain.joint_names), (names, chain.joint_names)
@@ -195,8 +208,9 @@ def main() -> None:
         "tests/data/figaroh_tiago/SOURCE.md). Robot: `tiago_no_hand.urdf`, chain "
         f"`{BASE}` → `{TIP}`, {chain.dof} joints (torso prismatic + 7 revolute). Unknowns: per-joint "
         "errors (offset, dx, dy, dz, drx, dry, drz; identifiable subset by QR), mocap frame (6), marker "
-        "positions on the hand (3 per marker). LM, default prior (0.5°, 2 mm toward the URDF; none on the "
-        "extras), Huber loss. 'before' = nominal URDF with the mocap frame and marker layout fitted in "
+        f"positions on the hand (3 per marker). LM, prior `{args.prior}` "
+        f"({prior.describe() if prior is not None else 'none'}; the default is 0.5°, 2 mm toward the URDF, none "
+        "on the extras), Huber loss. 'before' = nominal URDF with the mocap frame and marker layout fitted in "
         "closed form to the same training postures. RMSE = RMS 3-D marker distance error over postures and "
         "markers (mm).",
         "",
@@ -208,10 +222,10 @@ def main() -> None:
     ]
     summary = []
     for label, (m, yy) in setups.items():
-        start, res = fit(chain, m, q, yy)
+        start, res = fit(chain, m, q, yy, prior=prior)
         e0 = sample_errors(chain, m, start, q, yy)
         e1 = sample_errors(chain, m, res.deviations, q, yy)
-        folds = held_out(chain, m, q, yy, args.folds)
+        folds = held_out(chain, m, q, yy, args.folds, prior=prior)
         b_all, b_clean = pooled(folds, "before")
         a_all, a_clean = pooled(folds, "after")
         summary.append((label, rms(e0), rms(e1), float(np.mean([f["before_train_clean"] for f in folds])),
