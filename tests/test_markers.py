@@ -292,10 +292,9 @@ def test_figaroh_fixture_reads():
     assert np.ptp(np.delete(d12, b.OUTLIER_ROW)) < 5.0  # rigid on the hand (mm)
 
 
-@pytest.mark.slow  # ~1.5 min on 2 cores (compiling the chain Jacobians); run with -m slow
 def test_figaroh_tiago_end_to_end_small(monkeypatch):
     """Nominal URDF + closed-form mocap frame/layout ≈ 11 mm; calibrated on 28 postures, better on
-    the 7 held-out ones (a small version of benchmarks/bench_figaroh.py)."""
+    the 7 held-out ones (a small version of benchmarks/bench_figaroh.py; ~20 s on 2 cores)."""
     b = _bench()
     text = b.tiago_urdf_text()
     if text is None or not b.DATA.exists():
