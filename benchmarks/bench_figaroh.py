@@ -99,17 +99,6 @@ def tiago_urdf_text(path=None):
     return None
 
 
-def allow_prismatic_mm() -> None:
-    """TEMPORARY bridge until the ``chain`` branch's prismatic-joint data check (``mm_joints``)
-    is merged: jaxcal's data check takes any |q| > 4π as degrees, and TIAGo's torso is in mm
-    (up to 350). Without ``jaxcal._dataset.mm_joints`` the check's bound is lifted for this
-    process (it only validates, it changes no number). A no-op once the chain branch lands."""
-    import jaxcal._dataset as ds
-
-    if not hasattr(ds, "mm_joints"):
-        ds._MAX_RAD = float("inf")
-
-
 def tiago_chain(text):
     return jaxcal.load_urdf(text, base=BASE, tip=TIP, name="TIAGo (tiago_no_hand.urdf)")
 
@@ -192,7 +181,6 @@ def main() -> None:
         sys.exit("TIAGo URDF not found: pass --urdf or set JAXCAL_TIAGO_URDF (figaroh-examples, "
                  f"{URDF_PATH})")
     t0 = time.perf_counter()
-    allow_prismatic_mm()
     prior = jaxcal.Prior.parse(args.prior)
     chain = tiago_chain(text)
     q, y, names = load_figaroh_markers()

@@ -292,17 +292,13 @@ def test_figaroh_fixture_reads():
     assert np.ptp(np.delete(d12, b.OUTLIER_ROW)) < 5.0  # rigid on the hand (mm)
 
 
-def test_figaroh_tiago_end_to_end_small(monkeypatch):
+def test_figaroh_tiago_end_to_end_small():
     """Nominal URDF + closed-form mocap frame/layout ≈ 11 mm; calibrated on 28 postures, better on
     the 7 held-out ones (a small version of benchmarks/bench_figaroh.py; ~20 s on 2 cores)."""
     b = _bench()
     text = b.tiago_urdf_text()
     if text is None or not b.DATA.exists():
         pytest.skip("TIAGo URDF (CC BY-NC-ND, not shipped) or the FIGAROH fixture absent")
-    import jaxcal._dataset as ds
-
-    if not hasattr(ds, "mm_joints"):  # bench_figaroh.allow_prismatic_mm, undone after the test
-        monkeypatch.setattr(ds, "_MAX_RAD", float("inf"))
     chain = b.tiago_chain(text)
     q, y, _ = b.load_figaroh_markers()
     m = Markers(np.zeros((3, 3)))
