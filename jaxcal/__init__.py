@@ -29,12 +29,14 @@ from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
 from ._identifiability import identifiability as identifiability
 from ._initialise import ExtrasEstimate as ExtrasEstimate
 from ._initialise import initial_extras as initial_extras
+from ._initialise import pose_from_markers as pose_from_markers
 from ._io import load_result as load_result
 from ._io import load_sweep as load_sweep
 from ._io import save_result as save_result
 from ._kinematics import fk_pose as fk_pose
 from ._kinematics import fk_position as fk_position
 from ._measurement import CableLength as CableLength
+from ._measurement import Markers as Markers
 from ._measurement import MeasurementModel as MeasurementModel
 from ._measurement import Pose as Pose
 from ._measurement import Position as Position
@@ -110,6 +112,7 @@ __all__ = [
     "Prior",
     "Uncertainty",
     "initial_extras",
+    "pose_from_markers",
     "PAPER_METHODS",
     "SweepResult",
     "load_result",
@@ -136,6 +139,7 @@ __all__ = [
     "MeasurementModel",
     "Metrics",
     "ParameterSpace",
+    "Markers",
     "Pose",
     "Position",
     "PrecisionWarning",

@@ -152,6 +152,9 @@ def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
             raise ValueError(f"extra {e!r} applies to draw-wire (cable) data only, not {measurement.kind!r}")
         if flag == "base" and measurement.kind == "cable":
             raise ValueError("extra 'base' (sensor frame) applies to position/pose data; a draw-wire has an anchor")
+        if flag == "tool" and measurement.kind == "markers":
+            raise ValueError("extra 'tool' does not apply to marker data: the marker positions (marker_k groups) "
+                             "are the tool; Markers(known=False) calibrates them")
         flags[flag] = True
     return flags
 
@@ -177,6 +180,8 @@ def _selection(items, layout) -> set[str]:
         if key.lower() in SELECT_GROUPS:
             groups = SELECT_GROUPS[key.lower()]
             out |= {n for n, g in zip(names, groups_of) if g in groups}
+        elif key.lower() == "markers":
+            out |= {n for n, g in zip(names, groups_of) if g.startswith("marker_")}
         elif key.lower() in ("geometric", "nongeometric"):
             out |= {n for n, k in zip(names, layout.kinds) if k == key.lower()}
         elif key in layout.group_names:
@@ -350,6 +355,7 @@ def calibrate(
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
     cand = candidate_space(robot, measurement, extras, free, fix)
     flags = {e: any(group_of(n) in SELECT_GROUPS[e] for n in cand.free_names) for e in ("anchor", "cable_offset", "base")}
+    flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]

@@ -18,15 +18,22 @@ from jaxtyping import Array, Float
 
 from ._csvfile import read_table
 
-__all__ = ["Dataset", "load_csv", "save_csv", "KINDS"]
+__all__ = ["Dataset", "load_csv", "save_csv", "KINDS", "marker_columns"]
 
 #: measurement kinds and their value columns in CSV files.
 KINDS: dict[str, tuple[str, ...]] = {
     "cable": ("length_mm",),
     "position": ("x_mm", "y_mm", "z_mm"),
     "pose": ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"),
+    "markers": (),  # marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ... (N from the file)
 }
 _SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4)}
+_MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
+
+
+def marker_columns(n_markers: int) -> list[str]:
+    """CSV columns of ``n_markers`` marker positions in the sensor frame (mm)."""
+    return [f"marker_{k}_{c}_mm" for k in range(1, n_markers + 1) for c in "xyz"]
 #: |q| beyond this (rad) cannot be a joint angle of a real robot: it looks like degrees.
 _MAX_RAD = 4 * math.pi
 
@@ -62,8 +69,9 @@ class Dataset(eqx.Module):
         q: ``[n, dof]`` joint angles (rad; mm for the prismatic joints listed in the
             ``mm_joints`` metadata, e.g. ``"1"``).
         y: measurements: ``[n]`` wire lengths (mm) for ``kind="cable"``, ``[n, 3]`` positions
-            (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``.
-        kind: ``"cable"``, ``"position"`` or ``"pose"`` (static).
+            (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
+            positions (mm, sensor frame) for ``"markers"``.
+        kind: ``"cable"``, ``"position"``, ``"pose"`` or ``"markers"`` (static).
         metadata: ``((key, value), ...)`` strings kept with the data and in CSV headers (static).
     """
 
@@ -127,9 +135,13 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
     if q.ndim != 2 or q.shape[1] < 1:
         raise ValueError(f"joint angles must have shape [n, dof], got {list(q.shape)}")
     n = q.shape[0]
-    want = (n, *_SAMPLE_SHAPE[kind])
-    if y.shape != want:
-        raise ValueError(f"{kind} measurements must have shape {list(want)}, got {list(y.shape)}")
+    if kind == "markers":
+        if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
+            raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
+    else:
+        want = (n, *_SAMPLE_SHAPE[kind])
+        if y.shape != want:
+            raise ValueError(f"{kind} measurements must have shape {list(want)}, got {list(y.shape)}")
     bad_q = ~np.isfinite(q).all(axis=1)
     bad_y = ~np.isfinite(y.reshape(n, -1)).all(axis=1) if n else np.zeros(0, bool)
     if bad_q.any() or bad_y.any():
@@ -191,7 +203,8 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
 
     Columns: ``q1_deg … qN_deg`` (or ``q1_rad …`` with ``angle_unit="rad"``), then the value
     columns of :data:`KINDS` (``length_mm``; ``x_mm,y_mm,z_mm``; poses add a rotation vector
-    ``rx_deg,ry_deg,rz_deg``). Numbers are written as the shortest decimal that reads back
+    ``rx_deg,ry_deg,rz_deg``; markers ``marker_1_x_mm,marker_1_y_mm,marker_1_z_mm,marker_2_x_mm…``).
+    Numbers are written as the shortest decimal that reads back
     to the same float64. Radian files round-trip exactly; degree files give joint angles
     within 1 ulp of the originals (float64 deg↔rad conversion cannot be exact for every
     value), and data loaded from a degree file saves back to the identical file.
@@ -208,9 +221,12 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         vals = y[:, None]
     elif data.kind == "position":
         vals = y
+    elif data.kind == "markers":
+        vals = y.reshape(y.shape[0], -1)
     else:
         vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
-    header = [f"q{j + 1}_{'mm' if j in mm else angle_unit}" for j in range(data.dof)] + list(KINDS[data.kind])
+    value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
+    header = [f"q{j + 1}_{'mm' if j in mm else angle_unit}" for j in range(data.dof)] + value_cols
     buf = io.StringIO()
     buf.write("# jaxcal dataset v1\n")
     buf.write(f"# kind: {data.kind}\n")
@@ -261,7 +277,7 @@ def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
 
 def load_csv(
     path, *, kind: str | None = None, dof: int | None = None, dtype=None, delimiter: str | None = None,
-    strict: bool = False,
+    strict: bool = False, n_markers: int | None = None,
 ) -> Dataset:
     """Read a CSV data file into a :class:`Dataset`, as :func:`save_csv` or a spreadsheet writes it.
 
@@ -270,7 +286,9 @@ def load_csv(
     * joint angles ``q1_deg … qN_deg`` or ``q1_rad … qN_rad`` (one unit for all), numbered
       1..N without gaps or duplicates;
     * the measurement columns of :data:`KINDS`: ``length_mm`` (cable); ``x_mm,y_mm,z_mm``
-      (position); poses add a rotation vector ``rx_deg,ry_deg,rz_deg``;
+      (position); poses add a rotation vector ``rx_deg,ry_deg,rz_deg``; marker data
+      ``marker_k_x_mm,marker_k_y_mm,marker_k_z_mm`` for k = 1..N (sensor frame, mm; every
+      marker of 1..N must have all three columns);
     * any other column is not used: a ``UserWarning`` names it (``strict=True``: an error).
       Bookkeeping columns (``index``, ``row``, ``sample``, ``id``, ``time``, ``time_s``,
       ``timestamp``) are named in the warning too.
@@ -292,6 +310,7 @@ def load_csv(
         dtype: array dtype (default: JAX's default float).
         delimiter: the column delimiter (one character); default: recognised from the header.
         strict: raise instead of warning when a column is not used.
+        n_markers: expected number of markers (marker data); a mismatch raises.
 
     Raises:
         FileNotFoundError: no such file.
@@ -299,26 +318,42 @@ def load_csv(
             wrong joint count, empty file, unparsable or NaN/inf values (naming row, line and
             column), or radian columns whose values look like degrees.
     """
+    n_markers_expected = n_markers
     t = read_table(path, delimiter=delimiter, what="data file", row_name="data row")
     path, header, meta = t.path, t.header, dict(t.meta)
     qcols, unit = _joint_columns(path, header, dof)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
     if kind is None and meta_kind is not None:
         kind = meta[meta_kind].lower()
+    markers_found = {h: _MARKER.fullmatch(h) for h in header}
+    markers_found = {h: (int(m[1]), m[2]) for h, m in markers_found.items() if m}
+    if kind is None and markers_found:
+        kind = "markers"
     if kind is None:
         kind = next((k for k in ("pose", "position", "cable") if all(c in header for c in KINDS[k])), None)
         if kind is None:
             raise ValueError(
                 f"{path}: no measurement columns found; expected one of "
-                + "; ".join(f"{k}: {','.join(c)}" for k, c in KINDS.items())
+                + "; ".join(f"{k}: {','.join(c or ('marker_1_x_mm', 'marker_1_y_mm', '...'))}" for k, c in KINDS.items())
                 + f"; header: {list(header)}"
             )
     if kind not in KINDS:
         raise ValueError(f"{path}: unknown measurement kind {kind!r}; expected one of {list(KINDS)}")
-    missing = [c for c in KINDS[kind] if c not in header]
+    value_cols = list(KINDS[kind])
+    if kind == "markers":
+        if not markers_found:
+            raise ValueError(f"{path}: no marker columns (expected marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, "
+                             f"marker_2_x_mm, ...); header: {list(header)}")
+        n_markers = max(k for k, _ in markers_found.values())
+        if n_markers_expected is not None and n_markers != n_markers_expected:
+            raise ValueError(f"{path}: file has {n_markers} marker(s) but {n_markers_expected} were expected")
+        value_cols = marker_columns(n_markers)
+    elif n_markers_expected is not None:
+        raise ValueError(f"{path}: n_markers applies to marker data, not {kind!r}")
+    missing = [c for c in value_cols if c not in header]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
-    used = qcols + list(KINDS[kind])
+    used = qcols + value_cols
     unused = [h for h in header if h not in used]
     if unused:
         odd = [h for h in unused if h not in _BOOKKEEPING]
@@ -351,6 +386,8 @@ def load_csv(
         y = vals[:, 0]
     elif kind == "position":
         y = vals
+    elif kind == "markers":
+        y = vals.reshape(vals.shape[0], -1, 3)
     else:
         y = np.zeros((vals.shape[0], 4, 4))
         y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))

@@ -15,6 +15,11 @@ tool points ``p_i`` are known to a few mm, so the sensor unknowns follow in clos
   the best fit (ties: nearest the guess).
 * **Position / pose sensors** (``y_i = R p_i + t``): the rigid transform by Kabsch/Horn
   (SVD of the cross-covariance of centred point sets; Horn, 1987; Kabsch, 1976).
+* **Markers** (``y_ik = R (P_i + F_i m_k) + t``, flange frames ``(P_i, F_i)`` of the nominal
+  robot): the sensor frame by Kabsch on the marker centroids (``m̄`` from the guessed layout),
+  then alternating least squares: each marker's flange-frame position given the frame
+  (``m_k = mean_i F_iᵀ(Rᵀ(y_ik − t) − P_i)``, exact because ``F_i`` is orthonormal) and the
+  frame by Kabsch on every marker point given the positions, until nothing moves.
 
 Both are refit once without the samples whose residual exceeds 5 robust standard deviations
 (gross outliers must not move the start; the calibration itself reports them).
@@ -29,16 +34,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._dataset import _matrix_to_rotvec
-from ._kinematics import fk_position
-from ._measurement import CableLength, MeasurementModel, Pose, Position
+from ._kinematics import fk_pose, fk_position
+from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 from ._objective import robust_scale
 from ._params import Deviations, layout_for
 from ._robot import DHRobot
 
-__all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "kabsch"]
+__all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "kabsch", "pose_from_markers"]
 
 #: extras :func:`initial_extras` can start from data, per measurement kind.
-INITIALISABLE = {"cable": ("anchor", "cable_offset"), "position": ("base",), "pose": ("base",)}
+INITIALISABLE = {"cable": ("anchor", "cable_offset"), "position": ("base",), "pose": ("base",),
+                 "markers": ("base", "markers")}
 
 
 class ExtrasEstimate(NamedTuple):
@@ -150,6 +156,85 @@ def kabsch(source, target):
     return R, ct - R @ cs
 
 
+def pose_from_markers(markers, layout_mm, *, min_markers: int = 3):
+    """Poses ``T_sensor_body`` ``[..., 4, 4]`` (mm) from measured marker positions by Kabsch.
+
+    Args:
+        markers: ``[..., N, 3]`` marker positions measured in the sensor frame (mm); rows
+            with NaN (a marker not seen) are left out of that pose's fit.
+        layout_mm: ``[N, 3]`` the markers' known positions in the body (e.g. flange) frame (mm).
+        min_markers: markers needed per pose (at least 3, not collinear).
+
+    Returns:
+        ``[..., 4, 4]`` ``T`` with ``markers_k ≈ R·layout_k + t``, the least-squares rigid fit
+        (proper rotation). The result can go to :class:`~jaxcal.Pose` as ``T_sensor_flange``
+        (a robot whose tool point is zero, or the pose model's tool extras).
+
+    Raises:
+        ValueError: wrong shapes, fewer than ``min_markers`` finite markers in a pose, or
+            collinear markers (no unique rotation).
+    """
+    Y = np.asarray(markers, np.float64)
+    L = np.asarray(layout_mm, np.float64)
+    if L.ndim != 2 or L.shape[1] != 3:
+        raise ValueError(f"layout_mm must be [N, 3] (mm), got shape {list(L.shape)}")
+    if Y.ndim < 2 or Y.shape[-2:] != L.shape:
+        raise ValueError(f"markers must be [..., {L.shape[0]}, 3] to match the layout, got shape {list(Y.shape)}")
+    if min_markers < 3:
+        raise ValueError("a pose needs at least 3 markers")
+    batch = Y.shape[:-2]
+    Yf = Y.reshape(-1, *L.shape)
+    out = np.zeros((Yf.shape[0], 4, 4))
+    out[:, 3, 3] = 1.0
+    for i, y in enumerate(Yf):
+        ok = np.isfinite(y).all(axis=1)
+        if ok.sum() < min_markers:
+            raise ValueError(f"pose {i}: {int(ok.sum())} finite markers, need {min_markers}")
+        s = np.linalg.svd(L[ok] - L[ok].mean(axis=0), compute_uv=False)
+        if s[1] <= 1e-9 * max(s[0], 1.0):
+            raise ValueError(f"pose {i}: the markers used are collinear; the rotation about their line is unknown")
+        R, t = kabsch(L[ok], y[ok])
+        out[i, :3, :3], out[i, :3, 3] = R, t
+    return out.reshape(*batch, 4, 4)
+
+
+def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est_markers: bool, iterations=100):
+    """``(R, t, M [N, 3], per-sample RMS marker error)`` by centroid Kabsch + alternating LS."""
+    T = np.asarray(fk_pose(robot, q, start), np.float64)
+    F, P = T[:, :3, :3], T[:, :3, 3]
+    M = np.asarray(measurement.marker_points(start), np.float64)
+    R0 = np.asarray(measurement.rotation, np.float64)
+    R = _rotvec(start.base_rotation) @ R0
+    t = np.asarray(measurement.translation, np.float64) + np.asarray(start.base_translation, np.float64)
+    n = Y.shape[0]
+    keep = np.ones(n, bool)
+
+    def err(R, t, M):
+        pred = (P[:, None, :] + np.einsum("nij,kj->nki", F, M)) @ R.T + t
+        return np.sqrt(np.mean(np.sum((pred - Y) ** 2, axis=-1), axis=-1))
+
+    for _ in range(2):
+        if est_base:  # sensor frame from the marker centroids
+            R, t = kabsch(P[keep] + F[keep] @ M.mean(axis=0), Y[keep].mean(axis=1))
+        for _ in range(iterations):
+            M_old, R_old, t_old = M, R, t
+            if est_markers:
+                local = np.einsum("nji,nkj->nki", F[keep], (Y[keep] - t) @ R - P[keep][:, None, :])  # F_iᵀ(...)
+                M = local.mean(axis=0)
+            if est_base:
+                pts = (P[keep][:, None, :] + np.einsum("nij,kj->nki", F[keep], M)).reshape(-1, 3)
+                R, t = kabsch(pts, Y[keep].reshape(-1, 3))
+            if (np.abs(M - M_old).max() < 1e-9 and np.abs(R - R_old).max() < 1e-12
+                    and np.abs(t - t_old).max() < 1e-9):
+                break
+        e = err(R, t, M)
+        new_keep = _trim(e)
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    return R, t, M, keep
+
+
 def initial_extras(
     robot: DHRobot,
     measurement: MeasurementModel,
@@ -176,16 +261,26 @@ def initial_extras(
     dtype = q.dtype
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
     kind = measurement.kind
-    estimate = set(INITIALISABLE[kind] if estimate is None else estimate)
+    if estimate is None:
+        estimate = INITIALISABLE[kind]
+        if kind == "markers" and measurement.known:
+            estimate = ("base",)
+    estimate = set(estimate)
+    if kind == "markers" and measurement.known and "markers" in estimate:
+        raise ValueError("the marker positions are known (Markers(known=True)): only 'base' can be initialised")
     bad = estimate - set(INITIALISABLE[kind])
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(INITIALISABLE[kind])}")
-    P = np.asarray(fk_position(robot, q, start), np.float64)
+    P = np.asarray(fk_position(robot, q, start), np.float64) if kind != "markers" else None
     Y = np.asarray(y, np.float64)
 
     def rms(dev):
-        r = np.asarray(measurement.residual(robot, dev, q, jnp.asarray(y)), np.float64)
-        e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)
+        r = measurement.residual(robot, dev, q, jnp.asarray(y))
+        if kind == "markers":
+            e = np.asarray(measurement.sample_error(r), np.float64)
+        else:
+            r = np.asarray(r, np.float64)
+            e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)
         return float(np.sqrt(np.mean(e**2)))
 
     before = rms(start)
@@ -233,6 +328,22 @@ def initial_extras(
         angle = math.degrees(float(np.linalg.norm(_matrix_to_rotvec(R @ R_guess.T))))
         what = [f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame, "
                 f"rotated {angle:.2f}° from the guess"]
+    elif isinstance(measurement, Markers):
+        est_base, est_markers = "base" in estimate, "markers" in estimate
+        R, t, M, keep = _markers_start(measurement, robot, q, Y, start, est_base, est_markers)
+        R0 = np.asarray(measurement.rotation, np.float64)
+        t0 = np.asarray(measurement.translation, np.float64)
+        dev = start
+        what = []
+        if est_base:
+            dev = dev.replace(base_rotation=jnp.asarray(_matrix_to_rotvec(R @ R0.T), dtype),
+                              base_translation=jnp.asarray(t - t0, dtype))
+            what.append(f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame")
+        if est_markers:
+            M0 = np.asarray(measurement.positions, np.float64)
+            dev = dev.replace(**{f"marker_{k + 1}": jnp.asarray(M[k] - M0[k], dtype) for k in range(M.shape[0])})
+            what.append(f"{M.shape[0]} marker position(s) in the flange frame, up to "
+                        f"{np.linalg.norm(M - M0, axis=1).max():.1f} mm from the guess")
     else:  # pragma: no cover - every model is handled above
         raise TypeError(f"no initialisation for {type(measurement).__name__}")
     after = rms(dev)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ._csvfile import read_table
 from ._json import to_jsonable
-from ._measurement import CableLength, MeasurementModel, Pose, Position
+from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 from ._metrics import Metrics, statistical_floor
 from ._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from ._params import Deviations, ParameterSpace, layout_for
@@ -206,7 +206,8 @@ def save_robot_csv(robot: DHRobot, path) -> None:
 
 def measurement_to_dict(m: MeasurementModel) -> dict:
     """``{"kind": "cable", "anchor_mm": [x, y, z]}``, ``{"kind": "position", "rotation": R,
-    "translation_mm": t}`` or ``{"kind": "pose", "orientation_scale": s, ...}`` (``R`` the nominal
+    "translation_mm": t}``, ``{"kind": "pose", "orientation_scale": s, ...}`` or ``{"kind": "markers",
+    "positions_mm": [[x, y, z], ...], "known": bool, ...}`` (``R`` the nominal
     ``[3, 3]`` sensor-from-base rotation, ``t`` mm)."""
     if isinstance(m, CableLength):
         return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
@@ -216,6 +217,9 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
         return {"kind": "pose", "orientation_scale": float(m.orientation_scale)} | frame
     if isinstance(m, Position):
         return {"kind": "position"} | frame
+    if isinstance(m, Markers):
+        return {"kind": "markers", "positions_mm": np.asarray(m.positions, np.float64).tolist(),
+                "known": bool(m.known)} | frame
     raise TypeError(f"cannot serialise measurement model {type(m).__name__}")
 
 
@@ -230,6 +234,9 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
         return Position(**frame)
     if kind == "pose":
         return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame)
+    if kind == "markers":
+        return Markers(jnp.asarray(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
+                       **frame)
     raise ValueError(f"unknown measurement kind {kind!r}")
 
 

@@ -17,10 +17,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
-from ._params import Deviations
+from ._params import Deviations, Group
 from ._robot import DHRobot
 
-__all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "residuals", "predict"]
+__all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
 
 
 class MeasurementModel(eqx.Module):
@@ -195,6 +195,96 @@ class Pose(MeasurementModel):
 
     def sample_error(self, residual):
         return jnp.linalg.norm(residual[:, :3], axis=-1)
+
+
+def marker_group(k: int) -> Group:
+    """The extra group ``marker_k`` (``k`` = 1..N): the deviation of marker ``k``'s position from
+    its nominal position in the flange frame, entries ``marker_k_x/y/z`` (mm)."""
+    return Group.vector(f"marker_{k}", (f"marker_{k}_x", f"marker_{k}_y", f"marker_{k}_z"), "mm")
+
+
+class Markers(MeasurementModel):
+    """Positions of ``N`` markers fixed on the end effector, seen by a motion-capture system or a
+    laser tracker, ``[n, N, 3]`` mm in the sensor's frame:
+    ``y_ik = R·(P_i + F_i·m_k) + t`` with ``(P_i, F_i)`` the flange origin and orientation in the
+    base frame, ``m_k`` marker ``k``'s position in the flange frame and ``(R, t) = T_sensor_base``
+    (as in :class:`Position`; its correction is the ``base`` extras).
+
+    With ``known=False`` (default) every marker position is calibrated: the model adds the extra
+    groups ``marker_1 … marker_N`` (``marker_k_x/y/z``, mm, deviations from ``positions_mm``),
+    free by default; :func:`jaxcal.initial_extras` starts them (and the sensor frame) in closed
+    form. With ``known=True`` the layout is taken as exact and the model adds no groups. The
+    robot's tool point (``tool`` extras) is not used: the markers are the tool.
+
+    The residual per sample is ``[n, 3N]`` (marker 1's x, y, z, marker 2's ...) mm;
+    ``sample_error`` is the RMS over the sample's markers of the per-marker distance error,
+    ``sqrt(mean_k ‖ŷ_ik − y_ik‖²)`` (mm), so the RMSE over samples is the RMS distance error
+    over every marker reading.
+
+    Attributes:
+        positions: ``[N, 3]`` nominal marker positions in the flange (tool) frame (mm).
+        rotation: ``[3, 3]`` nominal ``R_sensor_base``; translation: ``[3]`` mm.
+        known: whether the marker positions are exact (static).
+    """
+
+    positions: Float[Array, "N 3"]
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, " 3"]
+    known: bool = eqx.field(static=True, default=False)
+    kind: ClassVar[str] = "markers"
+
+    def __init__(self, positions_mm, known: bool = False, rotation=None, translation=None):
+        pos = jnp.asarray(positions_mm)
+        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] < 1:
+            raise ValueError(f"positions_mm must be [N, 3] marker positions in the flange frame (mm), N >= 1; "
+                             f"got shape {tuple(pos.shape)}")
+        if not np.all(np.isfinite(np.asarray(pos))):
+            raise ValueError("positions_mm contain NaN/inf")
+        if not jnp.issubdtype(pos.dtype, jnp.floating):
+            pos = pos.astype(jnp.result_type(float))
+        self.positions = pos
+        self.known = bool(known)
+        self.rotation, self.translation = _check_frame(rotation, translation)
+
+    @property
+    def n_markers(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def size(self) -> int:  # type: ignore[override]
+        return 3 * self.n_markers
+
+    @property
+    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
+        return (self.n_markers, 3)
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``marker_1 … marker_N`` unless the positions are known."""
+        return () if self.known else tuple(marker_group(k + 1) for k in range(self.n_markers))
+
+    def marker_points(self, deviations: Deviations | None, dtype=None) -> Float[Array, "N 3"]:
+        """Marker positions in the flange frame, nominal + the ``marker_k`` deviations (mm)."""
+        m = self.positions if dtype is None else self.positions.astype(dtype)
+        if deviations is None or self.known:
+            return m
+        vals = deviations.values
+        rows = [m[k] + jnp.asarray(vals[f"marker_{k + 1}"]).astype(m.dtype) if f"marker_{k + 1}" in vals else m[k]
+                for k in range(self.n_markers)]
+        return jnp.stack(rows)
+
+    def predict(self, robot, deviations, q) -> Float[Array, "n N 3"]:
+        """Marker positions ``[n, N, 3]`` in the sensor frame (mm)."""
+        q = check_joint_angles(robot, q)
+        X, Y, Z, P = _chain(robot, deviations, q)
+        m = self.marker_points(deviations, q.dtype)
+        R, t = _sensor_frame(self, deviations, q.dtype)
+        base = [jnp.stack([P[c] + m[k, 0] * X[c] + m[k, 1] * Y[c] + m[k, 2] * Z[c] for c in range(3)], -1)
+                for k in range(self.n_markers)]  # N × [n, 3], base frame
+        return jnp.stack([p @ R.T + t for p in base], axis=1)
+
+    def sample_error(self, residual) -> Float[Array, " n"]:
+        r = residual.reshape(residual.shape[0], self.n_markers, 3)
+        return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
 
 
 def predict(measurement: MeasurementModel, robot: DHRobot, deviations: Deviations | None, q):

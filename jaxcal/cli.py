@@ -109,8 +109,8 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
     raise _Usage(f"unknown robot {spec!r}; presets: {', '.join(robots.PRESETS)} (or a DH table CSV file)")
 
 
-def _measurement(kind: str, anchor, robot):
-    from ._measurement import CableLength, Pose, Position
+def _measurement(kind: str, anchor, robot, n_markers: int | None = None):
+    from ._measurement import CableLength, Markers, Pose, Position
     from ._simulate import default_anchor
 
     if kind == "cable":
@@ -119,6 +119,11 @@ def _measurement(kind: str, anchor, robot):
         return CableLength(jnp.asarray(anchor) if anchor is not None else default_anchor(robot))
     if anchor is not None:
         raise _Usage("--anchor applies to --measurement cable only")
+    if kind == "markers":
+        # marker positions on the flange unknown: they start from the data (closed form) and are calibrated
+        import numpy as np
+
+        return Markers(np.zeros((int(n_markers), 3)))
     return Pose() if kind == "pose" else Position()
 
 
@@ -297,7 +302,16 @@ def _cmd_calibrate(args) -> int:
     path = pathlib.Path(args.data)
     if not path.exists():
         raise _Usage(f"data file {args.data!r} not found")
-    data = load_csv(path, kind=args.measurement)
+    if args.markers is not None and args.measurement != "markers":
+        raise _Usage("--markers applies to --measurement markers only")
+    if args.markers is not None and args.markers < 1:
+        raise _Usage(f"--markers must be at least 1, got {args.markers}")
+    try:
+        data = load_csv(path, kind=args.measurement, n_markers=args.markers)
+    except ValueError as e:
+        if args.measurement != "markers":
+            raise
+        raise _Usage(str(e)) from None
     if data.dof != robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
@@ -318,7 +332,14 @@ def _cmd_calibrate(args) -> int:
             estimate |= {"anchor", "offset"}
             notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
                          "from the data (multilateration on the nominal robot, then the joint fit)")
-    measurement = _measurement(args.measurement, anchor, robot)
+    if args.measurement == "markers":
+        if "base" not in estimate:
+            estimate.add("base")
+            notes.append("marker data: the motion-capture frame (base extras) and the marker positions on the flange "
+                         "are estimated (closed-form Kabsch start from the data, then the joint fit)")
+        if "tool" in estimate:
+            raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
+    measurement = _measurement(args.measurement, anchor, robot, data.y.shape[1] if data.kind == "markers" else None)
     if not (0.0 <= args.test_fraction < 1.0):
         raise _Usage(f"--test-fraction must be in [0, 1), got {args.test_fraction}")
     if args.loss not in LOSSES:
@@ -762,10 +783,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
-    c.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
+    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers"), default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
-                        "rotation vector rx,ry,rz (deg) of the flange orientation")
+                        "rotation vector rx,ry,rz (deg) of the flange orientation; markers: N markers on the "
+                        "flange seen by a motion-capture system or tracker, columns marker_k_x_mm, marker_k_y_mm, "
+                        "marker_k_z_mm (sensor frame); the sensor frame and the marker positions are estimated")
+    c.add_argument("--markers", type=int, metavar="N",
+                   help="number of markers per sample (--measurement markers; default: as many as the file has)")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
     c.add_argument("--estimate", metavar="LIST",
                    help="also estimate extras: comma list of anchor (wire exit point), offset (cable zero offset), "
