@@ -19,6 +19,8 @@ from ._diagnostics import (
     Diagnostics,
     coverage,
     implausible_deviations,
+    joint_units,
+    narrow_joints,
     outlier_rows,
     parameter_uncertainty,
     weak_parameters,
@@ -475,11 +477,14 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
         msgs.append(f"condition number {cond:.3g} of the identification Jacobian exceeds {checks.condition_number:.3g}: "
                     "some parameter combinations are weakly determined by these poses")
     cov = coverage(result.robot, problem.q)
-    narrow = tuple(int(j) + 1 for j in np.flatnonzero(cov[:, 0] < checks.narrow_joint_deg))
+    narrow = narrow_joints(result.robot, cov, checks)
+    unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in joint_units(result.robot))))
     weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()
     if narrow:
-        moved = ", ".join(f"q{j} {cov[j - 1, 0]:.1f}°" for j in narrow)
-        msgs.append(f"narrow joint coverage: {moved} of motion (< {checks.narrow_joint_deg:g}°)"
+        moved = ", ".join(f"q{j} {cov[j - 1, 0]:.1f}{unit[j]}" for j in narrow)
+        prismatic = any(unit[j] == " mm" for j in narrow)
+        msgs.append(f"narrow joint coverage: {moved} of motion (< {checks.narrow_joint_deg:g}°"
+                    + (f", or {checks.narrow_joint_deg / 360:.3g} of a prismatic joint's range)" if prismatic else ")")
                     + (f"; weakly determined: {', '.join(weak)}" if weak else ""))
     elif weak:
         msgs.append(f"weakly determined by the data: {', '.join(weak)}")

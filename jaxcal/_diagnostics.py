@@ -188,7 +188,8 @@ class Diagnostics:
         implausible: ``((name, deviation, unit), ...)`` DH deviations beyond the bounds (angles in
             degrees, wrapped).
         condition_number: of the column-scaled Jacobian of the free parameters at the solution.
-        coverage_deg: ``[dof, 2]`` per joint: range moved in the data and range of the limits (°).
+        coverage_deg: ``[dof, 2]`` per joint: range moved in the data and range of the limits (°;
+            mm for prismatic joints).
         narrow_joints: 1-based joints that moved less than ``Checks.narrow_joint_deg``.
         weak_parameters: free parameters the data barely determine (see :class:`Checks`).
         outliers_before, outliers_after: training rows (0-based) flagged as outliers at the start
@@ -252,12 +253,30 @@ def implausible_deviations(names, units, values, checks: Checks) -> tuple:
                  if not math.isfinite(v) or abs(v) > (checks.angle_deg if u == "deg" else checks.length_mm))
 
 
+def joint_units(robot) -> tuple[str, ...]:
+    """``"rad"`` per revolute and ``"mm"`` per prismatic joint (DH robots: all revolute)."""
+    return tuple(robot.joint_units()) if hasattr(robot, "joint_units") else ("rad",) * robot.dof
+
+
 def coverage(robot, q) -> np.ndarray:
-    """``[dof, 2]``: degrees each joint moved in ``q`` and the width of its limits."""
+    """``[dof, 2]``: how far each joint moved in ``q`` and the width of its limits, in degrees
+    (revolute joints) or mm (prismatic joints, :func:`joint_units`)."""
     qn = np.asarray(q, np.float64)
-    used = np.rad2deg(qn.max(axis=0) - qn.min(axis=0)) if qn.shape[0] else np.zeros(robot.dof)
-    limits = np.rad2deg(np.asarray(robot.q_max, np.float64) - np.asarray(robot.q_min, np.float64))
-    return np.stack([used, limits], axis=1)
+    used = qn.max(axis=0) - qn.min(axis=0) if qn.shape[0] else np.zeros(robot.dof)
+    limits = np.asarray(robot.q_max, np.float64) - np.asarray(robot.q_min, np.float64)
+    deg = np.asarray([u == "rad" for u in joint_units(robot)])
+    return np.stack([np.where(deg, np.rad2deg(used), used), np.where(deg, np.rad2deg(limits), limits)], axis=1)
+
+
+def narrow_joints(robot, cov: np.ndarray, checks: Checks) -> tuple[int, ...]:
+    """1-based joints that moved less than ``checks.narrow_joint_deg`` (revolute) or, prismatic,
+    less than the same fraction of a turn of their limit range (the default 30° ↔ 1/12 of it)."""
+    out = []
+    for j, u in enumerate(joint_units(robot)):
+        bound = checks.narrow_joint_deg if u == "rad" else checks.narrow_joint_deg / 360.0 * cov[j, 1]
+        if cov[j, 0] < bound:
+            out.append(j + 1)
+    return tuple(out)
 
 
 def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, ...]:

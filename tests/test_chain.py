@@ -419,3 +419,18 @@ def test_dh_result_export_writes_urdf_and_dh_table(tmp_path):
     dh = load_robot_csv(tmp_path / "c.csv")
     np.testing.assert_allclose(jaxcal.fk_position(dh, ex.test.q), jaxcal.fk_position(robot, ex.test.q, res.deviations),
                                rtol=0, atol=1e-6)
+
+
+def test_coverage_of_a_prismatic_joint_is_in_mm():
+    from jaxcal._diagnostics import Checks, coverage, narrow_joints
+
+    fetch = load_urdf(URDFS["fetch"][0], base="base_link", tip="gripper_link")
+    q = np.zeros((3, 8))
+    q[:, 0] = [0.0, 20.0, 40.0]  # torso: 40 mm of its 386 mm range (1/12 = 32 mm)
+    q[:, 1] = np.radians([0.0, 10.0, 20.0])  # shoulder pan: 20° < 30°
+    cov = coverage(fetch, q)
+    np.testing.assert_allclose(cov[0], [40.0, 386.15])
+    np.testing.assert_allclose(cov[1, 0], 20.0)
+    assert narrow_joints(fetch, cov, Checks())[:1] == (2,)  # the torso moved enough, the pan did not
+    q[:, 0] = [0.0, 10.0, 20.0]
+    assert narrow_joints(fetch, coverage(fetch, q), Checks())[:2] == (1, 2)
