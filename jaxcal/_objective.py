@@ -143,7 +143,7 @@ class Prior:
         return np.asarray(out, dtype=np.float64)
 
     def describe(self) -> str:
-        parts = [f"{self.angle_deg:g}°", f"{self.length_mm:g} mm on the DH deviations"]
+        parts = [f"{self.angle_deg:g}°", f"{self.length_mm:g} mm on the robot's geometric deviations"]
         if math.isfinite(self.extras_mm) or math.isfinite(self.extras_deg):
             parts.append(f"extras {self.extras_mm:g} mm / {self.extras_deg:g}°")
         if self.overrides:
