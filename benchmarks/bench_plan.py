@@ -28,7 +28,6 @@ import argparse
 import os
 import pathlib
 import time
-import warnings
 
 import jax
 import numpy as np
@@ -46,15 +45,7 @@ SIGMA = 0.5
 
 def simulated(robot, meas, q, q_test, seeds):
     """Mean and std of the simulated test RMSE over ``seeds`` LM calibrations from poses ``q``."""
-    out = []
-    for seed in range(seeds):
-        k1, k2 = jax.random.split(jax.random.key(10_000 + seed))
-        train, truth = _plan.simulate_readings(k1, robot, meas, q, SIGMA)
-        test, _ = _plan.simulate_readings(k2, robot, meas, q_test, SIGMA, true_deviations=truth)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            res = jaxcal.calibrate(robot, meas, train, "lm")
-        out.append(res.evaluate(test).rmse)
+    out = _plan.simulated_test_rmse(robot, meas, q, q_test, SIGMA, seeds, seed=10_000)
     return float(np.mean(out)), float(np.std(out))
 
 

@@ -18,37 +18,47 @@ def robot(request):
     return robots.get_robot(request.param)
 
 
+def np_rz(t):
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+
+
+def np_rx(t):
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
+
+
+def np_ry(t):
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1.0]])
+
+
+def np_tr(x, y, z):
+    T = np.eye(4)
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def numpy_dh_frames(alpha, a, d, theta, beta, qi, convention="standard", beta_joints=()):
+    """Independent reference: the ``[dof+1]`` 4×4 frames (base, after A_1, ..., after A_dof) of
+    one sample ``qi`` ``[dof]``, a plain NumPy product of 4×4 matrices."""
+    T = np.eye(4)
+    out = [T]
+    for j in range(len(alpha)):
+        B = np_ry(beta[j]) if (j + 1) in beta_joints else np.eye(4)
+        if convention == "standard":
+            A = np_rz(theta[j] + qi[j]) @ np_tr(0, 0, d[j]) @ np_tr(a[j], 0, 0) @ np_rx(alpha[j]) @ B
+        else:
+            A = np_rx(alpha[j]) @ B @ np_tr(a[j], 0, 0) @ np_rz(theta[j] + qi[j]) @ np_tr(0, 0, d[j])
+        T = T @ A
+        out.append(T)
+    return out
+
+
 def numpy_dh_fk(alpha, a, d, theta, beta, q, convention="standard", beta_joints=(), tool=None):
     """Independent reference FK: a plain NumPy product of 4×4 matrices, one sample at a time."""
-
-    def rz(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-
-    def rx(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
-
-    def ry(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1.0]])
-
-    def tr(x, y, z):
-        T = np.eye(4)
-        T[:3, 3] = (x, y, z)
-        return T
-
     out = []
     for qi in np.atleast_2d(q):
-        T = np.eye(4)
-        for j in range(len(alpha)):
-            B = ry(beta[j]) if (j + 1) in beta_joints else np.eye(4)
-            if convention == "standard":
-                A = rz(theta[j] + qi[j]) @ tr(0, 0, d[j]) @ tr(a[j], 0, 0) @ rx(alpha[j]) @ B
-            else:
-                A = rx(alpha[j]) @ B @ tr(a[j], 0, 0) @ rz(theta[j] + qi[j]) @ tr(0, 0, d[j])
-            T = T @ A
-        if tool is not None:
-            T = T @ tr(*tool)
-        out.append(T)
+        T = numpy_dh_frames(alpha, a, d, theta, beta, qi, convention, beta_joints)[-1]
+        out.append(T if tool is None else T @ np_tr(*tool))
     return np.array(out)

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import np_rx, np_rz, numpy_dh_frames
 
 import jaxcal
 from jaxcal import Deviations, MassModel, ParameterSpace, gravity_torques
@@ -18,36 +19,8 @@ from jaxcal._params import layout_for
 
 def _dh_numpy(robot, q):
     """[dof+1] 4x4 frames (base, after A_1, ..., after A_dof) of a nominal DH robot, NumPy."""
-    out = [np.eye(4)]
-    T = np.eye(4)
-    al, a, d, th, be = (np.asarray(getattr(robot, k), np.float64) for k in ("alpha", "a", "d", "theta", "beta"))
-
-    def rz(t):
-        c, s = math.cos(t), math.sin(t)
-        return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-
-    def rx(t):
-        c, s = math.cos(t), math.sin(t)
-        return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
-
-    def ry(t):
-        c, s = math.cos(t), math.sin(t)
-        return np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1.0]])
-
-    def tr(x, y, z):
-        M = np.eye(4)
-        M[:3, 3] = (x, y, z)
-        return M
-
-    for i in range(robot.dof):
-        B = ry(be[i]) if (i + 1) in robot.beta_joints else np.eye(4)
-        if robot.convention == "standard":
-            A = rz(th[i] + q[i]) @ tr(0, 0, d[i]) @ tr(a[i], 0, 0) @ rx(al[i]) @ B
-        else:
-            A = rx(al[i]) @ B @ tr(a[i], 0, 0) @ rz(th[i] + q[i]) @ tr(0, 0, d[i])
-        T = T @ A
-        out.append(T)
-    return out
+    g = {k: np.asarray(getattr(robot, k), np.float64) for k in ("alpha", "a", "d", "theta", "beta")}
+    return numpy_dh_frames(g["alpha"], g["a"], g["d"], g["theta"], g["beta"], q, robot.convention, robot.beta_joints)
 
 
 def _torques_numpy(robot, mm, q):
@@ -318,10 +291,7 @@ def test_gravity_torques_match_the_messy_simulation(name):
 
 
 def _rot3(axis, t):
-    c, s = math.cos(t), math.sin(t)
-    if axis == "x":
-        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    return (np_rx(t) if axis == "x" else np_rz(t))[:3, :3]
 
 
 def test_gravity_torques_of_a_generic_chain_match_its_dh_robot():

@@ -2,7 +2,6 @@
 against brute force, reproducibility, predicted accuracy against simulated calibrations, CLI."""
 
 import math
-import warnings
 
 import jax
 import jax.numpy as jnp
@@ -162,16 +161,7 @@ def test_bad_arguments(hsr):
 
 
 def _simulated_test_rmse(robot, meas, q, q_test, seeds, noise=0.5):
-    out = []
-    for seed in range(seeds):
-        k1, k2 = jax.random.split(jax.random.key(1000 + seed))
-        train, truth = _plan.simulate_readings(k1, robot, meas, q, noise)
-        test, _ = _plan.simulate_readings(k2, robot, meas, q_test, noise, true_deviations=truth)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            res = jaxcal.calibrate(robot, meas, train, "lm")
-        out.append(res.evaluate(test).rmse)
-    return float(np.mean(out))
+    return float(np.mean(_plan.simulated_test_rmse(robot, meas, q, q_test, noise, seeds, seed=1000)))
 
 
 def test_prediction_matches_simulated_calibrations(hsr):
