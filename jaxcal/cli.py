@@ -658,8 +658,9 @@ def _cmd_plan(args) -> int:
     import numpy as np
 
     from . import _plan
+    from ._dataset import mm_joints_metadata
 
-    robot = _robot(args.robot)
+    robot = _robot(args.robot, args.base, args.tip)
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     measurement = _measurement(args.measurement, anchor, robot)
     if args.poses < 1:
@@ -702,6 +703,7 @@ def _cmd_plan(args) -> int:
             ("predicted_test_rmse_mm", f"{pred.test_rmse:.4f}"), ("noise_std_mm", args.noise_std)]
     if args.measurement == "cable":
         meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
+    meta += list(mm_joints_metadata(robot).items())
     _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
     print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
           f"for {len(sel.space.free_names)} identifiable parameters")
@@ -894,7 +896,9 @@ def build_parser() -> argparse.ArgumentParser:
                "Hollerbach 1996), O5 = 1/Σ(1/σi) (Sun & Hollerbach 2008), of the column-scaled identification "
                "Jacobian on the identifiable parameters.\n\n" + _ROBOT_FORMAT,
     )
-    pl.add_argument("--robot", default="hsr_jr680", help="preset name or DH table CSV file (default hsr_jr680)")
+    pl.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
+    pl.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
+    pl.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
     pl.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
                     help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable)")
     pl.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")

@@ -249,3 +249,22 @@ def test_prior_information_tightens_the_prediction(hsr):
     # selection with the prior as the starting information: still n distinct poses
     sel = jaxcal.select_poses(robot, meas, cand, 20, prior="default", exchange=False)
     assert len(set(sel.index.tolist())) == 20
+
+
+def test_cli_plan_for_a_urdf_chain_with_a_prismatic_joint(tmp_path, capsys):
+    """`jaxcal plan` on a URDF chain (Fetch: prismatic torso): base/tip links, the torso column in mm."""
+    import pathlib
+
+    from jaxcal.cli import main
+
+    urdf = pathlib.Path(__file__).parent / "data" / "urdf" / "fetch.urdf"
+    out = tmp_path / "poses.csv"
+    assert main(["plan", "--robot", str(urdf), "--base", "base_link", "--tip", "gripper_link",
+                 "--measurement", "position", "--poses", "60", "--candidates", "1500", "--out", str(out)]) == 0
+    lines = [ln for ln in out.read_text().splitlines() if not ln.startswith("#")]
+    header = lines[0].split(",")
+    assert header[:2] == ["q1_mm", "q2_deg"] and len(lines) == 61
+    torso = np.asarray([float(ln.split(",")[0]) for ln in lines[1:]])
+    assert np.all((torso >= 0.0) & (torso <= 386.15 + 1e-9))  # mm within the URDF's limits
+    assert "# mm_joints: 1" in out.read_text()
+    assert "predicted" in capsys.readouterr().out
