@@ -401,11 +401,16 @@ class SerialChain(NonGeometricMixin, eqx.Module):
             M = M @ _ry_j(*[v[i] for v in rot["dry"]])
         return M
 
-    def point_in_base(self, dev, q: Float[Array, "n dof"], point) -> Vec3:
+    def point_in_base(self, dev, q: Float[Array, "n dof"], point, *, fused: bool = False) -> Vec3:
         """A point ``[3]`` (mm) in the tip link frame, in the base link frame: three ``[n]`` arrays.
 
         Applied from the tip inward, ``p ← O_i·M_i(q_i)·p`` for ``i = dof … 1`` (module
-        docstring); jittable and ``jax.jacfwd``-friendly in ``dev``.
+        docstring); jittable and ``jax.jacfwd``-friendly in ``dev``. ``fused=True``: every joint
+        as elementwise plane rotations (the error rotations too) and the sparse constant origin,
+        one XLA fusion — the fastest ``jacfwd`` when the caller reduces the three coordinates to
+        one value per sample (draw-wire: 2 000 × 36 Jacobian 1.5 ms vs 13 ms); with three
+        outputs kept, XLA CPU recomputes such a chain per output, so the default materialises
+        each joint's error rotation as a matrix product.
         """
         qq, t, rot, R = self._terms(dev, q)
         fR = jnp.asarray(self.flange_R).astype(q.dtype)
@@ -414,7 +419,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
         x, y, z = x + ft[0], y + ft[1], z + ft[2]
         n = q.shape[0]
         for i in reversed(range(self.dof)):
-            if dev is None:  # nominal: sparse constant rotations, plain elementwise updates
+            if dev is None or fused:  # sparse constant rotations, plain elementwise updates
                 x, y, z = self._local(i, qq, rot, x, y, z)
                 x, y, z = _matvec(R[i], self.patterns[i], (x, y, z))
                 x, y, z = x + t[i, 0], y + t[i, 1], z + t[i, 2]

@@ -177,10 +177,18 @@ def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n do
     return tuple(jnp.broadcast_to(c, (n,)) for c in (x, y, z))
 
 
-def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], *, tool: bool = True) -> Vec3:
+def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], *, tool: bool = True,
+                   scalar_consumer: bool = False) -> Vec3:
     """Tool point (or, with ``tool=False``, the flange origin) in the base frame as three
-    ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``."""
+    ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``.
+
+    ``scalar_consumer=True`` promises that the caller folds the three coordinates into one value
+    per sample (a distance): robots with a choice of kernels (:class:`~jaxcal.SerialChain`) then
+    use their fully fused elementwise one, which is fast under ``jax.jacfwd`` for one output but
+    which XLA CPU recomputes per output when three coordinates are kept."""
     t = _tool_vector(robot, dev, q.dtype) if tool else jnp.zeros(3, q.dtype)
+    if scalar_consumer and hasattr(robot, "point_in_base"):
+        return robot.point_in_base(dev, q, t, fused=True)
     return _point_in_base(robot, dev, q, t)
 
 

@@ -85,7 +85,7 @@ class CableLength(MeasurementModel):
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:
         """Wire lengths ``[n]`` (mm)."""
         q = check_joint_angles(robot, q)
-        p = tool_point_soa(robot, deviations, q)
+        p = tool_point_soa(robot, deviations, q, scalar_consumer=True)
         anchor = self.anchor.astype(q.dtype)
         offset = jnp.zeros((), q.dtype)
         if deviations is not None:

@@ -195,10 +195,13 @@ def test_jacobian_matches_finite_differences(key):
     def f(x):
         dev = {g: x[i * chain.dof:(i + 1) * chain.dof] for i, g in enumerate(names)}
         p = chain.point_in_base(dev, q, jnp.asarray([10.0, 20.0, 30.0]))
+        pf = chain.point_in_base(dev, q, jnp.asarray([10.0, 20.0, 30.0]), fused=True)  # the draw-wire kernel
         X, Y, Z, P = chain.frame_soa(dev, q)
-        return jnp.concatenate([jnp.concatenate(p), jnp.concatenate(P), jnp.concatenate(Z)])
+        return jnp.concatenate([jnp.concatenate(p), jnp.concatenate(pf), jnp.concatenate(P), jnp.concatenate(Z)])
 
     x0 = jnp.concatenate([dev0[g] for g in names])
+    n3 = 3 * q.shape[0]
+    np.testing.assert_allclose(f(x0)[n3:2 * n3], f(x0)[:n3], rtol=0, atol=1e-9)  # both kernels: one FK
     J = jax.jacfwd(f)(x0)
     h = 1e-6
     Jfd = np.stack([(f(x0.at[k].add(h)) - f(x0.at[k].add(-h))) / (2 * h) for k in range(x0.shape[0])], 1)
