@@ -1,11 +1,19 @@
 """Shared test configuration: float64 and strict dtype promotion, robot presets as a fixture."""
 
+import os
+import tempfile
+
 import jax
 import numpy as np
 import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+# The CLI, called in-process by tests, turns on JAX's persistent compilation cache for the rest
+# of the process. Give every test process (each xdist worker) its own cache directory: a cache
+# shared between processes that compile the same program at once was read half-written once
+# (a segmentation fault inside jax's cache read), and tests should not touch the user's cache.
+os.environ["JAXCAL_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxcal-test-cache-")
 
 from jaxcal import robots  # noqa: E402
 
