@@ -10,9 +10,10 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 # The CLI, called in-process by tests, turns on JAX's persistent compilation cache for the rest
-# of the process. Give every test process (each xdist worker) its own cache directory: a cache
-# shared between processes that compile the same program at once was read half-written once
-# (a segmentation fault inside jax's cache read), and tests should not touch the user's cache.
+# of the process. Give every test process (each xdist worker) its own cache directory: with the
+# cache shared between concurrent processes, a CI run once crashed with a segmentation fault
+# inside jax's cache read (most likely an entry read while another process wrote it), and tests
+# should not touch the user's cache anyway.
 os.environ["JAXCAL_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxcal-test-cache-")
 
 from jaxcal import robots  # noqa: E402
