@@ -10,11 +10,13 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 # The CLI, called in-process by tests, turns on JAX's persistent compilation cache for the rest
-# of the process. Give every test process (each xdist worker) its own cache directory: with the
-# cache shared between concurrent processes, a CI run once crashed with a segmentation fault
-# inside jax's cache read (most likely an entry read while another process wrote it), and tests
-# should not touch the user's cache anyway.
-os.environ["JAXCAL_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxcal-test-cache-")
+# of the process. Give the test run its own cache directory, shared by its xdist workers (the
+# controller loads this file first and the workers inherit the variable): tests should not read
+# or write the user's ~/.cache/jaxcal, and a CI run that shared it with other busy processes once
+# crashed with a segmentation fault inside jax's cache read (most likely an entry read while
+# another process wrote it). Sharing within the run keeps the workers' compilations reusable.
+os.environ.setdefault("JAXCAL_TEST_CACHE_DIR", tempfile.mkdtemp(prefix="jaxcal-test-cache-"))
+os.environ["JAXCAL_CACHE_DIR"] = os.environ["JAXCAL_TEST_CACHE_DIR"]
 
 from jaxcal import robots  # noqa: E402
 
