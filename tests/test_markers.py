@@ -110,6 +110,7 @@ def test_initial_extras_recovers_frame_and_layout_closed_form():
         initial_extras(robot, Markers(LAYOUT, known=True), (q, y), estimate=["markers"])
 
 
+@pytest.mark.slow  # ~30 s on 2 cores; the statistical-floor test covers the same fit with noise
 def test_noiseless_recovery_dh_markers_frame():
     robot = robots.hsr_jr680()
     q, y, dev_true = _truth(robot, jax.random.key(4), 60)

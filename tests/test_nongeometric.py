@@ -175,6 +175,7 @@ def _truth(robot, key, c_true, h_scale=0.0):
     return Deviations(vals, lay)
 
 
+@pytest.mark.slow  # ~30-50 s on 2 cores; the floor test below exercises the same fits with noise
 @pytest.mark.filterwarnings("ignore::jaxcal.CalibrationWarning")  # "outliers" at the 1e-6 mm level
 def test_noiseless_recovery_of_compliance_and_harmonics():
     robot = jaxcal.robots.hsr_jr680(tool_mm=(0.0, 80.0, 120.0)).with_compliance(joints=(2, 3)).with_harmonics(joints=(2, 3))
