@@ -157,25 +157,14 @@ def _matvec(R, pat, v: Vec3) -> Vec3:
 
 
 def _frame_mul(cols: tuple[Vec3, Vec3, Vec3], R, pat) -> tuple[Vec3, Vec3, Vec3]:
-    """Columns of ``F·R`` from the columns of ``F`` (each a triple): column j = Σ_k R[k, j]·F_k."""
+    """Columns of ``F·R`` from the columns of ``F`` (each a triple): column j = Σ_k R[k, j]·F_k,
+    i.e. per component c the row ``(F_0[c], F_1[c], F_2[c])`` times ``R`` (:func:`_matvec` with
+    ``Rᵀ``)."""
     if pat == _IDENTITY:
         return cols
-    new = []
-    for j in range(3):
-        acc = None
-        for k in range(3):
-            c = pat[k][j]
-            if c == 0:
-                continue
-            if c == 1:
-                term = cols[k]
-            elif c == -1:
-                term = tuple(-u for u in cols[k])
-            else:
-                term = tuple(R[k, j] * u for u in cols[k])
-            acc = term if acc is None else tuple(a + b for a, b in zip(acc, term))
-        new.append(acc)
-    return tuple(new)
+    pat_t = tuple(zip(*pat))
+    rows = [_matvec(R.T, pat_t, tuple(cols[k][c] for k in range(3))) for c in range(3)]  # rows[c][j]
+    return tuple(tuple(rows[c][j] for c in range(3)) for j in range(3))
 
 
 def _dev_get(dev, name: str):

@@ -144,17 +144,20 @@ def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype) -> Vec3:
     return tuple(P[k] + t[0] * X[k] + t[1] * Y[k] + t[2] * Z[k] for k in range(3))
 
 
-def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], point) -> Vec3:
+def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], point, *,
+                   scalar_consumer: bool = False) -> Vec3:
     """A point given in the flange frame (``[3]``, mm), expressed in the base frame: three ``[n]``.
 
     Applied from the flange inward, ``p ← A_i(q_i)·p`` for ``i = dof … 1``, each joint
     transform acting on a point rather than on a frame: a point needs two plane rotations and
     two additions per joint where a frame needs three columns rotated (~4x the arithmetic),
     and ``jax.jacfwd`` pushes every tangent through the same cheap recursion. Equal to the
-    flange frame of :func:`_chain` applied to the point (tested to round-off).
+    flange frame of :func:`_chain` applied to the point (tested to round-off). Other robot
+    types bring their own kernel (``robot.point_in_base``; ``scalar_consumer``: see
+    :func:`tool_point_soa`).
     """
-    if hasattr(robot, "point_in_base"):  # other robot types bring their own kernel
-        return robot.point_in_base(dev, q, point)
+    if hasattr(robot, "point_in_base"):
+        return robot.point_in_base(dev, q, point, fused=scalar_consumer)
     ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
     x, y, z = (point[k] for k in range(3))
     standard = robot.convention == "standard"
@@ -187,9 +190,7 @@ def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n do
     use their fully fused elementwise one, which is fast under ``jax.jacfwd`` for one output but
     which XLA CPU recomputes per output when three coordinates are kept."""
     t = _tool_vector(robot, dev, q.dtype) if tool else jnp.zeros(3, q.dtype)
-    if scalar_consumer and hasattr(robot, "point_in_base"):
-        return robot.point_in_base(dev, q, t, fused=True)
-    return _point_in_base(robot, dev, q, t)
+    return _point_in_base(robot, dev, q, t, scalar_consumer=scalar_consumer)
 
 
 def fk_position(

@@ -217,9 +217,6 @@ class Layout:
             i += g.size
         raise KeyError(f"no group {name!r} in this layout")
 
-    def is_dh(self) -> bool:
-        return self == Layout.dh(self.dof)
-
 
 def layout_for(robot, measurement=None) -> Layout:
     """The layout of ``robot`` measured by ``measurement``: the robot's geometric groups, the
@@ -357,13 +354,6 @@ class Deviations(eqx.Module):
     def named(self) -> dict[str, float]:
         """``{entry name: value}`` (unbatched deviations only)."""
         return dict(zip(self.layout.names, np.asarray(self.ravel(), np.float64).tolist()))
-
-
-def _full_names(dof, groups: bool = False):
-    """``(names, units)`` of every entry of :meth:`Deviations.ravel` (``groups=True``: each
-    entry's group instead of its unit) for a layout or a DH robot's ``dof``."""
-    layout = Layout.coerce(dof)
-    return (list(layout.names), list(layout.entry_groups)) if groups else (list(layout.names), list(layout.units))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

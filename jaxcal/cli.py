@@ -134,15 +134,21 @@ def _metrics_rows(pairs):
 # -- simulate ---------------------------------------------------------------------------------------
 
 
+def _robot_and_sensor(args):
+    """``(robot, measurement)`` from ``--robot/--base/--tip``, ``--measurement`` and ``--anchor``
+    (``jaxcal simulate`` and ``jaxcal plan``)."""
+    robot = _robot(args.robot, args.base, args.tip)
+    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
+    return robot, _measurement(args.measurement, anchor, robot)
+
+
 def _cmd_simulate(args) -> int:
     import jax
 
     from ._dataset import Dataset
     from ._simulate import simulate_experiment
 
-    robot = _robot(args.robot, args.base, args.tip)
-    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    measurement = _measurement(args.measurement, anchor, robot)
+    robot, measurement = _robot_and_sensor(args)
     if args.samples < 2:
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
     ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=args.noise_std,
@@ -660,9 +666,7 @@ def _cmd_plan(args) -> int:
     from . import _plan
     from ._dataset import mm_joints_metadata
 
-    robot = _robot(args.robot, args.base, args.tip)
-    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    measurement = _measurement(args.measurement, anchor, robot)
+    robot, measurement = _robot_and_sensor(args)
     if args.poses < 1:
         raise _Usage(f"--poses must be at least 1, got {args.poses}")
     if not (args.noise_std > 0 and math.isfinite(args.noise_std)):
