@@ -371,10 +371,11 @@ def calibrate(
             f"too few samples: {q.shape[0]} sample(s) give {n_res} residuals for {space.n_free} free parameters; "
             "need more residuals than parameters"
         )
-    key = jax.random.key(0) if key is None else key
+    key = _default_key() if key is None else key
     problem = Problem(robot, measurement, q, y, space, start)
     x = np.asarray(problem.x0())
-    before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k)
+    resid_start = signed_residuals(problem, x)
+    before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
 
     # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
     adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
@@ -382,7 +383,7 @@ def calibrate(
     noise = scale = None
     histories = []
     while True:
-        resid = signed_residuals(problem, space.to_vector(cur))
+        resid = resid_start if rounds == 0 else signed_residuals(problem, space.to_vector(cur))
         s_hat = robust_scale(resid)
         s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
         new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
@@ -415,7 +416,7 @@ def calibrate(
         history=history,
         n_iterations=n_it,
         iterations_to_converge=int(out.iterations_to_converge) if rounds == 1 else int(
-            iterations_to_converge(jnp.asarray(history), jnp.asarray(n_it))),
+            _iterations_to_converge_jit(history, n_it)),
         status=status,
         train_metrics=Metrics(*(float(v) for v in out.train_metrics)),
         wall_time_s=run_s,
@@ -441,6 +442,16 @@ def calibrate(
     return result
 
 
+#: compiled once per history length (op by op it runs several small XLA programs per call)
+_iterations_to_converge_jit = jax.jit(iterations_to_converge)
+
+
+@functools.lru_cache(maxsize=1)
+def _default_key():
+    """``jax.random.key(0)``, made once (keys are immutable; making one runs a small program)."""
+    return jax.random.key(0)
+
+
 def _close(a, b, rtol: float = 0.05) -> bool:
     if a is None or b is None:
         return a is None and b is None
@@ -455,10 +466,10 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     inv = None if prior_std is None else np.where(np.isfinite(prior_std), 1.0 / prior_std, 0.0)
     msgs = []
     try:
-        unc, cond = parameter_uncertainty(problem, x, prior_inv_std=inv, loss=result.loss,
-                                          loss_scale=result.loss_scale_mm or 1.0)
+        unc, cond, resid = parameter_uncertainty(problem, x, prior_inv_std=inv, loss=result.loss,
+                                                 loss_scale=result.loss_scale_mm or 1.0, return_residuals=True)
     except (np.linalg.LinAlgError, ValueError) as e:  # pragma: no cover - defensive
-        unc, cond = None, float("inf")
+        unc, cond, resid = None, float("inf"), None
         msgs.append(f"uncertainty could not be computed: {e}")
     if result.status == Status.MAX_STEPS:
         msgs.append(f"{result.method}: step budget exhausted before the stopping tolerance was met — the fit may "
@@ -488,7 +499,7 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
                     + (f"; weakly determined: {', '.join(weak)}" if weak else ""))
     elif weak:
         msgs.append(f"weakly determined by the data: {', '.join(weak)}")
-    after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k)
+    after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
     if len(after_rows):
         shown = ", ".join(str(int(r)) for r in after_rows[:12])
         msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} mm robust σ) at "

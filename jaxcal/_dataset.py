@@ -111,7 +111,12 @@ class Dataset(eqx.Module):
 
     def subset(self, index) -> Dataset:
         """The samples at ``index`` (an integer array or slice)."""
-        return Dataset(self.q[index], self.y[index], self.kind, self.metadata)
+        if any(isinstance(v, jax.core.Tracer) for v in (self.q, self.y, index)):
+            return Dataset(self.q[index], self.y[index], self.kind, self.metadata)
+        # on the host: NumPy indexing, then device_put (jnp indexing runs small compiled programs)
+        index = index if isinstance(index, slice) else np.asarray(index)
+        return Dataset(jax.device_put(np.asarray(self.q)[index]), jax.device_put(np.asarray(self.y)[index]),
+                       self.kind, self.metadata)
 
     def split(self, key: Array, test_fraction: float = 0.2) -> tuple[Dataset, Dataset]:
         """Random train/test split from a ``jax.random`` key (same key ⇒ same split)."""

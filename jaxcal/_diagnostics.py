@@ -25,7 +25,7 @@ import numpy as np
 
 from ._objective import robust_factor, robust_scale
 from ._params import group_kind
-from ._problem import signed_residuals
+from ._problem import residual_blocks_numpy, signed_residuals
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
 
@@ -102,8 +102,9 @@ class Uncertainty:
 @functools.partial(jax.jit, static_argnames="loss")
 def _gram(problem, x, loss: str, loss_scale):
     """One ``jacfwd`` pass at ``x``: column norms ``d`` of the Jacobian, the column-scaled ``JᵀWJ``
-    and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``) and ``Σ w r²``. Everything
-    N-sized stays inside XLA; the host only factorises p×p matrices."""
+    and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``), ``Σ w r²`` and the residual
+    ``r`` ``[N]`` itself (for the outlier scan). The N×p Jacobian stays inside XLA; the host only
+    factorises p×p matrices."""
     J, r = jax.jacfwd(lambda x: (problem.residual(x),) * 2, has_aux=True)(x)
     n, m = problem.n_samples, problem.measurement.size
     if loss == "linear":
@@ -114,21 +115,26 @@ def _gram(problem, x, loss: str, loss_scale):
         w = jnp.repeat(f * f, m)
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     Js = J / jnp.where(d > 0, d, 1.0)
-    return d, (Js * w[:, None]).T @ Js, Js.T @ Js, jnp.sum(w * r * r)
+    return d, (Js * w[:, None]).T @ Js, Js.T @ Js, jnp.sum(w * r * r), r
 
 
-def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0
-                          ) -> tuple[Uncertainty, float]:
+def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0,
+                          return_residuals: bool = False):
     """Posterior covariance of the free parameters at ``x`` ``[p]`` for ``problem`` (training data).
 
     Args:
         prior_inv_std: ``[p]`` ``1/s_j`` of the prior (0 = none).
         loss, loss_scale: the robust loss of the fit.
 
+        return_residuals: also return the residual at ``x`` as NumPy ``[n, m]`` (mm), from the
+            same compiled pass (what :func:`outlier_rows` scans).
+
     Returns:
-        ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian.
+        ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian —
+        and with ``return_residuals`` the residual blocks as a third element.
     """
-    d, A, G, rss = _gram(problem, jnp.asarray(x, problem.dtype), loss, jnp.asarray(loss_scale, problem.dtype))
+    dt = np.dtype(problem.dtype)
+    d, A, G, rss, r = _gram(problem, jax.device_put(np.asarray(x, dt)), loss, jax.device_put(np.asarray(loss_scale, dt)))
     d, A, G = (np.asarray(v, np.float64) for v in (d, A, G))
     N, p = problem.n_residuals, A.shape[0]
     rss = float(rss)
@@ -158,18 +164,24 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     undetermined = np.abs(V[:, ~np.isfinite(inv)]).max(axis=1) > 1e-6 if (~np.isfinite(inv)).any() else np.zeros(p, bool)
     std = np.where(undetermined, np.inf, std)
     space = problem.space
-    return Uncertainty(space.free_names, space.free_units, std, C, math.sqrt(sigma2), p_eff, N), cond
+    unc = Uncertainty(space.free_names, space.free_units, std, C, math.sqrt(sigma2), p_eff, N)
+    if not return_residuals:
+        return unc, cond
+    return unc, cond, residual_blocks_numpy(problem, np.asarray(r).reshape(problem.n_samples, problem.measurement.size))
 
 
-def outlier_rows(problem, x, k: float = 5.0) -> tuple[np.ndarray, np.ndarray, float]:
+def outlier_rows(problem, x, k: float = 5.0, *, residuals=None) -> tuple[np.ndarray, np.ndarray, float]:
     """Samples whose residual is more than ``k`` robust standard deviations from the median.
+
+    ``residuals``: the signed residuals at ``x`` (NumPy ``[n, m]``, :func:`signed_residuals`) when
+    the caller has them already (``x`` is then not evaluated).
 
     Returns:
         ``(rows [k_out], errors [k_out] mm, scale mm)``: row indices into ``problem``'s data (0-based),
         each row's largest residual entry, and the robust scale σ̂ = 1.4826·MAD of the residual
         entries (position part for poses).
     """
-    r = signed_residuals(problem, x)
+    r = signed_residuals(problem, x) if residuals is None else residuals
     med = np.median(r)
     s = robust_scale(r)
     dev = np.abs(r - med)

@@ -30,11 +30,12 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ._dataset import _matrix_to_rotvec
-from ._kinematics import fk_pose, fk_position
+from ._kinematics import fk_pose_jit, fk_position_jit
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 from ._objective import robust_scale
 from ._params import Deviations, layout_for
@@ -64,6 +65,11 @@ class ExtrasEstimate(NamedTuple):
     n_trimmed: int
     message: str
 
+
+
+#: the measurement model's residual and per-sample error, compiled once per shape (host-side use)
+_residual = jax.jit(lambda measurement, robot, dev, q, y: measurement.residual(robot, dev, q, y))
+_sample_error = jax.jit(lambda measurement, r: measurement.sample_error(r))
 
 def _trim(res: np.ndarray, k: float = 5.0) -> np.ndarray:
     s = robust_scale(res)
@@ -200,7 +206,7 @@ def pose_from_markers(markers, layout_mm, *, min_markers: int = 3):
 
 def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est_markers: bool, iterations=100):
     """``(R, t, M [N, 3], per-sample RMS marker error)`` by centroid Kabsch + alternating LS."""
-    T = np.asarray(fk_pose(robot, q, start), np.float64)
+    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
     F, P = T[:, :3, :3], T[:, :3, 3]
     M = np.asarray(measurement.marker_points(start), np.float64)
     R0 = np.asarray(measurement.rotation, np.float64)
@@ -271,13 +277,13 @@ def initial_extras(
     bad = estimate - set(INITIALISABLE[kind])
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(INITIALISABLE[kind])}")
-    P = np.asarray(fk_position(robot, q, start), np.float64) if kind != "markers" else None
+    P = np.asarray(fk_position_jit(robot, q, start), np.float64) if kind != "markers" else None
     Y = np.asarray(y, np.float64)
 
     def rms(dev):
-        r = measurement.residual(robot, dev, q, jnp.asarray(y))
+        r = _residual(measurement, robot, dev, q, jnp.asarray(y))
         if kind == "markers":
-            e = np.asarray(measurement.sample_error(r), np.float64)
+            e = np.asarray(_sample_error(measurement, r), np.float64)
         else:
             r = np.asarray(r, np.float64)
             e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)

@@ -14,6 +14,7 @@ the frame chain.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -270,3 +271,10 @@ def rotvec_to_matrix(w: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     K = jnp.stack([jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2)
     eye = jnp.eye(3, dtype=w.dtype)
     return eye + a * K + b * (K @ K)
+
+
+#: :func:`fk_position` and :func:`fk_pose` compiled (once per shape), for host-side callers that
+#: evaluate the kinematics outside ``jit``: op by op they run as hundreds of small XLA programs,
+#: each compiled (or loaded from the persistent cache) once per process.
+fk_position_jit = jax.jit(fk_position, static_argnames="tool")
+fk_pose_jit = jax.jit(fk_pose, static_argnames="tool")

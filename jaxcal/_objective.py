@@ -27,6 +27,7 @@ import dataclasses
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -206,7 +207,9 @@ class Objective(eqx.Module):
         if loss != "linear" and not (scale > 0 and math.isfinite(scale)):
             raise ValueError(f"robust loss scale must be a finite number > 0 (mm), got {loss_scale!r}")
         has_prior = bool(np.any(precision > 0))
-        a = lambda v: jnp.asarray(v, dtype)  # noqa: E731
+        # NumPy → device_put: no small compiled conversion program per call
+        dt = jax.dtypes.canonicalize_dtype(jnp.result_type(float) if dtype is None else dtype)
+        a = lambda v: jax.device_put(np.asarray(v, dt))  # noqa: E731
         return cls(a(mean), a(precision), a(scale), loss, has_prior)
 
     @property

@@ -17,9 +17,33 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+
+
+def _traced(*xs) -> bool:
+    """Whether any of ``xs`` is a JAX tracer (inside ``jit``/``vmap``/``grad``).
+
+    Outside a trace the bookkeeping below (zeros, ravel, gathers of free entries) runs in NumPy
+    and hands the result to JAX with ``jax.device_put`` (a host-to-device copy): executed op by op
+    in JAX, each is a small XLA program — ~60 per ``calibrate`` call, each compiled (or loaded
+    from the persistent cache) once per process and dispatched at ~20–50 µs per call."""
+    return any(isinstance(x, jax.core.Tracer) for x in xs)
+
+
+def _np_as(x, dtype=None) -> np.ndarray:
+    """``x`` as NumPy with JAX's dtype canonicalisation (float64 → float32 without x64)."""
+    a = np.asarray(x)
+    dt = a.dtype if dtype is None else dtype
+    return a.astype(jax.dtypes.canonicalize_dtype(dt), copy=False)
+
+
+def _to_jax(a: np.ndarray) -> Array:
+    """A NumPy array as a JAX array by ``jax.device_put`` (``jnp.asarray`` of a NumPy array runs
+    a small compiled program per shape)."""
+    return jax.device_put(a)
 
 __all__ = [
     "Deviations", "ParameterSpace", "Group", "Layout", "layout_for", "GROUPS", "EXTRA_GROUPS",
@@ -266,22 +290,27 @@ class Deviations(eqx.Module):
         unknown = set(values) - set(layout.group_names)
         if unknown:
             raise ValueError(f"unknown parameter groups {sorted(unknown)}; this layout has {list(layout.group_names)}")
+        traced = _traced(*values.values())
+        asarray = jnp.asarray if traced else (lambda v, dt: _to_jax(_np_as(v, dt)))
         lead, dt = (), dtype
         for g in layout.groups:
             if g.name in values:
-                v = jnp.asarray(values[g.name], dtype)
+                v = asarray(values[g.name], dtype)
                 lead = v.shape[: v.ndim - len(g.shape)]
                 dt = v.dtype if dt is None else dt
                 break
         out = {}
         for g in layout.groups:
             if g.name in values:
-                v = jnp.asarray(values[g.name], dt)
+                v = values[g.name]
+                v = v if (isinstance(v, jax.Array) and not traced and v.dtype == dt) else asarray(v, dt)
                 if v.shape[v.ndim - len(g.shape):] != g.shape:
                     raise ValueError(f"group {g.name!r} must have shape {list(g.shape)} (+ batch axes), got {list(v.shape)}")
                 out[g.name] = v
-            else:
+            elif traced:
                 out[g.name] = jnp.zeros(lead + g.shape, dt)
+            else:
+                out[g.name] = _to_jax(np.zeros(lead + g.shape, _np_as(0.0, dt).dtype))
         self.arrays = tuple(out[g.name] for g in layout.groups)
         self.layout = layout
 
@@ -329,17 +358,23 @@ class Deviations(eqx.Module):
 
     def ravel(self) -> Float[Array, "... size"]:
         """All entries as one flat vector in layout order (``[*batch, layout.size]``)."""
-        parts = []
-        for g in self.layout.groups:
-            v = self.values[g.name]
-            parts.append(v.reshape(v.shape[: v.ndim - len(g.shape)] + (g.size,)))
-        return jnp.concatenate(parts, axis=-1)
+        if _traced(*self.arrays):
+            parts = [v.reshape(v.shape[: v.ndim - len(g.shape)] + (g.size,))
+                     for g, v in zip(self.layout.groups, self.arrays)]
+            return jnp.concatenate(parts, axis=-1)
+        return _to_jax(self._ravel_numpy())
+
+    def _ravel_numpy(self) -> np.ndarray:
+        """:meth:`ravel` in NumPy (concrete arrays only)."""
+        parts = [np.asarray(v).reshape(v.shape[: v.ndim - len(g.shape)] + (g.size,))
+                 for g, v in zip(self.layout.groups, self.arrays)]
+        return np.concatenate(parts, axis=-1)
 
     @classmethod
     def unravel(cls, flat: Float[Array, "... size"], layout: Layout | int) -> Deviations:
         """Inverse of :meth:`ravel`."""
         layout = Layout.coerce(layout)
-        flat = jnp.asarray(flat)
+        flat = jnp.asarray(flat) if _traced(flat) else _np_as(flat)
         if flat.shape[-1] != layout.size:
             raise ValueError(f"expected a flat vector of {layout.size} entries, got shape {flat.shape}")
         parts, i = {}, 0
@@ -349,7 +384,9 @@ class Deviations(eqx.Module):
         return cls(parts, layout)
 
     def astype(self, dtype) -> Deviations:
-        return Deviations({k: jnp.asarray(v, dtype) for k, v in self.values.items()}, self.layout)
+        if not _traced(*self.arrays) and all(v.dtype == jax.dtypes.canonicalize_dtype(dtype) for v in self.arrays):
+            return self
+        return Deviations(self.values, self.layout, dtype=dtype)
 
     def named(self) -> dict[str, float]:
         """``{entry name: value}`` (unbatched deviations only)."""
@@ -480,20 +517,34 @@ class ParameterSpace:
     # -- maps -----------------------------------------------------------------------------
     def to_vector(self, deviations: Deviations) -> Float[Array, " p"]:
         """The free entries of ``deviations`` as a flat ``[p]`` vector."""
-        return deviations.ravel()[..., self.free_index]
+        if _traced(*deviations.arrays):
+            return deviations.ravel()[..., self.free_index]
+        return _to_jax(deviations._ravel_numpy()[..., self.free_index])
 
     def from_vector(self, x: Float[Array, " p"], base: Deviations | None = None) -> Deviations:
         """Deviations whose free entries are ``x`` ``[p]`` and the others come from ``base``
         (zeros by default)."""
-        x = jnp.asarray(x)
+        if _traced(x, *(() if base is None else base.arrays)):
+            x = jnp.asarray(x)
+            self._check_length(x)
+            if base is None:
+                flat = jnp.zeros(x.shape[:-1] + (self.free.size,), dtype=x.dtype)
+            else:
+                flat = jnp.asarray(base.ravel(), dtype=x.dtype)
+            flat = flat.at[..., self.free_index].set(x)
+            return Deviations.unravel(flat, self.layout)
+        x = _np_as(x)
+        self._check_length(x)
+        if base is None:
+            flat = np.zeros(x.shape[:-1] + (self.free.size,), dtype=x.dtype)
+        else:  # broadcast base over x's batch axes, as the traced branch's .at[].set does
+            flat = np.array(np.broadcast_to(base._ravel_numpy().astype(x.dtype), x.shape[:-1] + (self.free.size,)))
+        flat[..., self.free_index] = x
+        return Deviations.unravel(flat, self.layout)
+
+    def _check_length(self, x) -> None:
         if x.shape[-1] != self.n_free:
             raise ValueError(f"expected {self.n_free} free parameters, got vector of shape {x.shape}")
-        if base is None:
-            flat = jnp.zeros(x.shape[:-1] + (self.free.size,), dtype=x.dtype)
-        else:
-            flat = jnp.asarray(base.ravel(), dtype=x.dtype)
-        flat = flat.at[..., self.free_index].set(x)
-        return Deviations.unravel(flat, self.layout)
 
     def __eq__(self, other) -> bool:
         return (

@@ -88,7 +88,7 @@ def cast_floating(tree, dtype):
     """Cast every floating-point array leaf of ``tree`` to ``dtype`` (other leaves unchanged)."""
 
     def cast(x):
-        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.floating):
+        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.floating) and x.dtype != dtype:
             return x.astype(dtype)
         return x
 

@@ -12,7 +12,7 @@ from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
 from ._robot import DHRobot
 
-__all__ = ["Problem", "residual_blocks", "signed_residuals"]
+__all__ = ["Problem", "residual_blocks", "residual_blocks_numpy", "signed_residuals", "sample_errors_at", "predict_jit"]
 
 
 class Problem(eqx.Module):
@@ -103,5 +103,26 @@ def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n 
 def signed_residuals(problem: Problem, x) -> np.ndarray:
     """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
     robust scales and outlier scans."""
-    r = np.asarray(residual_blocks(problem, jnp.asarray(x, problem.dtype)), np.float64)
+    x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else jax.device_put(np.asarray(x, problem.dtype))
+    return residual_blocks_numpy(problem, residual_blocks(problem, x))
+
+
+def residual_blocks_numpy(problem: Problem, r) -> np.ndarray:
+    """Residual blocks ``[n, m]`` as the NumPy entries :func:`signed_residuals` returns (float64;
+    the position part ``[n, 3]`` of a pose)."""
+    r = np.asarray(r, np.float64)
     return r[:, :3] if problem.measurement.kind == "pose" else r
+
+
+@jax.jit
+def sample_errors_at(problem: Problem, x: Float[Array, " p"]) -> Float[Array, " n"]:
+    """Per-sample errors (mm) at free parameters ``x``, jitted (see :func:`residual_blocks`)."""
+    return problem.sample_errors(x)
+
+
+@jax.jit
+def predict_jit(measurement, robot, deviations, q):
+    """``measurement.predict(robot, deviations, q)``, jitted for host-side callers (compiled once
+    per shape; executed op by op, the kinematics run as hundreds of small XLA programs, each
+    compiled once per process)."""
+    return measurement.predict(robot, deviations, q)

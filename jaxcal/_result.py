@@ -278,19 +278,19 @@ class CalibrationResult:
         q = jnp.asarray(q)
         if self.predictor is not None:
             return self.predictor(self, q)
-        return self.measurement.predict(self.robot, self.deviations.astype(q.dtype), q)
+        from ._problem import predict_jit
+
+        return predict_jit(self.measurement, self.robot, self.deviations.astype(q.dtype), q)
 
     def sample_errors(self, data) -> Array:
         """Per-sample errors (mm) of the calibrated model on ``data`` (a Dataset)."""
-        pred = self.predict(data.q)
         q = jnp.asarray(data.q)
         if self.predictor is None:
-            from ._problem import Problem, residual_blocks
+            from ._problem import Problem, sample_errors_at
 
             pr = Problem(self.robot, self.measurement, q, data.y, self.space, self.deviations.astype(q.dtype))
-            r = residual_blocks(pr, pr.x0())  # jitted (cached per shape): fast on repeated use
-        else:
-            r = (pred - data.y).reshape(q.shape[0], self.measurement.size)
+            return sample_errors_at(pr, pr.x0())  # jitted (cached per shape): fast on repeated use
+        r = (self.predict(data.q) - data.y).reshape(q.shape[0], self.measurement.size)
         return self.measurement.sample_error(r)
 
     def evaluate(self, data) -> Metrics:

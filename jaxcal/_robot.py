@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -121,16 +122,20 @@ class DHRobot(NonGeometricMixin, eqx.Module):
         tool = np.asarray(tool_mm, dtype=np.float64)
         if tool.shape != (3,) or not np.all(np.isfinite(tool)):
             raise ValueError(f"tool_mm must be 3 finite numbers, got {tool_mm!r}")
-        r = np.deg2rad
+        # jax.device_put of float arrays (canonical dtype): jnp.asarray of a NumPy array runs a
+        # small compiled program per shape
+        f = jax.dtypes.canonicalize_dtype(np.float64)
+        r = lambda v: jax.device_put(np.deg2rad(v).astype(f))  # noqa: E731
+        arr = lambda v: jax.device_put(np.asarray(v, f))  # noqa: E731
         return cls(
-            alpha=jnp.asarray(r(alpha)),
-            a=jnp.asarray(a),
-            d=jnp.asarray(d),
-            theta=jnp.asarray(r(theta)),
-            beta=jnp.asarray(r(beta)),
-            q_min=jnp.asarray(r(q_min)),
-            q_max=jnp.asarray(r(q_max)),
-            tool=jnp.asarray(tool),
+            alpha=r(alpha),
+            a=arr(a),
+            d=arr(d),
+            theta=r(theta),
+            beta=r(beta),
+            q_min=r(q_min),
+            q_max=r(q_max),
+            tool=arr(tool),
             convention=convention,
             beta_joints=tuple(int(j) for j in beta_joints),
             name=name,

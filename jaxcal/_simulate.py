@@ -7,6 +7,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._dataset import Dataset
@@ -26,7 +27,7 @@ DEFAULT_LENGTH_STD_MM = 0.6
 
 def default_anchor(robot: DHRobot) -> Array:
     """A draw-wire anchor on the base plane in front of the robot: ``(reach/2, 0, 0)`` mm."""
-    return jnp.asarray([0.5 * robot.reach_mm(), 0.0, 0.0])
+    return jax.device_put(np.asarray([0.5 * robot.reach_mm(), 0.0, 0.0], jax.dtypes.canonicalize_dtype(np.float64)))
 
 
 class Experiment(eqx.Module):

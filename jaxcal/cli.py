@@ -414,11 +414,10 @@ def _cmd_calibrate(args) -> int:
         print(res.diagnostics.extras)
 
     def before(ds):
-        from ._problem import residual_blocks
+        from ._problem import sample_errors_at
 
         pr = Problem(robot, measurement, ds.q, ds.y, res.space)
-        e = measurement.sample_error(residual_blocks(pr, pr.x0()))
-        return Metrics(*(float(v) for v in compute_metrics(e)))
+        return Metrics(*(float(v) for v in compute_metrics(sample_errors_at(pr, pr.x0()))))
 
     rows = [("train, before", before(train)), ("train, after", res.evaluate(train))]
     if test.n:

@@ -76,3 +76,27 @@ def test_every_robot_position_rank(robot):
     rep = identifiability(robot, jaxcal.Position(), q)
     assert 0 < rep.rank < 24 and rep.rank == len(rep.identifiable)
     assert np.all(np.diff(rep.singular_values) <= 1e-12)
+
+
+@pytest.mark.parametrize("shape,rank", [((1600, 24), 24), ((400, 12), 9), ((5, 8), 5)])
+def test_pivoted_qr_matches_scipy(shape, rank):
+    """The host pivoted QR (unpivoted QR of the tall matrix, then Businger–Golub pivoting of its
+    triangular factor) picks LAPACK geqp3's columns and |R|, also for rank-deficient and wide
+    matrices."""
+    scipy_linalg = pytest.importorskip("scipy.linalg")
+    from jaxcal._identifiability import pivoted_qr
+
+    rng = np.random.default_rng(sum(shape))
+    n, p = shape
+    A = rng.normal(size=(n, min(rank, p))) @ rng.normal(size=(min(rank, p), p)) * rng.uniform(0.1, 10, p)
+    R, piv = pivoted_qr(A)
+    _, R_ref, piv_ref = scipy_linalg.qr(A, mode="economic", pivoting=True)
+    k = min(rank, n, p)  # beyond the rank the pivots are round-off ties
+    np.testing.assert_array_equal(piv[:k], piv_ref[:k])
+    # rows of the leading k pivots, columns in A's order (the trailing pivots' order may differ)
+    R_orig, R_ref_orig = np.zeros((k, p)), np.zeros((k, p))
+    R_orig[:, piv], R_ref_orig[:, piv_ref] = R[:k], R_ref[:k]
+    np.testing.assert_allclose(np.abs(R_orig), np.abs(R_ref_orig), rtol=1e-9, atol=1e-9 * np.abs(R_ref).max())
+    np.testing.assert_allclose(np.triu(R), R)
+    # A[:, piv] = Q R with orthonormal Q: the Gram matrices agree
+    np.testing.assert_allclose(R.T @ R, A[:, piv].T @ A[:, piv], rtol=1e-9, atol=1e-9 * np.abs(A).max() ** 2 * n)
