@@ -246,12 +246,16 @@ def _default_method(result: SweepResult, method: str | None) -> str:
 
 def dh_rows(result: SweepResult, method: str | None = None, trial: int = 0) -> list[dict]:
     """Per-parameter rows of Table V for run ``method`` (default AdaModW) in ``trial``: nominal,
-    true (simulation only), calibrated value, error = calibrated − true, and whether it was free."""
+    true (simulation only), calibrated value, error = calibrated − true, and whether it was free.
+    For a generic chain the rows are its per-joint corrections (deviations from the URDF origins,
+    nominal 0)."""
     label = _default_method(result, method)
     cal = result.deviations(label, trial)
     true = result.true_deviation(trial)
     robot = result.robot
     free = set(result.space.free_names)
+    if not hasattr(robot, "beta_joints"):  # a generic chain: its per-joint corrections
+        return _chain_rows(robot, cal, true, free)
     rows = []
     groups = [("alpha", "deg"), ("a", "mm"), ("d", "mm"), ("theta", "deg")]
     if robot.beta_joints:
@@ -274,9 +278,13 @@ def dh_rows(result: SweepResult, method: str | None = None, trial: int = 0) -> l
 
 def dh_table(result: SweepResult, method: str | None = None, trial: int = 0, *, markdown: bool = False) -> str:
     """Table V analogue: the calibrated DH table (paper layout: joint × α/°, a/mm, d/mm, θ/°),
-    then each parameter's nominal, true and calibrated value and error (calibrated − true)."""
+    then each parameter's nominal, true and calibrated value and error (calibrated − true). For a
+    generic chain: joint × calibrated corrections (offset, dx, dy, dz, drx, dry, drz), then the
+    same per-parameter comparison."""
     label = _default_method(result, method)
     rows = dh_rows(result, label, trial)
+    if not hasattr(result.robot, "beta_joints"):
+        return _chain_table(result, label, trial, rows, markdown)
     by = {r["parameter"]: r for r in rows}
     dof = result.robot.dof
     layout = [[str(j + 1)] + [f"{by[f'{g}_{j + 1}']['calibrated']:.4f}" + ("" if by[f"{g}_{j + 1}"]["free"] else "*")
@@ -299,6 +307,51 @@ def dh_table(result: SweepResult, method: str | None = None, trial: int = 0, *, 
     ]
     sep = "\n\n"
     return _with_notes(t1 + sep + t2, notes, markdown)
+
+
+def _chain_rows(robot, cal, true, free) -> list[dict]:
+    """Table V rows of a generic chain (:class:`~jaxcal.SerialChain`): every per-joint correction
+    (offset, dx, dy, dz, drx, dry; drz at prismatic joints) as a deviation from the URDF origin, so
+    ``nominal`` is 0; angles in degrees, lengths (and prismatic offsets) in mm."""
+    from ._chain import GEOMETRIC_GROUPS, _dev_get
+
+    rows = []
+    for g, unit in GEOMETRIC_GROUPS:
+        c_all, t_all = _dev_get(cal, g), None if true is None else _dev_get(true, g)
+        for j in range(robot.dof):
+            if g == "drz" and not robot.prismatic[j]:
+                continue  # merged into the joint offset
+            deg = unit == "rad" or (unit == "rad|mm" and not robot.prismatic[j])
+            conv = math.degrees if deg else float
+            c = 0.0 if c_all is None else float(np.asarray(c_all)[j])
+            t = math.nan if true is None else (0.0 if t_all is None else float(np.asarray(t_all)[j]))
+            name = f"{g}_{j + 1}"
+            rows.append({"parameter": name, "unit": "deg" if deg else "mm", "nominal": 0.0, "true": conv(t),
+                         "calibrated": conv(c), "error": conv(c - t), "free": name in free})
+    return rows
+
+
+def _chain_table(result: SweepResult, label: str, trial: int, rows: list[dict], markdown: bool) -> str:
+    """Table V for a generic chain: joint × calibrated corrections, then per-parameter details."""
+    from ._chain import GEOMETRIC_GROUPS
+
+    robot = result.robot
+    by = {r["parameter"]: r for r in rows}
+    groups = [g for g, _ in GEOMETRIC_GROUPS]
+    cell = lambda n: "" if n not in by else f"{by[n]['calibrated']:+.4f}" + ("" if by[n]["free"] else "*")  # noqa: E731
+    layout = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g in groups] for j in range(robot.dof)]
+    t1 = format_table(layout, ["Joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
+                      markdown=markdown, title=f"Table V. Joint corrections of {robot.name} ({robot.base} → {robot.tip}) "
+                                               f"after {label} calibration (trial {trial}; deviations from the URDF origins)")
+    has_true = any(math.isfinite(r["true"]) for r in rows)
+    headers = ["Parameter", "Unit", "True", "Calibrated", "Error (cal − true)", "Free"]
+    detail = [[r["parameter"], r["unit"], f"{r['true']:+.4f}" if has_true else "—", f"{r['calibrated']:+.4f}",
+               f"{r['error']:+.4f}" if has_true else "—", "yes" if r["free"] else "no*"] for r in rows]
+    t2 = format_table(detail, headers, markdown=markdown, title="Per-parameter comparison")
+    notes = ["* not calibrated (not identifiable from these measurements, or fixed): kept at 0. A chain's six errors "
+             "per joint are deliberately redundant; the identifiable subset absorbs the others' true deviations, so "
+             "individual errors can be large while the predicted measurements are the same."]
+    return _with_notes(t1 + "\n\n" + t2, notes, markdown)
 
 
 # -- hyperparameter grids -------------------------------------------------------------------------

@@ -321,18 +321,81 @@ def test_continuous_fixed_and_string_input():
         load_urdf("no/such/file.urdf")
 
 
-def test_pinocchio_agrees_if_installed():
+def _links_below(text, base):
+    """Every link below ``base`` with at least one moving joint on its path from ``base``."""
+    root = ET.fromstring(text)
+    children: dict[str, list] = {}
+    for j in root.findall("joint"):
+        children.setdefault(j.find("parent").get("link"), []).append(j)
+    out, todo = [], [(base, False)]
+    while todo:
+        link, moved = todo.pop()
+        if moved:
+            out.append(link)
+        for j in children.get(link, []):
+            todo.append((j.find("child").get("link"), moved or j.get("type") != "fixed"))
+    return sorted(out)
+
+
+def _pinocchio_cases():
+    out = [pytest.param(*v, id=k) for k, v in URDFS.items()]
+    tiago = _tiago_urdf()
+    out.append(pytest.param(tiago, "base_footprint", "wrist_ft_tool_link", id="tiago",
+                            marks=pytest.mark.skipif(tiago is None, reason="FIGAROH examples not fetched")))
+    return out
+
+
+@pytest.mark.parametrize("path,base,_tip", _pinocchio_cases())
+def test_pinocchio_agrees_if_installed(path, base, _tip, request):
+    """FK and the position Jacobian of every link below the base (every leaf: the tips, Fetch's
+    head and fingers; and every link between) equal pinocchio's (``framesForwardKinematics`` /
+    ``oMf``, ``computeFrameJacobian`` in ``LOCAL_WORLD_ALIGNED``, linear rows) at random joint
+    configurations. Pinocchio is not a dependency: skipped without it
+    (``benchmarks/results/pinocchio_check.md`` records a run with it)."""
     pin = pytest.importorskip("pinocchio")
-    path, base, tip = URDFS["panda"]
-    model = pin.buildModelFromUrdf(str(path))
+    text = load_urdf(path, base=base, tip=_tip).urdf
+    model = pin.buildModelFromXML(text)
     data = model.createData()
-    chain = load_urdf(path, base=base, tip=tip)
-    q = _random_q(chain, 10)
-    T = _chain_T(chain, None, q)
-    fid = model.getFrameId(tip)
-    for k in range(q.shape[0]):
-        pin.framesForwardKinematics(model, data, q[k])
-        np.testing.assert_allclose(T[k, :3, 3], data.oMf[fid].translation * 1000.0, atol=1e-9)
+    worst = np.zeros(3)
+    links = _links_below(text, base)
+    assert _tip in links
+    for link in links:
+        chain = load_urdf(text, base=base, tip=link)
+        q = _random_q(chain, 20, seed=11)
+        T = _chain_T(chain, None, q)
+
+        def tip_position(qi, chain=chain):  # [dof] -> [3] mm
+            return jnp.stack(chain.frame_soa(None, qi[None])[3])[:, 0]
+
+        J = np.asarray(jax.vmap(jax.jacfwd(tip_position))(jnp.asarray(q)))  # [n, 3, dof]: mm/rad, mm/mm
+        fid, bid = model.getFrameId(link), model.getFrameId(base)
+        assert fid < model.nframes and bid < model.nframes
+        for k in range(q.shape[0]):
+            qp = pin.neutral(model)  # joints off the chain stay neutral
+            scale = np.ones(chain.dof)
+            cols = []
+            for i, name in enumerate(chain.joint_names):
+                jm = model.joints[model.getJointId(name)]
+                if jm.nq == 2:  # continuous joint: (cos, sin) in pinocchio's q
+                    qp[jm.idx_q:jm.idx_q + 2] = np.cos(q[k, i]), np.sin(q[k, i])
+                elif chain.prismatic[i]:
+                    qp[jm.idx_q] = q[k, i] / 1000.0  # mm -> m
+                else:
+                    qp[jm.idx_q] = q[k, i]
+                scale[i] = 1.0 if chain.prismatic[i] else 1000.0  # m/m = mm/mm; m/rad -> mm/rad
+                cols.append(jm.idx_v)
+            pin.framesForwardKinematics(model, data, qp)
+            oMb, oMf = data.oMf[bid], data.oMf[fid]
+            bMf = oMb.actInv(oMf)
+            Jp = pin.computeFrameJacobian(model, data, qp, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            Jb = oMb.rotation.T @ Jp[:3, cols] * scale  # world-aligned -> base frame (the base does not move with q)
+            errs = (np.abs(T[k, :3, 3] - bMf.translation * 1000.0).max(),
+                    np.abs(T[k, :3, :3] - bMf.rotation).max(), np.abs(J[k] - Jb).max())
+            worst = np.maximum(worst, errs)
+    print(f"\npinocchio {pin.__version__}, {request.node.callspec.id}: "
+          f"{len(links)} links; max |p - p_pin| = {worst[0]:.2e} mm, max |R - R_pin| = {worst[1]:.2e}, "
+          f"max |J - J_pin| = {worst[2]:.2e} (mm/rad, mm/mm)")
+    assert worst[0] < 1e-9 and worst[1] < 1e-12 and worst[2] < 1e-9, worst
 
 
 @pytest.mark.parametrize("make", ["fetch", "dh", "built"])
