@@ -10,8 +10,6 @@ program start (see ``jaxcal._precision`` for the policy).
 
 from . import methods as methods
 from . import optim as optim
-from . import plots as plots
-from . import report as report
 from . import robots as robots
 from ._calibrate import CalibrationError as CalibrationError
 from ._calibrate import CalibrationWarning as CalibrationWarning
@@ -41,10 +39,6 @@ from ._measurement import MeasurementModel as MeasurementModel
 from ._measurement import Pose as Pose
 from ._measurement import Position as Position
 from ._measurement import residuals as residuals
-from ._messy import MessyExperiment as MessyExperiment
-from ._messy import region_folds as region_folds
-from ._messy import region_split as region_split
-from ._messy import simulate_messy as simulate_messy
 from ._metrics import Metrics as Metrics
 from ._metrics import compute_metrics as compute_metrics
 from ._metrics import format_table as format_table
@@ -54,16 +48,6 @@ from ._nongeometric import gravity_torques as gravity_torques
 from ._objective import Prior as Prior
 from ._params import Deviations as Deviations
 from ._params import ParameterSpace as ParameterSpace
-from ._plan import AccuracyCurve as AccuracyCurve
-from ._plan import ObservabilityIndices as ObservabilityIndices
-from ._plan import PoseSelection as PoseSelection
-from ._plan import PredictedAccuracy as PredictedAccuracy
-from ._plan import accuracy_curve as accuracy_curve
-from ._plan import candidate_poses as candidate_poses
-from ._plan import observability_indices as observability_indices
-from ._plan import predicted_accuracy as predicted_accuracy
-from ._plan import relaxed_design as relaxed_design
-from ._plan import select_poses as select_poses
 from ._precision import PrecisionWarning as PrecisionWarning
 from ._precision import enable_x64 as enable_x64
 from ._problem import Problem as Problem
@@ -74,14 +58,9 @@ from ._result import iterations_to_converge as iterations_to_converge
 from ._robot import DHRobot as DHRobot
 from ._simulate import Experiment as Experiment
 from ._simulate import simulate_experiment as simulate_experiment
-from ._sweep import PAPER_METHODS as PAPER_METHODS
-from ._sweep import SweepResult as SweepResult
-from ._sweep import sweep as sweep
 from ._urdf import chain_from_dh as chain_from_dh
 from ._urdf import export_urdf as export_urdf
 from ._urdf import load_urdf as load_urdf
-from ._validation import PriorCV as PriorCV
-from ._validation import cross_validate_prior as cross_validate_prior
 
 __version__ = "0.1.0"
 
@@ -161,3 +140,47 @@ __all__ = [
     "simulate_experiment",
     "statistical_floor",
 ]
+
+
+#: Names imported on first use (PEP 562): the sweep, planning, messy-data, cross-validation,
+#: report and plot modules are not needed to calibrate, and importing them with the package cost
+#: ~0.1 s of every command-line call. ``name: (module, attribute or None for the module)``.
+_LAZY = {
+    'AccuracyCurve': ('_plan', 'AccuracyCurve'),
+    'MessyExperiment': ('_messy', 'MessyExperiment'),
+    'ObservabilityIndices': ('_plan', 'ObservabilityIndices'),
+    'PAPER_METHODS': ('_sweep', 'PAPER_METHODS'),
+    'PoseSelection': ('_plan', 'PoseSelection'),
+    'PredictedAccuracy': ('_plan', 'PredictedAccuracy'),
+    'PriorCV': ('_validation', 'PriorCV'),
+    'SweepResult': ('_sweep', 'SweepResult'),
+    'accuracy_curve': ('_plan', 'accuracy_curve'),
+    'candidate_poses': ('_plan', 'candidate_poses'),
+    'cross_validate_prior': ('_validation', 'cross_validate_prior'),
+    'observability_indices': ('_plan', 'observability_indices'),
+    'plots': ('plots', None),
+    'predicted_accuracy': ('_plan', 'predicted_accuracy'),
+    'region_folds': ('_messy', 'region_folds'),
+    'region_split': ('_messy', 'region_split'),
+    'relaxed_design': ('_plan', 'relaxed_design'),
+    'report': ('report', None),
+    'select_poses': ('_plan', 'select_poses'),
+    'simulate_messy': ('_messy', 'simulate_messy'),
+    'sweep': ('_sweep', 'sweep'),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        mod = importlib.import_module(f".{module}", __name__)
+        value = mod if attr is None else getattr(mod, attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'jaxcal' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

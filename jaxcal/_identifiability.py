@@ -8,6 +8,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
@@ -175,34 +176,60 @@ def _prefer(Rs: np.ndarray, keep: list[int], pref: list) -> np.ndarray:
 
 
 
+def householder_r(A: Array) -> Array:
+    """The triangular factor ``R`` ``[p, p]`` of ``A = QR`` (``A`` ``[N, p]``, ``Q`` orthonormal
+    ``[N, p]``), by Householder reflections written in XLA operations (``lax.fori_loop`` over the
+    ``p`` columns; for ``N < p`` the rows are padded with zeros).
+
+    Backward stable like LAPACK's ``geqrf``, but no LAPACK call: on a shared 2-core machine the
+    multithreaded LAPACK QR of the tall identification Jacobian (NumPy's or ``jnp.linalg.qr``'s)
+    took 0.1–0.3 s per call instead of 0.2–0.4 ms, its threads waiting for cores that XLA's
+    thread pool and other processes held. Jittable; ``R``'s diagonal signs are not normalised.
+    """
+    n, p = A.shape
+    if n < p:
+        A = jnp.concatenate([A, jnp.zeros((p - n, p), A.dtype)])
+        n = p
+    rows = jnp.arange(n)
+
+    def reflect(k, A):
+        x = jnp.where(rows >= k, A[:, k], 0.0)
+        alpha = jnp.sqrt(jnp.sum(x * x))
+        v = x.at[k].add(jnp.where(x[k] >= 0, alpha, -alpha))
+        vv = jnp.sum(v * v)
+        beta = jnp.where(vv > 0, 2.0 / jnp.where(vv > 0, vv, 1.0), 0.0)
+        return A - beta * jnp.outer(v, v @ A)
+
+    A = jax.lax.fori_loop(0, p, reflect, A)
+    return jnp.triu(A[:p])
+
+
 @functools.partial(jax.jit, static_argnames="space")
-def _start_jacobian(robot, measurement, q, dev0, deviations, space):
-    """The identification Jacobian at the start, with the nominal prediction as the "measured"
-    sample (one compiled program: prediction, then ``jacfwd``)."""
+def _start_factor(robot, measurement, q, dev0, deviations, space):
+    """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the triangular
+    factor of its column-scaled ``J/d`` (:func:`householder_r`), in one compiled program, with the
+    nominal prediction as the "measured" sample; the ``N×p`` Jacobian never leaves XLA."""
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
     # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
     sample = measurement.predict(robot, dev0, q).astype(q.dtype).reshape(q.shape[0], *measurement.sample_shape)
     problem = Problem(robot, measurement, q, sample, space, deviations)
-    return problem.jacobian(problem.x0())
+    J = problem.jacobian(problem.x0())
+    d = jnp.sqrt(jnp.sum(J * J, axis=0))
+    return d, householder_r(J / jnp.where(d > 0, d, 1.0))
 
 
-def pivoted_qr(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """QR with column pivoting (Businger & Golub, 1965; LAPACK ``geqp3``'s rule): ``A[:, piv] = Q R``.
-
-    The tall ``[N, p]`` matrix is first reduced to its triangular factor ``R₀`` by an unpivoted
-    Householder QR (``numpy.linalg.qr(mode="r")``, LAPACK ``geqrf``): ``A = Q₀R₀`` with orthonormal
-    ``Q₀``, so ``R₀`` has ``A``'s column norms, inner products and singular values, and pivoting
-    ``R₀`` (p×p) picks the same columns as pivoting ``A``. Each step takes the column with the
-    largest remaining norm (the first on ties), with the norms recomputed rather than downdated.
-    Returns ``(R [p, p] upper triangular, piv [p])``. Host NumPy: a compiled pivoted QR cost
-    ~0.15 s of lowering in every fresh process, and ran ~6x slower fused into the Jacobian's
-    program on 2 CPU cores.
+def pivot_triangular(R0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """QR with column pivoting (Businger & Golub, 1965; LAPACK ``geqp3``'s rule) of a matrix given
+    by its triangular factor ``R₀`` ``[p, p]`` (``A = Q₀R₀``): returns ``(R, piv)`` with
+    ``A[:, piv] = Q R``. ``R₀`` has ``A``'s column norms, inner products and singular values, so
+    pivoting it picks the columns pivoting ``A`` would. Each step takes the column with the
+    largest remaining norm (the first on ties), the norms recomputed rather than downdated.
+    NumPy on ``p×p`` (small: no multithreaded LAPACK, see :func:`householder_r`).
     """
-    R = np.linalg.qr(np.asarray(A, np.float64), mode="r")
-    m, p = R.shape
-    R = np.vstack([R, np.zeros((max(p - m, 0), p))]) if m < p else R.copy()
+    R = np.array(R0, np.float64)
+    p = R.shape[1]
     piv = np.arange(p)
-    for k in range(min(R.shape[0], p)):
+    for k in range(p):
         norms = np.sum(R[k:, k:] ** 2, axis=0)
         j = k + int(np.argmax(norms))
         if j != k:
@@ -217,7 +244,14 @@ def pivoted_qr(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         v /= np.linalg.norm(v)
         R[k:, k:] -= 2.0 * np.outer(v, v @ R[k:, k:])
         R[k + 1:, k] = 0.0
-    return np.triu(R[:p]), piv
+    return np.triu(R), piv
+
+
+def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
+    """``(R [p, p], piv [p])`` with ``A[:, piv] = Q R`` for a tall ``A`` ``[N, p]``:
+    :func:`householder_r` (XLA) then :func:`pivot_triangular` (NumPy)."""
+    A = jnp.asarray(A, jnp.result_type(float))
+    return pivot_triangular(np.asarray(jax.jit(householder_r)(A), np.float64))
 
 
 def identifiability(
@@ -248,15 +282,14 @@ def identifiability(
     dev0 = Deviations.zeros(layout_for(robot, measurement), q.dtype) if deviations is None else deviations.astype(q.dtype)
     # Js = J/norms, Js[:, piv] = Q R with orthonormal Q: Js, J and their column subsets have the
     # singular values and least-squares solutions of the columns of the small triangular factor,
-    # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian. NumPy's
-    # multithreaded LAPACK on the tall matrices took 0.2–1 s per call on a busy 2-core machine.
-    J = np.asarray(_start_jacobian(robot, measurement, q, dev0, dev0 if deviations is None else deviations, space),
-                   dtype=np.float64)
-    if not np.all(np.isfinite(J)):
+    # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian (multithreaded
+    # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
+    norms, R0 = _start_factor(robot, measurement, q, dev0, dev0 if deviations is None else deviations, space)
+    norms, R0 = np.asarray(norms, np.float64), np.asarray(R0, np.float64)
+    if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R0))):
         raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
-    norms = np.linalg.norm(J, axis=0)
     scale = np.where(norms > 0, norms, 1.0)
-    R, piv = pivoted_qr(J / scale)
+    R, piv = pivot_triangular(R0)
     Rs = np.zeros((R.shape[0], len(piv)))
     Rs[:, piv] = np.asarray(R, dtype=np.float64)  # Js = Q Rs
     s = np.linalg.svd(Rs, compute_uv=False)
