@@ -463,7 +463,9 @@ def _cmd_calibrate(args) -> int:
         listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
         print(f"outliers after the fit (> {checks.outlier_k:g} robust σ = {diag.outlier_scale_mm:.3g} mm): data rows "
               f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
-              + ("" if args.exclude_outliers else " (kept; --exclude-outliers or --loss huber to guard against them)"))
+              + ("" if args.exclude_outliers else
+                 " (kept, down-weighted by the robust loss; --exclude-outliers drops them)" if args.loss != "linear" else
+                 " (kept; --exclude-outliers or --loss huber to guard against them)"))
     for w in res.warnings:
         if diag.outliers_after and "outlier sample(s)" in w:
             w = (f"{len(diag.outliers_after)} outlier sample(s) at data rows "
@@ -487,8 +489,15 @@ def _cmd_calibrate(args) -> int:
         print(f"jaxcal: calibration failed: {res.message}", file=sys.stderr)
         return _EXIT_FAILED
     if not res.plausible and not args.accept_implausible:
+        hint = ""
+        if measurement.kind == "cable" and not {"anchor", "cable_offset"} <= set(extras):
+            hint = ("; the anchor and cable offset were taken as known — if they are not exact, estimate them "
+                    "(--estimate anchor,offset), or the robot's parameters absorb their error")
+        elif measurement.kind in ("position", "pose") and "base" not in extras:
+            hint = ("; the sensor frame was taken as known — if it is not exact, estimate it (--estimate base), "
+                    "or the robot's parameters absorb its error")
         print("jaxcal: calibration implausible (see the warning above); exit status 1 — use "
-              "--accept-implausible to accept it, or a stronger --prior", file=sys.stderr)
+              f"--accept-implausible to accept it, or a stronger --prior{hint}", file=sys.stderr)
         return _EXIT_FAILED
     return 0
 

@@ -110,6 +110,13 @@ def test_cli_exit_codes_and_outlier_rows(messy, tmp_path, capsys):
     assert "implausible" in capsys.readouterr().err
     assert main(base + tight + ["--accept-implausible"]) == 0
     capsys.readouterr()
+    # anchor taken as known: the implausibility hint names --estimate; Huber: outliers down-weighted
+    known = ["calibrate", str(path), "--robot", "hsr_jr680", "--anchor", anchor, "--test-fraction", "0",
+             "--loss", "huber", *tight]
+    assert main(known) == 1
+    cap = capsys.readouterr()
+    assert "--estimate anchor,offset" in cap.err and "down-weighted by the robust loss" in cap.out
+    assert "--loss huber to guard" not in cap.out
     assert main(base + ["--exclude-outliers"]) == 0
     assert "refitting without data rows" in capsys.readouterr().out
     assert main(base + ["--prior", "wings=2"]) == 2
