@@ -337,15 +337,7 @@ def _links_below(text, base):
     return sorted(out)
 
 
-def _pinocchio_cases():
-    out = [pytest.param(*v, id=k) for k, v in URDFS.items()]
-    tiago = _tiago_urdf()
-    out.append(pytest.param(tiago, "base_footprint", "wrist_ft_tool_link", id="tiago",
-                            marks=pytest.mark.skipif(tiago is None, reason="FIGAROH examples not fetched")))
-    return out
-
-
-@pytest.mark.parametrize("path,base,_tip", _pinocchio_cases())
+@pytest.mark.parametrize("path,base,_tip", _cases())
 def test_pinocchio_agrees_if_installed(path, base, _tip, request):
     """FK and the position Jacobian of every link below the base (every leaf: the tips, Fetch's
     head and fingers; and every link between) equal pinocchio's (``framesForwardKinematics`` /
