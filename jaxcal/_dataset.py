@@ -280,6 +280,23 @@ def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
     return [by_joint[j][0] for j in range(1, n + 1)], unit
 
 
+def joint_values(path: str, values: np.ndarray, qcols: list[str], unit: str) -> tuple[np.ndarray, list[int]]:
+    """Joint columns ``[n, dof]`` as read (``qcols`` from :func:`_joint_columns`) → radians, with
+    ``q<j>_mm`` columns (prismatic joints) kept in mm. Returns ``(q, mm)``, ``mm`` the 0-based
+    indices of the mm columns. Radian columns holding values beyond ``_MAX_RAD`` raise (they
+    look like degrees)."""
+    mm = [j for j, c in enumerate(qcols) if c.endswith("_mm")]
+    ang = np.delete(values, mm, axis=1)
+    if unit == "rad" and ang.size and np.abs(ang).max() > _MAX_RAD:
+        raise ValueError(
+            f"{path}: columns are declared in radians (q*_rad) but hold values up to "
+            f"{np.abs(ang).max():.1f}; they look like degrees — rename the columns to q*_deg"
+        )
+    q = np.deg2rad(values) if unit == "deg" else values.copy()
+    q[:, mm] = values[:, mm]
+    return q, mm
+
+
 def load_csv(
     path, *, kind: str | None = None, dof: int | None = None, dtype=None, delimiter: str | None = None,
     strict: bool = False, n_markers: int | None = None,
@@ -374,16 +391,7 @@ def load_csv(
         raise ValueError(f"{path}: no data rows")
     table = t.floats(used)
     n_joints = len(qcols)
-    qv = table[:, :n_joints]
-    mm = [j for j, c in enumerate(qcols) if c.endswith("_mm")]
-    ang = np.delete(qv, mm, axis=1)
-    if unit == "rad" and ang.size and np.abs(ang).max() > _MAX_RAD:
-        raise ValueError(
-            f"{path}: columns are declared in radians (q*_rad) but hold values up to "
-            f"{np.abs(ang).max():.1f}; they look like degrees — rename the columns to q*_deg"
-        )
-    q = np.deg2rad(qv) if unit == "deg" else qv.copy()
-    q[:, mm] = qv[:, mm]
+    q, mm = joint_values(path, table[:, :n_joints], qcols, unit)
     if mm:
         meta[MM_JOINTS] = ",".join(str(j + 1) for j in mm)
     vals = table[:, n_joints:]

@@ -816,23 +816,15 @@ def save_plan_csv(path, q, kind: str, metadata=()) -> None:
 
 
 def load_joint_angles(path, dof: int) -> np.ndarray:
-    """Joint angles ``[n, dof]`` (rad) from a CSV file with columns ``q1_deg … qN_deg`` (or
-    ``q1_rad …``); other columns are ignored, ``#`` lines skipped."""
-    import csv
+    """Joint coordinates ``[n, dof]`` from a CSV file: columns ``q1_deg … qN_deg`` (or ``q1_rad …``),
+    prismatic joints as ``q<j>_mm`` (kept in mm), read like :func:`jaxcal.load_csv` (delimiter,
+    byte-order mark, case, any column order); other columns are ignored. Angles in rad."""
+    from ._csvfile import read_table
+    from ._dataset import _joint_columns, joint_values
 
-    from ._dataset import _joint_columns
-
-    with open(path, encoding="utf-8-sig") as f:
-        rows = [r for r in csv.reader(ln for ln in f if ln.strip() and not ln.lstrip().startswith("#"))]
-    if not rows:
-        raise ValueError(f"{path}: no header row")
-    header = [h.strip().lower() for h in rows[0]]
-    cols, unit = _joint_columns(str(path), header, dof)
-    idx = [header.index(c) for c in cols]
-    try:
-        q = np.asarray([[float(r[i]) for i in idx] for r in rows[1:]], np.float64)
-    except (ValueError, IndexError) as e:
-        raise ValueError(f"{path}: bad joint-angle value ({e})") from None
-    if q.shape[0] == 0 or not np.all(np.isfinite(q)):
-        raise ValueError(f"{path}: no rows, or non-finite joint angles")
-    return np.deg2rad(q) if unit == "deg" else q
+    t = read_table(path, what="joint-angle file", row_name="row")
+    cols, unit = _joint_columns(t.path, t.header, dof)
+    if not t.rows:
+        raise ValueError(f"{t.path}: no rows")
+    q, _ = joint_values(t.path, t.floats(cols), cols, unit)
+    return q

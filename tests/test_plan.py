@@ -268,3 +268,19 @@ def test_cli_plan_for_a_urdf_chain_with_a_prismatic_joint(tmp_path, capsys):
     assert np.all((torso >= 0.0) & (torso <= 386.15 + 1e-9))  # mm within the URDF's limits
     assert "# mm_joints: 1" in out.read_text()
     assert "predicted" in capsys.readouterr().out
+
+
+def test_load_joint_angles_reads_like_load_csv(tmp_path):
+    """Candidate-pose files: prismatic q<j>_mm columns stay in mm next to degree columns, any
+    column order, ';' delimiter, byte-order mark and capitals; radians that look like degrees
+    and a missing joint are refused."""
+    f = tmp_path / "cand.csv"
+    f.write_text("\ufeffQ2_DEG;q1_mm;note\n90;150;a\n-45;0;b\n", encoding="utf-8")
+    q = _plan.load_joint_angles(f, 2)
+    np.testing.assert_allclose(q, [[150.0, np.pi / 2], [0.0, -np.pi / 4]])
+    f.write_text("q1_rad,q2_rad\n0.1,90\n")
+    with pytest.raises(ValueError, match="look like degrees"):
+        _plan.load_joint_angles(f, 2)
+    f.write_text("q1_deg,q3_deg\n1,2\n")
+    with pytest.raises(ValueError, match="missing"):
+        _plan.load_joint_angles(f, 2)
