@@ -41,6 +41,11 @@ from ._measurement import MeasurementModel as MeasurementModel
 from ._measurement import Pose as Pose
 from ._measurement import Position as Position
 from ._measurement import residuals as residuals
+from ._sessions import SessionHoldout as SessionHoldout
+from ._sessions import SessionMarkers as SessionMarkers
+from ._sessions import holdout_session as holdout_session
+from ._sessions import initial_sessions as initial_sessions
+from ._sessions import leave_one_session_out as leave_one_session_out
 from ._messy import MessyExperiment as MessyExperiment
 from ._messy import region_folds as region_folds
 from ._messy import region_split as region_split
@@ -140,6 +145,11 @@ __all__ = [
     "Metrics",
     "ParameterSpace",
     "Markers",
+    "SessionMarkers",
+    "SessionHoldout",
+    "holdout_session",
+    "initial_sessions",
+    "leave_one_session_out",
     "Pose",
     "Position",
     "PrecisionWarning",
