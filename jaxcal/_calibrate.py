@@ -150,6 +150,8 @@ def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
         if key not in EXTRAS:
             raise ValueError(f"unknown extra {e!r}; choose from anchor, cable_offset (offset), tool, base")
         flag = EXTRAS[key]
+        if flag == "base" and hasattr(measurement, "frame_index"):
+            continue  # SessionMarkers: every session frame is already free (base_rotation@F, ...)
         if flag in ("anchor", "cable_offset") and measurement.kind != "cable":
             raise ValueError(f"extra {e!r} applies to draw-wire (cable) data only, not {measurement.kind!r}")
         if flag == "base" and measurement.kind == "cable":

@@ -152,6 +152,7 @@ def test_holdout_session_with_a_new_frame_and_placement_is_registered():
     assert h2.after_rmse < 3 * sigma
 
 
+@pytest.mark.slow  # ~20 s on 2 cores (one more training calibration); the default run keeps the joint fit
 def test_holdout_session_seen_labels_are_predicted_directly():
     """Five sessions where the held-out one reuses a trained frame and placement: nothing is
     registered, the trained model predicts it (no prior, plain least squares: one LM round)."""
@@ -183,7 +184,7 @@ def test_labelled_csv_round_trip(tmp_path):
     assert only.labels[0] == ("s1", "s1", "s1")
 
 
-def test_clear_errors(tmp_path):
+def test_clear_errors(tmp_path, capsys):
     chain = _chain()
     ds, m, _ = _data(chain, n_per=4)
     with pytest.raises(ValueError, match="unknown frame label"):
@@ -217,6 +218,12 @@ def test_clear_errors(tmp_path):
     (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(ValueError, match="empty label"):
         load_csv(tmp_path / "bad.csv")
+    # the command line calibrates one session and says so
+    from jaxcal.cli import main
+
+    assert main(["calibrate", str(tmp_path / "s.csv"), "--robot", str(UR10E), "--base", "base_link", "--tip", "tool0",
+                 "--measurement", "markers"]) == 2
+    assert "session/frame/placement" in capsys.readouterr().err
 
 
 # -- FIGAROH's TIAGo Vicon sessions (tests/data/figaroh_tiago_vicon, Apache-2.0) ---------------------
