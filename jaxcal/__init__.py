@@ -41,11 +41,6 @@ from ._measurement import MeasurementModel as MeasurementModel
 from ._measurement import Pose as Pose
 from ._measurement import Position as Position
 from ._measurement import residuals as residuals
-from ._sessions import SessionHoldout as SessionHoldout
-from ._sessions import SessionMarkers as SessionMarkers
-from ._sessions import holdout_session as holdout_session
-from ._sessions import initial_sessions as initial_sessions
-from ._sessions import leave_one_session_out as leave_one_session_out
 from ._messy import MessyExperiment as MessyExperiment
 from ._messy import region_folds as region_folds
 from ._messy import region_split as region_split
@@ -77,6 +72,11 @@ from ._result import DHTable as DHTable
 from ._result import Status as Status
 from ._result import iterations_to_converge as iterations_to_converge
 from ._robot import DHRobot as DHRobot
+from ._sessions import SessionHoldout as SessionHoldout
+from ._sessions import SessionMarkers as SessionMarkers
+from ._sessions import holdout_session as holdout_session
+from ._sessions import initial_sessions as initial_sessions
+from ._sessions import leave_one_session_out as leave_one_session_out
 from ._simulate import Experiment as Experiment
 from ._simulate import simulate_experiment as simulate_experiment
 from ._sweep import PAPER_METHODS as PAPER_METHODS

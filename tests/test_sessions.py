@@ -137,7 +137,7 @@ def test_joint_calibration_reaches_the_noise_floor():
     assert "session frame(s)" in res.diagnostics.extras
 
 
-@pytest.mark.slow  # ~40 s on 2 cores: a training calibration (prior + Huber rounds) and two registrations
+@pytest.mark.slow  # ~50 s on 2 cores: two training calibrations (prior + Huber rounds) and their registrations
 def test_holdout_session_with_a_new_frame_and_placement_is_registered():
     chain = _chain()
     sigma = 0.05
