@@ -56,6 +56,11 @@ from ._result import DHTable as DHTable
 from ._result import Status as Status
 from ._result import iterations_to_converge as iterations_to_converge
 from ._robot import DHRobot as DHRobot
+from ._sessions import SessionHoldout as SessionHoldout
+from ._sessions import SessionMarkers as SessionMarkers
+from ._sessions import holdout_session as holdout_session
+from ._sessions import initial_sessions as initial_sessions
+from ._sessions import leave_one_session_out as leave_one_session_out
 from ._simulate import Experiment as Experiment
 from ._simulate import simulate_experiment as simulate_experiment
 from ._urdf import chain_from_dh as chain_from_dh
@@ -119,6 +124,11 @@ __all__ = [
     "Metrics",
     "ParameterSpace",
     "Markers",
+    "SessionMarkers",
+    "SessionHoldout",
+    "holdout_session",
+    "initial_sessions",
+    "leave_one_session_out",
     "Pose",
     "Position",
     "PrecisionWarning",

@@ -150,6 +150,8 @@ def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
         if key not in EXTRAS:
             raise ValueError(f"unknown extra {e!r}; choose from anchor, cable_offset (offset), tool, base")
         flag = EXTRAS[key]
+        if flag == "base" and hasattr(measurement, "frame_index"):
+            continue  # SessionMarkers: every session frame is already free (base_rotation@F, ...)
         if flag in ("anchor", "cable_offset") and measurement.kind != "cable":
             raise ValueError(f"extra {e!r} applies to draw-wire (cable) data only, not {measurement.kind!r}")
         if flag == "base" and measurement.kind == "cable":
@@ -182,6 +184,10 @@ def _selection(items, layout) -> set[str]:
         if key.lower() in SELECT_GROUPS:
             groups = SELECT_GROUPS[key.lower()]
             out |= {n for n, g in zip(names, groups_of) if g in groups}
+            # per-session groups (SessionMarkers: base_rotation@F, marker_k@K): "base" selects every
+            # session frame, "extras" every session group
+            out |= {n for n, g in zip(names, groups_of)
+                    if "@" in g and (g.split("@")[0] in groups or key.lower() == "extras")}
         elif key.lower() == "markers":
             out |= {n for n, g in zip(names, groups_of) if g.startswith("marker_")}
         elif key.lower() in ("geometric", "nongeometric"):
@@ -358,6 +364,8 @@ def calibrate(
     cand = candidate_space(robot, measurement, extras, free, fix)
     flags = {e: any(group_of(n) in SELECT_GROUPS[e] for n in cand.free_names) for e in ("anchor", "cable_offset", "base")}
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
+    flags["base"] = flags["base"] or any(group_of(n).split("@")[0] in SELECT_GROUPS["base"] and "@" in group_of(n)
+                                         for n in cand.free_names)  # per-session frames (SessionMarkers)
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]

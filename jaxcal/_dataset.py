@@ -73,19 +73,24 @@ class Dataset(eqx.Module):
             positions (mm, sensor frame) for ``"markers"``.
         kind: ``"cable"``, ``"position"``, ``"pose"`` or ``"markers"`` (static).
         metadata: ``((key, value), ...)`` strings kept with the data and in CSV headers (static).
+        labels: per-row ``(session, frame, placement)`` labels of marker data recorded in
+            several sessions (static; ``()`` = one session). See :class:`jaxcal.SessionMarkers`;
+            CSV columns ``session``, ``frame``, ``placement``.
     """
 
     q: Float[Array, "n dof"]
     y: Array
     kind: str = eqx.field(static=True)
     metadata: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
+    labels: tuple[tuple[str, str, str], ...] = eqx.field(static=True, default=())
 
-    def __init__(self, q, y, kind: str = "cable", metadata: Mapping | tuple = ()):
+    def __init__(self, q, y, kind: str = "cable", metadata: Mapping | tuple = (), labels=()):
         if kind not in KINDS:
             raise ValueError(f"unknown measurement kind {kind!r}; expected one of {list(KINDS)}")
         self.kind = kind
         items = metadata.items() if isinstance(metadata, Mapping) else metadata
         self.metadata = tuple((str(k), str(v)) for k, v in items)
+        self.labels = _session_labels(labels, int(np.shape(q)[0]), kind)
         if _is_tracer(q) or _is_tracer(y):
             self.q, self.y = q, y
             return
@@ -111,12 +116,15 @@ class Dataset(eqx.Module):
 
     def subset(self, index) -> Dataset:
         """The samples at ``index`` (an integer array or slice)."""
-        if any(isinstance(v, jax.core.Tracer) for v in (self.q, self.y, index)):
-            return Dataset(self.q[index], self.y[index], self.kind, self.metadata)
+        traced = any(isinstance(v, jax.core.Tracer) for v in (self.q, self.y, index))
+        if not traced:
+            index = index if isinstance(index, slice) else np.asarray(index)
+        labels = tuple(self.labels[int(i)] for i in np.arange(self.n)[index]) if self.labels else ()
+        if traced:
+            return Dataset(self.q[index], self.y[index], self.kind, self.metadata, labels)
         # on the host: NumPy indexing, then device_put (jnp indexing runs small compiled programs)
-        index = index if isinstance(index, slice) else np.asarray(index)
         return Dataset(jax.device_put(np.asarray(self.q)[index]), jax.device_put(np.asarray(self.y)[index]),
-                       self.kind, self.metadata)
+                       self.kind, self.metadata, labels)
 
     def split(self, key: Array, test_fraction: float = 0.2) -> tuple[Dataset, Dataset]:
         """Random train/test split from a ``jax.random`` key (same key ⇒ same split)."""
@@ -134,6 +142,27 @@ class Dataset(eqx.Module):
     def from_csv(cls, path, **kwargs) -> Dataset:
         """Read a CSV file; see :func:`load_csv`."""
         return load_csv(path, **kwargs)
+
+
+#: CSV columns of session labels (marker data of several sessions; text, not numbers)
+LABEL_COLUMNS = ("session", "frame", "placement")
+
+
+def _session_labels(labels, n: int, kind: str) -> tuple[tuple[str, str, str], ...]:
+    """Per-row ``(session, frame, placement)``; a row given as one string means all three."""
+    if labels is None or len(labels) == 0:
+        return ()
+    if kind != "markers":
+        raise ValueError(f"session labels apply to marker data, not {kind!r}")
+    out = []
+    for r, lab in enumerate(labels):
+        lab = (lab,) * 3 if isinstance(lab, str) else tuple(lab)
+        if len(lab) != 3 or not all(isinstance(v, str) and v.strip() for v in lab):
+            raise ValueError(f"row {r}: session labels must be (session, frame, placement) non-empty strings, got {lab!r}")
+        out.append(tuple(v.strip() for v in lab))
+    if len(out) != n:
+        raise ValueError(f"{len(out)} session label rows for {n} data rows")
+    return tuple(out)
 
 
 def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ()) -> None:
@@ -239,9 +268,9 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         if k != "kind":
             buf.write(f"# {k}: {v}\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    for row in np.concatenate([qcols, vals], axis=1):
-        w.writerow([repr(float(x)) for x in row])
+    w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []))
+    for r, row in enumerate(np.concatenate([qcols, vals], axis=1)):
+        w.writerow([repr(float(x)) for x in row] + (list(data.labels[r]) if data.labels else []))
     with open(os.fspath(path), "w", encoding="utf-8") as f:
         f.write(buf.getvalue())
 
@@ -311,6 +340,11 @@ def load_csv(
       (position); poses add a rotation vector ``rx_deg,ry_deg,rz_deg``; marker data
       ``marker_k_x_mm,marker_k_y_mm,marker_k_z_mm`` for k = 1..N (sensor frame, mm; every
       marker of 1..N must have all three columns);
+    * marker data of several sessions (:class:`jaxcal.SessionMarkers`): text columns
+      ``session`` (the recording session), ``frame`` (its sensor-frame label) and
+      ``placement`` (its marker-placement label); a missing ``frame`` or ``placement`` column
+      takes the ``session`` label, a missing ``session`` column the ``frame/placement`` pair;
+      they become :attr:`Dataset.labels`;
     * any other column is not used: a ``UserWarning`` names it (``strict=True``: an error).
       Bookkeeping columns (``index``, ``row``, ``sample``, ``id``, ``time``, ``time_s``,
       ``timestamp``) are named in the warning too.
@@ -376,7 +410,8 @@ def load_csv(
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
     used = qcols + value_cols
-    unused = [h for h in header if h not in used]
+    label_cols = [c for c in LABEL_COLUMNS if c in header] if kind == "markers" else []
+    unused = [h for h in header if h not in used and h not in label_cols]
     if unused:
         odd = [h for h in unused if h not in _BOOKKEEPING]
         book = [h for h in unused if h in _BOOKKEEPING]
@@ -406,7 +441,21 @@ def load_csv(
         y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))
         y[:, :3, 3] = vals[:, :3]
         y[:, 3, 3] = 1.0
+    labels = ()
+    if label_cols:
+        cells = {c: [row[header.index(c)].strip() for row in t.rows] for c in label_cols}
+        for c, vals_c in cells.items():
+            empty = [r for r, v in enumerate(vals_c) if not v]
+            if empty:
+                raise ValueError(f"{path}: {t.where(empty[0], c)}: empty label ({len(empty)} row(s) without a {c})")
+        n_rows = len(t.rows)
+        fr = cells.get("frame") or cells.get("session")
+        pl = cells.get("placement") or cells.get("session")
+        if fr is None or pl is None:
+            raise ValueError(f"{path}: give a 'session' column, or both 'frame' and 'placement' (have {label_cols})")
+        se = cells.get("session") or [f"{fr[r]}/{pl[r]}" for r in range(n_rows)]
+        labels = tuple(zip(se, fr, pl))
     if meta_kind is not None:
         meta.pop(meta_kind)
     dt = dtype or jnp.result_type(float)
-    return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), kind, meta)
+    return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), kind, meta, labels)

@@ -262,6 +262,15 @@ def initial_extras(
     Returns:
         :class:`ExtrasEstimate` (the new start, RMS residual before/after, trimmed samples).
     """
+    from ._sessions import SessionMarkers, initial_sessions
+
+    if isinstance(measurement, SessionMarkers):  # per-session frames and marker placements
+        est = set(INITIALISABLE["markers"] if estimate is None else estimate)
+        bad = est - set(INITIALISABLE["markers"])
+        if bad:
+            raise ValueError(f"cannot initialise {sorted(bad)} for session marker data; possible: base, markers")
+        return initial_sessions(robot, measurement, data, start=start, frames=None if "base" in est else [],
+                                placements=None if "markers" in est else [])
     q, y = (data.q, data.y) if hasattr(data, "q") else data
     q = jnp.asarray(q)
     dtype = q.dtype

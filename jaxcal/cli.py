@@ -320,6 +320,10 @@ def _cmd_calibrate(args) -> int:
         raise _Usage(str(e)) from None
     if data.dof != robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+    if data.labels:
+        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions); the command line "
+                     "calibrates one session: use the Python API (jaxcal.SessionMarkers.from_dataset, "
+                     "jaxcal.calibrate, jaxcal.leave_one_session_out) or drop those columns")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}

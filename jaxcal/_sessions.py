@@ -1,0 +1,502 @@
+"""Marker data from several recording sessions, calibrated jointly, and held-out-session checks.
+
+A motion-capture calibration is often recorded in several sessions: the robot (and its
+kinematic errors) is the same, but each session expresses the marker positions in its own
+sensor frame (the mocap system was moved, or the reference markers on the robot base were
+chosen differently) and may use its own marker placement on the end effector. Sessions share a
+frame or a placement by **label**: two sessions recorded with the same reference frame carry
+the same frame label, two sessions with the marker at the same place the same placement label.
+
+:class:`SessionMarkers` is the measurement model. It adds, per frame label ``F``, the extra
+groups ``base_rotation@F`` (``base_rx@F, base_ry@F, base_rz@F``, rad) and ``base_translation@F``
+(``base_x@F …``, mm), and per placement label ``K`` the groups ``marker_k@K`` (``marker_k_x@K
+…``, mm; ``k`` = 1..N markers per row) — the single-session ``base`` and ``marker_k`` groups with
+the label after ``@``. The robot's own groups are shared by every session. Labels travel with
+the data: :class:`~jaxcal.Dataset` ``labels`` (per row ``(session, frame, placement)``), read
+from the CSV columns ``session``, ``frame`` and ``placement`` by :func:`~jaxcal.load_csv`.
+
+:func:`initial_sessions` starts every frame and placement in closed form (Kabsch per frame on
+the nominal robot's marker points, alternating with the per-placement marker positions, as
+:func:`jaxcal.initial_extras` does for one session); :func:`jaxcal.calibrate` calls it.
+:func:`holdout_session` calibrates on all sessions but one and evaluates the held-out one;
+:func:`leave_one_session_out` does it for each session.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import ClassVar, NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._kinematics import _chain, check_joint_angles, rotvec_to_matrix
+from ._measurement import MeasurementModel
+from ._params import Deviations, Group, ParameterSpace, layout_for
+
+__all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "SessionHoldout",
+           "holdout_session", "leave_one_session_out", "session_labels"]
+
+#: a frame label needs this many rows for its own frame (Kabsch: 3 non-collinear points)
+MIN_FRAME_ROWS = 3
+
+
+def frame_groups(label: str) -> tuple[Group, Group]:
+    """``base_rotation@label`` (rad) and ``base_translation@label`` (mm): one session frame's
+    correction ``R = exp(δr)``, ``t = δt`` of ``T_sensor_base`` (nominal: identity)."""
+    return (Group.vector(f"base_rotation@{label}", tuple(f"base_r{c}@{label}" for c in "xyz"), "rad"),
+            Group.vector(f"base_translation@{label}", tuple(f"base_{c}@{label}" for c in "xyz"), "mm"))
+
+
+def placement_groups(label: str, n_markers: int) -> tuple[Group, ...]:
+    """``marker_k@label`` (``k`` = 1..n_markers, mm): the marker positions of one placement in
+    the flange frame (deviations from the nominal positions)."""
+    return tuple(Group.vector(f"marker_{k}@{label}", tuple(f"marker_{k}_{c}@{label}" for c in "xyz"), "mm")
+                 for k in range(1, n_markers + 1))
+
+
+def _check_label(label, what: str) -> str:
+    s = str(label).strip()
+    if not s or any(c in s for c in "@,\n\r") or s != str(label):
+        raise ValueError(f"{what} label {label!r} must be a non-empty string without '@', ',', line breaks "
+                         "or surrounding spaces")
+    return s
+
+
+def _ordered(labels) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(labels))
+
+
+def session_labels(data) -> tuple[tuple[str, str, str], ...]:
+    """Per-row ``(session, frame, placement)`` labels of a :class:`~jaxcal.Dataset` (its ``labels``)."""
+    labels = getattr(data, "labels", ())
+    if not labels:
+        raise ValueError("the data carry no session labels: give a Dataset with labels= (per row (session, frame, "
+                         "placement)) or a CSV file with a 'session' and/or 'frame'/'placement' column")
+    return labels
+
+
+class SessionMarkers(MeasurementModel):
+    """``N`` markers on the end effector seen in several sessions, ``[n, N, 3]`` mm:
+    ``y_ik = R_f(i)·(P_i + F_i·m_{p(i),k}) + t_f(i)`` with ``f(i)`` the frame label and ``p(i)``
+    the placement label of row ``i``, ``(P_i, F_i)`` the flange origin and orientation in the base
+    frame, ``m_{p,k}`` marker ``k`` of placement ``p`` in the flange frame (nominal
+    ``positions_mm[p] +`` the ``marker_k@p`` deviation) and ``(R_f, t_f) = T_sensor_base`` of
+    frame ``f`` (identity ``+`` the ``base_rotation@f`` / ``base_translation@f`` deviations).
+
+    The model carries one frame and one placement index per row, so it belongs to the rows it was
+    made for: :meth:`take` gives the model of a subset of rows with the same labels and groups
+    (a held-out split keeps the parameter layout). Every extra group is free by default;
+    :func:`jaxcal.calibrate` starts them in closed form (:func:`initial_sessions`). The
+    ``sample_error`` is the RMS over the row's markers of the 3-D distance error (mm), as
+    :class:`~jaxcal.Markers`.
+
+    Attributes:
+        positions: ``[n_placements, N, 3]`` nominal marker positions per placement (mm).
+        frame_index, placement_index: ``[n]`` int, per row.
+        frames, placements: the label of every index (static, in order).
+    """
+
+    positions: Float[Array, "P N 3"]
+    frame_index: Int[Array, " n"]
+    placement_index: Int[Array, " n"]
+    frames: tuple[str, ...] = eqx.field(static=True)
+    placements: tuple[str, ...] = eqx.field(static=True)
+    kind: ClassVar[str] = "markers"
+    known: ClassVar[bool] = False
+
+    def __init__(self, frames: Sequence[str], placements: Sequence[str], n_markers: int = 1, positions_mm=None,
+                 *, frame_labels: Sequence[str] | None = None, placement_labels: Sequence[str] | None = None):
+        """Args:
+            frames, placements: ``[n]`` per-row frame and placement labels (strings).
+            n_markers: markers per row (``N``).
+            positions_mm: nominal marker positions in the flange frame: ``[N, 3]`` for every
+                placement or ``[n_placements, N, 3]`` (default zeros; the closed-form start
+                does not need a guess).
+            frame_labels, placement_labels: every label of the parameter layout, in order
+                (default: the labels of these rows in order of appearance); labels without rows
+                here keep their groups, so a model of a held-out subset has the same layout.
+        """
+        frames = [_check_label(f, "frame") for f in frames]
+        placements = [_check_label(p, "placement") for p in placements]
+        if len(frames) != len(placements):
+            raise ValueError(f"{len(frames)} frame labels but {len(placements)} placement labels; one of each per row")
+        fl = _ordered(frames) if frame_labels is None else tuple(_check_label(f, "frame") for f in frame_labels)
+        pl = (_ordered(placements) if placement_labels is None
+              else tuple(_check_label(p, "placement") for p in placement_labels))
+        for what, given, known in (("frame", frames, fl), ("placement", placements, pl)):
+            if len(set(known)) != len(known):
+                raise ValueError(f"{what} labels repeat: {list(known)}")
+            unknown = sorted(set(given) - set(known))
+            if unknown:
+                raise ValueError(f"unknown {what} label(s) {unknown}; the layout has {list(known)}")
+        if not fl or not pl:
+            raise ValueError("SessionMarkers needs at least one frame and one placement label")
+        n_markers = int(n_markers)
+        if n_markers < 1:
+            raise ValueError(f"n_markers must be >= 1, got {n_markers}")
+        pos = np.zeros((len(pl), n_markers, 3)) if positions_mm is None else np.asarray(positions_mm, np.float64)
+        if pos.shape == (n_markers, 3):
+            pos = np.broadcast_to(pos, (len(pl), n_markers, 3)).copy()
+        if pos.shape != (len(pl), n_markers, 3) or not np.all(np.isfinite(pos)):
+            raise ValueError(f"positions_mm must be finite [{n_markers}, 3] or [{len(pl)}, {n_markers}, 3] (mm), "
+                             f"got shape {list(pos.shape)}")
+        self.positions = jnp.asarray(pos, jnp.result_type(float))
+        self.frames, self.placements = fl, pl
+        self.frame_index = jnp.asarray([fl.index(f) for f in frames], jnp.int32).reshape(-1)
+        self.placement_index = jnp.asarray([pl.index(p) for p in placements], jnp.int32).reshape(-1)
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def from_dataset(cls, data, n_markers: int | None = None, positions_mm=None, **kw) -> SessionMarkers:
+        """The model of a labelled marker :class:`~jaxcal.Dataset` (``data.labels``)."""
+        labels = session_labels(data)
+        n_markers = int(np.shape(data.y)[1]) if n_markers is None else n_markers
+        return cls([f for _, f, _ in labels], [p for _, _, p in labels], n_markers, positions_mm, **kw)
+
+    def take(self, rows) -> SessionMarkers:
+        """The model of rows ``rows`` (an index array, boolean mask or slice), same labels and layout."""
+        fi = np.asarray(self.frame_index)[rows]
+        pi = np.asarray(self.placement_index)[rows]
+        return SessionMarkers([self.frames[i] for i in fi], [self.placements[i] for i in pi], self.n_markers,
+                              np.asarray(self.positions), frame_labels=self.frames, placement_labels=self.placements)
+
+    # -- shape ----------------------------------------------------------------------------
+    @property
+    def n_markers(self) -> int:
+        return int(self.positions.shape[1])
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.frame_index.shape[0])
+
+    @property
+    def size(self) -> int:  # type: ignore[override]
+        return 3 * self.n_markers
+
+    @property
+    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
+        return (self.n_markers, 3)
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``base_rotation@F, base_translation@F`` per frame label, then ``marker_k@K`` per placement."""
+        return (tuple(g for f in self.frames for g in frame_groups(f))
+                + tuple(g for p in self.placements for g in placement_groups(p, self.n_markers)))
+
+    def groups_of(self, *, frame: str | None = None, placement: str | None = None) -> tuple[str, ...]:
+        """Group names of a frame label and/or a placement label."""
+        out: list[str] = []
+        if frame is not None:
+            if frame not in self.frames:
+                raise ValueError(f"unknown frame label {frame!r}; labels: {list(self.frames)}")
+            out += [g.name for g in frame_groups(frame)]
+        if placement is not None:
+            if placement not in self.placements:
+                raise ValueError(f"unknown placement label {placement!r}; labels: {list(self.placements)}")
+            out += [g.name for g in placement_groups(placement, self.n_markers)]
+        return tuple(out)
+
+    def check_measurements(self, y, n: int) -> None:
+        super().check_measurements(y, n)
+        if n != self.n_rows:
+            raise ValueError(f"SessionMarkers was made for {self.n_rows} rows but the data have {n}: build it from "
+                             "the same rows (SessionMarkers.from_dataset, or .take(rows) for a subset)")
+
+    # -- model ----------------------------------------------------------------------------
+    def frame_arrays(self, deviations: Deviations | None, dtype=None):
+        """``(R [n_frames, 3, 3], t [n_frames, 3])``: ``T_sensor_base`` of every frame label."""
+        dtype = self.positions.dtype if dtype is None else dtype
+        nf = len(self.frames)
+        if deviations is None:
+            return jnp.broadcast_to(jnp.eye(3, dtype=dtype), (nf, 3, 3)), jnp.zeros((nf, 3), dtype)
+        vals = deviations.values
+        w = jnp.stack([jnp.asarray(vals[f"base_rotation@{f}"]).astype(dtype) for f in self.frames])
+        t = jnp.stack([jnp.asarray(vals[f"base_translation@{f}"]).astype(dtype) for f in self.frames])
+        R = jnp.stack([rotvec_to_matrix(w[i]) for i in range(nf)])
+        return R, t
+
+    def marker_arrays(self, deviations: Deviations | None, dtype=None) -> Float[Array, "P N 3"]:
+        """Marker positions ``[n_placements, N, 3]`` in the flange frame (nominal + deviations, mm)."""
+        m = self.positions if dtype is None else self.positions.astype(dtype)
+        if deviations is None:
+            return m
+        vals = deviations.values
+        dev = jnp.stack([jnp.stack([jnp.asarray(vals[f"marker_{k + 1}@{p}"]).astype(m.dtype)
+                                    for k in range(self.n_markers)]) for p in self.placements])
+        return m + dev
+
+    def predict(self, robot, deviations, q) -> Float[Array, "n N 3"]:
+        """Marker positions ``[n, N, 3]`` in each row's sensor frame (mm)."""
+        q = check_joint_angles(robot, q)
+        if q.shape[0] != self.n_rows:
+            raise ValueError(f"SessionMarkers was made for {self.n_rows} rows, got {q.shape[0]} joint rows")
+        X, Y, Z, P = _chain(robot, deviations, q)
+        M = self.marker_arrays(deviations, q.dtype)[self.placement_index]  # [n, N, 3]
+        R, t = self.frame_arrays(deviations, q.dtype)
+        R, t = R[self.frame_index], t[self.frame_index]  # [n, 3, 3], [n, 3]
+        out = []
+        for k in range(self.n_markers):
+            p = [P[c] + M[:, k, 0] * X[c] + M[:, k, 1] * Y[c] + M[:, k, 2] * Z[c] for c in range(3)]
+            out.append(jnp.stack([R[:, r, 0] * p[0] + R[:, r, 1] * p[1] + R[:, r, 2] * p[2] + t[:, r]
+                                  for r in range(3)], -1))
+        return jnp.stack(out, axis=1)
+
+    def sample_error(self, residual) -> Float[Array, " n"]:
+        r = residual.reshape(residual.shape[0], self.n_markers, 3)
+        return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
+
+
+# -- closed-form start --------------------------------------------------------------------------
+def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviations | None = None,
+                     frames: Sequence[str] | None = None, placements: Sequence[str] | None = None,
+                     iterations: int = 500, trim: bool = True):
+    """Closed-form start of the session frames and marker placements on the (nominal) robot.
+
+    Each frame by Kabsch on its rows' marker points, each placement's markers by the mean over
+    its rows of ``F_iᵀ(R_iᵀ(y_ik − t_i) − P_i)``, alternating until nothing moves (the frames
+    first from the marker centroids); then once more without rows beyond 5 robust σ.
+
+    Args:
+        robot, measurement: nominal robot, the session model of the data's rows.
+        data: ``(q, y)`` or a :class:`~jaxcal.Dataset` of those rows.
+        start: deviations to start from (default nominal); its robot part gives the flange poses.
+        frames, placements: labels to estimate (default: every label with rows); the others
+            keep ``start``'s values.
+        iterations: alternation steps at most.
+
+    Returns:
+        :class:`jaxcal.ExtrasEstimate` (deviations, RMS before/after, trimmed rows, message).
+
+    Raises:
+        ValueError: a label to estimate has no rows, or a frame to estimate has fewer than
+            3 rows, or a placement to estimate is seen only in frames that are also estimated
+            and has no rows at all.
+    """
+    from ._initialise import ExtrasEstimate, _trim, kabsch
+    from ._kinematics import fk_pose
+
+    q, y = (data.q, data.y) if hasattr(data, "q") else data
+    q = jnp.asarray(q)
+    dtype = q.dtype
+    m = measurement
+    start = Deviations.zeros(layout_for(robot, m), dtype) if start is None else start.astype(dtype)
+    Y = np.asarray(y, np.float64)
+    fi, pi = np.asarray(m.frame_index), np.asarray(m.placement_index)
+    if Y.shape[0] != fi.shape[0]:
+        raise ValueError(f"SessionMarkers was made for {fi.shape[0]} rows but the data have {Y.shape[0]}")
+    est_f = [f for f in m.frames if np.any(fi == m.frames.index(f))] if frames is None else list(frames)
+    est_p = [p for p in m.placements if np.any(pi == m.placements.index(p))] if placements is None else list(placements)
+    for f in est_f:
+        if f not in m.frames:
+            raise ValueError(f"unknown frame label {f!r}; labels: {list(m.frames)}")
+        rows = int(np.sum(fi == m.frames.index(f)))
+        if rows < MIN_FRAME_ROWS:
+            raise ValueError(f"frame {f!r} has {rows} row(s): its own sensor frame (6 parameters) needs at least "
+                             f"{MIN_FRAME_ROWS} rows; give more rows or share the frame label with another session")
+    for p in est_p:
+        if p not in m.placements:
+            raise ValueError(f"unknown placement label {p!r}; labels: {list(m.placements)}")
+        if not np.any(pi == m.placements.index(p)):
+            raise ValueError(f"placement {p!r} has no rows: its marker positions cannot be estimated")
+    T = np.asarray(fk_pose(robot, q, start), np.float64)
+    F, P = T[:, :3, :3], T[:, :3, 3]
+    M = np.array(m.marker_arrays(start, dtype), np.float64)  # [Pn, N, 3]
+    R_all, t_all = (np.array(a, np.float64) for a in m.frame_arrays(start, dtype))
+    fidx = [m.frames.index(f) for f in est_f]
+    pidx = [m.placements.index(p) for p in est_p]
+    keep = np.ones(Y.shape[0], bool)
+
+    def points(rows):  # marker points in the base frame [r, N, 3]
+        return P[rows][:, None, :] + np.einsum("nij,nkj->nki", F[rows], M[pi[rows]])
+
+    def err():
+        pred = np.einsum("nij,nkj->nki", R_all[fi], points(np.arange(Y.shape[0]))) + t_all[fi][:, None, :]
+        return np.sqrt(np.mean(np.sum((pred - Y) ** 2, axis=-1), axis=-1))
+
+    before = float(np.sqrt(np.mean(err() ** 2)))
+    for _ in range(2):
+        for j in fidx:  # frames from the marker centroids first
+            rows = np.flatnonzero((fi == j) & keep)
+            R_all[j], t_all[j] = kabsch(points(rows).mean(axis=1), Y[rows].mean(axis=1))
+        for _ in range(iterations):
+            old = (M.copy(), R_all.copy(), t_all.copy())
+            for j in pidx:
+                rows = np.flatnonzero((pi == j) & keep)
+                if rows.size:
+                    local = np.einsum("nji,nkj->nki", R_all[fi[rows]], Y[rows] - t_all[fi[rows]][:, None, :])
+                    local = np.einsum("nji,nkj->nki", F[rows], local - P[rows][:, None, :])
+                    M[j] = local.mean(axis=0)
+            for j in fidx:
+                rows = np.flatnonzero((fi == j) & keep)
+                R_all[j], t_all[j] = kabsch(points(rows).reshape(-1, 3), Y[rows].reshape(-1, 3))
+            if (np.abs(M - old[0]).max() < 1e-9 and np.abs(R_all - old[1]).max() < 1e-12
+                    and np.abs(t_all - old[2]).max() < 1e-9):
+                break
+        if not trim:
+            break
+        new_keep = _trim(err())
+        for j in fidx:  # never trim a frame below its minimum
+            if np.sum(new_keep & (fi == j)) < MIN_FRAME_ROWS:
+                new_keep |= fi == j
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    from ._dataset import _matrix_to_rotvec
+
+    vals = {}
+    for j in fidx:
+        f = m.frames[j]
+        vals[f"base_rotation@{f}"] = jnp.asarray(_matrix_to_rotvec(R_all[j]), dtype)
+        vals[f"base_translation@{f}"] = jnp.asarray(t_all[j], dtype)
+    M0 = np.asarray(m.positions, np.float64)
+    for j in pidx:
+        for k in range(m.n_markers):
+            vals[f"marker_{k + 1}@{m.placements[j]}"] = jnp.asarray(M[j, k] - M0[j, k], dtype)
+    dev = start.replace(**vals)
+    after = float(np.sqrt(np.mean(err() ** 2)))
+    n_trim = int((~keep).sum())
+    msg = (f"extras from the data: {len(fidx)} session frame(s) ({', '.join(est_f) or '-'}) and {len(pidx)} marker "
+           f"placement(s) ({', '.join(est_p) or '-'}) in closed form (RMS residual of the robot {before:.2f} → "
+           f"{after:.2f} mm" + (f", {n_trim} row(s) left out as gross outliers)" if n_trim else ")"))
+    return ExtrasEstimate(dev, before, after, n_trim, msg)
+
+
+# -- held-out sessions ----------------------------------------------------------------------------
+class SessionHoldout(NamedTuple):
+    """One held-out session (:func:`holdout_session`).
+
+    Attributes:
+        session: the held-out session label; rows: its row indices in the data.
+        frame, placement: its labels; frame_seen / placement_seen: whether the training
+            sessions use them (then predicted directly, else registered on the held-out rows).
+        registered: the groups fitted on the held-out rows with the robot fixed (``()`` when
+            every label was seen in training).
+        before_rmse, after_rmse: held-out marker RMSE (mm) with the nominal robot and with the
+            calibrated robot (each with its frames/markers: from training, or registered).
+        before_errors, after_errors: ``[rows]`` per-row errors (mm).
+        train_before_rmse, train_after_rmse: training RMSE (mm), nominal (+ closed-form
+            extras) and calibrated.
+        result: the training :class:`~jaxcal.CalibrationResult`.
+    """
+
+    session: str
+    rows: np.ndarray
+    frame: str
+    placement: str
+    frame_seen: bool
+    placement_seen: bool
+    registered: tuple[str, ...]
+    before_rmse: float
+    after_rmse: float
+    before_errors: np.ndarray
+    after_errors: np.ndarray
+    train_before_rmse: float
+    train_after_rmse: float
+    result: object
+
+
+def _rms(e) -> float:
+    e = np.asarray(e, np.float64)
+    return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
+
+
+def _errors(robot, m, dev, q, y) -> np.ndarray:
+    return np.asarray(m.sample_error(m.residual(robot, dev, jnp.asarray(q), jnp.asarray(y))), np.float64)
+
+
+def _register(robot, m, q, y, dev, groups, frames, placements):
+    """Closed form, then LM on ``groups`` only (robot and other extras fixed at ``dev``)."""
+    from ._calibrate import calibrate
+
+    if not groups:
+        return dev
+    dev = initial_sessions(robot, m, (q, y), start=dev, frames=frames, placements=placements).deviations
+    layout = layout_for(robot, m)
+    names = [n for g in groups for n in layout.group(g).names]
+    space = ParameterSpace.from_names(layout, names)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none")
+    return res.deviations
+
+
+def holdout_session(robot, data, session: str, *, n_markers: int | None = None, positions_mm=None,
+                    prior="default", loss: str = "huber", **calibrate_kw) -> SessionHoldout:
+    """Calibrate on every session but ``session`` and evaluate on ``session``'s rows.
+
+    Training: :func:`jaxcal.calibrate` with :class:`SessionMarkers` on the other sessions'
+    rows (shared robot errors, the identifiable subset by QR, each frame/placement started in
+    closed form; labels that occur only in the held-out session stay fixed), with ``prior`` and
+    ``loss`` (default: jaxcal's default prior and the Huber loss).
+
+    Held-out rows: a frame or placement label the training sessions use is predicted with its
+    trained value; a label only the held-out session has is **registered** on the held-out rows
+    with the robot fixed (closed form, then LM on those groups only — the standard registration
+    of a new sensor set-up; it never touches the kinematics). ``registered`` says which.
+    "before" does the same with the nominal robot (frames/markers in closed form on the
+    training rows, new labels registered on the held-out rows).
+
+    Args:
+        robot: nominal robot. data: a labelled marker :class:`~jaxcal.Dataset`.
+        session: the session label to hold out.
+        n_markers, positions_mm: as :meth:`SessionMarkers.from_dataset`.
+        **calibrate_kw: more :func:`jaxcal.calibrate` arguments (``fix=``, ``checks=`` ...).
+    """
+    import warnings
+
+    from ._calibrate import calibrate
+
+    labels = session_labels(data)
+    sessions = _ordered(s for s, _, _ in labels)
+    if session not in sessions:
+        raise ValueError(f"unknown session {session!r}; sessions: {list(sessions)}")
+    full = SessionMarkers.from_dataset(data, n_markers, positions_mm)
+    test = np.flatnonzero([s == session for s, _, _ in labels])
+    train = np.flatnonzero([s != session for s, _, _ in labels])
+    if train.size == 0:
+        raise ValueError("holding out the only session leaves no training data")
+    q, y = np.asarray(data.q), np.asarray(data.y)
+    m_tr, m_te = full.take(train), full.take(test)
+    frame, placement = labels[test[0]][1], labels[test[0]][2]
+    if any((f, p) != (frame, placement) for _, f, p in (labels[i] for i in test)):
+        raise ValueError(f"session {session!r} mixes frame/placement labels; one session has one of each")
+    tr_frames = {labels[i][1] for i in train}
+    tr_places = {labels[i][2] for i in train}
+    absent = [g for f in full.frames if f not in tr_frames for g in full.groups_of(frame=f)]
+    absent += [g for p in full.placements if p not in tr_places for g in full.groups_of(placement=p)]
+    fix = list(calibrate_kw.pop("fix", ()) or ())
+    fix = ([fix] if isinstance(fix, str) else fix) + absent
+    nominal = initial_sessions(robot, m_tr, (q[train], y[train])).deviations
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(robot, m_tr, (jnp.asarray(q[train]), jnp.asarray(y[train])), "lm", prior=prior, loss=loss,
+                        fix=fix or (), start=nominal, **calibrate_kw)
+    frame_seen, placement_seen = frame in tr_frames, placement in tr_places
+    new_f = [] if frame_seen else [frame]
+    new_p = [] if placement_seen else [placement]
+    groups = tuple(full.groups_of(frame=new_f[0]) if new_f else ()) + tuple(
+        full.groups_of(placement=new_p[0]) if new_p else ())
+    dev_b = _register(robot, m_te, q[test], y[test], nominal, groups, new_f, new_p)
+    dev_a = _register(robot, m_te, q[test], y[test], res.deviations, groups, new_f, new_p)
+    eb = _errors(robot, m_te, dev_b, q[test], y[test])
+    ea = _errors(robot, m_te, dev_a, q[test], y[test])
+    return SessionHoldout(
+        session, test, frame, placement, frame_seen, placement_seen, groups, _rms(eb), _rms(ea), eb, ea,
+        _rms(_errors(robot, m_tr, nominal, q[train], y[train])),
+        _rms(_errors(robot, m_tr, res.deviations, q[train], y[train])), res)
+
+
+def leave_one_session_out(robot, data, **kw) -> tuple[list[SessionHoldout], float, float]:
+    """:func:`holdout_session` for every session of ``data``; returns ``(per session, pooled
+    before RMSE, pooled after RMSE)`` — pooled over every held-out row (mm)."""
+    sessions = _ordered(s for s, _, _ in session_labels(data))
+    if len(sessions) < 2:
+        raise ValueError(f"leave-one-session-out needs at least 2 sessions, got {list(sessions)}")
+    out = [holdout_session(robot, data, s, **kw) for s in sessions]
+    before = _rms(np.concatenate([h.before_errors for h in out]))
+    after = _rms(np.concatenate([h.after_errors for h in out]))
+    return out, before, after
