@@ -293,6 +293,8 @@ def test_figaroh_fixture_reads():
     assert np.ptp(np.delete(d12, b.OUTLIER_ROW)) < 5.0  # rigid on the hand (mm)
 
 
+# slow (35 s of the default run): real marker data stay covered by the Vicon tests in test_sessions.py
+@pytest.mark.slow
 def test_figaroh_tiago_end_to_end_small():
     """Nominal URDF + closed-form mocap frame/layout ≈ 11 mm; calibrated on 28 postures, better on
     the 7 held-out ones (a small version of benchmarks/bench_figaroh.py; ~20 s on 2 cores)."""

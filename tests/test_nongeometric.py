@@ -324,6 +324,8 @@ def test_gravity_torques_of_a_generic_chain_match_its_dh_robot():
                                -98.1, rtol=1e-12)
 
 
+# slow (32 s of the default run): compliance on a DH robot stays in the default run
+@pytest.mark.slow
 def test_urdf_chain_with_compliance_calibrates_to_the_floor():
     """A real URDF chain (UR10e, masses from its <inertial> tags) with joint compliance: the
     gravity torques run inside the jitted calibration (the chain is a traced argument), the
