@@ -44,15 +44,20 @@ def chain_rows():
             s_dh = ParameterSpace.for_robot(robot, measurement=meas)
             s_36 = ParameterSpace.for_robot(chain, measurement=meas)
             s_24 = ParameterSpace.from_names(s_36.layout, same)
+            # what calibrate() differentiates: each model's identifiable subset (QR with pivoting)
+            i_dh = jaxcal.identifiability(robot, meas, q, s_dh).space
+            i_ch = jaxcal.identifiability(chain, meas, q, s_36).space
             probs = {"dh": Problem(robot, meas, q, y, s_dh), "chain36": Problem(chain, meas, q, y, s_36),
-                     "chain24": Problem(chain, meas, q, y, s_24)}
+                     "chain24": Problem(chain, meas, q, y, s_24), "dh_id": Problem(robot, meas, q, y, i_dh),
+                     "chain_id": Problem(chain, meas, q, y, i_ch)}
             times = {k: [] for k in probs}
             for _ in range(5):  # alternate, so background load hits all alike
                 for k, pr in probs.items():
                     x = jnp.zeros(pr.space.n_free)
                     times[k].append(median_time(jac_fn, pr, x, repeats=20 if n <= 2_000 else 10))
             t = {k: float(min(v)) * 1e3 for k, v in times.items()}
-            rows.append((kind, n, s_dh.n_free, t["dh"], s_36.n_free, t["chain36"], t["chain24"]))
+            rows.append((kind, n, s_dh.n_free, t["dh"], s_36.n_free, t["chain36"], t["chain24"],
+                         i_dh.n_free, t["dh_id"], i_ch.n_free, t["chain_id"]))
             print(rows[-1], flush=True)
     lines = [
         "# Jacobian timing: DH kernel vs generic serial chain (HSR-JR680, float64)",
@@ -61,12 +66,16 @@ def chain_rows():
         "`Problem.jacobian` (`jax.jacfwd` of the residual vector) after `jax.jit`; best of 5 alternating",
         "medians. The chain is `chain_from_dh(hsr_jr680())` (identical FK); its default free errors per joint",
         "are offset, dx, dy, dz, drx, dry (36 columns), or offset, dx, dy, drx (24, as many as the DH kernel).",
+        "*Identifiable*: each model's identifiable subset (`jaxcal.identifiability`, the columns `calibrate`",
+        "and LM differentiate).",
         "",
-        "| measurement | samples | DH: columns | DH / ms | chain: columns | chain / ms | ratio | chain, 24 columns / ms | ratio |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| measurement | samples | DH: columns | DH / ms | chain: columns | chain / ms | ratio | chain, 24 columns / ms "
+        "| ratio | identifiable: DH cols / ms | chain cols / ms | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    lines += [f"| {k} | {n:,} | {pd} | {d:.3f} | {pc} | {c36:.3f} | {c36 / d:.2f} | {c24:.3f} | {c24 / d:.2f} |"
-              for k, n, pd, d, pc, c36, c24 in rows]
+    lines += [f"| {k} | {n:,} | {pd} | {d:.3f} | {pc} | {c36:.3f} | {c36 / d:.2f} | {c24:.3f} | {c24 / d:.2f} "
+              f"| {idd} / {tdd:.3f} | {idc} / {tdc:.3f} | {tdc / tdd:.2f} |"
+              for k, n, pd, d, pc, c36, c24, idd, tdd, idc, tdc in rows]
     plat = jax.devices()[0].platform
     out = pathlib.Path(__file__).parent / "results" / f"kinematics_chain_{plat}.md"
     out.write_text("\n".join(lines) + "\n")
