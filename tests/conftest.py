@@ -73,3 +73,22 @@ def numpy_dh_fk(alpha, a, d, theta, beta, q, convention="standard", beta_joints=
         T = numpy_dh_frames(alpha, a, d, theta, beta, qi, convention, beta_joints)[-1]
         out.append(T if tool is None else T @ np_tr(*tool))
     return np.array(out)
+
+
+@pytest.fixture(scope="session")
+def figaroh_bench():
+    """``benchmarks/bench_figaroh.py`` as a module: its loaders of the FIGAROH TIAGo fixtures
+    (tests/data/figaroh_tiago*, Apache-2.0) and of the TIAGo URDF."""
+    import importlib.util
+    import pathlib
+    import sys
+
+    path = pathlib.Path(__file__).parents[1] / "benchmarks" / "bench_figaroh.py"
+    spec = importlib.util.spec_from_file_location("bench_figaroh", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        sys.path.remove(str(path.parent))
+    return mod

@@ -1,8 +1,6 @@
 """The marker measurement model (N markers on the flange seen by a motion-capture system or a
 laser tracker), pose from markers, marker CSV files, and the FIGAROH TIAGo mocap data."""
 
-import pathlib
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -267,22 +265,8 @@ def test_cli_markers(tmp_path, capsys):
 
 
 # -- FIGAROH's TIAGo motion-capture data (tests/data/figaroh_tiago, Apache-2.0) ---------------------
-def _bench():
-    import importlib.util
-
-    path = pathlib.Path(__file__).parents[1] / "benchmarks" / "bench_figaroh.py"
-    spec = importlib.util.spec_from_file_location("bench_figaroh", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(path.parent))
-    try:
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(path.parent))
-    return mod
-
-
-def test_figaroh_fixture_reads():
-    b = _bench()
+def test_figaroh_fixture_reads(figaroh_bench):
+    b = figaroh_bench
     if not b.DATA.exists():
         pytest.skip("FIGAROH fixture absent")
     q, y, names = b.load_figaroh_markers()
@@ -295,10 +279,10 @@ def test_figaroh_fixture_reads():
 
 # slow (35 s of the default run): real marker data stay covered by the Vicon tests in test_sessions.py
 @pytest.mark.slow
-def test_figaroh_tiago_end_to_end_small():
+def test_figaroh_tiago_end_to_end_small(figaroh_bench):
     """Nominal URDF + closed-form mocap frame/layout ≈ 11 mm; calibrated on 28 postures, better on
     the 7 held-out ones (a small version of benchmarks/bench_figaroh.py; ~20 s on 2 cores)."""
-    b = _bench()
+    b = figaroh_bench
     text = b.tiago_urdf_text()
     if text is None or not b.DATA.exists():
         pytest.skip("TIAGo URDF (CC BY-NC-ND, not shipped) or the FIGAROH fixture absent")

@@ -3,9 +3,7 @@ and marker placements shared by label, joint calibration with shared kinematics,
 sessions, labelled CSV files, clear errors; FIGAROH's TIAGo Vicon sessions (skipped without the
 TIAGo URDF)."""
 
-import importlib.util
 import pathlib
-import sys
 import warnings
 
 import jax.numpy as jnp
@@ -227,20 +225,8 @@ def test_clear_errors(tmp_path, capsys):
 
 
 # -- FIGAROH's TIAGo Vicon sessions (tests/data/figaroh_tiago_vicon, Apache-2.0) ---------------------
-def _bench():
-    path = pathlib.Path(__file__).parents[1] / "benchmarks" / "bench_figaroh.py"
-    spec = importlib.util.spec_from_file_location("bench_figaroh", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(path.parent))
-    try:
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(path.parent))
-    return mod
-
-
-def test_figaroh_vicon_fixture_reads():
-    b = _bench()
+def test_figaroh_vicon_fixture_reads(figaroh_bench):
+    b = figaroh_bench
     ds = b.load_figaroh_vicon()
     assert ds.n == 7 * 21 and ds.y.shape == (147, 1, 3) and len(set(ds.labels)) == 7
     m = SessionMarkers.from_dataset(ds)
@@ -252,10 +238,10 @@ def test_figaroh_vicon_fixture_reads():
     assert sh.q.shape == (6 * 21, 7) and SessionMarkers.from_dataset(sh).frames[0] == "shoulder1"
 
 
-def test_figaroh_vicon_closed_form_on_the_tiago_urdf():
+def test_figaroh_vicon_closed_form_on_the_tiago_urdf(figaroh_bench):
     """Nominal TIAGo + closed-form frames and placements: the rigid gripper3 marker is within ~23 mm,
     gripper1/gripper2 ~70 mm (they do not move rigidly with the flange; see figaroh_cpu.md)."""
-    b = _bench()
+    b = figaroh_bench
     text = b.tiago_urdf_text()
     if text is None:
         pytest.skip("TIAGo URDF not available (set JAXCAL_TIAGO_URDF or mirror figaroh-examples)")
