@@ -203,7 +203,30 @@ def marker_group(k: int) -> Group:
     return Group.vector(f"marker_{k}", (f"marker_{k}_x", f"marker_{k}_y", f"marker_{k}_z"), "mm")
 
 
-class Markers(MeasurementModel):
+class MarkerModel(MeasurementModel):
+    """Shared by the marker models (:class:`Markers`, :class:`~jaxcal.SessionMarkers`): ``N``
+    markers per sample, readings ``[n, N, 3]`` mm, residual ``[n, 3N]``; the sample error is the
+    RMS over the sample's markers of the 3-D distance error (mm)."""
+
+    @property
+    @abc.abstractmethod
+    def n_markers(self) -> int:
+        """Markers per sample."""
+
+    @property
+    def size(self) -> int:  # type: ignore[override]
+        return 3 * self.n_markers
+
+    @property
+    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
+        return (self.n_markers, 3)
+
+    def sample_error(self, residual) -> Float[Array, " n"]:
+        r = residual.reshape(residual.shape[0], self.n_markers, 3)
+        return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
+
+
+class Markers(MarkerModel):
     """Positions of ``N`` markers fixed on the end effector, seen by a motion-capture system or a
     laser tracker, ``[n, N, 3]`` mm in the sensor's frame:
     ``y_ik = R·(P_i + F_i·m_k) + t`` with ``(P_i, F_i)`` the flange origin and orientation in the
@@ -250,14 +273,6 @@ class Markers(MeasurementModel):
     def n_markers(self) -> int:
         return int(self.positions.shape[0])
 
-    @property
-    def size(self) -> int:  # type: ignore[override]
-        return 3 * self.n_markers
-
-    @property
-    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
-        return (self.n_markers, 3)
-
     def extra_groups(self) -> tuple[Group, ...]:
         """``marker_1 … marker_N`` unless the positions are known."""
         return () if self.known else tuple(marker_group(k + 1) for k in range(self.n_markers))
@@ -282,9 +297,6 @@ class Markers(MeasurementModel):
                 for k in range(self.n_markers)]  # N × [n, 3], base frame
         return jnp.stack([p @ R.T + t for p in base], axis=1)
 
-    def sample_error(self, residual) -> Float[Array, " n"]:
-        r = residual.reshape(residual.shape[0], self.n_markers, 3)
-        return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
 
 
 def predict(measurement: MeasurementModel, robot: DHRobot, deviations: Deviations | None, q):

@@ -33,7 +33,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ._kinematics import _chain, check_joint_angles, rotvec_to_matrix
-from ._measurement import MeasurementModel
+from ._measurement import MarkerModel
 from ._params import Deviations, Group, ParameterSpace, layout_for
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "SessionHoldout",
@@ -78,7 +78,7 @@ def session_labels(data) -> tuple[tuple[str, str, str], ...]:
     return labels
 
 
-class SessionMarkers(MeasurementModel):
+class SessionMarkers(MarkerModel):
     """``N`` markers on the end effector seen in several sessions, ``[n, N, 3]`` mm:
     ``y_ik = R_f(i)·(P_i + F_i·m_{p(i),k}) + t_f(i)`` with ``f(i)`` the frame label and ``p(i)``
     the placement label of row ``i``, ``(P_i, F_i)`` the flange origin and orientation in the base
@@ -172,14 +172,6 @@ class SessionMarkers(MeasurementModel):
     def n_rows(self) -> int:
         return int(self.frame_index.shape[0])
 
-    @property
-    def size(self) -> int:  # type: ignore[override]
-        return 3 * self.n_markers
-
-    @property
-    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
-        return (self.n_markers, 3)
-
     def extra_groups(self) -> tuple[Group, ...]:
         """``base_rotation@F, base_translation@F`` per frame label, then ``marker_k@K`` per placement."""
         return (tuple(g for f in self.frames for g in frame_groups(f))
@@ -242,10 +234,6 @@ class SessionMarkers(MeasurementModel):
             out.append(jnp.stack([R[:, r, 0] * p[0] + R[:, r, 1] * p[1] + R[:, r, 2] * p[2] + t[:, r]
                                   for r in range(3)], -1))
         return jnp.stack(out, axis=1)
-
-    def sample_error(self, residual) -> Float[Array, " n"]:
-        r = residual.reshape(residual.shape[0], self.n_markers, 3)
-        return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
 
 
 # -- closed-form start --------------------------------------------------------------------------
