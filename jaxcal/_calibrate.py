@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._dataset import Dataset
+from ._dataset import Dataset, mm_joints_metadata
 from ._diagnostics import (
     Checks,
     Diagnostics,
@@ -112,8 +112,6 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
         q, y = data
         q = jnp.asarray(q)
         y = jnp.asarray(y, q.dtype)
-        from ._dataset import mm_joints_metadata
-
         Dataset(q, y, measurement.kind, mm_joints_metadata(robot))  # validates shapes, NaN/inf, degrees
     else:
         raise TypeError("data must be a jaxcal.Dataset or a (q, y) pair of arrays")
@@ -172,6 +170,11 @@ SELECT_GROUPS = {
 }
 
 
+def _family(group: str) -> str:
+    """A group's family: its name before ``@`` (``base_rotation@F`` → ``base_rotation``)."""
+    return group.partition("@")[0]
+
+
 def _selection(items, layout) -> set[str]:
     """Parameter names selected by ``items``: aliases of :data:`SELECT_GROUPS`, a kind
     (``geometric``, ``nongeometric``, ``extras``), any group name of ``layout`` or parameter names."""
@@ -182,12 +185,11 @@ def _selection(items, layout) -> set[str]:
     for it in items or ():
         key = it.strip()
         if key.lower() in SELECT_GROUPS:
+            # per-session groups (SessionMarkers: base_rotation@F, marker_k@K) count as their family:
+            # "base" selects every session frame; "extras" also every session group
             groups = SELECT_GROUPS[key.lower()]
-            out |= {n for n, g in zip(names, groups_of) if g in groups}
-            # per-session groups (SessionMarkers: base_rotation@F, marker_k@K): "base" selects every
-            # session frame, "extras" every session group
             out |= {n for n, g in zip(names, groups_of)
-                    if "@" in g and (g.split("@")[0] in groups or key.lower() == "extras")}
+                    if _family(g) in groups or ("@" in g and key.lower() == "extras")}
         elif key.lower() == "markers":
             out |= {n for n, g in zip(names, groups_of) if g.startswith("marker_")}
         elif key.lower() in ("geometric", "nongeometric"):
@@ -362,10 +364,9 @@ def calibrate(
     if init not in ("auto", "none"):
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
     cand = candidate_space(robot, measurement, extras, free, fix)
-    flags = {e: any(group_of(n) in SELECT_GROUPS[e] for n in cand.free_names) for e in ("anchor", "cable_offset", "base")}
+    flags = {e: any(_family(group_of(n)) in SELECT_GROUPS[e] for n in cand.free_names)
+             for e in ("anchor", "cable_offset", "base")}
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
-    flags["base"] = flags["base"] or any(group_of(n).split("@")[0] in SELECT_GROUPS["base"] and "@" in group_of(n)
-                                         for n in cand.free_names)  # per-session frames (SessionMarkers)
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]

@@ -52,6 +52,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
+from ._robot import replace_tool
 
 __all__ = ["SerialChain", "GEOMETRIC_GROUPS", "rpy_matrix", "matrix_rpy"]
 
@@ -323,10 +324,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
 
     def with_tool(self, tool_mm: Sequence[float]) -> SerialChain:
         """A copy with another nominal tool point ``[3]`` mm in the tip link frame."""
-        tool = jnp.asarray(np.asarray(tool_mm, dtype=np.float64))
-        if tool.shape != (3,):
-            raise ValueError(f"tool_mm must have 3 entries, got shape {tool.shape}")
-        return eqx.tree_at(lambda r: r.tool, self, tool)
+        return replace_tool(self, tool_mm)
 
     def reach_mm(self) -> float:
         """A generous bound on the distance from the base origin to the tool point (mm):

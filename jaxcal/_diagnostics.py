@@ -25,6 +25,7 @@ import numpy as np
 
 from ._objective import robust_factor, robust_scale
 from ._params import group_kind
+from ._precision import to_device
 from ._problem import residual_blocks_numpy, signed_residuals
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
@@ -133,8 +134,7 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
         ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian —
         and with ``return_residuals`` the residual blocks as a third element.
     """
-    dt = np.dtype(problem.dtype)
-    d, A, G, rss, r = _gram(problem, jax.device_put(np.asarray(x, dt)), loss, jax.device_put(np.asarray(loss_scale, dt)))
+    d, A, G, rss, r = _gram(problem, to_device(x, problem.dtype), loss, to_device(loss_scale, problem.dtype))
     d, A, G = (np.asarray(v, np.float64) for v in (d, A, G))
     N, p = problem.n_residuals, A.shape[0]
     rss = float(rss)

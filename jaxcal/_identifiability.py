@@ -250,8 +250,10 @@ def pivot_triangular(R0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
     """``(R [p, p], piv [p])`` with ``A[:, piv] = Q R`` for a tall ``A`` ``[N, p]``:
     :func:`householder_r` (XLA) then :func:`pivot_triangular` (NumPy)."""
-    A = jnp.asarray(A, jnp.result_type(float))
-    return pivot_triangular(np.asarray(jax.jit(householder_r)(A), np.float64))
+    return pivot_triangular(np.asarray(_householder_r_jit(jnp.asarray(A, jnp.result_type(float))), np.float64))
+
+
+_householder_r_jit = jax.jit(householder_r)
 
 
 def identifiability(

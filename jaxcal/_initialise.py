@@ -204,41 +204,78 @@ def pose_from_markers(markers, layout_mm, *, min_markers: int = 3):
     return out.reshape(*batch, 4, 4)
 
 
-def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est_markers: bool, iterations=100):
-    """``(R, t, M [N, 3], per-sample RMS marker error)`` by centroid Kabsch + alternating LS."""
-    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
-    F, P = T[:, :3, :3], T[:, :3, 3]
-    M = np.asarray(measurement.marker_points(start), np.float64)
-    R0 = np.asarray(measurement.rotation, np.float64)
-    R = _rotvec(start.base_rotation) @ R0
-    t = np.asarray(measurement.translation, np.float64) + np.asarray(start.base_translation, np.float64)
-    n = Y.shape[0]
-    keep = np.ones(n, bool)
+#: a sensor frame of its own needs this many rows (Kabsch: 3 non-collinear points)
+MIN_FRAME_ROWS = 3
 
-    def err(R, t, M):
-        pred = (P[:, None, :] + np.einsum("nij,kj->nki", F, M)) @ R.T + t
-        return np.sqrt(np.mean(np.sum((pred - Y) ** 2, axis=-1), axis=-1))
+
+def marker_errors(F, P, Y, fi, pi, R, t, M) -> np.ndarray:
+    """Per-row RMS marker distance error (mm) of rows seen in frames ``(R [nf, 3, 3], t [nf, 3])``
+    (row ``i`` in frame ``fi[i]``) with marker placements ``M [np, N, 3]`` (row ``i``: ``pi[i]``),
+    flange frames ``F [n, 3, 3]``, ``P [n, 3]`` and readings ``Y [n, N, 3]``."""
+    pts = P[:, None, :] + np.einsum("nij,nkj->nki", F, M[pi])
+    pred = np.einsum("nij,nkj->nki", R[fi], pts) + t[fi][:, None, :]
+    return np.sqrt(np.mean(np.sum((pred - Y) ** 2, axis=-1), axis=-1))
+
+
+def alternate_frames_and_markers(F, P, Y, fi, pi, R, t, M, est_f, est_p, *, iterations: int, trim: bool = True):
+    """Sensor frames and marker positions in closed form, given the flange frames (the marker
+    start of :func:`initial_extras` and, per session, of :func:`jaxcal.initial_sessions`).
+
+    The frames ``est_f`` (indices into ``R [nf, 3, 3]``, ``t [nf, 3]``) first by Kabsch on the
+    marker centroids, then alternating least squares: each placement ``est_p`` (index into
+    ``M [np, N, 3]``) as ``m_k = mean_i F_iᵀ(R_iᵀ(y_ik − t_i) − P_i)`` (exact: ``F_i``, ``R_i``
+    orthonormal) and each frame by Kabsch on all its marker points, until nothing moves; then
+    once more without rows beyond 5 robust σ (``trim``; a frame keeps at least
+    :data:`MIN_FRAME_ROWS` rows). Row ``i`` is seen in frame ``fi[i]`` with placement ``pi[i]``.
+    Returns ``(R, t, M, keep [n])`` (copies; ``keep``: rows used).
+    """
+    R, t, M = np.array(R, np.float64), np.array(t, np.float64), np.array(M, np.float64)
+    keep = np.ones(Y.shape[0], bool)
+
+    def points(rows):  # marker points in the base frame [r, N, 3]
+        return P[rows][:, None, :] + np.einsum("nij,nkj->nki", F[rows], M[pi[rows]])
 
     for _ in range(2):
-        if est_base:  # sensor frame from the marker centroids
-            R, t = kabsch(P[keep] + F[keep] @ M.mean(axis=0), Y[keep].mean(axis=1))
+        for j in est_f:  # frames from the marker centroids first
+            rows = np.flatnonzero((fi == j) & keep)
+            R[j], t[j] = kabsch(points(rows).mean(axis=1), Y[rows].mean(axis=1))
         for _ in range(iterations):
-            M_old, R_old, t_old = M, R, t
-            if est_markers:
-                local = np.einsum("nji,nkj->nki", F[keep], (Y[keep] - t) @ R - P[keep][:, None, :])  # F_iᵀ(...)
-                M = local.mean(axis=0)
-            if est_base:
-                pts = (P[keep][:, None, :] + np.einsum("nij,kj->nki", F[keep], M)).reshape(-1, 3)
-                R, t = kabsch(pts, Y[keep].reshape(-1, 3))
-            if (np.abs(M - M_old).max() < 1e-9 and np.abs(R - R_old).max() < 1e-12
-                    and np.abs(t - t_old).max() < 1e-9):
+            old = (M.copy(), R.copy(), t.copy())
+            for j in est_p:
+                rows = np.flatnonzero((pi == j) & keep)
+                if rows.size:
+                    local = np.einsum("nji,nkj->nki", R[fi[rows]], Y[rows] - t[fi[rows]][:, None, :])
+                    M[j] = np.einsum("nji,nkj->nki", F[rows], local - P[rows][:, None, :]).mean(axis=0)
+            for j in est_f:
+                rows = np.flatnonzero((fi == j) & keep)
+                R[j], t[j] = kabsch(points(rows).reshape(-1, 3), Y[rows].reshape(-1, 3))
+            if (np.abs(M - old[0]).max() < 1e-9 and np.abs(R - old[1]).max() < 1e-12
+                    and np.abs(t - old[2]).max() < 1e-9):
                 break
-        e = err(R, t, M)
-        new_keep = _trim(e)
+        if not trim:
+            break
+        new_keep = _trim(marker_errors(F, P, Y, fi, pi, R, t, M))
+        for j in est_f:  # never trim a frame below its minimum
+            if np.sum(new_keep & (fi == j)) < MIN_FRAME_ROWS:
+                new_keep |= fi == j
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep
     return R, t, M, keep
+
+
+def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est_markers: bool, iterations=100):
+    """``(R, t, M [N, 3], keep)``: one sensor frame and the marker layout of a :class:`Markers`
+    model (:func:`alternate_frames_and_markers` with one frame and one placement)."""
+    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
+    R = _rotvec(start.base_rotation) @ np.asarray(measurement.rotation, np.float64)
+    t = np.asarray(measurement.translation, np.float64) + np.asarray(start.base_translation, np.float64)
+    M = np.asarray(measurement.marker_points(start), np.float64)
+    zero = np.zeros(Y.shape[0], int)
+    R, t, M, keep = alternate_frames_and_markers(T[:, :3, :3], T[:, :3, 3], Y, zero, zero, R[None], t[None], M[None],
+                                                 [0] if est_base else [], [0] if est_markers else [],
+                                                 iterations=iterations)
+    return R[0], t[0], M[0], keep
 
 
 def initial_extras(

@@ -298,7 +298,6 @@ class Markers(MarkerModel):
         return jnp.stack([p @ R.T + t for p in base], axis=1)
 
 
-
 def predict(measurement: MeasurementModel, robot: DHRobot, deviations: Deviations | None, q):
     """The sensor reading ``measurement`` predicts (same as ``measurement.predict``)."""
     return measurement.predict(robot, deviations, q)

@@ -27,12 +27,12 @@ import dataclasses
 import math
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from ._params import Deviations, ParameterSpace, group_of
+from ._precision import to_device
 
 __all__ = ["Prior", "Objective", "LOSSES", "robust_factor", "robust_scale", "resolve_prior"]
 
@@ -207,10 +207,8 @@ class Objective(eqx.Module):
         if loss != "linear" and not (scale > 0 and math.isfinite(scale)):
             raise ValueError(f"robust loss scale must be a finite number > 0 (mm), got {loss_scale!r}")
         has_prior = bool(np.any(precision > 0))
-        # NumPy → device_put: no small compiled conversion program per call
-        dt = jax.dtypes.canonicalize_dtype(jnp.result_type(float) if dtype is None else dtype)
-        a = lambda v: jax.device_put(np.asarray(v, dt))  # noqa: E731
-        return cls(a(mean), a(precision), a(scale), loss, has_prior)
+        dt = jnp.result_type(float) if dtype is None else dtype
+        return cls(to_device(mean, dt), to_device(precision, dt), to_device(scale, dt), loss, has_prior)
 
     @property
     def plain_least_squares(self) -> bool:

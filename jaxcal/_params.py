@@ -22,6 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._precision import to_device
+
 
 def _traced(*xs) -> bool:
     """Whether any of ``xs`` is a JAX tracer (inside ``jit``/``vmap``/``grad``).
@@ -39,11 +41,6 @@ def _np_as(x, dtype=None) -> np.ndarray:
     dt = a.dtype if dtype is None else dtype
     return a.astype(jax.dtypes.canonicalize_dtype(dt), copy=False)
 
-
-def _to_jax(a: np.ndarray) -> Array:
-    """A NumPy array as a JAX array by ``jax.device_put`` (``jnp.asarray`` of a NumPy array runs
-    a small compiled program per shape)."""
-    return jax.device_put(a)
 
 __all__ = [
     "Deviations", "ParameterSpace", "Group", "Layout", "layout_for", "GROUPS", "EXTRA_GROUPS",
@@ -291,7 +288,7 @@ class Deviations(eqx.Module):
         if unknown:
             raise ValueError(f"unknown parameter groups {sorted(unknown)}; this layout has {list(layout.group_names)}")
         traced = _traced(*values.values())
-        asarray = jnp.asarray if traced else (lambda v, dt: _to_jax(_np_as(v, dt)))
+        asarray = jnp.asarray if traced else to_device
         lead, dt = (), dtype
         for g in layout.groups:
             if g.name in values:
@@ -310,7 +307,7 @@ class Deviations(eqx.Module):
             elif traced:
                 out[g.name] = jnp.zeros(lead + g.shape, dt)
             else:
-                out[g.name] = _to_jax(np.zeros(lead + g.shape, _np_as(0.0, dt).dtype))
+                out[g.name] = to_device(np.zeros(lead + g.shape), dt)
         self.arrays = tuple(out[g.name] for g in layout.groups)
         self.layout = layout
 
@@ -362,7 +359,7 @@ class Deviations(eqx.Module):
             parts = [v.reshape(v.shape[: v.ndim - len(g.shape)] + (g.size,))
                      for g, v in zip(self.layout.groups, self.arrays)]
             return jnp.concatenate(parts, axis=-1)
-        return _to_jax(self._ravel_numpy())
+        return to_device(self._ravel_numpy())
 
     def _ravel_numpy(self) -> np.ndarray:
         """:meth:`ravel` in NumPy (concrete arrays only)."""
@@ -519,7 +516,7 @@ class ParameterSpace:
         """The free entries of ``deviations`` as a flat ``[p]`` vector."""
         if _traced(*deviations.arrays):
             return deviations.ravel()[..., self.free_index]
-        return _to_jax(deviations._ravel_numpy()[..., self.free_index])
+        return to_device(deviations._ravel_numpy()[..., self.free_index])
 
     def from_vector(self, x: Float[Array, " p"], base: Deviations | None = None) -> Deviations:
         """Deviations whose free entries are ``x`` ``[p]`` and the others come from ``base``

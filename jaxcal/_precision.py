@@ -19,6 +19,7 @@ import warnings
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "PrecisionWarning",
@@ -93,3 +94,15 @@ def cast_floating(tree, dtype):
         return x
 
     return jax.tree.map(cast, tree)
+
+
+def to_device(x, dtype=None) -> jax.Array:
+    """``x`` (NumPy or array-like) as a JAX array by ``jax.device_put``, in ``dtype`` (default:
+    ``x``'s own) canonicalised as JAX does (float64 → float32 without x64).
+
+    For host-side code outside ``jit``: there ``jnp.asarray`` of a NumPy array (or ``.astype``)
+    runs a small compiled program per shape — compiled, or loaded from the persistent cache,
+    once per process and dispatched at ~20–50 µs — and ``jax.device_put`` does not.
+    """
+    a = np.asarray(x)
+    return jax.device_put(a.astype(jax.dtypes.canonicalize_dtype(a.dtype if dtype is None else dtype), copy=False))

@@ -10,6 +10,7 @@ from jaxtyping import Array, Float
 
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
+from ._precision import to_device
 from ._robot import DHRobot
 
 __all__ = ["Problem", "residual_blocks", "residual_blocks_numpy", "signed_residuals", "sample_errors_at", "predict_jit"]
@@ -103,7 +104,7 @@ def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n 
 def signed_residuals(problem: Problem, x) -> np.ndarray:
     """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
     robust scales and outlier scans."""
-    x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else jax.device_put(np.asarray(x, problem.dtype))
+    x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else to_device(x, problem.dtype)
     return residual_blocks_numpy(problem, residual_blocks(problem, x))
 
 

@@ -5,12 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
+from ._precision import to_device
 
 __all__ = ["DHRobot"]
 
@@ -27,6 +26,15 @@ def _as_vector(name: str, values, dof: int | None) -> np.ndarray:
         raise ValueError(f"{name} contains NaN or inf: {arr}")
     return arr
 
+
+
+def replace_tool(robot, tool_mm: Sequence[float]):
+    """A copy of ``robot`` (any robot type with a ``tool`` field) with another nominal tool point
+    ``[3]`` mm in its last link's frame."""
+    tool = to_device(np.asarray(tool_mm, dtype=np.float64))
+    if tool.shape != (3,):
+        raise ValueError(f"tool_mm must have 3 entries, got shape {tool.shape}")
+    return eqx.tree_at(lambda r: r.tool, robot, tool)
 
 class DHRobot(NonGeometricMixin, eqx.Module):
     """A serial robot with revolute joints described by a nominal DH table.
@@ -122,20 +130,16 @@ class DHRobot(NonGeometricMixin, eqx.Module):
         tool = np.asarray(tool_mm, dtype=np.float64)
         if tool.shape != (3,) or not np.all(np.isfinite(tool)):
             raise ValueError(f"tool_mm must be 3 finite numbers, got {tool_mm!r}")
-        # jax.device_put of float arrays (canonical dtype): jnp.asarray of a NumPy array runs a
-        # small compiled program per shape
-        f = jax.dtypes.canonicalize_dtype(np.float64)
-        r = lambda v: jax.device_put(np.deg2rad(v).astype(f))  # noqa: E731
-        arr = lambda v: jax.device_put(np.asarray(v, f))  # noqa: E731
+        r = np.deg2rad
         return cls(
-            alpha=r(alpha),
-            a=arr(a),
-            d=arr(d),
-            theta=r(theta),
-            beta=r(beta),
-            q_min=r(q_min),
-            q_max=r(q_max),
-            tool=arr(tool),
+            alpha=to_device(r(alpha)),
+            a=to_device(a),
+            d=to_device(d),
+            theta=to_device(r(theta)),
+            beta=to_device(r(beta)),
+            q_min=to_device(r(q_min)),
+            q_max=to_device(r(q_max)),
+            tool=to_device(tool),
             convention=convention,
             beta_joints=tuple(int(j) for j in beta_joints),
             name=name,
@@ -160,10 +164,7 @@ class DHRobot(NonGeometricMixin, eqx.Module):
 
     def with_tool(self, tool_mm: Sequence[float]) -> DHRobot:
         """A copy with another nominal tool point ``[3]`` mm in the flange frame."""
-        tool = jnp.asarray(np.asarray(tool_mm, dtype=np.float64))
-        if tool.shape != (3,):
-            raise ValueError(f"tool_mm must have 3 entries, got shape {tool.shape}")
-        return eqx.tree_at(lambda r: r.tool, self, tool)
+        return replace_tool(self, tool_mm)
 
     def reach_mm(self) -> float:
         """A generous bound on the distance from the base origin to the tool point (mm)."""

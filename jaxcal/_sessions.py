@@ -24,6 +24,7 @@ the nominal robot's marker points, alternating with the per-placement marker pos
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import ClassVar, NamedTuple
 
@@ -32,15 +33,22 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._kinematics import _chain, check_joint_angles, rotvec_to_matrix
+from ._initialise import (
+    MIN_FRAME_ROWS,
+    ExtrasEstimate,
+    _residual,
+    _sample_error,
+    alternate_frames_and_markers,
+    marker_errors,
+)
+from ._kinematics import _chain, check_joint_angles, fk_pose_jit, rotvec_to_matrix
 from ._measurement import MarkerModel
 from ._params import Deviations, Group, ParameterSpace, layout_for
+from ._precision import to_device
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "SessionHoldout",
            "holdout_session", "leave_one_session_out", "session_labels"]
 
-#: a frame label needs this many rows for its own frame (Kabsch: 3 non-collinear points)
-MIN_FRAME_ROWS = 3
 
 
 def frame_groups(label: str) -> tuple[Group, Group]:
@@ -143,10 +151,10 @@ class SessionMarkers(MarkerModel):
         if pos.shape != (len(pl), n_markers, 3) or not np.all(np.isfinite(pos)):
             raise ValueError(f"positions_mm must be finite [{n_markers}, 3] or [{len(pl)}, {n_markers}, 3] (mm), "
                              f"got shape {list(pos.shape)}")
-        self.positions = jnp.asarray(pos, jnp.result_type(float))
+        self.positions = to_device(pos)
         self.frames, self.placements = fl, pl
-        self.frame_index = jnp.asarray([fl.index(f) for f in frames], jnp.int32).reshape(-1)
-        self.placement_index = jnp.asarray([pl.index(p) for p in placements], jnp.int32).reshape(-1)
+        self.frame_index = to_device(np.asarray([fl.index(f) for f in frames], np.int32).reshape(-1))
+        self.placement_index = to_device(np.asarray([pl.index(p) for p in placements], np.int32).reshape(-1))
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -206,8 +214,7 @@ class SessionMarkers(MarkerModel):
         vals = deviations.values
         w = jnp.stack([jnp.asarray(vals[f"base_rotation@{f}"]).astype(dtype) for f in self.frames])
         t = jnp.stack([jnp.asarray(vals[f"base_translation@{f}"]).astype(dtype) for f in self.frames])
-        R = jnp.stack([rotvec_to_matrix(w[i]) for i in range(nf)])
-        return R, t
+        return rotvec_to_matrix(w), t
 
     def marker_arrays(self, deviations: Deviations | None, dtype=None) -> Float[Array, "P N 3"]:
         """Marker positions ``[n_placements, N, 3]`` in the flange frame (nominal + deviations, mm)."""
@@ -262,8 +269,6 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
             3 rows, or a placement to estimate is seen only in frames that are also estimated
             and has no rows at all.
     """
-    from ._initialise import ExtrasEstimate, _trim, kabsch
-    from ._kinematics import fk_pose
 
     q, y = (data.q, data.y) if hasattr(data, "q") else data
     q = jnp.asarray(q)
@@ -288,62 +293,28 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
             raise ValueError(f"unknown placement label {p!r}; labels: {list(m.placements)}")
         if not np.any(pi == m.placements.index(p)):
             raise ValueError(f"placement {p!r} has no rows: its marker positions cannot be estimated")
-    T = np.asarray(fk_pose(robot, q, start), np.float64)
+    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
     F, P = T[:, :3, :3], T[:, :3, 3]
     M = np.array(m.marker_arrays(start, dtype), np.float64)  # [Pn, N, 3]
     R_all, t_all = (np.array(a, np.float64) for a in m.frame_arrays(start, dtype))
     fidx = [m.frames.index(f) for f in est_f]
     pidx = [m.placements.index(p) for p in est_p]
-    keep = np.ones(Y.shape[0], bool)
-
-    def points(rows):  # marker points in the base frame [r, N, 3]
-        return P[rows][:, None, :] + np.einsum("nij,nkj->nki", F[rows], M[pi[rows]])
-
-    def err():
-        pred = np.einsum("nij,nkj->nki", R_all[fi], points(np.arange(Y.shape[0]))) + t_all[fi][:, None, :]
-        return np.sqrt(np.mean(np.sum((pred - Y) ** 2, axis=-1), axis=-1))
-
-    before = float(np.sqrt(np.mean(err() ** 2)))
-    for _ in range(2):
-        for j in fidx:  # frames from the marker centroids first
-            rows = np.flatnonzero((fi == j) & keep)
-            R_all[j], t_all[j] = kabsch(points(rows).mean(axis=1), Y[rows].mean(axis=1))
-        for _ in range(iterations):
-            old = (M.copy(), R_all.copy(), t_all.copy())
-            for j in pidx:
-                rows = np.flatnonzero((pi == j) & keep)
-                if rows.size:
-                    local = np.einsum("nji,nkj->nki", R_all[fi[rows]], Y[rows] - t_all[fi[rows]][:, None, :])
-                    local = np.einsum("nji,nkj->nki", F[rows], local - P[rows][:, None, :])
-                    M[j] = local.mean(axis=0)
-            for j in fidx:
-                rows = np.flatnonzero((fi == j) & keep)
-                R_all[j], t_all[j] = kabsch(points(rows).reshape(-1, 3), Y[rows].reshape(-1, 3))
-            if (np.abs(M - old[0]).max() < 1e-9 and np.abs(R_all - old[1]).max() < 1e-12
-                    and np.abs(t_all - old[2]).max() < 1e-9):
-                break
-        if not trim:
-            break
-        new_keep = _trim(err())
-        for j in fidx:  # never trim a frame below its minimum
-            if np.sum(new_keep & (fi == j)) < MIN_FRAME_ROWS:
-                new_keep |= fi == j
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
+    before = float(np.sqrt(np.mean(marker_errors(F, P, Y, fi, pi, R_all, t_all, M) ** 2)))
+    R_all, t_all, M, keep = alternate_frames_and_markers(F, P, Y, fi, pi, R_all, t_all, M, fidx, pidx,
+                                                         iterations=iterations, trim=trim)
     from ._dataset import _matrix_to_rotvec
 
     vals = {}
     for j in fidx:
         f = m.frames[j]
-        vals[f"base_rotation@{f}"] = jnp.asarray(_matrix_to_rotvec(R_all[j]), dtype)
-        vals[f"base_translation@{f}"] = jnp.asarray(t_all[j], dtype)
+        vals[f"base_rotation@{f}"] = to_device(_matrix_to_rotvec(R_all[j]), dtype)
+        vals[f"base_translation@{f}"] = to_device(t_all[j], dtype)
     M0 = np.asarray(m.positions, np.float64)
     for j in pidx:
         for k in range(m.n_markers):
-            vals[f"marker_{k + 1}@{m.placements[j]}"] = jnp.asarray(M[j, k] - M0[j, k], dtype)
+            vals[f"marker_{k + 1}@{m.placements[j]}"] = to_device(M[j, k] - M0[j, k], dtype)
     dev = start.replace(**vals)
-    after = float(np.sqrt(np.mean(err() ** 2)))
+    after = float(np.sqrt(np.mean(marker_errors(F, P, Y, fi, pi, R_all, t_all, M) ** 2)))
     n_trim = int((~keep).sum())
     msg = (f"extras from the data: {len(fidx)} session frame(s) ({', '.join(est_f) or '-'}) and {len(pidx)} marker "
            f"placement(s) ({', '.join(est_p) or '-'}) in closed form (RMS residual of the robot {before:.2f} → "
@@ -391,7 +362,8 @@ def _rms(e) -> float:
 
 
 def _errors(robot, m, dev, q, y) -> np.ndarray:
-    return np.asarray(m.sample_error(m.residual(robot, dev, jnp.asarray(q), jnp.asarray(y))), np.float64)
+    """Per-row marker errors (mm), compiled (the same jitted residual as the extras start)."""
+    return np.asarray(_sample_error(m, _residual(m, robot, dev, jnp.asarray(q), jnp.asarray(y))), np.float64)
 
 
 def _register(robot, m, q, y, dev, groups, frames, placements):
@@ -404,8 +376,6 @@ def _register(robot, m, q, y, dev, groups, frames, placements):
     layout = layout_for(robot, m)
     names = [n for g in groups for n in layout.group(g).names]
     space = ParameterSpace.from_names(layout, names)
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none")
@@ -434,8 +404,6 @@ def holdout_session(robot, data, session: str, *, n_markers: int | None = None, 
         n_markers, positions_mm: as :meth:`SessionMarkers.from_dataset`.
         **calibrate_kw: more :func:`jaxcal.calibrate` arguments (``fix=``, ``checks=`` ...).
     """
-    import warnings
-
     from ._calibrate import calibrate
 
     labels = session_labels(data)

@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._dataset import Dataset
+from ._dataset import Dataset, mm_joints_metadata
 from ._kinematics import tool_point_soa
 from ._measurement import CableLength, MeasurementModel, Position
 from ._params import Deviations, Layout, layout_for
-from ._precision import warn_if_float32
+from ._precision import to_device, warn_if_float32
 from ._robot import DHRobot
 
 __all__ = ["Experiment", "simulate_experiment", "default_anchor", "sample_joint_angles", "draw_deviations"]
@@ -27,7 +27,7 @@ DEFAULT_LENGTH_STD_MM = 0.6
 
 def default_anchor(robot: DHRobot) -> Array:
     """A draw-wire anchor on the base plane in front of the robot: ``(reach/2, 0, 0)`` mm."""
-    return jax.device_put(np.asarray([0.5 * robot.reach_mm(), 0.0, 0.0], jax.dtypes.canonicalize_dtype(np.float64)))
+    return to_device([0.5 * robot.reach_mm(), 0.0, 0.0], np.float64)
 
 
 class Experiment(eqx.Module):
@@ -242,8 +242,6 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     else:  # pose: noise on the position only; orientation readings stay exact
         noise = sigma * jax.random.normal(k_noise, y_true[:, :3, 3].shape, dtype)
         y = y_true.at[:, :3, 3].add(noise)
-    from ._dataset import mm_joints_metadata
-
     data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name,
                                             **mm_joints_metadata(robot)})
     n_test = int(round(cfg.n_samples * cfg.test_fraction))
