@@ -54,7 +54,7 @@ from jaxtyping import Array, Float
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 from ._robot import replace_tool
 
-__all__ = ["SerialChain", "GEOMETRIC_GROUPS", "rpy_matrix", "matrix_rpy"]
+__all__ = ["SerialChain", "GEOMETRIC_GROUPS", "correction_entries", "rpy_matrix", "matrix_rpy"]
 
 JOINT_TYPES = ("revolute", "prismatic")
 #: per-joint geometric error groups of a chain, in layout order, with their units
@@ -177,6 +177,23 @@ def _dev_get(dev, name: str):
     if isinstance(values, Mapping):
         return values.get(name)
     return getattr(dev, name, None)
+
+
+def correction_entries(chain, deviations) -> list[tuple[str, float, str]]:
+    """``(name, value, unit)`` of every per-joint correction of ``chain`` in ``deviations``, for
+    tables: group by group (:data:`GEOMETRIC_GROUPS`), joint by joint; angles in degrees
+    (``unit`` ``"deg"``), lengths and prismatic-joint offsets in mm; ``drz`` at prismatic joints
+    only (at a revolute joint it is the joint offset). A group the deviations lack reads 0."""
+    out = []
+    for g, unit in GEOMETRIC_GROUPS:
+        vals = _dev_get(deviations, g)
+        for j in range(chain.dof):
+            if g == "drz" and not chain.prismatic[j]:
+                continue
+            deg = unit == "rad" or (unit == "rad|mm" and not chain.prismatic[j])
+            v = 0.0 if vals is None else float(np.asarray(vals)[j])
+            out.append((f"{g}_{j + 1}", float(np.degrees(v)) if deg else v, "deg" if deg else "mm"))
+    return out
 
 
 class SerialChain(NonGeometricMixin, eqx.Module):

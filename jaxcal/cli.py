@@ -235,30 +235,19 @@ def _print_dh_table(robot, res, sd) -> None:
 def _print_chain_table(robot, res, sd) -> None:
     """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
     (mm), drx, dry, drz (°); ± one posterior σ; * = not calibrated (not identifiable or fixed)."""
-    import numpy as np
-
-    from ._chain import GEOMETRIC_GROUPS, _dev_get
+    from ._chain import GEOMETRIC_GROUPS, correction_entries
     from ._metrics import format_table
 
     free = set(res.space.free_names)
-    rows = []
-    for j in range(robot.dof):
-        cells = [f"{j + 1} {robot.joint_names[j]}"]
-        for g, unit in GEOMETRIC_GROUPS:
-            if g == "drz" and not robot.prismatic[j]:
-                cells.append("")
-                continue
-            name = f"{g}_{j + 1}"
-            v = _dev_get(res.deviations, g)
-            v = 0.0 if v is None else float(np.asarray(v)[j])
-            angle = unit == "rad" or (unit == "rad|mm" and not robot.prismatic[j])
-            if angle:
-                v = float(np.degrees(v))
-            if name in free:
-                cells.append(_fmt_value(v, sd.get(name, (None,))[0], ""))
-            else:
-                cells.append(f"{v:+.4f}*")
-        rows.append(cells)
+    value = {n: v for n, v, _ in correction_entries(robot, res.deviations)}
+
+    def cell(name):
+        if name not in value:  # drz at a revolute joint: the joint offset
+            return ""
+        return _fmt_value(value[name], sd.get(name, (None,))[0], "") if name in free else f"{value[name]:+.4f}*"
+
+    rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
+            for j in range(robot.dof)]
     print()
     print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
                        title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "

@@ -313,22 +313,11 @@ def _chain_rows(robot, cal, true, free) -> list[dict]:
     """Table V rows of a generic chain (:class:`~jaxcal.SerialChain`): every per-joint correction
     (offset, dx, dy, dz, drx, dry; drz at prismatic joints) as a deviation from the URDF origin, so
     ``nominal`` is 0; angles in degrees, lengths (and prismatic offsets) in mm."""
-    from ._chain import GEOMETRIC_GROUPS, _dev_get
+    from ._chain import correction_entries
 
-    rows = []
-    for g, unit in GEOMETRIC_GROUPS:
-        c_all, t_all = _dev_get(cal, g), None if true is None else _dev_get(true, g)
-        for j in range(robot.dof):
-            if g == "drz" and not robot.prismatic[j]:
-                continue  # merged into the joint offset
-            deg = unit == "rad" or (unit == "rad|mm" and not robot.prismatic[j])
-            conv = math.degrees if deg else float
-            c = 0.0 if c_all is None else float(np.asarray(c_all)[j])
-            t = math.nan if true is None else (0.0 if t_all is None else float(np.asarray(t_all)[j]))
-            name = f"{g}_{j + 1}"
-            rows.append({"parameter": name, "unit": "deg" if deg else "mm", "nominal": 0.0, "true": conv(t),
-                         "calibrated": conv(c), "error": conv(c - t), "free": name in free})
-    return rows
+    truth = {} if true is None else {n: v for n, v, _ in correction_entries(robot, true)}
+    return [{"parameter": n, "unit": u, "nominal": 0.0, "true": truth.get(n, math.nan), "calibrated": v,
+             "error": v - truth.get(n, math.nan), "free": n in free} for n, v, u in correction_entries(robot, cal)]
 
 
 def _chain_table(result: SweepResult, label: str, trial: int, rows: list[dict], markdown: bool) -> str:
