@@ -29,6 +29,13 @@ from jaxcal import CableLength, ParameterSpace, Problem
 jaxcal.enable_x64()
 
 
+def _write(lines: list[str], stem: str) -> None:
+    """Print the table and write it to ``results/<stem>_<platform>.md``."""
+    out = pathlib.Path(__file__).parent / "results" / f"{stem}_{jax.devices()[0].platform}.md"
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def chain_rows():
     """DH kernel vs generic-chain kernel, identification Jacobian (``Problem.jacobian``), float64."""
     robot = jaxcal.robots.hsr_jr680()
@@ -76,10 +83,7 @@ def chain_rows():
     lines += [f"| {k} | {n:,} | {pd} | {d:.3f} | {pc} | {c36:.3f} | {c36 / d:.2f} | {c24:.3f} | {c24 / d:.2f} "
               f"| {idd} / {tdd:.3f} | {idc} / {tdc:.3f} | {tdc / tdd:.2f} |"
               for k, n, pd, d, pc, c36, c24, idd, tdd, idc, tdc in rows]
-    plat = jax.devices()[0].platform
-    out = pathlib.Path(__file__).parent / "results" / f"kinematics_chain_{plat}.md"
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    _write(lines, "kinematics_chain")
 
 
 def main():
@@ -112,10 +116,7 @@ def main():
         "|---:|---|---:|---:|",
     ]
     lines += [f"| {n:,} | {dt} | {r:.3f} | {j:.3f} |" for n, dt, r, j in rows]
-    plat = jax.devices()[0].platform
-    out = pathlib.Path(__file__).parent / "results" / f"kinematics_{plat}.md"
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    _write(lines, "kinematics")
 
 
 if __name__ == "__main__":
