@@ -245,11 +245,7 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     """
     if angle_unit not in ("deg", "rad"):
         raise ValueError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
-    q = np.asarray(data.q, dtype=np.float64)
-    qcols = _rad_to_deg_roundtrip(q) if angle_unit == "deg" else q.copy()
-    mm = mm_joints(data.metadata)
-    for j in mm:  # prismatic joints: mm, as they are
-        qcols[:, j] = q[:, j]
+    qnames, qcols = joint_columns_out(np.asarray(data.q, dtype=np.float64), mm_joints(data.metadata), angle_unit)
     y = np.asarray(data.y, dtype=np.float64)
     if data.kind == "cable":
         vals = y[:, None]
@@ -260,7 +256,7 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     else:
         vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
     value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
-    header = [f"q{j + 1}_{'mm' if j in mm else angle_unit}" for j in range(data.dof)] + value_cols
+    header = qnames + value_cols
     buf = io.StringIO()
     buf.write("# jaxcal dataset v1\n")
     buf.write(f"# kind: {data.kind}\n")
@@ -307,6 +303,16 @@ def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
     if dof is not None and n != dof:
         raise ValueError(f"{path}: file has {n} joint-angle columns but the robot has {dof} joints")
     return [by_joint[j][0] for j in range(1, n + 1)], unit
+
+
+def joint_columns_out(q: np.ndarray, mm, angle_unit: str = "deg") -> tuple[list[str], np.ndarray]:
+    """Inverse of :func:`joint_values`: the joint column names (``q<j>_deg``/``q<j>_rad``, and
+    ``q<j>_mm`` for the 0-based prismatic joints ``mm``) and their values ``[n, dof]`` — degrees
+    as the shortest decimals that read back to the same radians, mm as they are."""
+    cols = _rad_to_deg_roundtrip(q) if angle_unit == "deg" else q.copy()
+    for j in mm:
+        cols[:, j] = q[:, j]
+    return [f"q{j + 1}_{'mm' if j in mm else angle_unit}" for j in range(q.shape[1])], cols
 
 
 def joint_values(path: str, values: np.ndarray, qcols: list[str], unit: str) -> tuple[np.ndarray, list[int]]:

@@ -800,15 +800,11 @@ def save_plan_csv(path, q, kind: str, metadata=()) -> None:
     ``mm_joints`` metadata entry names) as a data file with empty measurement columns: once the
     readings are filled in, :func:`jaxcal.load_csv` and ``jaxcal calibrate`` read it (joint
     angles in degrees, the shortest decimals that read back to the same float)."""
-    from ._dataset import KINDS, _rad_to_deg_roundtrip, mm_joints
+    from ._dataset import KINDS, joint_columns_out, mm_joints
 
-    q = np.asarray(q, np.float64)
-    mm = mm_joints(metadata)
-    cols = _rad_to_deg_roundtrip(q)
-    for j in mm:  # prismatic joints: mm, as they are
-        cols[:, j] = q[:, j]
+    names, cols = joint_columns_out(np.asarray(q, np.float64), mm_joints(metadata))
     lines = ["# jaxcal dataset v1", f"# kind: {kind}"] + [f"# {k}: {v}" for k, v in metadata]
-    lines.append(",".join([f"q{j + 1}_{'mm' if j in mm else 'deg'}" for j in range(q.shape[1])] + list(KINDS[kind])))
+    lines.append(",".join(names + list(KINDS[kind])))
     blanks = "," * len(KINDS[kind])
     lines += [",".join(repr(float(v)) for v in row) + blanks for row in cols]
     with open(path, "w", encoding="utf-8") as f:
