@@ -355,8 +355,9 @@ class SerialChain(NonGeometricMixin, eqx.Module):
     # ------------------------------------------------------------------ kinematics
     def _terms(self, dev, q):
         """Per joint (lists over joints): q + offset ``[n]``, (cos, sin) of drx, dry, drz, origin
-        translation + (dx, dy, dz), in the dtype of ``q``."""
-        from ._kinematics import effective_joint_angles
+        translation + (dx, dy, dz), in the dtype of ``q``; ``rot["q"]``: (cos, sin) of q + offset
+        ``[dof, n]`` (:func:`~jaxcal._kinematics.angle_sum_trig`; used at revolute joints)."""
+        from ._kinematics import angle_sum_trig, effective_joint_angles
 
         dtype = q.dtype
         cast = lambda x: jnp.asarray(x).astype(dtype)  # noqa: E731
@@ -365,6 +366,8 @@ class SerialChain(NonGeometricMixin, eqx.Module):
         groups = {g: _dev_get(dev, g) for g, _ in GEOMETRIC_GROUPS}
         groups = {g: None if v is None else cast(v) for g, v in groups.items()}
         qq = q.T  # [dof, n]
+        offset = jnp.zeros(self.dof, dtype) if groups["offset"] is None else groups["offset"]
+        trig = angle_sum_trig(qq, offset) if not all(self.prismatic) else None
         if groups["offset"] is not None:
             qq = qq + groups["offset"][:, None]
         t = cast(self.origin_t)
@@ -375,6 +378,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
         for g in ("drx", "dry", "drz"):
             v = groups[g]
             rot[g] = None if v is None else (jnp.cos(v), jnp.sin(v))
+        rot["q"] = trig
         return qq, t, rot, cast(self.origin_R)
 
     def _local(self, i, qq, rot, x, y, z):
@@ -385,7 +389,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
                 c, s = rot["drz"][0][i], rot["drz"][1][i]
                 x, y = c * x - s * y, s * x + c * y
         else:
-            c, s = jnp.cos(qq[i]), jnp.sin(qq[i])
+            c, s = rot["q"][0][i], rot["q"][1][i]
             x, y = c * x - s * y, s * x + c * y
         if rot["dry"] is not None:
             c, s = rot["dry"][0][i], rot["dry"][1][i]
@@ -467,7 +471,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
                     X, Y = rot_cols(X, Y, rot["drz"][0][i], rot["drz"][1][i])
                 P = tuple(P[k] + Z[k] * qq[i] for k in range(3))
             else:
-                X, Y = rot_cols(X, Y, jnp.cos(qq[i]), jnp.sin(qq[i]))
+                X, Y = rot_cols(X, Y, rot["q"][0][i], rot["q"][1][i])
             cols = (X, Y, Z)
         fR = jnp.asarray(self.flange_R).astype(q.dtype)
         ft = jnp.asarray(self.flange_t).astype(q.dtype)

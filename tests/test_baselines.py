@@ -360,9 +360,10 @@ def _eqns(jaxpr):
 @pytest.mark.parametrize("name", POPULATION)
 def test_one_batched_evaluation_per_generation(ex, space, name):
     """The generation loop evaluates all its candidates in ONE vmapped FK call: its body holds a
-    single ``cos`` over the joint angles of all samples, batched over exactly the generation's
-    candidates (a Python loop over individuals would give one per individual, ``lax.map`` an
-    unbatched one)."""
+    single ``cos`` over the joint angles of all samples, shared by every candidate (``[dof, n]``,
+    unbatched: :func:`jaxcal._kinematics.angle_sum_trig`), and the candidates' joint terms
+    ``cos(q + θ)`` batched over exactly the generation's candidates (a Python loop over
+    individuals would give one unbatched product per individual, ``lax.map`` an unbatched one)."""
     hyper = CASES[name].small
     method = make_method(name, **hyper)
     problem = jaxcal.Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space)
@@ -370,11 +371,13 @@ def test_one_batched_evaluation_per_generation(ex, space, name):
     scans = [e for e in jaxpr.eqns if e.primitive.name == "scan"]
     assert len(scans) == 1
     n, dof = problem.n_samples, ex.robot.dof
-    body = scans[0].params["jaxpr"].jaxpr
-    fk_cos = [e for e in _eqns(body) if e.primitive.name == "cos" and n in e.outvars[0].aval.shape]
-    assert len(fk_cos) == 1, [e.outvars[0].aval.shape for e in fk_cos]
-    shape = fk_cos[0].outvars[0].aval.shape
-    assert int(np.prod(shape)) == CASES[name].per_generation(hyper) * dof * n, shape
+    body = list(_eqns(scans[0].params["jaxpr"].jaxpr))
+    fk_cos = [e.outvars[0].aval.shape for e in body if e.primitive.name == "cos" and n in e.outvars[0].aval.shape]
+    assert fk_cos == [(dof, n)], fk_cos
+    # the angle sums cos(q)·cos(θ) − sin(q)·sin(θ): products over [candidates, dof, n]
+    per_sample = {e.outvars[0].aval.shape for e in body
+                  if e.primitive.name == "mul" and e.outvars[0].aval.shape[-2:] == (dof, n)}
+    assert per_sample == {(CASES[name].per_generation(hyper), dof, n)}, per_sample
 
 
 # ----------------------------------------------------------------------------------------------

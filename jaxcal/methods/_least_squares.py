@@ -151,7 +151,7 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     f_info0 = optx.FunctionInfo.ResidualJac(jnp.zeros_like(r0), lx.MatrixLinearOperator(jnp.zeros_like(J0)))
     search_state0 = search.init(z0, info_struct)
     descent_state0 = descent.init(z0, info_struct)
-    rmse0 = problem.rmse(z0)
+    rmse0 = _rmse_from_residual(problem, z0, r0)  # from the start residual: no extra FK pass
     hist0 = jnp.full(max_steps + 1, jnp.nan, problem.dtype).at[0].set(rmse0)
 
     def jacobian_at(z):
