@@ -27,6 +27,7 @@ from ._diagnostics import (
 )
 from ._identifiability import identifiability
 from ._initialise import INITIALISABLE, initial_extras
+from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
@@ -88,11 +89,12 @@ class Calibrator(eqx.Module):
 
     def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array) -> CalibrationOutput:
         problem = self.problem(q, y)
-        scaled = ScaledProblem.build(problem, objective=self.objective)
-        raw = self.method.run(scaled, key)
-        x = scaled.x(raw.z)
+        with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
+            scaled = ScaledProblem.build(problem, objective=self.objective)
+            raw = self.method.run(scaled, key)
+            x = scaled.x(raw.z)
+            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
         its = iterations_to_converge(raw.history, raw.n_iterations)
-        metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
         status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING
         return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra)
 

@@ -365,9 +365,9 @@ class SerialChain(NonGeometricMixin, eqx.Module):
             q = effective_joint_angles(self, dev, q)  # joint-space (non-geometric) corrections first
         groups = {g: _dev_get(dev, g) for g, _ in GEOMETRIC_GROUPS}
         groups = {g: None if v is None else cast(v) for g, v in groups.items()}
-        qq = q.T  # [dof, n]
         offset = jnp.zeros(self.dof, dtype) if groups["offset"] is None else groups["offset"]
-        trig = angle_sum_trig(qq, offset) if not all(self.prismatic) else None
+        trig = angle_sum_trig(q, offset) if not all(self.prismatic) else None
+        qq = q.T  # [dof, n]
         if groups["offset"] is not None:
             qq = qq + groups["offset"][:, None]
         t = cast(self.origin_t)

@@ -14,6 +14,9 @@ the frame chain.
 
 from __future__ import annotations
 
+import contextlib
+import threading
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -23,7 +26,7 @@ from ._robot import DHRobot
 
 __all__ = [
     "fk_position", "fk_pose", "tool_point_soa", "check_joint_angles", "rotvec_to_matrix",
-    "effective_joint_angles", "register_joint_correction", "materialised", "angle_sum_trig",
+    "effective_joint_angles", "register_joint_correction", "materialised", "angle_sum_trig", "shared_joint_trig",
 ]
 
 Vec3 = tuple  # three [n] arrays (or python floats before the first joint)
@@ -104,14 +107,52 @@ def materialised(x: Array) -> Array:
     return jax.lax.dot(eye, x, precision=jax.lax.Precision.HIGHEST)
 
 
-def angle_sum_trig(q_rows: Float[Array, "dof n"], offset: Float[Array, " dof"]):
-    """``cos`` and ``sin`` of ``q_rows + offset[:, None]`` (``[dof, n]``), by the angle-addition
-    formulas from ``cos``/``sin`` of ``q_rows`` (computed once, :func:`materialised`) and of the
-    ``dof`` offsets: the expensive transcendentals of the data are shared by every evaluation
-    that only changes the offsets (Jacobian columns, candidates, iterations of a solver)."""
-    k = q_rows.shape[0]
-    cs = materialised(jnp.concatenate([jnp.cos(q_rows), jnp.sin(q_rows)]))
-    cq, sq = cs[:k], cs[k:]
+
+_SHARED_TRIG = threading.local()
+
+
+@contextlib.contextmanager
+def shared_joint_trig(q: Float[Array, "n dof"]):
+    """Within this block, every kinematics kernel evaluated at the joint angles ``q`` (this very
+    array object, e.g. ``Problem.q``) reuses ``cos``/``sin`` of ``q`` computed here, once.
+
+    A solver evaluates the kinematics at the same joint angles many times inside
+    ``lax.while_loop``/``lax.scan``/``lax.cond`` bodies; XLA does not hoist the transcendentals
+    of the (loop-invariant) data out of a conditional branch, so each residual and Jacobian
+    recomputed them (~160 µs of the ~300 µs a residual of 1 600 samples took, float64, 2-core
+    CPU). Entered at the outer level of a trace (:class:`~jaxcal.Calibrator` does), the values
+    are computed once per solve and closed over by the loop bodies. Pure: the results are the
+    same with or without the block; it only decides where XLA computes ``cos(q)``. Nested
+    blocks and other arrays are fine (a kernel finds its ``q`` or computes the values itself).
+    """
+    entries = _SHARED_TRIG.__dict__.setdefault("entries", [])
+    entries.append((q, _materialised_trig(q)))
+    try:
+        yield
+    finally:
+        entries.pop()
+
+
+def _materialised_trig(q: Float[Array, "n dof"]) -> tuple[Array, Array]:
+    """``cos`` and ``sin`` of ``q.T`` (``[dof, n]``), :func:`materialised`."""
+    qt = q.T
+    k = qt.shape[0]
+    cs = materialised(jnp.concatenate([jnp.cos(qt), jnp.sin(qt)]))
+    return cs[:k], cs[k:]
+
+
+def angle_sum_trig(q: Float[Array, "n dof"], offset: Float[Array, " dof"]):
+    """``cos`` and ``sin`` of ``q.T + offset[:, None]`` (``[dof, n]``), by the angle-addition
+    formulas from ``cos``/``sin`` of ``q`` (computed once, :func:`materialised`, or taken from
+    an enclosing :func:`shared_joint_trig` block) and of the ``dof`` offsets: the expensive
+    transcendentals of the data are shared by every evaluation that only changes the offsets
+    (Jacobian columns, candidates, iterations of a solver)."""
+    for entry_q, trig in reversed(_SHARED_TRIG.__dict__.get("entries", ())):
+        if entry_q is q:
+            cq, sq = trig
+            break
+    else:
+        cq, sq = _materialised_trig(q)
     co, so = jnp.cos(offset)[:, None], jnp.sin(offset)[:, None]
     return cq * co - sq * so, sq * co + cq * so
 
@@ -127,7 +168,7 @@ def _joint_terms(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"
         alpha, a, d, theta, beta = (
             cast(getattr(robot, g)) + cast(getattr(dev, g)) for g in ("alpha", "a", "d", "theta", "beta")
         )
-    ct, st = angle_sum_trig(effective_joint_angles(robot, dev, q).T, theta)  # [dof, n], rows contiguous
+    ct, st = angle_sum_trig(effective_joint_angles(robot, dev, q), theta)  # [dof, n], rows contiguous
     return ct, st, jnp.cos(alpha), jnp.sin(alpha), jnp.cos(beta), jnp.sin(beta), a, d
 
 

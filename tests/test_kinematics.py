@@ -170,3 +170,43 @@ def test_table_i_stored_exactly():
     np.testing.assert_array_equal(tab[:, 1], [250, 900, -205, 0, 0, 0])
     np.testing.assert_array_equal(tab[:, 2], [653.5, 0, 0, 1030.2, 0, 200.6])
     np.testing.assert_allclose(tab[:, 3], [0, -90, 180, 0, 90, 0], atol=1e-12)
+
+
+def _eqns_nested(jaxpr, depth=0):
+    """(depth, eqn) for every equation, descending into sub-jaxprs (loop bodies, cond branches)."""
+    for e in jaxpr.eqns:
+        yield depth, e
+        for v in e.params.values():
+            for sub in v if isinstance(v, (tuple, list)) else (v,):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    yield from _eqns_nested(inner, depth + 1)
+
+
+def test_shared_joint_trig_same_values_and_computed_once(robot):
+    """``shared_joint_trig``: kernels at the block's joint angles give the same residuals and
+    Jacobians as without it, and an LM calibration computes ``cos`` of the data once, outside its
+    loop (inside, each residual and Jacobian recomputed it)."""
+    from jaxcal._kinematics import shared_joint_trig
+
+    q = jnp.asarray(_random_q(robot, 50))
+    meas = jaxcal.CableLength(jnp.asarray([800.0, 100.0, -50.0]))
+    dev = _random_dev(robot, scale=0.1)
+    y = meas.predict(robot, dev, q)
+    prob = jaxcal.Problem(robot, meas, q, y)
+    x = jnp.asarray(np.random.default_rng(2).normal(size=prob.space.n_free) * 1e-2)
+
+    def both(p):
+        with shared_joint_trig(p.q):
+            inside = (p.residual(x), p.jacobian(x))
+        return inside, (p.residual(x), p.jacobian(x))
+
+    (r_in, J_in), (r_out, J_out) = jax.jit(both)(prob)
+    np.testing.assert_allclose(np.asarray(r_in), np.asarray(r_out), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(J_in), np.asarray(J_out), rtol=0, atol=1e-12)
+
+    cal = jaxcal.Calibrator(robot, meas, jaxcal.methods.make_method("lm"), Deviations.zeros(robot.dof),
+                            prob.space)
+    jaxpr = jax.make_jaxpr(cal)(q, y, jax.random.key(0)).jaxpr
+    cos_data = [d for d, e in _eqns_nested(jaxpr) if e.primitive.name == "cos" and q.shape[0] in e.outvars[0].aval.shape]
+    assert cos_data == [0], cos_data  # once, at the top level of the program
