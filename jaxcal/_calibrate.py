@@ -18,6 +18,7 @@ from ._diagnostics import (
     Checks,
     Diagnostics,
     coverage,
+    gram_at,
     implausible_deviations,
     joint_units,
     narrow_joints,
@@ -61,6 +62,10 @@ class CalibrationOutput(NamedTuple):
     status: Int[Array, ""]
     train_metrics: Metrics
     extra: object = None
+    #: with ``Calibrator(report=True)``: :func:`~jaxcal._diagnostics.gram_at` at ``x``, and the
+    #: full :class:`Deviations` at ``x`` (``start`` in the entries that are not free).
+    gram: object = None
+    deviations: object = None
 
 
 class Calibrator(eqx.Module):
@@ -75,6 +80,10 @@ class Calibrator(eqx.Module):
         space: free parameters (static).
         objective: prior and robust loss (:class:`~jaxcal._objective.Objective`); ``None`` =
             plain least squares.
+        report: also return what :func:`calibrate` reports besides ``x``, from the same compiled
+            program: the Jacobian products at the solution that
+            :func:`~jaxcal._diagnostics.parameter_uncertainty` needs (``gram``) and the full
+            ``deviations`` (static; sweeps leave it off).
     """
 
     robot: DHRobot
@@ -83,6 +92,7 @@ class Calibrator(eqx.Module):
     start: Deviations
     space: ParameterSpace = eqx.field(static=True)
     objective: Objective | None = None
+    report: bool = eqx.field(static=True, default=False)
 
     def problem(self, q, y) -> Problem:
         return Problem(self.robot, self.measurement, q, y, self.space, self.start)
@@ -94,9 +104,15 @@ class Calibrator(eqx.Module):
             raw = self.method.run(scaled, key)
             x = scaled.x(raw.z)
             metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
+            gram = deviations = None
+            if self.report:
+                ob = self.objective
+                loss, scale = ("linear", 1.0) if ob is None else (ob.loss, ob.loss_scale)
+                gram = gram_at(problem, x, loss, jnp.asarray(scale, problem.dtype))
+                deviations = problem.deviations(x)
         its = iterations_to_converge(raw.history, raw.n_iterations)
         status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING
-        return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra)
+        return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra, gram, deviations)
 
 
 @functools.partial(jax.jit, static_argnums=1)
@@ -403,10 +419,11 @@ def calibrate(
             break
         noise, scale = new_noise, new_scale
         objective = Objective.build(space, prior, noise, loss, scale, q.dtype)
-        cal = Calibrator(robot, measurement, meth, cur, space, None if objective.plain_least_squares else objective)
+        cal = Calibrator(robot, measurement, meth, cur, space, None if objective.plain_least_squares else objective,
+                         report=True)
         out, c_s, r_s = _run_once(cal, q, y, key)
         compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
-        cur = space.from_vector(out.x, cur)
+        cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
         histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
         if int(out.status) in (Status.DIVERGED, Status.FAILED) or not adaptive:
             break
@@ -445,7 +462,7 @@ def calibrate(
         if throw:
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=2)
-    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds)
+    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -469,7 +486,8 @@ def _close(a, b, rtol: float = 0.05) -> bool:
     return abs(a - b) <= rtol * abs(b)
 
 
-def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds):
+def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
+              gram=None):
     """Uncertainty and the plausibility / conditioning / coverage / outlier findings."""
     space = result.space
     x = np.asarray(result.x, np.float64)
@@ -478,7 +496,8 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     msgs = []
     try:
         unc, cond, resid = parameter_uncertainty(problem, x, prior_inv_std=inv, loss=result.loss,
-                                                 loss_scale=result.loss_scale_mm or 1.0, return_residuals=True)
+                                                 loss_scale=result.loss_scale_mm or 1.0, return_residuals=True,
+                                                 gram=gram)
     except (np.linalg.LinAlgError, ValueError) as e:  # pragma: no cover - defensive
         unc, cond, resid = None, float("inf"), None
         msgs.append(f"uncertainty could not be computed: {e}")

@@ -16,13 +16,13 @@ Without prior this is ``σ̂²(JᵀJ)⁻¹``, the Cramér–Rao bound with σ es
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._kinematics import shared_joint_trig
 from ._objective import robust_factor, robust_scale
 from ._params import group_kind
 from ._precision import to_device
@@ -100,27 +100,32 @@ class Uncertainty:
         }
 
 
-@functools.partial(jax.jit, static_argnames="loss")
-def _gram(problem, x, loss: str, loss_scale):
+def gram_at(problem, x, loss: str, loss_scale):
     """One ``jacfwd`` pass at ``x``: column norms ``d`` of the Jacobian, the column-scaled ``JᵀWJ``
-    and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``), ``Σ w r²`` and the residual
-    ``r`` ``[N]`` itself (for the outlier scan). The N×p Jacobian stays inside XLA; the host only
-    factorises p×p matrices."""
-    J, r = jax.jacfwd(lambda x: (problem.residual(x),) * 2, has_aux=True)(x)
-    n, m = problem.n_samples, problem.measurement.size
-    if loss == "linear":
-        w = jnp.ones_like(r)
-    else:
-        e = problem.measurement.sample_error(r.reshape(n, m))
-        f = robust_factor(loss, e * e, loss_scale)
-        w = jnp.repeat(f * f, m)
+    and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``; the same matrix for the
+    linear loss), ``Σ w r²`` and the residual ``r`` ``[N]`` itself (for the outlier scan). Pure
+    and jittable: :class:`~jaxcal.Calibrator` evaluates it in the solve's own program
+    (``uncertainty=True``), :func:`parameter_uncertainty` otherwise compiles it alone. The N×p
+    Jacobian stays inside XLA; the host only factorises p×p matrices."""
+    with shared_joint_trig(problem.q):
+        J, r = jax.jacfwd(lambda x: (problem.residual(x),) * 2, has_aux=True)(x)
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     Js = J / jnp.where(d > 0, d, 1.0)
-    return d, (Js * w[:, None]).T @ Js, Js.T @ Js, jnp.sum(w * r * r), r
+    G = Js.T @ Js
+    if loss == "linear":
+        return d, G, G, jnp.sum(r * r), r
+    n, m = problem.n_samples, problem.measurement.size
+    e = problem.measurement.sample_error(r.reshape(n, m))
+    f = robust_factor(loss, e * e, loss_scale)
+    w = jnp.repeat(f * f, m)
+    return d, (Js * w[:, None]).T @ Js, G, jnp.sum(w * r * r), r
+
+
+_gram = jax.jit(gram_at, static_argnames="loss")
 
 
 def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0,
-                          return_residuals: bool = False):
+                          return_residuals: bool = False, gram=None):
     """Posterior covariance of the free parameters at ``x`` ``[p]`` for ``problem`` (training data).
 
     Args:
@@ -129,12 +134,16 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
 
         return_residuals: also return the residual at ``x`` as NumPy ``[n, m]`` (mm), from the
             same compiled pass (what :func:`outlier_rows` scans).
+        gram: :func:`gram_at` of ``(problem, x, loss, loss_scale)`` when the caller has it already
+            (``calibrate`` gets it from the solve's program); computed here otherwise.
 
     Returns:
         ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian —
         and with ``return_residuals`` the residual blocks as a third element.
     """
-    d, A, G, rss, r = _gram(problem, to_device(x, problem.dtype), loss, to_device(loss_scale, problem.dtype))
+    if gram is None:
+        gram = _gram(problem, to_device(x, problem.dtype), loss, to_device(loss_scale, problem.dtype))
+    d, A, G, rss, r = gram
     d, A, G = (np.asarray(v, np.float64) for v in (d, A, G))
     N, p = problem.n_residuals, A.shape[0]
     rss = float(rss)

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
 from ._precision import to_device
@@ -83,7 +84,8 @@ class Problem(eqx.Module):
 
     def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
         """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
-        return jax.jacfwd(self.residual)(x)
+        with shared_joint_trig(self.q):  # cos/sin of the data once, not per column
+            return jax.jacfwd(self.residual)(x)
 
     def with_data(self, q, y) -> Problem:
         """Same models and parameters, other data (e.g. the test split)."""

@@ -59,7 +59,12 @@ def test_chain_sweep_trials_equal_simulate_and_calibrate(chain_sweep):
                                    atol=1e-9)  # mm (a wire length minus a reading: round-off of ~1e-13 mm)
         one_lm = calibrate(ex.robot, ex.measurement, ex.train, "lm", key=k_method, space=res.space)
         np.testing.assert_allclose(lm.x[i], one_lm.x, rtol=1e-9, atol=1e-9)
-        assert lm.n_iterations[i] == one_lm.n_iterations
+        # the two compiled programs differ (calibrate's also returns the uncertainty's Jacobian
+        # products), so their round-off differs in the last bits; a converged LM may then take one
+        # more round-off-level step (the training RMSE changes by ~1e-14 mm)
+        assert abs(int(lm.n_iterations[i]) - one_lm.n_iterations) <= 1
+        k = min(int(lm.n_iterations[i]), one_lm.n_iterations)
+        np.testing.assert_allclose(lm.history[i][: k + 1], one_lm.history[: k + 1], rtol=1e-12)
         assert lm.test.rmse[i] == pytest.approx(one_lm.evaluate(ex.test).rmse, rel=1e-9)
         one_ad = calibrate(ex.robot, ex.measurement, ex.train, "adamodw", key=k_method, space=res.space, steps=STEPS)
         np.testing.assert_allclose(ad.x[i], one_ad.x, rtol=1e-9, atol=1e-12)
