@@ -400,7 +400,7 @@ def calibrate(
         )
     key = _default_key() if key is None else key
     problem = Problem(robot, measurement, q, y, space, start)
-    x = np.asarray(problem.x0())
+    x = start._ravel_numpy()[space.free_index]  # problem.x0() on the host (no device round trip)
     resid_start = signed_residuals(problem, x)
     before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
 
@@ -506,7 +506,7 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
                     "not be finished (raise max_steps, or check the start and the data)")
     if result.status == Status.STILL_IMPROVING:
         msgs.append(result.message)
-    flat = np.asarray(result.deviations.ravel(), np.float64)
+    flat = np.asarray(result.deviations._ravel_numpy(), np.float64)
     bad = implausible_deviations(space.names, space.units, flat, checks)
     if bad:
         listed = ", ".join(f"Δ{n} = {v:+.4g} {'°' if u == 'deg' else 'mm'}" for n, v, u in bad[:8])
