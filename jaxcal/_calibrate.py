@@ -400,7 +400,7 @@ def calibrate(
         )
     key = _default_key() if key is None else key
     problem = Problem(robot, measurement, q, y, space, start)
-    x = start._ravel_numpy()[space.free_index]  # problem.x0() on the host (no device round trip)
+    x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
     resid_start = signed_residuals(problem, x)
     before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
 

@@ -365,11 +365,9 @@ class SerialChain(NonGeometricMixin, eqx.Module):
             q = effective_joint_angles(self, dev, q)  # joint-space (non-geometric) corrections first
         groups = {g: _dev_get(dev, g) for g, _ in GEOMETRIC_GROUPS}
         groups = {g: None if v is None else cast(v) for g, v in groups.items()}
-        offset = jnp.zeros(self.dof, dtype) if groups["offset"] is None else groups["offset"]
-        trig = angle_sum_trig(q, offset) if not all(self.prismatic) else None
-        qq = q.T  # [dof, n]
-        if groups["offset"] is not None:
-            qq = qq + groups["offset"][:, None]
+        offset = groups["offset"]
+        trig = None if all(self.prismatic) else angle_sum_trig(q, jnp.zeros(self.dof, dtype) if offset is None else offset)
+        qq = q.T if offset is None else q.T + offset[:, None]  # [dof, n]
         t = cast(self.origin_t)
         dt = [groups[g] for g in ("dx", "dy", "dz")]
         if any(v is not None for v in dt):

@@ -22,11 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._kinematics import shared_joint_trig
 from ._objective import robust_factor, robust_scale
 from ._params import group_kind
 from ._precision import to_device
-from ._problem import residual_blocks_numpy, signed_residuals
+from ._problem import residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
 
@@ -107,8 +106,7 @@ def gram_at(problem, x, loss: str, loss_scale):
     and jittable: :class:`~jaxcal.Calibrator` evaluates it in the solve's own program
     (``uncertainty=True``), :func:`parameter_uncertainty` otherwise compiles it alone. The N×p
     Jacobian stays inside XLA; the host only factorises p×p matrices."""
-    with shared_joint_trig(problem.q):
-        J, r = jax.jacfwd(lambda x: (problem.residual(x),) * 2, has_aux=True)(x)
+    r, J = value_and_jacfwd(problem.residual, x, problem.q)
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     Js = J / jnp.where(d > 0, d, 1.0)
     G = Js.T @ Js

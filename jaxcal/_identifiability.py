@@ -174,8 +174,6 @@ def _prefer(Rs: np.ndarray, keep: list[int], pref: list) -> np.ndarray:
     return np.asarray(sorted(keep), dtype=int)
 
 
-
-
 def householder_r(A: Array) -> Array:
     """The triangular factor ``R`` ``[p, p]`` of ``A = QR`` (``A`` ``[N, p]``, ``Q`` orthonormal
     ``[N, p]``), by Householder reflections written in XLA operations (``lax.fori_loop`` over the

@@ -106,7 +106,6 @@ def materialised(x: Array) -> Array:
     return jax.lax.dot(eye, x, precision=jax.lax.Precision.HIGHEST)
 
 
-
 _SHARED_TRIG = threading.local()
 
 

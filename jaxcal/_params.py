@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._precision import to_device
+from ._precision import canonical_numpy, to_device
 
 
 def _traced(*xs) -> bool:
@@ -34,13 +34,6 @@ def _traced(*xs) -> bool:
     in JAX, each is a small XLA program — ~60 per ``calibrate`` call, each compiled (or loaded
     from the persistent cache) once per process and dispatched at ~20–50 µs per call."""
     return any(isinstance(x, jax.core.Tracer) for x in xs)
-
-
-def _np_as(x, dtype=None) -> np.ndarray:
-    """``x`` as NumPy with JAX's dtype canonicalisation (float64 → float32 without x64)."""
-    a = np.asarray(x)
-    dt = a.dtype if dtype is None else dtype
-    return a.astype(jax.dtypes.canonicalize_dtype(dt), copy=False)
 
 
 __all__ = [
@@ -377,7 +370,7 @@ class Deviations(eqx.Module):
     def unravel(cls, flat: Float[Array, "... size"], layout: Layout | int) -> Deviations:
         """Inverse of :meth:`ravel`."""
         layout = Layout.coerce(layout)
-        flat = jnp.asarray(flat) if _traced(flat) else _np_as(flat)
+        flat = jnp.asarray(flat) if _traced(flat) else canonical_numpy(flat)
         if flat.shape[-1] != layout.size:
             raise ValueError(f"expected a flat vector of {layout.size} entries, got shape {flat.shape}")
         parts, i = {}, 0
@@ -393,7 +386,7 @@ class Deviations(eqx.Module):
 
     def named(self) -> dict[str, float]:
         """``{entry name: value}`` (unbatched deviations only)."""
-        return dict(zip(self.layout.names, np.asarray(self.ravel(), np.float64).tolist()))
+        return dict(zip(self.layout.names, np.asarray(self._ravel_numpy(), np.float64).tolist()))
 
 
 @functools.lru_cache(maxsize=64)
@@ -527,7 +520,11 @@ class ParameterSpace:
         """The free entries of ``deviations`` as a flat ``[p]`` vector."""
         if _traced(*deviations.arrays):
             return deviations.ravel()[..., self.free_index]
-        return to_device(deviations._ravel_numpy()[..., self.free_index])
+        return to_device(self.to_vector_numpy(deviations))
+
+    def to_vector_numpy(self, deviations: Deviations) -> np.ndarray:
+        """:meth:`to_vector` in NumPy, for host-side code (concrete deviations only)."""
+        return deviations._ravel_numpy()[..., self.free_index]
 
     def from_vector(self, x: Float[Array, " p"], base: Deviations | None = None) -> Deviations:
         """Deviations whose free entries are ``x`` ``[p]`` and the others come from ``base``
@@ -541,7 +538,7 @@ class ParameterSpace:
                 flat = jnp.asarray(base.ravel(), dtype=x.dtype)
             flat = flat.at[..., self.free_index].set(x)
             return Deviations.unravel(flat, self.layout)
-        x = _np_as(x)
+        x = canonical_numpy(x)
         self._check_length(x)
         if base is None:
             flat = np.zeros(x.shape[:-1] + (self.free.size,), dtype=x.dtype)

@@ -29,6 +29,8 @@ __all__ = [
     "warn_if_float32",
     "dtype_scope",
     "cast_floating",
+    "canonical_numpy",
+    "to_device",
 ]
 
 
@@ -96,13 +98,19 @@ def cast_floating(tree, dtype):
     return jax.tree.map(cast, tree)
 
 
+def canonical_numpy(x, dtype=None) -> np.ndarray:
+    """``x`` as NumPy in ``dtype`` (default: ``x``'s own) canonicalised as JAX does (float64 →
+    float32 without x64): the host-side counterpart of a JAX array."""
+    a = np.asarray(x)
+    return a.astype(jax.dtypes.canonicalize_dtype(a.dtype if dtype is None else dtype), copy=False)
+
+
 def to_device(x, dtype=None) -> jax.Array:
-    """``x`` (NumPy or array-like) as a JAX array by ``jax.device_put``, in ``dtype`` (default:
-    ``x``'s own) canonicalised as JAX does (float64 → float32 without x64).
+    """``x`` (NumPy or array-like) as a JAX array by ``jax.device_put``, in ``dtype``
+    canonicalised as JAX does (:func:`canonical_numpy`).
 
     For host-side code outside ``jit``: there ``jnp.asarray`` of a NumPy array (or ``.astype``)
     runs a small compiled program per shape — compiled, or loaded from the persistent cache,
     once per process and dispatched at ~20–50 µs — and ``jax.device_put`` does not.
     """
-    a = np.asarray(x)
-    return jax.device_put(a.astype(jax.dtypes.canonicalize_dtype(a.dtype if dtype is None else dtype), copy=False))
+    return jax.device_put(canonical_numpy(x, dtype))

@@ -14,7 +14,18 @@ from ._params import Deviations, ParameterSpace, layout_for
 from ._precision import to_device
 from ._robot import DHRobot
 
-__all__ = ["Problem", "residual_blocks", "residual_blocks_numpy", "signed_residuals", "sample_errors_at", "predict_jit"]
+__all__ = ["Problem", "value_and_jacfwd", "residual_blocks", "residual_blocks_numpy", "signed_residuals",
+           "sample_errors_at", "predict_jit"]
+
+
+def value_and_jacfwd(f, x: Float[Array, " p"], q: Float[Array, "n dof"]):
+    """``(f(x), ∂f/∂x)`` from one ``jax.jacfwd`` pass (the value is its primal), for ``f`` a
+    residual of the kinematics at the joint angles ``q``: evaluated inside a
+    :func:`~jaxcal._kinematics.shared_joint_trig` block, so ``cos``/``sin`` of ``q`` are computed
+    once, not per Jacobian column."""
+    with shared_joint_trig(q):
+        J, r = jax.jacfwd(lambda x: (f(x),) * 2, has_aux=True)(x)
+    return r, J
 
 
 class Problem(eqx.Module):
@@ -84,8 +95,7 @@ class Problem(eqx.Module):
 
     def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
         """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
-        with shared_joint_trig(self.q):  # cos/sin of the data once, not per column
-            return jax.jacfwd(self.residual)(x)
+        return value_and_jacfwd(self.residual, x, self.q)[1]
 
     def with_data(self, q, y) -> Problem:
         """Same models and parameters, other data (e.g. the test split)."""

@@ -323,7 +323,7 @@ class CalibrationResult:
             "message": self.message,
             "free_parameters": dict(zip(self.space.free_names, map(float, self.x))),
             "units": dict(zip(self.space.free_names, self.space.free_units)),
-            "deviations": dict(zip(self.space.names, map(float, np.asarray(self.deviations.ravel())))),
+            "deviations": self.deviations.named(),
             "n_iterations": self.n_iterations,
             "iterations_to_converge": self.iterations_to_converge,
             "history_rmse_mm": [float(v) for v in self.history[: self.n_iterations + 1]],

@@ -27,7 +27,6 @@ def _as_vector(name: str, values, dof: int | None) -> np.ndarray:
     return arr
 
 
-
 def replace_tool(robot, tool_mm: Sequence[float]):
     """A copy of ``robot`` (any robot type with a ``tool`` field) with another nominal tool point
     ``[3]`` mm in its last link's frame."""
@@ -35,6 +34,7 @@ def replace_tool(robot, tool_mm: Sequence[float]):
     if tool.shape != (3,):
         raise ValueError(f"tool_mm must have 3 entries, got shape {tool.shape}")
     return eqx.tree_at(lambda r: r.tool, robot, tool)
+
 
 class DHRobot(NonGeometricMixin, eqx.Module):
     """A serial robot with revolute joints described by a nominal DH table.

@@ -16,7 +16,7 @@ from jaxtyping import Array, Float, Int
 
 from .._kinematics import shared_joint_trig
 from .._objective import Objective, robust_factor
-from .._problem import Problem
+from .._problem import Problem, value_and_jacfwd
 
 __all__ = [
     "ScaledProblem",
@@ -120,10 +120,8 @@ class ScaledProblem(eqx.Module):
         """``(objective_residual [M], ∂/∂z [M, p])`` from one ``jax.jacfwd`` pass."""
         if self.objective is None:
             return self.residual_and_jacobian(z, problem)
-        f = lambda z: (self.objective_residual(z, problem),) * 2  # noqa: E731
-        with shared_joint_trig((self.problem if problem is None else problem).q):
-            J, r = jax.jacfwd(f, has_aux=True)(z)
-        return r, J
+        pr = self.problem if problem is None else problem
+        return value_and_jacfwd(lambda z: self.objective_residual(z, problem), z, pr.q)
 
     @property
     def n_free(self) -> int:
@@ -162,8 +160,7 @@ class ScaledProblem(eqx.Module):
 
     def jacobian(self, z: Float[Array, " p"]) -> Float[Array, "N p"]:
         """``∂residual/∂z`` by ``jax.jacfwd``."""
-        with shared_joint_trig(self.problem.q):
-            return jax.jacfwd(self.residual)(z)
+        return self.residual_and_jacobian(z)[1]
 
     def residual_and_jacobian(self, z: Float[Array, " p"], problem: Problem | None = None):
         """``(r [N], ∂r/∂z [N, p])`` from one ``jax.jacfwd`` pass (the residual is its primal).
@@ -171,10 +168,7 @@ class ScaledProblem(eqx.Module):
         ``problem`` (default: the training problem) lets mini-batches reuse the scaling.
         """
         pr = self.problem if problem is None else problem
-        f = lambda z: (pr.residual(self.x(z)),) * 2  # noqa: E731
-        with shared_joint_trig(pr.q):
-            J, r = jax.jacfwd(f, has_aux=True)(z)
-        return r, J
+        return value_and_jacfwd(lambda z: pr.residual(self.x(z)), z, pr.q)
 
     def loss_and_grad(self, z: Float[Array, " p"], problem: Problem | None = None):
         """``(½·mean(r²), ∇_z)`` in forward mode: ``Jᵀr/N`` from one ``jacfwd`` pass.
