@@ -26,7 +26,7 @@ from ._diagnostics import (
     parameter_uncertainty,
     weak_parameters,
 )
-from ._identifiability import identifiability
+from ._identifiability import identify_with_residuals
 from ._initialise import INITIALISABLE, initial_extras
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
@@ -34,7 +34,7 @@ from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from ._precision import cast_floating, dtype_scope, warn_if_float32
-from ._problem import Problem, signed_residuals
+from ._problem import Problem, residual_blocks_numpy, signed_residuals
 from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
 from ._robot import DHRobot
 from ._xla import compile_lowered
@@ -84,6 +84,10 @@ class Calibrator(eqx.Module):
             program: the Jacobian products at the solution that
             :func:`~jaxcal._diagnostics.parameter_uncertainty` needs (``gram``) and the full
             ``deviations`` (static; sweeps leave it off).
+        start_jacobian: ``∂residual/∂x`` ``[N, p]`` of the data at ``start`` for the free
+            parameters when the caller has it (``calibrate``: from the identifiability program,
+            for measurements whose Jacobian does not depend on the readings); computed in the
+            program otherwise. See :meth:`ScaledProblem.build`.
     """
 
     robot: DHRobot
@@ -93,6 +97,7 @@ class Calibrator(eqx.Module):
     space: ParameterSpace = eqx.field(static=True)
     objective: Objective | None = None
     report: bool = eqx.field(static=True, default=False)
+    start_jacobian: Array | None = None
 
     def problem(self, q, y) -> Problem:
         return Problem(self.robot, self.measurement, q, y, self.space, self.start)
@@ -100,7 +105,7 @@ class Calibrator(eqx.Module):
     def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array) -> CalibrationOutput:
         problem = self.problem(q, y)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
-            scaled = ScaledProblem.build(problem, objective=self.objective)
+            scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian)
             raw = self.method.run(scaled, key)
             x = scaled.x(raw.z)
             metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
@@ -252,12 +257,24 @@ def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None
     ``fix``; QR with column pivoting, :func:`jaxcal.identifiability`); ``"all"``: every candidate;
     or a :class:`ParameterSpace` as given. Returns ``(space, report_or_None)``."""
     cand = candidate_space(robot, measurement, extras, free, fix)
+    return _resolve_candidates(cand, robot, measurement, q, space, start)[:2]
+
+
+def _resolve_candidates(cand, robot, measurement, q, space, start, y=None):
+    """:func:`resolve_space` from the candidates ``cand``: ``(space, report_or_None, residuals,
+    jacobian)``, the last two the residual blocks (NumPy) and the identification Jacobian of the
+    chosen free parameters (device) at ``start`` when ``y`` is given and the identifiability
+    program computed them (see :func:`~jaxcal._identifiability.identify_with_residuals`), else
+    ``None``."""
     if space is None or (isinstance(space, str) and space == "identifiable"):
-        report = identifiability(robot, measurement, q, cand, start)
-        return report.space, report
+        report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y)
+        if J is not None:
+            kept = set(report.identifiable)
+            J = _take_columns(J, np.asarray([i for i, n in enumerate(cand.free_names) if n in kept]))
+        return report.space, report, resid, J
     if isinstance(space, str):
         if space == "all":
-            return cand, None
+            return cand, None, None, None
         raise ValueError(f"space must be None, 'identifiable', 'all' or a ParameterSpace, got {space!r}")
     if not isinstance(space, ParameterSpace):
         raise TypeError(f"space must be a ParameterSpace, got {type(space)}")
@@ -265,7 +282,11 @@ def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None
         raise ValueError(f"parameter space has groups {list(space.layout.group_names)} for {space.dof} joints, but "
                          f"robot {robot.name!r} with this measurement has {list(cand.layout.group_names)} for "
                          f"{robot.dof} joints")
-    return space, None
+    return space, None, None, None
+
+
+#: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)
+_take_columns = jax.jit(lambda J, columns: jnp.take(J, columns, axis=1))
 
 
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
@@ -279,8 +300,9 @@ def _signature(tree) -> tuple:
                           for leaf in leaves)
 
 
-def _run_once(cal: Calibrator, q, y, key):
-    """Compile (cached) and run ``cal``; ``(output, compile_s, run_s)``."""
+def _launch(cal: Calibrator, q, y, key):
+    """Compile (cached) and start ``cal`` without waiting for it (JAX dispatches asynchronously):
+    ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``."""
     dyn, stat = eqx.partition(cal, eqx.is_array)
     with dtype_scope(q.dtype):
         dyn = cast_floating(dyn, q.dtype)
@@ -298,9 +320,15 @@ def _run_once(cal: Calibrator, q, y, key):
                     _COMPILED.clear()
                 _COMPILED[ck] = compiled
         t1 = time.perf_counter()
-        out = jax.block_until_ready(compiled(dyn, q, y, key))
-        t2 = time.perf_counter()
-    return out, t1 - t0, t2 - t1
+        out = compiled(dyn, q, y, key)
+    return out, t1 - t0, t1
+
+
+def _run_once(cal: Calibrator, q, y, key):
+    """Compile (cached) and run ``cal``; ``(output, compile_s, run_s)``."""
+    out, compile_s, t1 = _launch(cal, q, y, key)
+    out = jax.block_until_ready(out)
+    return out, compile_s, time.perf_counter() - t1
 
 
 def calibrate(
@@ -391,7 +419,7 @@ def calibrate(
     if init == "auto" and initialisable:
         est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
         start, extras_msg = est.deviations, est.message
-    space, report = resolve_space(robot, measurement, q, space, start, extras, free, fix)
+    space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y)
     n_res = q.shape[0] * measurement.size
     if n_res <= space.n_free:
         raise ValueError(
@@ -401,8 +429,10 @@ def calibrate(
     key = _default_key() if key is None else key
     problem = Problem(robot, measurement, q, y, space, start)
     x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
-    resid_start = signed_residuals(problem, x)
-    before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
+    if resid_start is None:  # else from the identifiability program
+        resid_start = signed_residuals(problem, x)
+    else:
+        resid_start = residual_blocks_numpy(problem, resid_start)
 
     # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
     adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
@@ -410,18 +440,30 @@ def calibrate(
     noise = scale = None
     histories = []
     while True:
-        resid = resid_start if rounds == 0 else signed_residuals(problem, space.to_vector(cur))
-        s_hat = robust_scale(resid)
-        s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
-        new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
-        new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
+        if prior is None and loss == "linear":  # plain least squares: no scale to estimate
+            new_noise = new_scale = None
+        else:
+            resid = resid_start if rounds == 0 else signed_residuals(problem, space.to_vector(cur))
+            s_hat = robust_scale(resid)
+            s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
+            new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
+            new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
         if rounds > 0 and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale)) or rounds >= 4):
             break
         noise, scale = new_noise, new_scale
-        objective = Objective.build(space, prior, noise, loss, scale, q.dtype)
-        cal = Calibrator(robot, measurement, meth, cur, space, None if objective.plain_least_squares else objective,
-                         report=True)
-        out, c_s, r_s = _run_once(cal, q, y, key)
+        objective = None if prior is None and loss == "linear" else Objective.build(
+            space, prior, noise, loss, scale, q.dtype)
+        cal = Calibrator(robot, measurement, meth, cur, space,
+                         None if objective is None or objective.plain_least_squares else objective, report=True,
+                         # the identifiability program's Jacobian serves a one-round fit (several rounds
+                         # share one compiled program, which then computes it)
+                         start_jacobian=None if adaptive else start_jac)
+        out, c_s, t_started = _launch(cal, q, y, key)
+        if rounds == 0:  # host work that does not need the fit, while the device runs it
+            before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
+            cov = coverage(robot, q)
+        out = jax.block_until_ready(out)
+        r_s = time.perf_counter() - t_started
         compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
         cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
         histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
@@ -462,7 +504,7 @@ def calibrate(
         if throw:
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=2)
-    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram)
+    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -487,8 +529,9 @@ def _close(a, b, rtol: float = 0.05) -> bool:
 
 
 def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
-              gram=None):
-    """Uncertainty and the plausibility / conditioning / coverage / outlier findings."""
+              gram=None, cov=None):
+    """Uncertainty and the plausibility / conditioning / coverage / outlier findings (``gram``,
+    ``cov``: :func:`gram_at` and :func:`coverage` when the caller has them)."""
     space = result.space
     x = np.asarray(result.x, np.float64)
     prior_std = result.prior.std(space) if result.prior is not None else None
@@ -517,7 +560,7 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     if cond > checks.condition_number:
         msgs.append(f"condition number {cond:.3g} of the identification Jacobian exceeds {checks.condition_number:.3g}: "
                     "some parameter combinations are weakly determined by these poses")
-    cov = coverage(result.robot, problem.q)
+    cov = coverage(result.robot, problem.q) if cov is None else cov
     narrow = narrow_joints(result.robot, cov, checks)
     unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in joint_units(result.robot))))
     weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
 from ._problem import Problem
@@ -153,25 +154,54 @@ def _prefer(Rs: np.ndarray, keep: list[int], pref: list) -> np.ndarray:
     """Swap kept columns of ``Rs`` (unit-norm columns) for left-out ones that come earlier in
     the preference order ``pref`` and depend on them (scaled coefficient ≥ _SWAP_MIN_COEF).
     Each swap makes the kept set strictly earlier in preference order, so this terminates; the
-    span (and the rank) of the kept columns is unchanged up to round-off."""
+    span (and the rank) of the kept columns is unchanged up to round-off. The coefficients of
+    all left-out columns come from one least-squares solve per kept set."""
     p = Rs.shape[1]
     keep = list(keep)
     for _ in range(p * p):
-        swapped = False
         kept = set(keep)
-        for j in sorted((i for i in range(p) if i not in kept), key=lambda i: pref[i]):
-            if not keep or np.linalg.norm(Rs[:, j]) == 0:
-                continue
-            coef, *_ = np.linalg.lstsq(Rs[:, keep], Rs[:, j], rcond=None)
-            worse = [(pref[k], i) for i, k in enumerate(keep) if pref[k] > pref[j] and abs(coef[i]) >= _SWAP_MIN_COEF]
+        out = [j for j in sorted((i for i in range(p) if i not in kept), key=lambda i: pref[i])
+               if np.linalg.norm(Rs[:, j]) != 0]
+        if not keep or not out:
+            break
+        coefs, *_ = np.linalg.lstsq(Rs[:, keep], Rs[:, out], rcond=None)
+        for col, j in enumerate(out):
+            worse = [(pref[k], i) for i, k in enumerate(keep)
+                     if pref[k] > pref[j] and abs(coefs[i, col]) >= _SWAP_MIN_COEF]
             if worse:
                 _, i = max(worse)
                 keep[i] = j
-                swapped = True
                 break
-        if not swapped:
+        else:
             break
     return np.asarray(sorted(keep), dtype=int)
+
+
+def _householder(A: Array, pivot: bool) -> tuple[Array, Array]:
+    """Householder QR of ``A`` ``[N, p]`` (``N ≥ p``) in XLA operations (``lax.fori_loop`` over
+    the columns): ``(R [p, p], piv [p])`` with ``A[:, piv] = QR``. With ``pivot``, each step first
+    brings the column with the largest remaining norm to the front (Businger & Golub, 1965;
+    LAPACK ``geqp3``'s rule, the first on ties; norms recomputed, not downdated); without it
+    ``piv`` is the identity."""
+    n, p = A.shape
+    rows, cols = jnp.arange(n), jnp.arange(p)
+
+    def reflect(k, carry):
+        A, piv = carry
+        if pivot:
+            norms = jnp.sum(jnp.where(rows[:, None] >= k, A * A, 0.0), axis=0)
+            j = jnp.argmax(jnp.where(cols >= k, norms, -1.0))
+            swap = cols.at[k].set(j).at[j].set(k)
+            A, piv = A[:, swap], piv[swap]
+        x = jnp.where(rows >= k, A[:, k], 0.0)
+        alpha = jnp.sqrt(jnp.sum(x * x))
+        v = x.at[k].add(jnp.where(x[k] >= 0, alpha, -alpha))
+        vv = jnp.sum(v * v)
+        beta = jnp.where(vv > 0, 2.0 / jnp.where(vv > 0, vv, 1.0), 0.0)
+        return A - beta * jnp.outer(v, v @ A), piv
+
+    A, piv = jax.lax.fori_loop(0, p, reflect, (A, cols))
+    return jnp.triu(A[:p]), piv
 
 
 def householder_r(A: Array) -> Array:
@@ -187,71 +217,50 @@ def householder_r(A: Array) -> Array:
     n, p = A.shape
     if n < p:
         A = jnp.concatenate([A, jnp.zeros((p - n, p), A.dtype)])
-        n = p
-    rows = jnp.arange(n)
+    return _householder(A, pivot=False)[0]
 
-    def reflect(k, A):
-        x = jnp.where(rows >= k, A[:, k], 0.0)
-        alpha = jnp.sqrt(jnp.sum(x * x))
-        v = x.at[k].add(jnp.where(x[k] >= 0, alpha, -alpha))
-        vv = jnp.sum(v * v)
-        beta = jnp.where(vv > 0, 2.0 / jnp.where(vv > 0, vv, 1.0), 0.0)
-        return A - beta * jnp.outer(v, v @ A)
 
-    A = jax.lax.fori_loop(0, p, reflect, A)
-    return jnp.triu(A[:p])
+def pivot_triangular(R0: Array) -> tuple[Array, Array]:
+    """QR with column pivoting (Businger & Golub, 1965; LAPACK ``geqp3``'s rule) of a matrix given
+    by its triangular factor ``R₀`` ``[p, p]`` (``A = Q₀R₀``): returns ``(R, piv)`` with
+    ``A[:, piv] = Q R``. ``R₀`` has ``A``'s column norms, inner products and singular values, so
+    pivoting it picks the columns pivoting ``A`` would, at ``p×p`` cost instead of ``N×p`` per
+    step. Jittable (XLA operations, see :func:`householder_r`)."""
+    return _householder(jnp.asarray(R0), pivot=True)
+
+
+@jax.jit
+def _pivoted_qr(A):
+    return pivot_triangular(householder_r(A))
+
+
+def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
+    """``(R [p, p], piv [p])`` as NumPy with ``A[:, piv] = Q R`` for a tall ``A`` ``[N, p]``:
+    :func:`householder_r`, then :func:`pivot_triangular` of its factor, in one XLA program."""
+    R, piv = _pivoted_qr(jnp.asarray(A, jnp.result_type(float)))
+    return np.asarray(R, np.float64), np.asarray(piv)
 
 
 @functools.partial(jax.jit, static_argnames="space")
-def _start_factor(robot, measurement, q, dev0, deviations, space):
-    """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the triangular
-    factor of its column-scaled ``J/d`` (:func:`householder_r`), in one compiled program, with the
-    nominal prediction as the "measured" sample; the ``N×p`` Jacobian never leaves XLA."""
+def _start_factor(robot, measurement, q, dev0, deviations, space, y=None):
+    """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the pivoted
+    triangular factor of its column-scaled ``J/d`` (:func:`householder_r`, then
+    :func:`pivot_triangular`; ``(R, piv)``), in one compiled program, with the nominal prediction
+    as the "measured" sample; the ``N×p`` Jacobian stays on the device. With measurements ``y``,
+    also their residual blocks ``[n, m]`` at the start (what :func:`jaxcal.calibrate` scans
+    first; the kinematics are shared) and, where it does not depend on the readings
+    (:attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), the Jacobian ``[N, p]`` itself (the
+    start Jacobian of the fit); else ``None`` for each."""
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
     # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
     sample = measurement.predict(robot, dev0, q).astype(q.dtype).reshape(q.shape[0], *measurement.sample_shape)
     problem = Problem(robot, measurement, q, sample, space, deviations)
-    J = problem.jacobian(problem.x0())
+    with shared_joint_trig(q):
+        J = problem.jacobian(problem.x0())
+        resid = None if y is None else measurement.residual(robot, deviations, q, jnp.asarray(y, q.dtype))
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
-    return d, householder_r(J / jnp.where(d > 0, d, 1.0))
-
-
-def pivot_triangular(R0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """QR with column pivoting (Businger & Golub, 1965; LAPACK ``geqp3``'s rule) of a matrix given
-    by its triangular factor ``R₀`` ``[p, p]`` (``A = Q₀R₀``): returns ``(R, piv)`` with
-    ``A[:, piv] = Q R``. ``R₀`` has ``A``'s column norms, inner products and singular values, so
-    pivoting it picks the columns pivoting ``A`` would. Each step takes the column with the
-    largest remaining norm (the first on ties), the norms recomputed rather than downdated.
-    NumPy on ``p×p`` (small: no multithreaded LAPACK, see :func:`householder_r`).
-    """
-    R = np.array(R0, np.float64)
-    p = R.shape[1]
-    piv = np.arange(p)
-    for k in range(p):
-        norms = np.sum(R[k:, k:] ** 2, axis=0)
-        j = k + int(np.argmax(norms))
-        if j != k:
-            R[:, [k, j]] = R[:, [j, k]]
-            piv[[k, j]] = piv[[j, k]]
-        x = R[k:, k]
-        alpha = np.linalg.norm(x)
-        if alpha == 0.0:
-            continue
-        v = x.copy()
-        v[0] += np.copysign(alpha, x[0])
-        v /= np.linalg.norm(v)
-        R[k:, k:] -= 2.0 * np.outer(v, v @ R[k:, k:])
-        R[k + 1:, k] = 0.0
-    return np.triu(R), piv
-
-
-def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
-    """``(R [p, p], piv [p])`` with ``A[:, piv] = Q R`` for a tall ``A`` ``[N, p]``:
-    :func:`householder_r` (XLA) then :func:`pivot_triangular` (NumPy)."""
-    return pivot_triangular(np.asarray(_householder_r_jit(jnp.asarray(A, jnp.result_type(float))), np.float64))
-
-
-_householder_r_jit = jax.jit(householder_r)
+    R, piv = pivot_triangular(householder_r(J / jnp.where(d > 0, d, 1.0)))
+    return d, R, piv, resid, (J if y is not None and measurement.jacobian_free_of_data else None)
 
 
 def identifiability(
@@ -275,6 +284,14 @@ def identifiability(
     whatever the poses or the round-off. Each left-out column is expressed in the kept ones by
     least squares.
     """
+    return identify_with_residuals(robot, measurement, q, space, deviations, rtol=rtol)[0]
+
+
+def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None):
+    """:func:`identifiability`, and with measurements ``y`` also their residual blocks ``[n, m]``
+    (NumPy, mm) at ``deviations`` and the identification Jacobian ``[N, p]`` there (a device
+    array; only where :attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), from the same
+    compiled program: ``(report, residuals | None, jacobian | None)``."""
     q = jnp.asarray(q)
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
@@ -284,12 +301,12 @@ def identifiability(
     # singular values and least-squares solutions of the columns of the small triangular factor,
     # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian (multithreaded
     # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
-    norms, R0 = _start_factor(robot, measurement, q, dev0, dev0 if deviations is None else deviations, space)
-    norms, R0 = np.asarray(norms, np.float64), np.asarray(R0, np.float64)
-    if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R0))):
+    norms, R, piv, resid, J = _start_factor(robot, measurement, q, dev0, dev0 if deviations is None else deviations,
+                                         space, y)
+    norms, R, piv = np.asarray(norms, np.float64), np.asarray(R, np.float64), np.asarray(piv)
+    if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R))):
         raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
     scale = np.where(norms > 0, norms, 1.0)
-    R, piv = pivot_triangular(R0)
     Rs = np.zeros((R.shape[0], len(piv)))
     Rs[:, piv] = np.asarray(R, dtype=np.float64)  # Js = Q Rs
     s = np.linalg.svd(Rs, compute_uv=False)
@@ -301,22 +318,21 @@ def identifiability(
     drop_idx = [i for i in range(len(names)) if i not in set(keep_idx.tolist())]
     keep = np.zeros(len(names), dtype=bool)
     keep[keep_idx] = True
-    deps = {}
-    if drop_idx:
-        A = Rj[:, keep_idx]
-        for j in drop_idx:
-            if norms[j] == 0:
-                deps[names[j]] = []
-                continue
-            coef, *_ = np.linalg.lstsq(A, Rj[:, j], rcond=None)
+    deps = {names[j]: [] for j in drop_idx if norms[j] == 0}
+    moving = [j for j in drop_idx if norms[j] != 0]
+    if moving:
+        coefs, *_ = np.linalg.lstsq(Rj[:, keep_idx], Rj[:, moving], rcond=None)
+        for col, j in enumerate(moving):
+            coef = coefs[:, col]
             # significance judged on the scaled coefficients
             sig = np.abs(coef * norms[keep_idx] / norms[j]) > 1e-6
             order = np.argsort(-np.abs(coef * norms[keep_idx]))
             deps[names[j]] = [(float(coef[k]), names[keep_idx[k]]) for k in order if sig[k]][:6]
+    deps = {names[j]: deps[names[j]] for j in drop_idx}  # in the parameters' order
     sub = Rs[:, keep_idx]
     sv = np.linalg.svd(sub, compute_uv=False) if keep_idx.size else np.array([1.0])
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
-    return IdentifiabilityReport(
+    report = IdentifiabilityReport(
         names=names,
         rank=rank,
         singular_values=s,
@@ -327,3 +343,4 @@ def identifiability(
         space=space.restrict(keep),
         rtol=rtol,
     )
+    return report, None if resid is None else np.asarray(resid, np.float64), J

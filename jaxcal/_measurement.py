@@ -41,6 +41,13 @@ class MeasurementModel(eqx.Module):
         """``prediction − measured`` as ``[n, m]`` (mm)."""
         return (self.predict(robot, deviations, q) - y).reshape(q.shape[0], self.size)
 
+    @property
+    def jacobian_free_of_data(self) -> bool:
+        """Whether ``∂residual/∂Δ`` does not depend on the measured ``y`` (the residual is
+        ``prediction − measured``, as here; a pose's orientation residual is not): an
+        identification Jacobian computed for other readings then serves these too."""
+        return type(self).residual is MeasurementModel.residual
+
     def sample_error(self, residual: Float[Array, "n m"]) -> Float[Array, " n"]:
         """One signed (m = 1) or non-negative (m > 1, Euclidean norm) error per sample (mm)."""
         if self.size == 1:

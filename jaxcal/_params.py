@@ -173,8 +173,9 @@ class Layout:
 
     @classmethod
     def dh(cls, dof: int) -> Layout:
-        """The DH layout: α, a, d, θ, β per joint, then :data:`STANDARD_EXTRAS`."""
-        return cls(tuple(Group.per_joint(g, dof, u) for g, u in _DH_GROUPS) + STANDARD_EXTRAS, dof)
+        """The DH layout: α, a, d, θ, β per joint, then :data:`STANDARD_EXTRAS` (made once per
+        ``dof``: layouts are immutable)."""
+        return _dh_layout(cls, int(dof))
 
     @classmethod
     def coerce(cls, layout_or_dof) -> Layout:
@@ -242,7 +243,17 @@ def layout_for(robot, measurement=None) -> Layout:
     meas = tuple(measurement.extra_groups()) if measurement is not None and hasattr(measurement, "extra_groups") else ()
     geo = tuple(g for g in own if g.kind == "geometric")
     rest = tuple(g for g in own if g.kind != "geometric")
-    return Layout(geo + STANDARD_EXTRAS + rest + meas, robot.dof)
+    return _cached_layout(geo + STANDARD_EXTRAS + rest + meas, robot.dof)
+
+
+#: equal group tuples give the same (immutable) Layout object: building one validates every
+#: group, and ``layout_for`` runs several times per calibration
+_cached_layout = functools.lru_cache(maxsize=256)(Layout)
+
+
+@functools.lru_cache(maxsize=64)
+def _dh_layout(cls, dof: int) -> Layout:
+    return cls(tuple(Group.per_joint(g, dof, u) for g, u in _DH_GROUPS) + STANDARD_EXTRAS, dof)
 
 
 class Deviations(eqx.Module):

@@ -149,6 +149,27 @@ def test_lm_started_at_its_optimum_stops_at_once(experiment):
         assert abs(float(again.history[again.n_iterations]) - best) < 1e-12
 
 
+def test_start_jacobian_from_identifiability_gives_the_same_fit(experiment):
+    """calibrate() hands the identifiability program's Jacobian (cable data: it does not depend
+    on the readings) to the solve as its start Jacobian: the fit equals the one whose program
+    computes its own to round-off, and a Jacobian of the wrong shape is refused."""
+    ex = experiment
+    res = calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    q, y = jnp.asarray(ex.train.q), jnp.asarray(ex.train.y)
+    cal = Calibrator(ex.robot, ex.measurement, make_method("lm"), res.start, res.space)
+    own = jax.jit(lambda q, y: cal(q, y, None))(q, y)
+    np.testing.assert_allclose(res.x, own.x, rtol=0, atol=1e-10)
+    assert res.n_iterations == int(own.n_iterations)
+    prob = Problem(ex.robot, ex.measurement, q, y, res.space)
+    J = prob.jacobian(prob.x0())
+    sp = ScaledProblem.build(prob, jacobian=J)
+    np.testing.assert_array_equal(sp.scale, ScaledProblem.build(prob).scale)
+    with pytest.raises(ValueError, match="start Jacobian has shape"):
+        ScaledProblem.build(prob, jacobian=J[:, :-1])
+    assert ex.measurement.jacobian_free_of_data and jaxcal.Position().jacobian_free_of_data
+    assert not jaxcal.Pose().jacobian_free_of_data
+
+
 @pytest.mark.slow
 def test_lm_qr_whole_solve_agrees(experiment):
     ex = experiment

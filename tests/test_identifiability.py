@@ -78,6 +78,21 @@ def test_every_robot_position_rank(robot):
     assert np.all(np.diff(rep.singular_values) <= 1e-12)
 
 
+def test_identify_with_residuals_shares_the_program(experiment):
+    """The residuals and the Jacobian that come with the report (what calibrate() scans first
+    and starts the solve from) equal the separately computed ones; the report is unchanged."""
+    from jaxcal._identifiability import identify_with_residuals
+    from jaxcal._problem import Problem, signed_residuals
+
+    ex = experiment
+    rep, resid, J = identify_with_residuals(ex.robot, ex.measurement, ex.train.q, y=ex.train.y)
+    assert rep.identifiable == identifiability(ex.robot, ex.measurement, ex.train.q).identifiable
+    prob = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y)
+    np.testing.assert_allclose(resid, signed_residuals(prob, prob.x0()), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(J, prob.jacobian(prob.x0()), rtol=1e-12, atol=1e-9)
+    assert identify_with_residuals(ex.robot, ex.measurement, ex.train.q)[1:] == (None, None)
+
+
 @pytest.mark.parametrize("shape,rank", [((1600, 24), 24), ((400, 12), 9), ((5, 8), 5)])
 def test_pivoted_qr_matches_scipy(shape, rank):
     """The host pivoted QR (unpivoted QR of the tall matrix, then Businger–Golub pivoting of its

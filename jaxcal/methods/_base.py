@@ -57,14 +57,21 @@ class ScaledProblem(eqx.Module):
     x_start: Float[Array, " p"]
     scale: Float[Array, " p"]
     objective: Objective | None = None
+    start_jacobian: Float[Array, "N p"] | None = None
 
     @classmethod
     def build(cls, problem: Problem, x_start: Float[Array, " p"] | None = None,
-              objective: Objective | None = None) -> ScaledProblem:
+              objective: Objective | None = None, jacobian: Float[Array, "N p"] | None = None) -> ScaledProblem:
+        """Scales from the Jacobian ``problem.jacobian(x_start)`` (``x_start`` default
+        ``problem.x0()``), or from ``jacobian`` when the caller has computed it (it is then kept
+        as ``start_jacobian`` for the least-squares methods' first step)."""
         if objective is not None and objective.plain_least_squares:
             objective = None
         x_start = problem.x0() if x_start is None else jnp.asarray(x_start, problem.dtype)
-        J = problem.jacobian(x_start)
+        if jacobian is not None and jacobian.shape != (problem.n_residuals, problem.space.n_free):
+            raise ValueError(f"start Jacobian has shape {jacobian.shape}, expected "
+                             f"{(problem.n_residuals, problem.space.n_free)} (residuals × free parameters)")
+        J = problem.jacobian(x_start) if jacobian is None else jnp.asarray(jacobian, problem.dtype)
         # sqrt(sum(J²)) rather than jnp.linalg.norm: the latter's column reduction is ~10x
         # slower on XLA:CPU for a [N, p] Jacobian (measured, JAX 0.10)
         norms = jnp.sqrt(jnp.sum(J * J, axis=0))
@@ -72,7 +79,7 @@ class ScaledProblem(eqx.Module):
         scale = jnp.where(norms > 0, math.sqrt(n) / jnp.where(norms > 0, norms, 1.0), 1.0)
         if objective is not None:
             objective = jax.tree.map(lambda a: jnp.asarray(a, problem.dtype), objective)
-        return cls(problem, x_start, scale, objective)
+        return cls(problem, x_start, scale, objective, None if jacobian is None else J)
 
     @property
     def plain(self) -> bool:

@@ -116,13 +116,14 @@ def _rmse_from_residual(problem: ScaledProblem, z, r):
 def _start_residual_and_jacobian(problem: ScaledProblem):
     """``(r, ∂r/∂z)`` at ``z = 0``. For plain least squares the Jacobian is ``J_x·diag(scale)``
     with ``J_x = problem.problem.jacobian(x_start)``, the very computation
-    :meth:`ScaledProblem.build` made for the column scales (XLA merges the two), so the start
-    costs no second ``jacfwd``; equal to ``jacfwd`` in ``z`` up to round-off."""
+    :meth:`ScaledProblem.build` made for the column scales (XLA merges the two; or the one it was
+    given, ``start_jacobian``), so the start costs no second ``jacfwd``; equal to ``jacfwd`` in
+    ``z`` up to round-off."""
     z0 = jnp.zeros(problem.n_free, problem.dtype)
     if problem.plain:
         r0 = problem.problem.residual(problem.x_start)
-        J0 = problem.problem.jacobian(problem.x_start) * problem.scale
-        return r0, J0
+        Jx = problem.start_jacobian if problem.start_jacobian is not None else problem.problem.jacobian(problem.x_start)
+        return r0, Jx * problem.scale
     return problem.objective_residual_and_jacobian(z0)
 
 
