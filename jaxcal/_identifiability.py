@@ -13,7 +13,7 @@ from jaxtyping import Array
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
-from ._problem import Problem
+from ._problem import Problem, value_and_jacfwd
 from ._robot import DHRobot
 
 __all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol"]
@@ -182,26 +182,27 @@ def _householder(A: Array, pivot: bool) -> tuple[Array, Array]:
     the columns): ``(R [p, p], piv [p])`` with ``A[:, piv] = QR``. With ``pivot``, each step first
     brings the column with the largest remaining norm to the front (Businger & Golub, 1965;
     LAPACK ``geqp3``'s rule, the first on ties; norms recomputed, not downdated); without it
-    ``piv`` is the identity."""
+    ``piv`` is the identity. Works on ``Aᵀ``, so that each reflection reads and updates contiguous
+    rows (1600 × 24: 0.28 instead of 0.41 ms on a 2-core CPU)."""
     n, p = A.shape
-    rows, cols = jnp.arange(n), jnp.arange(p)
+    entries, cols = jnp.arange(n), jnp.arange(p)
 
     def reflect(k, carry):
-        A, piv = carry
+        At, piv = carry  # row i of At: column i of A
         if pivot:
-            norms = jnp.sum(jnp.where(rows[:, None] >= k, A * A, 0.0), axis=0)
+            norms = jnp.sum(jnp.where(entries >= k, At * At, 0.0), axis=1)
             j = jnp.argmax(jnp.where(cols >= k, norms, -1.0))
             swap = cols.at[k].set(j).at[j].set(k)
-            A, piv = A[:, swap], piv[swap]
-        x = jnp.where(rows >= k, A[:, k], 0.0)
+            At, piv = At[swap], piv[swap]
+        x = jnp.where(entries >= k, At[k], 0.0)
         alpha = jnp.sqrt(jnp.sum(x * x))
         v = x.at[k].add(jnp.where(x[k] >= 0, alpha, -alpha))
         vv = jnp.sum(v * v)
         beta = jnp.where(vv > 0, 2.0 / jnp.where(vv > 0, vv, 1.0), 0.0)
-        return A - beta * jnp.outer(v, v @ A), piv
+        return At - beta * jnp.outer(At @ v, v), piv
 
-    A, piv = jax.lax.fori_loop(0, p, reflect, (A, cols))
-    return jnp.triu(A[:p]), piv
+    At, piv = jax.lax.fori_loop(0, p, reflect, (A.T, cols))
+    return jnp.triu(At[:, :p].T), piv
 
 
 def householder_r(A: Array) -> Array:
@@ -245,22 +246,30 @@ def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
 def _start_factor(robot, measurement, q, dev0, deviations, space, y=None):
     """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the pivoted
     triangular factor of its column-scaled ``J/d`` (:func:`householder_r`, then
-    :func:`pivot_triangular`; ``(R, piv)``), in one compiled program, with the nominal prediction
-    as the "measured" sample; the ``N×p`` Jacobian stays on the device. With measurements ``y``,
+    :func:`pivot_triangular`; ``(R, piv)``), in one compiled program, with the prediction at the
+    start as the "measured" sample; the ``N×p`` Jacobian stays on the device. With measurements ``y``,
     also their residual blocks ``[n, m]`` at the start (what :func:`jaxcal.calibrate` scans
     first; the kinematics are shared) and, where it does not depend on the readings
     (:attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), the Jacobian ``[N, p]`` itself (the
     start Jacobian of the fit); else ``None`` for each."""
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
-    # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely)
-    sample = measurement.predict(robot, dev0, q).astype(q.dtype).reshape(q.shape[0], *measurement.sample_shape)
-    problem = Problem(robot, measurement, q, sample, space, deviations)
+    # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely);
+    # where the Jacobian does not depend on the readings, take the readings (the residual there
+    # is then the Jacobian pass's own primal)
+    free = y is not None and measurement.jacobian_free_of_data
+    sample = jnp.asarray(y, q.dtype) if free else measurement.predict(robot, dev0, q).astype(q.dtype)
+    problem = Problem(robot, measurement, q, sample.reshape(q.shape[0], *measurement.sample_shape), space, deviations)
     with shared_joint_trig(q):
-        J = problem.jacobian(problem.x0())
-        resid = None if y is None else measurement.residual(robot, deviations, q, jnp.asarray(y, q.dtype))
+        r, J = value_and_jacfwd(problem.residual, problem.x0(), q)
+        if y is None:
+            resid = None
+        elif free:
+            resid = r.reshape(q.shape[0], measurement.size)
+        else:
+            resid = measurement.residual(robot, deviations, q, jnp.asarray(y, q.dtype))
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     R, piv = pivot_triangular(householder_r(J / jnp.where(d > 0, d, 1.0)))
-    return d, R, piv, resid, (J if y is not None and measurement.jacobian_free_of_data else None)
+    return d, R, piv, resid, (J if free else None)
 
 
 def identifiability(
