@@ -52,6 +52,7 @@ _KIND_RANK = {"geometric": 4.5, "nongeometric": 4.7, "extra": len(KEEP_PREFERENC
 NONGEOMETRIC_PREFERENCE: tuple[str, ...] = ("compliance", "h1s", "h1c", "h2s", "h2c")
 
 
+@functools.lru_cache(maxsize=4096)
 def _preference_key(name: str) -> tuple[float, int]:
     from ._params import group_kind, group_of
 
@@ -158,10 +159,10 @@ def _prefer(Rs: np.ndarray, keep: list[int], pref: list) -> np.ndarray:
     all left-out columns come from one least-squares solve per kept set."""
     p = Rs.shape[1]
     keep = list(keep)
+    acts = np.any(Rs != 0, axis=0)  # columns with an effect (the others have nothing to swap for)
     for _ in range(p * p):
         kept = set(keep)
-        out = [j for j in sorted((i for i in range(p) if i not in kept), key=lambda i: pref[i])
-               if np.linalg.norm(Rs[:, j]) != 0]
+        out = [j for j in sorted((i for i in range(p) if i not in kept), key=lambda i: pref[i]) if acts[j]]
         if not keep or not out:
             break
         coefs, *_ = np.linalg.lstsq(Rs[:, keep], Rs[:, out], rcond=None)
@@ -324,7 +325,8 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     Rj = Rs * scale  # J = Q Rj
     names = space.free_names
     keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), [_preference_key(n) for n in names])
-    drop_idx = [i for i in range(len(names)) if i not in set(keep_idx.tolist())]
+    kept_set = set(keep_idx.tolist())
+    drop_idx = [i for i in range(len(names)) if i not in kept_set]
     keep = np.zeros(len(names), dtype=bool)
     keep[keep_idx] = True
     deps = {names[j]: [] for j in drop_idx if norms[j] == 0}

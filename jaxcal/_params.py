@@ -188,28 +188,28 @@ class Layout:
     def extend(self, groups: Iterable[Group]) -> Layout:
         return Layout(self.groups + tuple(groups), self.dof)
 
-    @property
+    @functools.cached_property
     def names(self) -> tuple[str, ...]:
         return tuple(n for g in self.groups for n in g.names)
 
-    @property
+    @functools.cached_property
     def units(self) -> tuple[str, ...]:
         return tuple(u for g in self.groups for u in g.units)
 
-    @property
+    @functools.cached_property
     def kinds(self) -> tuple[str, ...]:
         return tuple(g.kind for g in self.groups for _ in g.names)
 
-    @property
+    @functools.cached_property
     def entry_groups(self) -> tuple[str, ...]:
         """The group name of every flat entry."""
         return tuple(g.name for g in self.groups for _ in g.names)
 
-    @property
+    @functools.cached_property
     def size(self) -> int:
         return sum(g.size for g in self.groups)
 
-    @property
+    @functools.cached_property
     def group_names(self) -> tuple[str, ...]:
         return tuple(g.name for g in self.groups)
 
@@ -239,11 +239,20 @@ def layout_for(robot, measurement=None) -> Layout:
     :data:`STANDARD_EXTRAS`, the robot's non-geometric groups, then the measurement's own
     extra groups (e.g. marker positions). A DH robot with a standard sensor gives
     :meth:`Layout.dh`."""
-    own = tuple(robot.error_groups()) if hasattr(robot, "error_groups") else Layout.dh(robot.dof).groups[:5]
-    meas = tuple(measurement.extra_groups()) if measurement is not None and hasattr(measurement, "extra_groups") else ()
+    own = _call_method(robot, "error_groups")
+    own = tuple(own) if own is not None else Layout.dh(robot.dof).groups[:5]
+    meas = tuple(_call_method(measurement, "extra_groups") or ())
     geo = tuple(g for g in own if g.kind == "geometric")
     rest = tuple(g for g in own if g.kind != "geometric")
     return _cached_layout(geo + STANDARD_EXTRAS + rest + meas, robot.dof)
+
+
+def _call_method(obj, name: str):
+    """``obj.name()`` through the class, or ``None`` if ``obj`` (may be ``None``) has no such
+    method. Reading a method off an ``equinox.Module`` instance builds a ``BoundMethod`` module
+    (~15 µs); ``layout_for`` runs several times per calibration."""
+    method = getattr(type(obj), name, None)
+    return None if obj is None or method is None else method(obj)
 
 
 #: equal group tuples give the same (immutable) Layout object: building one validates every
@@ -465,8 +474,8 @@ class ParameterSpace:
         std = {"anchor": anchor, "tool": tool, "cable_offset": cable_offset,
                "base_rotation": base, "base_translation": base}
         meas_groups = set()
-        if measurement is not None and hasattr(measurement, "extra_groups"):
-            meas_groups = {g.name for g in measurement.extra_groups()}
+        if measurement is not None and hasattr(type(measurement), "extra_groups"):
+            meas_groups = {g.name for g in _call_method(measurement, "extra_groups")}
         beta_joints = getattr(robot, "beta_joints", ())
         by_default = getattr(robot, "free_by_default", None)
         free = np.zeros(layout.size, dtype=bool)
@@ -510,19 +519,22 @@ class ParameterSpace:
         return ParameterSpace(self.layout, free)
 
     # -- views ----------------------------------------------------------------------------
-    @property
+    # the views below are computed once (the space is immutable: ``free`` is read-only)
+    @functools.cached_property
     def n_free(self) -> int:
         return int(self.free.sum())
 
-    @property
+    @functools.cached_property
     def free_index(self) -> np.ndarray:
-        return np.flatnonzero(self.free)
+        index = np.flatnonzero(self.free)
+        index.setflags(write=False)
+        return index
 
-    @property
+    @functools.cached_property
     def free_names(self) -> tuple[str, ...]:
         return tuple(self.names[i] for i in self.free_index)
 
-    @property
+    @functools.cached_property
     def free_units(self) -> tuple[str, ...]:
         return tuple(self.units[i] for i in self.free_index)
 
