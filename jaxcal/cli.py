@@ -424,17 +424,20 @@ def _cmd_calibrate(args) -> int:
         _print_dh_table(robot, res, sd)
     else:
         _print_chain_table(robot, res, sd)
-    extra_names = [n for n in res.space.free_names if n.startswith(("anchor", "tool", "cable", "base"))]
+    from ._params import group_kind
+
+    # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions
+    extra_names = [n for n in res.space.free_names if group_kind(n) == "extra"]
     if extra_names:
         dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+        units = dict(zip(res.space.names, res.space.units))
         parts = []
         for n in extra_names:
-            unit = "mm" if not n.startswith("base_r") else "°"
-            v = dev[n] if unit == "mm" else math.degrees(dev[n])
+            unit = "°" if units[n] == "rad" else units[n]
+            v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
             s_ = sd.get(n, (None,))[0]
             parts.append(f"{n} {_fmt_value(v, s_, unit)} {unit}")
-        print("estimated extras (deviation from the nominal/guessed value): " + ", ".join(parts))
-    from ._params import group_kind
+        print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ): " + ", ".join(parts))
 
     ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
     if ng_names:

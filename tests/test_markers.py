@@ -1,6 +1,7 @@
 """The marker measurement model (N markers on the flange seen by a motion-capture system or a
 laser tracker), pose from markers, marker CSV files, and the FIGAROH TIAGo mocap data."""
 
+import re
 
 import jax
 import jax.numpy as jnp
@@ -259,6 +260,10 @@ def test_cli_markers(tmp_path, capsys):
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "marker data" in out and "marker_1" in out
+    # the estimated marker positions are reported with their posterior σ, like the frame
+    extras = next(ln for ln in out.splitlines() if ln.startswith("estimated extras"))
+    assert re.search(r"marker_1_z [+-]\d+\.\d+ ± [\d.e-]+ mm", extras), extras
+    assert re.search(r"base_rx [+-]\d+\.\d+ ± [\d.e-]+ °", extras), extras
     assert main(["calibrate", str(path), "--robot", "hsr_jr680", "--measurement", "markers", "--markers", "4"]) == 2
     res = jaxcal.load_result(tmp_path / "res.json")
     assert isinstance(res.measurement, Markers) and res.measurement.n_markers == 3
