@@ -324,13 +324,6 @@ def _launch(cal: Calibrator, q, y, key):
     return out, t1 - t0, t1
 
 
-def _run_once(cal: Calibrator, q, y, key):
-    """Compile (cached) and run ``cal``; ``(output, compile_s, run_s)``."""
-    out, compile_s, t1 = _launch(cal, q, y, key)
-    out = jax.block_until_ready(out)
-    return out, compile_s, time.perf_counter() - t1
-
-
 def calibrate(
     robot: DHRobot,
     measurement: MeasurementModel,

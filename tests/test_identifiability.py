@@ -91,6 +91,11 @@ def test_identify_with_residuals_shares_the_program(experiment):
     np.testing.assert_allclose(resid, signed_residuals(prob, prob.x0()), rtol=0, atol=1e-9)
     np.testing.assert_allclose(J, prob.jacobian(prob.x0()), rtol=1e-12, atol=1e-9)
     assert identify_with_residuals(ex.robot, ex.measurement, ex.train.q)[1:] == (None, None)
+    # pose data: the Jacobian depends on the readings, so none is handed on; residuals still are
+    pose = jaxcal.Pose()
+    y = pose.predict(ex.robot, None, ex.train.q[:50])
+    _, resid, J = identify_with_residuals(ex.robot, pose, ex.train.q[:50], y=y)
+    assert J is None and resid.shape == (50, 6) and np.abs(resid).max() < 1e-9
 
 
 @pytest.mark.parametrize("shape,rank", [((1600, 24), 24), ((400, 12), 9), ((5, 8), 5)])
