@@ -476,6 +476,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(HERE / "results" / "figaroh_cpu.md"))
     ap.add_argument("--vicon-only", action="store_true",
                     help="only (re)write the Vicon-sessions part of --out (everything after its marker line)")
+    ap.add_argument("--qualisys-only", action="store_true",
+                    help="only the Qualisys-file part (e.g. with another --prior and --out; ~1 min)")
     args = ap.parse_args()
     if args.write_csv:
         q, y, _ = load_figaroh_markers()
@@ -590,7 +592,10 @@ def main() -> None:
         "",
         f"Total wall time {time.perf_counter() - t0:.0f} s (compilation included).",
         "",
-        *vicon_section(text, prior, args.prior),
+        "Prior strength, the command line on this file and why one Vicon session alone fits worse: "
+        "`figaroh_notes.md` (kept by hand; this script does not rewrite it).",
+        "",
+        *([] if args.qualisys_only else vicon_section(text, prior, args.prior)),
     ]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n")
