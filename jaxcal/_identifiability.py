@@ -19,7 +19,9 @@ from ._robot import DHRobot
 __all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol"]
 
 #: Which of a group of (exactly) dependent parameters is kept free: the parameter whose group
-#: comes first here, then the lower joint index / component order. Joint offsets θ come first
+#: comes first here, then the lower joint index / component order, then the earlier entry of the
+#: layout (e.g. the first session's frame of :class:`~jaxcal.SessionMarkers`, whose per-label
+#: groups ``base_rotation@F``... rank as their groups here). Joint offsets θ come first
 #: because encoder zero offsets are what a calibration is most often for; the sensor/setup
 #: extras come last, so an ambiguity is resolved in the robot's DH table consistently. Generic
 #: chains (:class:`~jaxcal.SerialChain`) follow the same idea: joint offsets, then the origins'
@@ -56,13 +58,14 @@ NONGEOMETRIC_PREFERENCE: tuple[str, ...] = ("compliance", "h1s", "h1c", "h2s", "
 def _preference_key(name: str) -> tuple[float, int]:
     from ._params import group_kind, group_of
 
-    g = group_of(name)
-    tail = name.rsplit("_", 1)[-1]
+    full = group_of(name)
+    g = full.split("@", 1)[0]  # per-session groups rank as their group
+    tail = name.split("@", 1)[0].rsplit("_", 1)[-1]
     order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
     if g in NONGEOMETRIC_PREFERENCE:
         rank = KEEP_PREFERENCE.index("anchor") - 0.5 + 0.01 * NONGEOMETRIC_PREFERENCE.index(g)
     else:
-        rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(g)]
+        rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(full)]
     return rank, order
 
 
@@ -324,7 +327,9 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
     Rj = Rs * scale  # J = Q Rj
     names = space.free_names
-    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), [_preference_key(n) for n in names])
+    # a total order: equal keys (e.g. the same component of two sessions' frames) are ordered by
+    # their position, so that no choice is left to the pivots' round-off
+    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), [(*_preference_key(n), i) for i, n in enumerate(names)])
     kept_set = set(keep_idx.tolist())
     drop_idx = [i for i in range(len(names)) if i not in kept_set]
     keep = np.zeros(len(names), dtype=bool)

@@ -252,3 +252,26 @@ def test_figaroh_vicon_closed_form_on_the_tiago_urdf(figaroh_bench):
     e = np.asarray(m.sample_error(m.residual(chain, est.deviations, ds.q, ds.y)))
     by = {s: float(np.sqrt(np.mean(e[[lab[0] == s for lab in ds.labels]] ** 2))) for s in b.VICON_BASE_SESSIONS}
     assert 15 < by["gripper3_base1"] < 30 and by["gripper1_base1"] > 50, by
+
+
+def test_identifiable_subset_of_shared_posture_sessions_does_not_depend_on_round_off():
+    """The same postures seen in three frames with one marker placement (as FIGAROH's Vicon files):
+    the frames' and the marker's parameters are dependent with equal preference. The kept subset
+    must follow the written order (ties: earlier layout entries first), not the pivots' round-off: the
+    old tie-break gave four different subsets for last-bit changes of the joint angles here, and on
+    FIGAROH's data joint fits that differed by 2.8 mm RMSE."""
+    from jaxcal._calibrate import candidate_space
+
+    chain = _chain()
+    rng = np.random.default_rng(5)
+    q1 = rng.uniform(0.8 * np.asarray(chain.q_min), 0.8 * np.asarray(chain.q_max), (21, chain.dof))
+    sessions = (("s1", "A", "p1"), ("s2", "B", "p1"), ("s3", "C", "p1"))
+    q = np.concatenate([q1] * 3)
+    m = SessionMarkers([f for _, f, _ in sessions for _ in q1], [p for *_, p in sessions for _ in q1])
+    start = _truth(chain, m)
+    cand = candidate_space(chain, m)
+    subsets = set()
+    for k in range(6):
+        qk = q * (1 + 1e-15 * rng.standard_normal(q.shape)) if k else q
+        subsets.add(jaxcal.identifiability(chain, m, jnp.asarray(qk), cand, start).identifiable)
+    assert len(subsets) == 1, [sorted(set(s) ^ set(next(iter(subsets)))) for s in subsets]
