@@ -429,11 +429,12 @@ def calibrate(
 
     # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
     adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
+    plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
     noise = scale = None
     histories = []
     while True:
-        if prior is None and loss == "linear":  # plain least squares: no scale to estimate
+        if plain:
             new_noise = new_scale = None
         else:
             resid = resid_start if rounds == 0 else signed_residuals(problem, space.to_vector(cur))
@@ -444,8 +445,7 @@ def calibrate(
         if rounds > 0 and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale)) or rounds >= 4):
             break
         noise, scale = new_noise, new_scale
-        objective = None if prior is None and loss == "linear" else Objective.build(
-            space, prior, noise, loss, scale, q.dtype)
+        objective = None if plain else Objective.build(space, prior, noise, loss, scale, q.dtype)
         cal = Calibrator(robot, measurement, meth, cur, space,
                          None if objective is None or objective.plain_least_squares else objective, report=True,
                          # the identifiability program's Jacobian serves a one-round fit (several rounds

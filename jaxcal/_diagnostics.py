@@ -104,7 +104,7 @@ def gram_at(problem, x, loss: str, loss_scale):
     and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``; the same matrix for the
     linear loss), ``Σ w r²`` and the residual ``r`` ``[N]`` itself (for the outlier scan). Pure
     and jittable: :class:`~jaxcal.Calibrator` evaluates it in the solve's own program
-    (``uncertainty=True``), :func:`parameter_uncertainty` otherwise compiles it alone. The N×p
+    (``report=True``), :func:`parameter_uncertainty` otherwise compiles it alone. The N×p
     Jacobian stays inside XLA; the host only factorises p×p matrices."""
     r, J = value_and_jacfwd(problem.residual, x, problem.q)
     d = jnp.sqrt(jnp.sum(J * J, axis=0))

@@ -247,7 +247,7 @@ def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
 
 
 @functools.partial(jax.jit, static_argnames="space")
-def _start_factor(robot, measurement, q, dev0, deviations, space, y=None):
+def _start_factor(robot, measurement, q, deviations, space, y=None):
     """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the pivoted
     triangular factor of its column-scaled ``J/d`` (:func:`householder_r`, then
     :func:`pivot_triangular`; ``(R, piv)``), in one compiled program, with the prediction at the
@@ -261,9 +261,10 @@ def _start_factor(robot, measurement, q, dev0, deviations, space, y=None):
     # where the Jacobian does not depend on the readings, take the readings (the residual there
     # is then the Jacobian pass's own primal)
     free = y is not None and measurement.jacobian_free_of_data
-    sample = jnp.asarray(y, q.dtype) if free else measurement.predict(robot, dev0, q).astype(q.dtype)
-    problem = Problem(robot, measurement, q, sample.reshape(q.shape[0], *measurement.sample_shape), space, deviations)
-    with shared_joint_trig(q):
+    with shared_joint_trig(q):  # one cos/sin of q for the prediction, the Jacobian and the residuals
+        sample = jnp.asarray(y, q.dtype) if free else measurement.predict(robot, deviations, q).astype(q.dtype)
+        problem = Problem(robot, measurement, q, sample.reshape(q.shape[0], *measurement.sample_shape), space,
+                          deviations)
         r, J = value_and_jacfwd(problem.residual, problem.x0(), q)
         if y is None:
             resid = None
@@ -314,8 +315,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     # singular values and least-squares solutions of the columns of the small triangular factor,
     # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian (multithreaded
     # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
-    norms, R, piv, resid, J = _start_factor(robot, measurement, q, dev0, dev0 if deviations is None else deviations,
-                                         space, y)
+    norms, R, piv, resid, J = _start_factor(robot, measurement, q, dev0, space, y)
     norms, R, piv = np.asarray(norms, np.float64), np.asarray(R, np.float64), np.asarray(piv)
     if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R))):
         raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
@@ -334,17 +334,19 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     drop_idx = [i for i in range(len(names)) if i not in kept_set]
     keep = np.zeros(len(names), dtype=bool)
     keep[keep_idx] = True
-    deps = {names[j]: [] for j in drop_idx if norms[j] == 0}
+    # every left-out column with an effect in the kept ones, by one least-squares solve
     moving = [j for j in drop_idx if norms[j] != 0]
-    if moving:
-        coefs, *_ = np.linalg.lstsq(Rj[:, keep_idx], Rj[:, moving], rcond=None)
-        for col, j in enumerate(moving):
-            coef = coefs[:, col]
-            # significance judged on the scaled coefficients
-            sig = np.abs(coef * norms[keep_idx] / norms[j]) > 1e-6
-            order = np.argsort(-np.abs(coef * norms[keep_idx]))
-            deps[names[j]] = [(float(coef[k]), names[keep_idx[k]]) for k in order if sig[k]][:6]
-    deps = {names[j]: deps[names[j]] for j in drop_idx}  # in the parameters' order
+    coefs = np.linalg.lstsq(Rj[:, keep_idx], Rj[:, moving], rcond=None)[0] if moving else None
+    deps = {}
+    for j in drop_idx:
+        if norms[j] == 0:
+            deps[names[j]] = []
+            continue
+        coef = coefs[:, moving.index(j)]
+        # significance judged on the scaled coefficients
+        sig = np.abs(coef * norms[keep_idx] / norms[j]) > 1e-6
+        order = np.argsort(-np.abs(coef * norms[keep_idx]))
+        deps[names[j]] = [(float(coef[k]), names[keep_idx[k]]) for k in order if sig[k]][:6]
     sub = Rs[:, keep_idx]
     sv = np.linalg.svd(sub, compute_uv=False) if keep_idx.size else np.array([1.0])
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")

@@ -473,9 +473,7 @@ class ParameterSpace:
         layout = layout_for(robot, measurement)
         std = {"anchor": anchor, "tool": tool, "cable_offset": cable_offset,
                "base_rotation": base, "base_translation": base}
-        meas_groups = set()
-        if measurement is not None and hasattr(type(measurement), "extra_groups"):
-            meas_groups = {g.name for g in _call_method(measurement, "extra_groups")}
+        meas_groups = {g.name for g in _call_method(measurement, "extra_groups") or ()}
         beta_joints = getattr(robot, "beta_joints", ())
         by_default = getattr(robot, "free_by_default", None)
         free = np.zeros(layout.size, dtype=bool)
