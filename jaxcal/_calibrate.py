@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 import warnings
@@ -24,6 +25,7 @@ from ._diagnostics import (
     narrow_joints,
     outlier_rows,
     parameter_uncertainty,
+    prior_directions,
     weak_parameters,
 )
 from ._identifiability import identify_with_residuals
@@ -250,26 +252,41 @@ def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> Paramet
     return ParameterSpace.from_names(layout, [n for n in names if n in chosen])
 
 
-def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=()
+def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=(), prior=None
                   ) -> tuple[ParameterSpace, object]:
-    """``space=None`` or ``"identifiable"``: the identifiable subset of the candidates
-    (:func:`candidate_space`: all DH (+β) deviations and the requested ``extras``, or ``free`` minus
-    ``fix``; QR with column pivoting, :func:`jaxcal.identifiability`); ``"all"``: every candidate;
-    or a :class:`ParameterSpace` as given. Returns ``(space, report_or_None)``."""
+    """The free parameters of a calibration: ``(space, report_or_None)``.
+
+    ``space=None`` or ``"identifiable"`` (the default of :func:`calibrate`, :func:`jaxcal.sweep`):
+    chosen from the candidates (:func:`candidate_space`: all DH (+β) deviations and the requested
+    ``extras``, or ``free`` minus ``fix``) by the identification Jacobian at ``start``
+    (:func:`jaxcal.identifiability`: QR with column pivoting, then :data:`KEEP_PREFERENCE`):
+
+    * without a ``prior``: the identifiable subset (plain least squares has no answer along the
+      directions the data cannot see; the other candidates are held at ``start``);
+    * with a ``prior`` (maximum a posteriori): every candidate the prior covers, plus the
+      data-identifiable subset of the others (:func:`~jaxcal._identifiability.select_free`):
+      nothing the prior determines is frozen at a start value.
+
+    ``"all"``: every candidate; or a :class:`ParameterSpace` as given."""
     cand = candidate_space(robot, measurement, extras, free, fix)
-    return _resolve_candidates(cand, robot, measurement, q, space, start)[:2]
+    return _resolve_candidates(cand, robot, measurement, q, space, start, prior=resolve_prior(prior))[:2]
 
 
-def _resolve_candidates(cand, robot, measurement, q, space, start, y=None):
+def _default_selection(space) -> bool:
+    return space is None or (isinstance(space, str) and space == "identifiable")
+
+
+def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None):
     """:func:`resolve_space` from the candidates ``cand``: ``(space, report_or_None, residuals,
     jacobian)``, the last two the residual blocks (NumPy) and the identification Jacobian of the
     chosen free parameters (device) at ``start`` when ``y`` is given and the identifiability
     program computed them (see :func:`~jaxcal._identifiability.identify_with_residuals`), else
     ``None``."""
-    if space is None or (isinstance(space, str) and space == "identifiable"):
-        report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y)
+    if _default_selection(space):
+        prior_std = None if prior is None else prior.std(cand)
+        report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y, prior_std=prior_std)
         if J is not None:
-            kept = set(report.identifiable)
+            kept = set(report.space.free_names)
             J = _take_columns(J, np.asarray([i for i, n in enumerate(cand.free_names) if n in kept]))
         return report.space, report, resid, J
     if isinstance(space, str):
@@ -283,6 +300,29 @@ def _resolve_candidates(cand, robot, measurement, q, space, start, y=None):
                          f"robot {robot.name!r} with this measurement has {list(cand.layout.group_names)} for "
                          f"{robot.dof} joints")
     return space, None, None, None
+
+
+#: how often :func:`calibrate` judges identifiability again with the extras where a fit put them
+#: and refits with the parameters that become identifiable (:func:`_extras_moved`)
+MAX_RESELECTIONS = 2
+
+
+def _extras_moved(start: Deviations, cur: Deviations) -> Deviations:
+    """``start`` with the extras (sensor/set-up groups) taken from ``cur``: where identifiability is
+    judged after a fit. The robot's own groups stay at the start (nominal): exact dependencies of
+    the nominal geometry (parallel axes) stay exact instead of turning into near-dependencies of
+    the deviations' size that no data determine, while extras that moved far (a tool point found
+    58 mm off the flange axis) reveal what they reveal (α5, a5 of a 6R arm)."""
+    extras = {g.name: cur.values[g.name] for g in start.layout.groups if g.kind == "extra"}
+    return start.replace(**extras) if extras else start
+
+
+def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace) -> None:
+    if n_res <= space.n_free:
+        raise ValueError(
+            f"too few samples: {n} sample(s) give {n_res} residuals for {space.n_free} free parameters; "
+            "need more residuals than parameters"
+        )
 
 
 #: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)
@@ -412,13 +452,10 @@ def calibrate(
     if init == "auto" and initialisable:
         est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
         start, extras_msg = est.deviations, est.message
-    space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y)
+    selecting = _default_selection(space)
+    space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior)
     n_res = q.shape[0] * measurement.size
-    if n_res <= space.n_free:
-        raise ValueError(
-            f"too few samples: {q.shape[0]} sample(s) give {n_res} residuals for {space.n_free} free parameters; "
-            "need more residuals than parameters"
-        )
+    _check_enough_residuals(q.shape[0], n_res, space)
     key = _default_key() if key is None else key
     problem = Problem(robot, measurement, q, y, space, start)
     x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
@@ -433,35 +470,67 @@ def calibrate(
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
     noise = scale = None
     histories = []
-    while True:
-        if plain:
-            new_noise = new_scale = None
-        else:
-            resid = resid_start if rounds == 0 else signed_residuals(problem, space.to_vector(cur))
-            s_hat = robust_scale(resid)
-            s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
-            new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
-            new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
-        if rounds > 0 and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale)) or rounds >= 4):
+    reselection = []
+    before_rows = cov = None
+    while True:  # re-selection: identifiability judged again at the solution (below)
+        first = rounds
+        while True:  # rounds of re-estimated scales
+            if plain:
+                new_noise = new_scale = None
+            else:
+                resid = resid_start if rounds == first else signed_residuals(problem, space.to_vector(cur))
+                s_hat = robust_scale(resid)
+                s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
+                new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
+                new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
+            if rounds > first and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale))
+                                   or rounds - first >= 4):
+                break
+            noise, scale = new_noise, new_scale
+            objective = None if plain else Objective.build(space, prior, noise, loss, scale, q.dtype)
+            cal = Calibrator(robot, measurement, meth, cur, space,
+                             None if objective is None or objective.plain_least_squares else objective, report=True,
+                             # the identifiability program's Jacobian serves a one-round fit (several rounds
+                             # share one compiled program, which then computes it)
+                             start_jacobian=None if adaptive else start_jac)
+            out, c_s, t_started = _launch(cal, q, y, key)
+            if before_rows is None:  # host work that does not need the fit, while the device runs it
+                before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
+                cov = coverage(robot, q)
+            out = jax.block_until_ready(out)
+            r_s = time.perf_counter() - t_started
+            compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
+            cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
+            histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
+            if int(out.status) in (Status.DIVERGED, Status.FAILED) or not adaptive:
+                break
+        if not selecting or int(out.status) in (Status.DIVERGED, Status.FAILED) or len(reselection) >= MAX_RESELECTIONS:
             break
-        noise, scale = new_noise, new_scale
-        objective = None if plain else Objective.build(space, prior, noise, loss, scale, q.dtype)
-        cal = Calibrator(robot, measurement, meth, cur, space,
-                         None if objective is None or objective.plain_least_squares else objective, report=True,
-                         # the identifiability program's Jacobian serves a one-round fit (several rounds
-                         # share one compiled program, which then computes it)
-                         start_jacobian=None if adaptive else start_jac)
-        out, c_s, t_started = _launch(cal, q, y, key)
-        if rounds == 0:  # host work that does not need the fit, while the device runs it
-            before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
-            cov = coverage(robot, q)
-        out = jax.block_until_ready(out)
-        r_s = time.perf_counter() - t_started
-        compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
-        cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
-        histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
-        if int(out.status) in (Status.DIVERGED, Status.FAILED) or not adaptive:
+        # judge identifiability again where the fit put the extras: a start far from the truth
+        # (a tool point started on the flange axis) can hide parameters that the solution shows
+        if not report.held:
             break
+        free_extras = any(group_kind(n) == "extra" for n in space.free_names)
+        if not free_extras:  # the robot's groups are judged at their start: nothing else moved
+            break
+        new = _resolve_candidates(cand, robot, measurement, q, None, _extras_moved(start, cur), None, prior)[1]
+        added = [n for n in new.space.free_names if n not in set(space.free_names)]
+        if not added:
+            break
+        space = ParameterSpace.from_names(space.layout, [*space.free_names, *added])
+        reselection.append(f"identifiability judged again with the extras where the fit put them: "
+                           f"{', '.join(added)} {'becomes' if len(added) == 1 else 'become'} identifiable "
+                           f"(not at the start) — freed and refit from the solution")
+        # the start's report with the freed names moved over (the solution's own rank counts the
+        # near-dependencies of real-size deviations, which stay held)
+        report = dataclasses.replace(
+            report, space=space, rank=report.rank + len(added), identifiable=(*report.identifiable, *added),
+            unidentifiable=tuple(n for n in report.unidentifiable if n not in added),
+            dependencies={k: v for k, v in report.dependencies.items() if k not in added})
+        start_jac = None
+        _check_enough_residuals(q.shape[0], n_res, space)
+        problem = Problem(robot, measurement, q, y, space, cur)
+        resid_start = signed_residuals(problem, space.to_vector_numpy(cur))
     status = Status(int(out.status))
     label = meth.label() if hasattr(meth, "label") else type(meth).name
     # one history across the rounds (each round restarts where the last ended; the objective's
@@ -497,7 +566,7 @@ def calibrate(
         if throw:
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=2)
-    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov)
+    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection))
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -522,7 +591,7 @@ def _close(a, b, rtol: float = 0.05) -> bool:
 
 
 def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
-              gram=None, cov=None):
+              gram=None, cov=None, reselection=()):
     """Uncertainty and the plausibility / conditioning / coverage / outlier findings (``gram``,
     ``cov``: :func:`gram_at` and :func:`coverage` when the caller has them)."""
     space = result.space
@@ -550,21 +619,32 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
         msgs.append(f"implausible parameters (beyond ±{checks.angle_deg:g}° / ±{checks.length_mm:g} mm): {listed}"
                     f"{' …' if len(bad) > 8 else ''} — the model may fit the measured region and be wrong "
                     f"elsewhere{hint}")
-    if cond > checks.condition_number:
+    # under a prior the data Jacobian of the free set is rank deficient by design (the prior sets the
+    # directions the data cannot see); those directions are reported by name below instead
+    if cond > checks.condition_number and prior_std is None:
         msgs.append(f"condition number {cond:.3g} of the identification Jacobian exceeds {checks.condition_number:.3g}: "
                     "some parameter combinations are weakly determined by these poses")
     cov = coverage(result.robot, problem.q) if cov is None else cov
     narrow = narrow_joints(result.robot, cov, checks)
     unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in joint_units(result.robot))))
     weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()
+    n_dir, directions = (0, ()) if unc is None or prior_std is None else prior_directions(unc, prior_std, checks)
+    if prior_std is not None:
+        # under a prior, name the few combinations the data leave to it, not every parameter they touch
+        weak_text = (f"the prior, not the data, determines {n_dir} combination(s) of parameters ({len(weak)} "
+                     f"parameter(s) with posterior σ above {checks.weak_fraction:g}× the prior σ), e.g. "
+                     + "; ".join(directions) + (" …" if n_dir > len(directions) else "")) if n_dir else ""
+        weak_text = weak_text or (f"weakly determined by the data: {', '.join(weak)}" if weak else "")
+    else:
+        weak_text = f"weakly determined by the data: {', '.join(weak)}" if weak else ""
     if narrow:
         moved = ", ".join(f"q{j} {cov[j - 1, 0]:.1f}{unit[j]}" for j in narrow)
         prismatic = any(unit[j] == " mm" for j in narrow)
         msgs.append(f"narrow joint coverage: {moved} of motion (< {checks.narrow_joint_deg:g}°"
                     + (f", or {checks.narrow_joint_deg / 360:.3g} of a prismatic joint's range)" if prismatic else ")")
-                    + (f"; weakly determined: {', '.join(weak)}" if weak else ""))
-    elif weak:
-        msgs.append(f"weakly determined by the data: {', '.join(weak)}")
+                    + (f"; {weak_text}" if weak_text else ""))
+    elif weak_text:
+        msgs.append(weak_text)
     after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
     if len(after_rows):
         shown = ", ".join(str(int(r)) for r in after_rows[:12])
@@ -572,5 +652,5 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
                     f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
                     + ("" if result.loss != "linear" else "; consider loss='huber' or excluding them"))
     diag = Diagnostics(tuple(msgs), bad, cond, cov, narrow, weak, tuple(int(r) for r in before_rows),
-                       tuple(int(r) for r in after_rows), s_after, extras_msg, rounds)
+                       tuple(int(r) for r in after_rows), s_after, extras_msg, rounds, tuple(reselection), directions)
     return diag, unc

@@ -27,7 +27,8 @@ from ._params import group_kind
 from ._precision import to_device
 from ._problem import residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
-__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg"]
+__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg",
+           "prior_directions"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,7 +216,13 @@ class Diagnostics:
             and after the fit; ``outlier_scale_mm``: the robust residual scale after the fit.
         extras: the message of the extras initialisation, if one ran.
         rounds: fits run (more than 1 when a robust-loss scale or the prior's noise σ was
-            re-estimated).
+            re-estimated, or the free set grew at the solution).
+        reselection: one line per refit after identifiability was judged again at the solution
+            (parameters the start could not see and the solution can).
+        prior_directions: with a prior, the few combinations of parameters that the prior
+            rather than the data determines (posterior variance above ``weak_fraction²`` of the
+            prior variance), each named by its largest members in units of the prior σ, e.g.
+            ``"0.71·d_2 + 0.71·d_3"``; the weakest first.
     """
 
     warnings: tuple[str, ...]
@@ -229,6 +236,8 @@ class Diagnostics:
     outlier_scale_mm: float
     extras: str | None = None
     rounds: int = 1
+    reselection: tuple[str, ...] = ()
+    prior_directions: tuple[str, ...] = ()
 
     @property
     def plausible(self) -> bool:
@@ -248,6 +257,8 @@ class Diagnostics:
             "outlier_scale_mm": self.outlier_scale_mm,
             "extras": self.extras,
             "rounds": self.rounds,
+            "reselection": list(self.reselection),
+            "prior_directions": list(self.prior_directions),
         }
 
 
@@ -296,6 +307,47 @@ def narrow_joints(robot, cov: np.ndarray, checks: Checks) -> tuple[int, ...]:
         if cov[j, 0] < bound:
             out.append(j + 1)
     return tuple(out)
+
+
+def prior_directions(unc: Uncertainty, prior_std, checks: Checks, *, max_listed: int = 5,
+                     max_members: int = 4) -> tuple[int, tuple[str, ...]]:
+    """The combinations of parameters that the prior rather than the data determines.
+
+    The data's information about the parameters with a prior is the posterior precision
+    ``C⁻¹`` minus the prior precision ``diag(1/s²)``, with the parameters without a prior
+    marginalised out (Schur complement). In units of the prior σ (``M = S·D·S``), a direction
+    with eigenvalue ``λ`` has posterior variance ``1/(1 + λ)`` of its prior variance, so it is
+    prior-determined when ``1/(1 + λ) > weak_fraction²``.
+
+    Returns:
+        ``(count, listed)``: how many such directions, and up to ``max_listed`` of them (the
+        weakest first) as text naming the ``max_members`` largest members in prior-σ units,
+        e.g. ``"0.71·d_2 − 0.71·d_3"``.
+    """
+    s = np.asarray(prior_std, np.float64)
+    cov = np.asarray(unc.covariance, np.float64)
+    if not np.all(np.isfinite(unc.std)) or not np.isfinite(s).any():
+        return 0, ()
+    c = np.flatnonzero(np.isfinite(s))
+    n = np.flatnonzero(~np.isfinite(s))
+    try:
+        P = np.linalg.inv(cov)
+    except np.linalg.LinAlgError:  # pragma: no cover - defensive
+        return 0, ()
+    D = P[np.ix_(c, c)] - np.diag(1.0 / s[c] ** 2)
+    if n.size:
+        D = D - P[np.ix_(c, n)] @ np.linalg.solve(P[np.ix_(n, n)], P[np.ix_(n, c)])
+    M = D * np.outer(s[c], s[c])
+    lam, V = np.linalg.eigh((M + M.T) / 2)
+    weak = lam < 1.0 / checks.weak_fraction**2 - 1.0
+    names = [unc.names[i] for i in c]
+    listed = []
+    for k in np.flatnonzero(weak)[:max_listed]:
+        v = V[:, k] * (1.0 if V[np.argmax(np.abs(V[:, k])), k] > 0 else -1.0)
+        top = [i for i in np.argsort(-np.abs(v))[:max_members] if abs(v[i]) >= 0.25 * np.abs(v).max()]
+        text = " ".join(f"{'−' if v[i] < 0 else '+'} {abs(v[i]):.2f}·{names[i]}" for i in top)
+        listed.append(text[2:] if text.startswith("+ ") else "−" + text[2:])
+    return int(weak.sum()), tuple(listed)
 
 
 def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, ...]:

@@ -16,19 +16,23 @@ from ._params import Deviations, ParameterSpace, layout_for
 from ._problem import Problem, value_and_jacfwd
 from ._robot import DHRobot
 
-__all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol"]
+__all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol", "select_free"]
 
 #: Which of a group of (exactly) dependent parameters is kept free: the parameter whose group
 #: comes first here, then the lower joint index / component order, then the earlier entry of the
 #: layout (e.g. the first session's frame of :class:`~jaxcal.SessionMarkers`, whose per-label
-#: groups ``base_rotation@F``... rank as their groups here). Joint offsets θ come first
-#: because encoder zero offsets are what a calibration is most often for; the sensor/setup
-#: extras come last, so an ambiguity is resolved in the robot's DH table consistently. Generic
-#: chains (:class:`~jaxcal.SerialChain`) follow the same idea: joint offsets, then the origins'
-#: translations dx, dy, dz, then their rotations drx, dry, drz.
+#: groups ``base_rotation@F``... rank as their groups here). The sensor/set-up **extras come
+#: first**: where a robot parameter and an extra act alike (a tool offset along the flange x axis
+#: and Δa_6; a rotation of the anchor about z_0 and Δθ_1), the robot parameter is held at its
+#: nominal value — it has one, and a tight prior — and the extra, whose size nobody knows, carries
+#: the effect. Among the robot's parameters the joint offsets θ come first, because encoder zero
+#: offsets are what a calibration is most often for. Generic chains (:class:`~jaxcal.SerialChain`)
+#: follow the same idea: joint offsets, then the origins' translations dx, dy, dz, then their
+#: rotations drx, dry, drz. Other extras (marker positions) rank after ``base_translation``,
+#: other robots' geometric groups after β, the non-geometric groups after every geometric one.
 KEEP_PREFERENCE: tuple[str, ...] = (
-    "theta", "d", "a", "alpha", "beta", "offset", "dx", "dy", "dz", "drx", "dry", "drz",
     "anchor", "tool", "cable_offset", "base_rotation", "base_translation",
+    "theta", "d", "a", "alpha", "beta", "offset", "dx", "dy", "dz", "drx", "dry", "drz",
 )
 #: a dependent parameter is swapped for a less preferred kept one only if its (column-scaled)
 #: coefficient on that one is at least this large: the swap then keeps the subset about as well
@@ -43,13 +47,14 @@ def default_rtol(dtype) -> float:
     return 1e-4 if np.dtype(dtype) == np.float32 else 1e-9
 
 
-#: where groups missing from :data:`KEEP_PREFERENCE` rank, by kind: other robots' geometric
-#: groups after β, non-geometric groups after them, other extras (e.g. markers) last
-_KIND_RANK = {"geometric": 4.5, "nongeometric": 4.7, "extra": len(KEEP_PREFERENCE)}
+#: where groups missing from :data:`KEEP_PREFERENCE` rank, by kind: other extras (e.g. markers)
+#: after the standard ones, other robots' geometric groups after β, non-geometric groups last
+_KIND_RANK = {"extra": KEEP_PREFERENCE.index("base_translation") + 0.5,
+              "geometric": KEEP_PREFERENCE.index("beta") + 0.5, "nongeometric": len(KEEP_PREFERENCE) + 0.7}
 
 
-#: the built-in non-geometric groups (:mod:`jaxcal._nongeometric`) rank after every geometric
-#: group of :data:`KEEP_PREFERENCE` and before the extras: compliance (a physical model with a mass
+#: the built-in non-geometric groups (:mod:`jaxcal._nongeometric`) rank after every group of
+#: :data:`KEEP_PREFERENCE`: compliance (a physical model with a mass
 #: model) first, then the harmonic transmission errors, once-per-revolution before twice
 NONGEOMETRIC_PREFERENCE: tuple[str, ...] = ("compliance", "h1s", "h1c", "h2s", "h2c")
 
@@ -63,7 +68,7 @@ def _preference_key(name: str) -> tuple[float, int]:
     tail = name.split("@", 1)[0].rsplit("_", 1)[-1]
     order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
     if g in NONGEOMETRIC_PREFERENCE:
-        rank = KEEP_PREFERENCE.index("anchor") - 0.5 + 0.01 * NONGEOMETRIC_PREFERENCE.index(g)
+        rank = len(KEEP_PREFERENCE) + 0.01 * NONGEOMETRIC_PREFERENCE.index(g)
     else:
         rank = KEEP_PREFERENCE.index(g) if g in KEEP_PREFERENCE else _KIND_RANK[group_kind(full)]
     return rank, order
@@ -91,6 +96,10 @@ class IdentifiabilityReport:
         space: :class:`ParameterSpace` with only the identifiable subset free (the default mask
             of :func:`jaxcal.calibrate`).
         rtol: relative singular-value threshold used for the rank.
+        prior_covered: the names with a finite prior σ when the report was made for a
+            maximum-a-posteriori fit (``prior_std=``), else empty. Under a prior every one of them
+            is free (the prior makes the directions the data cannot see well posed); of the
+            others only a subset the data identify on its own is free (:func:`select_free`).
     """
 
     names: tuple[str, ...]
@@ -102,25 +111,49 @@ class IdentifiabilityReport:
     condition_number: float
     space: ParameterSpace
     rtol: float
+    prior_covered: tuple[str, ...] = ()
+    @property
+    def free(self) -> tuple[str, ...]:
+        """The names the fit frees (``space``'s free names)."""
+        return self.space.free_names
+
+    @property
+    def held(self) -> tuple[str, ...]:
+        """The candidates held at their start value: neither the data nor a prior determine them."""
+        free = set(self.space.free_names)
+        return tuple(n for n in self.names if n not in free)
 
     def __str__(self) -> str:
         lines = [
-            f"identification Jacobian rank {self.rank} of {len(self.names)} free parameters "
+            f"identification Jacobian rank {self.rank} of {len(self.names)} candidate parameters "
             f"(column-scaled, rtol={self.rtol:g}); condition number of the identifiable "
             f"subset {self.condition_number:.3g}",
-            "identifiable: " + ", ".join(self.identifiable),
+            "identifiable from the data: " + ", ".join(self.identifiable),
         ]
-        if self.unidentifiable:
-            lines.append("not identifiable (fixed at their current value):")
-            for n in self.unidentifiable:
-                deps = self.dependencies.get(n, [])
-                if not deps:
-                    lines.append(f"  {n}: has no effect on the measurements")
-                else:
-                    unit = dict(zip(self.space.layout.names, self.space.layout.units))
-                    combo = " ".join(f"{c:+.4g} {unit[m]}/{unit[n]}·{m}" for c, m in deps)
-                    lines.append(f"  {n}: a change δ acts like {combo}·δ" if len(deps) == 1
-                                 else f"  {n}: a change δ acts like ({combo})·δ")
+        covered = set(self.prior_covered)
+        held = set(self.held)
+        unit = dict(zip(self.space.layout.names, self.space.layout.units))
+
+        def describe(n):
+            deps = self.dependencies.get(n, [])
+            if not deps:
+                return f"  {n}: has no effect on the measurements"
+            combo = " ".join(f"{c:+.4g} {unit[m]}/{unit[n]}·{m}" for c, m in deps)
+            return (f"  {n}: a change δ acts like {combo}·δ" if len(deps) == 1
+                    else f"  {n}: a change δ acts like ({combo})·δ")
+
+        by_prior = [n for n in self.unidentifiable if n in covered and n not in held]
+        if by_prior:
+            lines.append("not identifiable from the data alone, estimated under the prior (maximum a posteriori; "
+                         "the prior sets these directions):")
+            lines += [describe(n) for n in by_prior]
+        fixed = [n for n in self.unidentifiable if n in held]
+        if fixed:
+            lines.append("not identifiable and without a prior (held at their start value):")
+            lines += [describe(n) for n in fixed]
+        extra_free = [n for n in self.space.free_names if n not in set(self.identifiable) and n not in covered]
+        if extra_free:  # pragma: no cover - select_free never frees a no-prior name the data cannot see
+            lines.append("free: " + ", ".join(extra_free))
         return "\n".join(lines)
 
     def equivalent(self, deviations, held=None) -> np.ndarray:
@@ -151,6 +184,9 @@ class IdentifiabilityReport:
             "dependencies": {k: [[float(c), n] for c, n in v] for k, v in self.dependencies.items()},
             "condition_number": self.condition_number,
             "rtol": self.rtol,
+            "free": list(self.space.free_names),
+            "held": list(self.held),
+            "prior_covered": list(self.prior_covered),
         }
 
 
@@ -285,8 +321,14 @@ def identifiability(
     deviations: Deviations | None = None,
     *,
     rtol: float | None = None,
+    prior=None,
 ) -> IdentifiabilityReport:
     """Rank, singular values and an identifiable subset of the free parameters.
+
+    With a ``prior`` (a :class:`~jaxcal.Prior`, ``"default"`` or a ``"key=value,..."`` string)
+    the report is that of a maximum-a-posteriori fit: its ``space`` frees every candidate the
+    prior covers and the data-identifiable subset of the others (:func:`select_free`); what the
+    data alone identify is reported as without it.
 
     The identification Jacobian ``J = ∂residual/∂Δ`` ``[n·m, p]`` (``jax.jacfwd``) is taken at
     ``deviations`` (nominal by default) for joint angles ``q`` ``[n, dof]``; its columns are
@@ -298,14 +340,60 @@ def identifiability(
     whatever the poses or the round-off. Each left-out column is expressed in the kept ones by
     least squares.
     """
-    return identify_with_residuals(robot, measurement, q, space, deviations, rtol=rtol)[0]
+    from ._objective import resolve_prior
+
+    prior = resolve_prior(prior)
+    if prior is None:
+        return identify_with_residuals(robot, measurement, q, space, deviations, rtol=rtol)[0]
+    space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
+    return identify_with_residuals(robot, measurement, q, space, deviations, rtol=rtol, prior_std=prior.std(space))[0]
 
 
-def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None):
+def select_free(Rs: np.ndarray, norms: np.ndarray, s0: float, pref: list, prior_std, rtol: float) -> np.ndarray:
+    """The free set of a maximum-a-posteriori fit: ``[p]`` bool over the candidates.
+
+    Every candidate with a finite prior σ is free: with the prior's residuals appended, the
+    information matrix ``JᵀJ/σ² + diag(1/s_j²)`` is positive definite on their span, so each
+    direction the data cannot see is set by the prior instead of being frozen at a start value.
+    Candidates without a prior (the sensor/set-up extras by default) are free only where the data
+    see them: in :data:`KEEP_PREFERENCE` order, each is added while the column-scaled Jacobian of
+    the no-prior candidates chosen so far keeps its smallest singular value above ``rtol·s0``
+    (``s0`` the largest singular value of the whole scaled Jacobian). A direction is then left
+    undetermined only if it lies entirely in the no-prior candidates and the data cannot see it —
+    e.g. two extras without a prior that act alike; the later one in preference order is held.
+
+    Args:
+        Rs: ``[p, p]`` triangular factor of the column-scaled Jacobian (``J/norms = Q·Rs``).
+        norms: ``[p]`` column norms (0: no effect at all).
+        s0: largest singular value of ``Rs``.
+        pref: ``[p]`` sort keys (:func:`_preference_key`, then the position).
+        prior_std: ``[p]`` prior σ (``inf``: none).
+        rtol: relative singular-value threshold.
+    """
+    prior_std = np.asarray(prior_std, np.float64)
+    free = np.isfinite(prior_std)
+    chosen: list[int] = []
+    for j in sorted(np.flatnonzero(~free).tolist(), key=lambda i: pref[i]):
+        if norms[j] == 0:
+            continue
+        sv = np.linalg.svd(Rs[:, chosen + [j]], compute_uv=False)
+        if s0 > 0 and sv[-1] > rtol * s0:
+            chosen.append(j)
+    free[chosen] = True
+    return free
+
+
+def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None,
+                            prior_std=None):
     """:func:`identifiability`, and with measurements ``y`` also their residual blocks ``[n, m]``
     (NumPy, mm) at ``deviations`` and the identification Jacobian ``[N, p]`` there (a device
     array; only where :attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), from the same
-    compiled program: ``(report, residuals | None, jacobian | None)``."""
+    compiled program: ``(report, residuals | None, jacobian | None)``.
+
+    ``prior_std``: ``[p]`` prior σ of the candidates (``inf`` = no prior) for a
+    maximum-a-posteriori fit: the report's ``space`` then frees every candidate with a prior and
+    the data-identifiable subset of the others (:func:`select_free`); without it ``space`` frees
+    the identifiable subset."""
     q = jnp.asarray(q)
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
@@ -329,7 +417,8 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     names = space.free_names
     # a total order: equal keys (e.g. the same component of two sessions' frames) are ordered by
     # their position, so that no choice is left to the pivots' round-off
-    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), [(*_preference_key(n), i) for i, n in enumerate(names)])
+    pref = [(*_preference_key(n), i) for i, n in enumerate(names)]
+    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), pref)
     kept_set = set(keep_idx.tolist())
     drop_idx = [i for i in range(len(names)) if i not in kept_set]
     keep = np.zeros(len(names), dtype=bool)
@@ -350,6 +439,13 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     sub = Rs[:, keep_idx]
     sv = np.linalg.svd(sub, compute_uv=False) if keep_idx.size else np.array([1.0])
     cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    covered = ()
+    if prior_std is not None:
+        prior_std = np.asarray(prior_std, np.float64)
+        if prior_std.shape != (len(names),):
+            raise ValueError(f"prior_std must have one σ per candidate ({len(names)}), got shape {prior_std.shape}")
+        keep = select_free(Rs, norms, float(s[0]), pref, prior_std, rtol)
+        covered = tuple(n for n, v in zip(names, prior_std) if np.isfinite(v))
     report = IdentifiabilityReport(
         names=names,
         rank=rank,
@@ -360,5 +456,6 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
         condition_number=cond,
         space=space.restrict(keep),
         rtol=rtol,
+        prior_covered=covered,
     )
     return report, None if resid is None else np.asarray(resid, np.float64), J

@@ -112,7 +112,8 @@ class MessyExperiment(eqx.Module):
             anchor (mm), ``cable_offset`` = the wire's true zero offset (mm); position:
             ``base_rotation`` (rad, rotation vector) and ``base_translation`` (mm) with
             ``R_true = exp(base_rotation)·R_guess`` and ``t_true = t_guess + base_translation``
-            (exactly how :meth:`Position.predict` applies them). ``tool`` is zero.
+            (exactly how :meth:`Position.predict` applies them). ``tool``: the attachment's
+            offset ``tool_offset_mm`` (zero by default).
         train, test: a random split of the measured poses (narrow coverage); joint readings
             ``q`` ``[n, dof]`` rad (quantised), readings ``y`` mm (``[n]`` lengths or
             ``[n, 3]`` positions). ``train`` holds the outliers.
@@ -394,6 +395,7 @@ def simulate_messy(
     base_guess_error_mm: float = 400.0,
     base_guess_error_deg: float = 10.0,
     cable_offset_mm: float | None = None,
+    tool_offset_mm=(0.0, 0.0, 0.0),
     compliance_deg_per_knm=None,
     gear_error_deg: float = 0.01,
     n_outliers: int = 2,
@@ -410,7 +412,9 @@ def simulate_messy(
        offset ``cable_offset_mm`` (default: drawn from N(0, 20 mm)). ``"position"``: the user
        guesses the identity sensor frame; the tracker's true frame is rotated by
        ``base_guess_error_deg`` about a random axis and shifted by ``base_guess_error_mm`` in a
-       random direction.
+       random direction. For both, the wire (or the tracker's reflector) is attached
+       ``tool_offset_mm`` ``[3]`` (flange frame) from the robot's nominal tool point, an
+       offset the user does not know (default: exactly at it).
     3. ``n_samples`` commanded poses ``q_cmd`` uniform in ``joint_ranges_deg`` (default
        :func:`default_joint_ranges_deg`: ±45°, ±30°, ±30°, ±8°, ±8°, ±45° about the middle of
        the limits), keeping those whose true tool point is above the base plane and (cable)
@@ -453,6 +457,9 @@ def simulate_messy(
     if base_guess_error_deg > 180:
         raise ValueError(f"base_guess_error_deg must be at most 180, got {base_guess_error_deg}")
     gear_error_deg = _nonneg("gear_error_deg", gear_error_deg)
+    tool_offset = np.asarray(tool_offset_mm, np.float64)
+    if tool_offset.shape != (3,) or not np.all(np.isfinite(tool_offset)):
+        raise ValueError(f"tool_offset_mm must be 3 finite numbers (mm, flange frame), got {tool_offset_mm!r}")
     if cable_offset_mm is not None and not math.isfinite(float(cable_offset_mm)):
         raise ValueError(f"cable_offset_mm must be a finite number (mm) or None, got {cable_offset_mm!r}")
     ranges = default_joint_ranges_deg(robot) if joint_ranges_deg is None else _check_ranges(robot, joint_ranges_deg)
@@ -476,6 +483,8 @@ def simulate_messy(
 
     # 1–2. the truth, and the nominal model the user builds
     dev = draw_deviations(k_dev, robot, angle_std_deg=angle_std_deg, length_std_mm=length_std_mm, dtype=dtype)
+    if np.any(tool_offset != 0):
+        dev = dev.replace(tool=jnp.asarray(tool_offset, dtype))
     if measurement == "cable":
         true_anchor = default_anchor(robot).astype(dtype)
         anchor_error = jnp.asarray(anchor_guess_error_mm, dtype) * _unit(k_sensor1, dtype)
@@ -550,6 +559,7 @@ def simulate_messy(
         anchor_guess_error_mm=anchor_guess_error_mm, base_guess_error_mm=base_guess_error_mm,
         base_guess_error_deg=base_guess_error_deg,
         cable_offset_mm=float(dev.cable_offset) if measurement == "cable" else None,
+        tool_offset_mm=tuple(float(v) for v in tool_offset),
         compliance_deg_per_knm=tuple(float(c) for c in compliance), gear_error_deg=gear_error_deg,
         gear_phase_rad=tuple(float(p) for p in np.asarray(phase)), n_outliers=n_outliers,
         outlier_mm=(lo_out, hi_out), far_samples=far_samples,

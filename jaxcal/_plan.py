@@ -160,10 +160,13 @@ def planning_jacobian(robot: DHRobot, measurement: MeasurementModel, q, space: P
     return np.asarray(J, np.float64).reshape(q.shape[0], measurement.size, space.n_free)
 
 
-def _identifiable_space(robot, measurement, space, q) -> ParameterSpace:
+def _identifiable_space(robot, measurement, space, q, prior=None) -> ParameterSpace:
+    """The free set :func:`jaxcal.calibrate` would choose on these poses: the identifiable subset
+    of ``space``, or under a ``prior`` every parameter it covers and the data-identifiable rest
+    (maximum a posteriori, :func:`~jaxcal._identifiability.select_free`)."""
     from ._identifiability import identifiability
 
-    return identifiability(robot, measurement, q, space).space
+    return identifiability(robot, measurement, q, space, prior=prior).space
 
 
 def _generic_space(robot, measurement, space=None) -> ParameterSpace:
@@ -425,7 +428,7 @@ def _setup(robot, measurement, candidates, space, prior, noise_std):
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     # the identifiable subset is structural: judge it on at most 4 096 candidates spread over the
     # set (every k-th), which is 5x faster than the pivoted QR of all 20 000 on 2 cores
-    space = _identifiable_space(robot, measurement, base, q[:: max(1, -(-q.shape[0] // 4096))])
+    space = _identifiable_space(robot, measurement, base, q[:: max(1, -(-q.shape[0] // 4096))], prior)
     J = planning_jacobian(robot, measurement, q, space)
     rows = J.shape[0] * J.shape[1]
     norms = np.linalg.norm(J.reshape(rows, -1), axis=0) / math.sqrt(rows)
@@ -609,9 +612,10 @@ def predicted_accuracy(
 ) -> PredictedAccuracy:
     """Predicted accuracy of calibrating from the poses ``q`` ``[n, dof]`` (rad), before measuring.
 
-    ``Σ = σ²(JᵀJ + σ²·diag(1/σ_j²))⁻¹`` ``[p, p]`` on the identifiable subset of ``space`` at
-    the planned poses (``prior``: :class:`jaxcal.Prior`; default none, as
-    :func:`jaxcal.calibrate`), and the expected test RMSE over the workspace
+    ``Σ = σ²(JᵀJ + σ²·diag(1/σ_j²))⁻¹`` ``[p, p]`` (the posterior covariance) on the free set
+    :func:`jaxcal.calibrate` would choose at the planned poses: the identifiable subset of
+    ``space`` without a prior, every parameter the prior covers with one (``prior``:
+    :class:`jaxcal.Prior`; default none, as :func:`jaxcal.calibrate`), and the expected test RMSE over the workspace
     ``sqrt(m_e·σ² + mean_t tr(J_t Σ J_tᵀ))`` over the held-out poses ``q_test`` (default
     ``n_test`` candidate poses from ``key``, :func:`candidate_poses` with its default filters),
     ``m_e`` the residual entries of the per-sample error (1 for a wire length, 3 for a
@@ -622,7 +626,7 @@ def predicted_accuracy(
     """
     q = np.asarray(q, np.float64)
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
-    space = _identifiable_space(robot, measurement, base, q)
+    space = _identifiable_space(robot, measurement, base, q, prior)
     J = planning_jacobian(robot, measurement, q, space).reshape(-1, space.n_free)
     cov = _covariance(J, noise_std, _prior_precision(space, prior))
     if q_test is None:
@@ -632,7 +636,8 @@ def predicted_accuracy(
     var = np.einsum("tap,pq,taq->t", Jt, cov, Jt)
     test = math.sqrt(m_e * noise_std**2 + float(np.mean(var)))
     N = J.shape[0]
-    train = noise_std * math.sqrt(max(measurement.size * (1.0 - space.n_free / N), 0.0)) if m_e == measurement.size \
+    p_eff = float(np.trace(J.T @ J @ cov)) / noise_std**2  # = p without a prior
+    train = noise_std * math.sqrt(max(measurement.size * (1.0 - p_eff / N), 0.0)) if m_e == measurement.size \
         else float("nan")
     return PredictedAccuracy(test, train, float(noise_std), space.free_names, space.free_units,
                              np.sqrt(np.diag(cov)), cov, int(q.shape[0]))

@@ -788,8 +788,10 @@ def sweep(
         data: instead of simulating, a :class:`~jaxcal.Dataset` (split at random per trial with
             ``test_fraction``), a ``(train, test)`` pair of Datasets, or an
             :class:`~jaxcal.Experiment` (fixed split; the truth gives the oracle row).
-        space: free parameters, fixed for the whole sweep. Default: the identifiable subset at
-            trial 0's training poses (:func:`jaxcal.identifiability`); ``"all"`` or a
+        space: free parameters, fixed for the whole sweep. Default: chosen at trial 0's training
+            poses as :func:`jaxcal.calibrate` chooses them (the identifiable subset; with a
+            ``prior`` every parameter it covers and the data-identifiable rest, see
+            :func:`jaxcal._calibrate.resolve_space`); ``"all"`` or a
             :class:`~jaxcal.ParameterSpace` as in :func:`~jaxcal.calibrate`.
         start: starting deviations (default nominal).
         hyperparameters: ``{method name: {setting: value}}``.
@@ -929,14 +931,16 @@ def sweep(
 
     # 2. the free parameters: fixed for the whole sweep (static under jit), from trial 0's poses
     q0 = jnp.asarray(dout.split.q_train[0])
-    space, report = resolve_space(robot, measurement, q0, space, start)
+    space, report = resolve_space(robot, measurement, q0, space, start, prior=prior)
     n_train, n_test = int(q0.shape[0]), int(dout.split.q_test.shape[1])
     if n_train * measurement.size <= space.n_free + 1:
         raise ValueError(
             f"too few samples: {n_train} training sample(s) give {n_train * measurement.size} residuals "
             f"for {space.n_free} free parameters"
         )
-    floor = None if noise_std is None else statistical_floor(float(noise_std), space.n_free, n_train, measurement.size)
+    # p of the floor: what the data identify (under a prior the free set also holds what only the prior sets)
+    p_floor = space.n_free if report is None else report.rank
+    floor = None if noise_std is None else statistical_floor(float(noise_std), p_floor, n_train, measurement.size)
     settings |= {"n_train": n_train, "n_test": n_test, "space": list(space.free_names),
                  "identifiability": None if report is None else report.to_dict()}
     common["space"] = settings["space"]

@@ -213,6 +213,7 @@ def _print_dh_table(robot, res, sd) -> None:
 
     nominal = robot.dh_table_deg()
     cal = res.dh_table()
+    by_prior = _set_by_prior(res)
     trows = []
     for j in range(robot.dof):
         cells = [str(j + 1)]
@@ -222,14 +223,27 @@ def _print_dh_table(robot, res, sd) -> None:
             if col in (0, 3):
                 delta = float(wrap_angle_deg(delta))
             if name in sd:
-                cells.append(f"{cal[j, col]:.4f} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
+                mark = "†" if name in by_prior else ""
+                cells.append(f"{cal[j, col]:.4f}{mark} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
             else:
                 cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
         trows.append(cells)
     print()
     print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
                        title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
-                             "* not identifiable, kept nominal)"))
+                             + _TABLE_MARKS))
+
+
+#: the legend of the parameter tables' marks
+_TABLE_MARKS = ("† set by the prior rather than the data (posterior σ above half the prior σ); "
+                "* not calibrated: held at its start value (not identifiable without a prior, or fixed)")
+
+
+def _set_by_prior(res) -> set:
+    """Free parameters whose posterior σ is above ``Checks.weak_fraction`` of their prior σ."""
+    if res.prior is None or res.diagnostics is None:
+        return set()
+    return set(res.diagnostics.weak_parameters)
 
 
 def _print_chain_table(robot, res, sd) -> None:
@@ -241,18 +255,21 @@ def _print_chain_table(robot, res, sd) -> None:
     free = set(res.space.free_names)
     value = {n: v for n, v, _ in correction_entries(robot, res.deviations)}
 
+    by_prior = _set_by_prior(res)
+
     def cell(name):
         if name not in value:  # drz at a revolute joint: the joint offset
             return ""
-        return _fmt_value(value[name], sd.get(name, (None,))[0], "") if name in free else f"{value[name]:+.4f}*"
+        if name not in free:
+            return f"{value[name]:+.4f}*"
+        return _fmt_value(value[name], sd.get(name, (None,))[0], "") + ("†" if name in by_prior else "")
 
     rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
             for j in range(robot.dof)]
     print()
     print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
                        title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "
-                             "posterior standard deviation; * not calibrated: not identifiable or fixed; "
-                             "`jaxcal export` writes the corrected URDF)"))
+                             f"posterior standard deviation; {_TABLE_MARKS}; `jaxcal export` writes the corrected URDF)"))
 
 
 def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
@@ -403,6 +420,8 @@ def _cmd_calibrate(args) -> int:
         res = run(train)
     if res.identifiability is not None:
         print(res.identifiability)
+    for line in res.diagnostics.reselection:
+        print(line)
     if res.diagnostics.extras:
         print(res.diagnostics.extras)
 
@@ -781,7 +800,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser(
         "calibrate", formatter_class=fmt, help="calibrate a robot from a CSV data file",
-        description="Calibrate the DH parameters (the identifiable subset, found by QR with column pivoting) from "
+        description="Calibrate the robot's parameters (under the default prior: every DH deviation and the estimated "
+                    "extras the data see, maximum a posteriori; with --prior none: the identifiable subset, found by QR with "
+                    "column pivoting at the start and judged again at the solution) from "
                     "measured data: split off --test-fraction of the samples (at random, --seed), calibrate on the "
                     "rest, print RMSE/MEAN/MAX (mm) before and after on both parts and the calibrated DH table, "
                     "and write a JSON result (--out) that jaxcal.load_result reads back.",

@@ -67,7 +67,8 @@ def test_calibrate_prints_tables_and_round_trips(data_csv, tmp_path, capsys):
     _, test = load_csv(data_csv).split(k_split, 0.2)
     assert res.evaluate(test).rmse == pytest.approx(after["rmse"], rel=1e-10)
     np.testing.assert_allclose(res.dh_table(), np.asarray(d["calibrated_dh_table"]["rows"]), rtol=1e-12)
-    assert res.space.n_free == 19 and res.identifiability["rank"] == 19
+    # the default prior: MAP over all 24 DH deviations, of which the data identify 19; nothing held
+    assert res.space.n_free == 24 and res.identifiability["rank"] == 19 and res.identifiability["held"] == []
     assert f"{res.dh_table()[0, 1]:.4f}" in text  # a1 as printed
 
 
@@ -142,10 +143,10 @@ def test_choosing_parameters_and_settings(data_csv, capsys):
     d = str(data_csv)
     assert main(["calibrate", d, "--robot", "hsr_jr680", "--free", "anchor,offset", "--test-fraction", "0"]) == 0
     out = capsys.readouterr().out
-    assert "identifiable: anchor_x, anchor_y, anchor_z, cable_offset" in out
+    assert "identifiable from the data: anchor_x, anchor_y, anchor_z, cable_offset" in out
     assert main(["calibrate", d, "--robot", "hsr_jr680", "--fix", "d_6,theta", "--test-fraction", "0"]) == 0
     out = capsys.readouterr().out
-    ident = next(line for line in out.splitlines() if line.startswith("identifiable:"))
+    ident = next(line for line in out.splitlines() if line.startswith("identifiable from the data:"))
     assert "d_6" not in ident and "theta" not in ident and "a_2" in ident
     _one_error_line(capsys, 2, ["calibrate", d, "--robot", "hsr_jr680", "--set", "foo=1"],
                     "unknown setting(s) ['foo'] for method lm; its settings: atol, linear_solver, max_steps, rtol")

@@ -1,11 +1,14 @@
 """Identifiability: rank and dependent parameters of the paper's set-up, with derivations."""
 
+import math
+
 import jax
 import numpy as np
 import pytest
 
 import jaxcal
 from jaxcal import ParameterSpace, identifiability, simulate_experiment
+from jaxcal._params import group_kind
 
 
 @pytest.fixture(scope="module")
@@ -66,9 +69,41 @@ def test_dependent_choice_is_deterministic(experiment):
     robot = ex.robot.with_hayati(2).with_tool((60.0, 40.0, 120.0))
     space = ParameterSpace.for_robot(robot, anchor=True, tool=True, cable_offset=True)
     rep = identifiability(robot, ex.measurement, ex.train.q, space)
-    # the sensor extras give way to the robot's parameters
-    assert {"anchor_z", "tool_x", "tool_y", "tool_z", "d_3"} <= set(rep.unidentifiable)
-    assert {"d_1", "theta_1", "theta_6"} <= set(rep.identifiable)
+    # the robot's parameters give way to the sensor extras (they have a nominal value to stay at;
+    # the extras' size is unknown): a tool offset along x acts like Δa_6, along z like Δd_6, a
+    # shift of the anchor along z_0 like Δd_1, a turn about z_0 like Δθ_1
+    assert set(rep.unidentifiable) == {"alpha_6", "a_6", "d_1", "d_3", "d_6", "theta_1", "theta_6"}
+    assert {"anchor_x", "anchor_y", "anchor_z", "tool_x", "tool_y", "tool_z", "cable_offset"} <= set(rep.identifiable)
+    (coef, other), = rep.dependencies["a_6"]
+    assert other == "tool_x" and coef == pytest.approx(1.0, abs=1e-6)
+
+
+def test_prior_frees_every_candidate_it_covers(experiment):
+    """Under a prior (maximum a posteriori) nothing the prior covers is held; of the extras
+    without a prior only those the data see are free, and a pair of them that act alike keeps
+    the first in KEEP_PREFERENCE order."""
+    ex = experiment
+    robot = ex.robot.with_hayati(2).with_tool((60.0, 40.0, 120.0))
+    space = ParameterSpace.for_robot(robot, anchor=True, tool=True, cable_offset=True)
+    rep = identifiability(robot, ex.measurement, ex.train.q, space, prior="default")
+    assert rep.space.n_free == 32 and rep.held == () and rep.rank == 25
+    assert set(rep.prior_covered) == {n for n in space.free_names if group_kind(n) != "extra"}
+    text = str(rep)
+    assert "estimated under the prior" in text and "held at their start value" not in text
+    # a prior on nothing but the DH lengths: θ1 (no prior) and anchor_y act alike; anchor_y comes
+    # first, θ1 is held; the d's are free under their prior whatever the data see
+    only_lengths = jaxcal.Prior(angle_deg=math.inf)
+    rep = identifiability(robot, ex.measurement, ex.train.q, space, prior=only_lengths)
+    assert set(rep.held) == {"alpha_6", "theta_1", "theta_6"}
+    assert {"d_1", "d_3", "d_6", "a_6", "anchor_y"} <= set(rep.space.free_names)
+    # the MAP information matrix JᵀJ/σ² + diag(1/s²) of the free set is positive definite
+    from jaxcal._problem import Problem
+
+    J = np.asarray(Problem(robot, ex.measurement, ex.train.q, ex.train.y, rep.space).jacobian(
+        np.zeros(rep.space.n_free)))
+    s = only_lengths.std(rep.space)
+    H = J.T @ J / 0.5**2 + np.diag(np.where(np.isfinite(s), 1 / s**2, 0.0))
+    assert np.linalg.eigvalsh(H / np.outer(np.sqrt(np.diag(H)), np.sqrt(np.diag(H)))).min() > 1e-8
 
 
 def test_every_robot_position_rank(robot):
