@@ -180,3 +180,24 @@ def test_calibrate_with_the_tool_far_off_reaches_the_floor(robot, truth):
     dev = res.deviations
     assert abs(float(dev.a[5])) < 5 and abs(float(dev.d[5])) < 5  # the tool is not in the DH table
     assert "tool point" in res.diagnostics.extras
+
+
+def test_cli_prints_the_tool_start(robot, truth, tmp_path, capsys):
+    """`jaxcal calibrate --estimate base,tool`: the start line names the tool point, and the
+    extras line lists the tool entries (free or kept at their start)."""
+    from jaxcal import save_csv
+    from jaxcal.cli import main
+
+    ex = simulate_experiment(jax.random.key(1), hsr_jr680(), n_samples=300, measurement=Position(),
+                             true_deviations=truth["position"], noise_std=SIGMA)
+    save_csv(ex.train, tmp_path / "pos.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["calibrate", str(tmp_path / "pos.csv"), "--robot", "hsr_jr680", "--measurement", "position",
+                   "--estimate", "base,tool"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    start = next(ln for ln in out.splitlines() if ln.startswith("extras from the data"))
+    assert "tool point (" in start and "mm from the guess" in start, start
+    extras = next(ln for ln in out.splitlines() if ln.startswith("estimated extras"))
+    assert all(f"tool_{c} " in extras for c in "xyz"), extras
