@@ -444,7 +444,7 @@ def calibrate(
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
     cand = candidate_space(robot, measurement, extras, free, fix)
     flags = {e: any(_family(group_of(n)) in SELECT_GROUPS[e] for n in cand.free_names)
-             for e in ("anchor", "cable_offset", "base")}
+             for e in ("anchor", "cable_offset", "base", "tool")}
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None

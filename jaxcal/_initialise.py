@@ -1,9 +1,12 @@
 """Starting values for the sensor's unknowns, from the data, before the kinematic fit.
 
 Real setups do not know where the draw-wire leaves its housing (the anchor), the cable's zero
-offset, or where a laser tracker stands relative to the robot base; a first guess can be 500 mm
-off, and local solvers started there land in nonsense (DESIGN.md §7). With the nominal robot the
-tool points ``p_i`` are known to a few mm, so the sensor unknowns follow in closed form:
+offset, where a laser tracker stands relative to the robot base, nor exactly where the wire or
+the target is attached to the flange (the tool point); a first guess can be 500 mm off, and local
+solvers started there land in nonsense (DESIGN.md §7, §10). With the nominal robot (plus the DH
+part of ``start``) the flange frames ``(P_i, F_i)`` (origin ``[3]`` mm, rotation ``[3, 3]``) are
+known to a few mm, so the sensor unknowns follow in closed form. ``t`` is the tool point in the
+flange frame (nominal + ``tool`` deviation, mm) and ``p_i = P_i + F_i t`` the tool points:
 
 * **Draw-wire** (``L_i = ‖p_i − c‖ + o``): multilateration. Squaring ``L_i − o = ‖p_i − c‖``
   gives equations linear in ``(c, o, k = o² − ‖c‖²)``:
@@ -13,15 +16,33 @@ tool points ``p_i`` are known to a few mm, so the sensor unknowns follow in clos
   it and the distance equations have a mirror solution; the refinement starts from the linear
   solution, its mirror image through the points' best-fit plane and the user's guess, and keeps
   the best fit (ties: nearest the guess).
-* **Position / pose sensors** (``y_i = R p_i + t``): the rigid transform by Kabsch/Horn
-  (SVD of the cross-covariance of centred point sets; Horn, 1987; Kabsch, 1976).
+  **With the tool point** (``L_i = ‖P_i + F_i t − c‖ + o``, not linear in ``t``): multilateration
+  with ``t`` at its guess ``t₀``, then Levenberg–Marquardt on ``(c, o, t)`` (7 unknowns, those
+  estimated) with the derivatives ``∂L_i/∂c = −u_i``, ``∂L_i/∂o = 1``, ``∂L_i/∂t = F_iᵀu_i``
+  (``u_i`` the unit wire direction), minimising ``Σ r_i² + w‖t − t₀‖²`` with
+  ``w = σ̂²/σ_t²`` (σ̂ the RMS residual, σ_t = :data:`TOOL_PRIOR_STD_MM`): a weak Gaussian prior
+  toward the guess that only holds directions the data barely see (a session whose flange
+  barely turns cannot tell the tool from the anchor). The result is never worse (RMS) than the
+  multilateration start.
+* **Position sensors** (``y_i = R p_i + b``, ``(R, b) = T_sensor_base``): the rigid transform by
+  Kabsch/Horn (SVD of the cross-covariance of centred point sets; Horn, 1987; Kabsch, 1976).
+  **With the tool point** (``y_i = R(P_i + F_i t) + b``): the one-marker case of the markers
+  start below (:func:`alternate_frames_and_markers`): Kabsch for ``(R, b)`` given ``t``,
+  ``t = mean_i F_iᵀ(Rᵀ(y_i − b) − P_i)`` given the frame (exact least squares: ``F_i``, ``R``
+  orthonormal), alternating until nothing moves; with a known frame only the latter, once.
+* **Pose sensors** (``T_sensor_tool,i = [R F_i, R(P_i + F_i t) + b]``): the rotation from the
+  rotation readings, the chordal L2 mean ``R = argmin Σ‖R − R_y,i F_iᵀ‖_F² = Π_SO(3)(Σ R_y,i F_iᵀ)``
+  (SVD projection); then ``(t, b)`` from the positions by one linear least-squares solve of
+  ``F_i t + b' = Rᵀy_i − P_i`` (``b' = Rᵀb``, 6 unknowns; the same weak prior on ``t``). Without
+  the tool: ``b' = mean_i(Rᵀy_i − P_i − F_i t₀)``; with a known frame: ``t = mean_i F_iᵀ(Rᵀ(y_i − b) − P_i)``.
 * **Markers** (``y_ik = R (P_i + F_i m_k) + t``, flange frames ``(P_i, F_i)`` of the nominal
   robot): the sensor frame by Kabsch on the marker centroids (``m̄`` from the guessed layout),
   then alternating least squares: each marker's flange-frame position given the frame
   (``m_k = mean_i F_iᵀ(Rᵀ(y_ik − t) − P_i)``, exact because ``F_i`` is orthonormal) and the
-  frame by Kabsch on every marker point given the positions, until nothing moves.
+  frame by Kabsch on every marker point given the positions, until nothing moves. (The marker
+  positions are the tool: the ``tool`` extras do not apply.)
 
-Both are refit once without the samples whose residual exceeds 5 robust standard deviations
+Each is refit once without the samples whose residual exceeds 5 robust standard deviations
 (gross outliers must not move the start; the calibration itself reports them).
 """
 
@@ -41,11 +62,17 @@ from ._objective import robust_scale
 from ._params import Deviations, layout_for
 from ._robot import DHRobot
 
-__all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "kabsch", "pose_from_markers"]
+__all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "wire_with_tool", "kabsch", "project_rotation",
+           "pose_from_markers"]
 
 #: extras :func:`initial_extras` can start from data, per measurement kind.
-INITIALISABLE = {"cable": ("anchor", "cable_offset"), "position": ("base",), "pose": ("base",),
+INITIALISABLE = {"cable": ("anchor", "cable_offset", "tool"), "position": ("base", "tool"), "pose": ("base", "tool"),
                  "markers": ("base", "markers")}
+
+#: σ (mm) of the weak prior toward the guessed tool point in the draw-wire and pose starts: it
+#: holds only the directions the data barely see (bias ``w/(s² + w)`` along a direction with
+#: singular value ``s``, ``w = σ̂²/σ_t²``; with σ̂ = 1 mm, w = 1.6e-5).
+TOOL_PRIOR_STD_MM = 250.0
 
 
 class ExtrasEstimate(NamedTuple):
@@ -264,6 +291,151 @@ def alternate_frames_and_markers(F, P, Y, fi, pi, R, t, M, est_f, est_p, *, iter
     return R, t, M, keep
 
 
+def project_rotation(M) -> np.ndarray:
+    """The rotation nearest ``M`` ``[3, 3]`` in the Frobenius norm (``U diag(1, 1, ±1) Vᵀ`` of its
+    SVD, det = +1): ``argmin_R Σ‖R − A_i‖_F²`` is the projection of ``Σ A_i`` (chordal L2 mean)."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+def _prior_weight(sse: float, n_entries: int, prior_std: float) -> float:
+    """``w = σ̂²/σ_t²`` of the weak prior on the tool point (σ̂² = mean square residual entry)."""
+    return max(sse / max(n_entries, 1), 1e-12) / prior_std**2
+
+
+def wire_with_tool(P, F, lengths, anchor, offset, tool, *, anchor_free: bool = True, offset_free: bool = True,
+                   guess=None, prior_std: float = TOOL_PRIOR_STD_MM, iterations: int = 100):
+    """Anchor ``c`` [3], cable offset ``o`` and tool point ``t`` [3] (flange frame, mm) with
+    ``lengths_i ≈ ‖P_i + F_i t − c‖ + o``, by Levenberg–Marquardt from ``(anchor, offset, tool)``.
+
+    Args:
+        P: ``[n, 3]`` flange origins (mm), ``F``: ``[n, 3, 3]`` flange rotations, ``lengths``: ``[n]`` mm.
+        anchor, offset, tool: the start (e.g. multilateration with the guessed tool point).
+        anchor_free, offset_free: estimate ``c`` / ``o`` (else kept); ``t`` is always estimated.
+        guess: ``[3]`` the tool point the weak prior pulls toward (default ``tool``):
+            minimises ``Σ r_i² + w‖t − guess‖²``, ``w = σ̂²/prior_std²`` (σ̂ the RMS residual,
+            updated once), so directions of ``t`` the data barely see stay at the guess.
+
+    Returns:
+        ``(c, o, t, rms)``; never a worse RMS residual than the start (else the start itself).
+    """
+    P, F, L = (np.asarray(a, np.float64) for a in (P, F, lengths))
+    c, o, t = np.array(anchor, np.float64), float(offset), np.array(tool, np.float64)
+    g = t.copy() if guess is None else np.asarray(guess, np.float64)
+    n = L.shape[0]
+
+    def res(c, o, t):
+        return np.linalg.norm(P + F @ t - c, axis=1) + o - L
+
+    def split(x):
+        i = 0
+        cc, oo = c_fix, o_fix
+        if anchor_free:
+            cc, i = x[:3], 3
+        if offset_free:
+            oo, i = x[i], i + 1
+        return cc, oo, x[i:]
+
+    c_fix, o_fix = c, o
+    x = np.concatenate(([c] if anchor_free else []) + ([[o]] if offset_free else []) + [t])
+    k = x.size - 3  # the tool block starts here
+    r = res(c, o, t)
+    sse_start = float(r @ r)
+    w = _prior_weight(sse_start, n, prior_std)
+    for _ in range(3):  # LM for this prior weight, then σ̂ (and w) from the fit
+        lam = 1e-3
+        cc, oo, tt = split(x)
+        r = res(cc, oo, tt)
+        f = float(r @ r) + w * float((tt - g) @ (tt - g))
+        for _ in range(iterations):
+            d = P + F @ tt - cc
+            u = d / np.maximum(np.linalg.norm(d, axis=1), 1e-9)[:, None]
+            cols = ([-u] if anchor_free else []) + ([np.ones((n, 1))] if offset_free else [])
+            J = np.concatenate(cols + [np.einsum("nji,nj->ni", F, u)], axis=1)  # ∂r/∂t = F_iᵀu_i
+            H = J.T @ J
+            H[k:, k:] += w * np.eye(3)
+            grad = J.T @ r
+            grad[k:] += w * (tt - g)
+            step = np.linalg.lstsq(H + lam * np.diag(np.diag(H) + 1e-12), -grad, rcond=None)[0]
+            xn = x + step
+            cn, on, tn = split(xn)
+            rn = res(cn, on, tn)
+            fn = float(rn @ rn) + w * float((tn - g) @ (tn - g))
+            if fn < f:
+                done = f - fn <= 1e-14 * f or np.linalg.norm(step) < 1e-10 * (1.0 + np.linalg.norm(x))
+                x, r, f, lam, (cc, oo, tt) = xn, rn, fn, lam / 10, (cn, on, tn)
+                if done:
+                    break
+            else:
+                lam *= 10
+                if lam > 1e12:
+                    break
+        w_new = _prior_weight(float(r @ r), n, prior_std)
+        if abs(w_new - w) <= 0.1 * w:
+            break
+        w = w_new
+    cc, oo, tt = split(x)
+    r = res(cc, oo, tt)
+    if not (np.all(np.isfinite(x)) and float(r @ r) <= sse_start):
+        return c, o, t, math.sqrt(sse_start / n)
+    return np.array(cc, np.float64), float(oo), tt, math.sqrt(float(r @ r) / n)
+
+
+def _pose_start(P, F, Ym, R0, b0, t0, est_base: bool, est_tool: bool, prior_std: float = TOOL_PRIOR_STD_MM):
+    """``(R, b, t, keep)`` of a :class:`Pose` sensor (``T_sensor_base = (R, b)``) and tool point
+    ``t`` from pose readings ``Ym [n, 4, 4]`` and flange frames ``(P [n, 3], F [n, 3, 3])``: the
+    rotation as the chordal mean of ``R_y,i F_iᵀ``, then ``(t, b' = Rᵀb)`` by least squares on
+    ``F_i t + b' = Rᵀy_i − P_i`` (weak prior toward ``t0``); refit once without gross outliers."""
+    Rm, pm = Ym[:, :3, :3], Ym[:, :3, 3]
+    n = P.shape[0]
+    keep = np.ones(n, bool)
+    R, b, t = R0, b0, t0
+    for _ in range(2):
+        if est_base:
+            R = project_rotation(np.einsum("nij,nkj->ik", Rm[keep], F[keep]))
+        z = pm @ R - P  # Rᵀy_i − P_i
+        if est_base and est_tool:
+            A = np.concatenate([F[keep], np.broadcast_to(np.eye(3), F[keep].shape)], axis=2).reshape(-1, 6)
+            rhs = z[keep].reshape(-1)
+            sol = np.linalg.lstsq(A, rhs, rcond=None)[0]
+            w = _prior_weight(float(np.sum((A @ sol - rhs) ** 2)), rhs.size, prior_std)
+            H = A.T @ A
+            H[:3, :3] += w * np.eye(3)
+            sol = np.linalg.solve(H, A.T @ rhs + np.concatenate([w * t0, np.zeros(3)]))
+            t, bl = sol[:3], sol[3:]
+        elif est_base:
+            bl = np.mean(z[keep] - F[keep] @ t0, axis=0)
+        else:
+            bl = R.T @ b0
+            if est_tool:
+                t = np.einsum("nji,nj->i", F[keep], z[keep] - bl) / keep.sum()
+        b = R @ bl
+        pos_err = np.linalg.norm((P + F @ t) @ R.T + b - pm, axis=1)
+        E = np.einsum("nji,jk,nkl->nil", Rm, R, F)  # R_yᵀ R F_i
+        ang_err = np.arccos(np.clip((np.trace(E, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))
+        new_keep = _trim(pos_err) & (_trim(ang_err) if est_base else True)
+        if new_keep.sum() < MIN_FRAME_ROWS or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    return R, b, t, keep
+
+
+def _position_start(P, F, Y, R0, b0, t0, est_base: bool, est_tool: bool, iterations: int = 1000):
+    """``(R, b, t, keep)`` of a :class:`Position` sensor and tool point: the one-marker case of
+    :func:`alternate_frames_and_markers` (Kabsch for the frame, ``t = mean_i F_iᵀ(Rᵀ(y_i − b) − P_i)``)."""
+    zero = np.zeros(Y.shape[0], int)
+    R, b, M, keep = alternate_frames_and_markers(F, P, Y[:, None, :], zero, zero, R0[None], b0[None],
+                                                 t0[None, None, :], [0] if est_base else [],
+                                                 [0] if est_tool else [], iterations=iterations)
+    return R[0], b[0], M[0, 0], keep
+
+
+def _tool_message(t, t0) -> str:
+    return (f"tool point ({', '.join(f'{v:.1f}' for v in t)}) mm in the flange frame, "
+            f"{np.linalg.norm(t - t0):.1f} mm from the guess")
+
+
 def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est_markers: bool, iterations=100):
     """``(R, t, M [N, 3], keep)``: one sensor frame and the marker layout of a :class:`Markers`
     model (:func:`alternate_frames_and_markers` with one frame and one placement)."""
@@ -292,9 +464,11 @@ def initial_extras(
         robot, measurement: nominal models (the measurement's anchor / frame is the user's guess).
         data: a :class:`~jaxcal.Dataset` or ``(q [n, dof] rad, y)``.
         estimate: which extras to initialise: for draw-wire data ``"anchor"`` and/or
-            ``"cable_offset"`` (default both), for position/pose data ``"base"`` (default).
-        start: deviations to start from (default nominal); its DH part is used for the tool
-            points and kept, the estimated extras are replaced.
+            ``"cable_offset"`` (default both), for position/pose data ``"base"`` (default), and
+            ``"tool"`` (the tool point in the flange frame, jointly with the others; only when
+            named: :func:`jaxcal.calibrate` names it when the tool is estimated).
+        start: deviations to start from (default nominal); its DH part is used for the flange
+            frames and kept, its extras are the guess; the estimated extras are replaced.
 
     Returns:
         :class:`ExtrasEstimate` (the new start, RMS residual before/after, trimmed samples).
@@ -313,8 +487,8 @@ def initial_extras(
     dtype = q.dtype
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
     kind = measurement.kind
-    if estimate is None:
-        estimate = INITIALISABLE[kind]
+    if estimate is None:  # the tool point only when asked for (it is often known)
+        estimate = tuple(e for e in INITIALISABLE[kind] if e != "tool")
         if kind == "markers" and measurement.known:
             estimate = ("base",)
     estimate = set(estimate)
@@ -323,7 +497,15 @@ def initial_extras(
     bad = estimate - set(INITIALISABLE[kind])
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(INITIALISABLE[kind])}")
-    P = np.asarray(fk_position_jit(robot, q, start), np.float64) if kind != "markers" else None
+    est_tool = "tool" in estimate
+    tool0 = np.asarray(robot.tool, np.float64) + np.asarray(start.tool, np.float64)  # flange frame, mm
+    P = Pl = Fl = None  # tool points; flange origins and rotations (base frame)
+    if kind == "pose" or (kind != "markers" and est_tool):
+        T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
+        Fl, Pl = T[:, :3, :3], T[:, :3, 3]
+        P = Pl + Fl @ tool0
+    elif kind != "markers":
+        P = np.asarray(fk_position_jit(robot, q, start), np.float64)
     Y = np.asarray(y, np.float64)
 
     def rms(dev):
@@ -336,20 +518,26 @@ def initial_extras(
         return float(np.sqrt(np.mean(e**2)))
 
     before = rms(start)
+    tool = tool0
     if isinstance(measurement, CableLength):
         anchor0 = np.asarray(measurement.anchor, np.float64) + np.asarray(start.anchor, np.float64)
         offset0 = float(start.cable_offset)
         est_anchor, est_offset = "anchor" in estimate, "cable_offset" in estimate
         keep = np.ones(P.shape[0], bool)
         for _ in range(2):
-            if est_anchor:
+            if est_anchor:  # multilateration with the tool point at its guess
                 c, o, _ = multilaterate(P[keep], Y[keep] - (0.0 if est_offset else offset0), offset=est_offset,
                                         guess=anchor0)
                 o = o if est_offset else offset0
             else:
                 c = anchor0
                 o = float(np.median(Y[keep] - np.linalg.norm(P[keep] - c, axis=1))) if est_offset else offset0
-            res = np.linalg.norm(P - c, axis=1) + o - Y
+            if est_tool:  # then (c, o, t) jointly
+                c, o, tool, _ = wire_with_tool(Pl[keep], Fl[keep], Y[keep], c, o, tool0, anchor_free=est_anchor,
+                                               offset_free=est_offset)
+                res = np.linalg.norm(Pl + Fl @ tool - c, axis=1) + o - Y
+            else:
+                res = np.linalg.norm(P - c, axis=1) + o - Y
             new_keep = _trim(res)
             if np.array_equal(new_keep, keep):
                 break
@@ -363,23 +551,30 @@ def initial_extras(
         if est_offset:
             what.append(f"cable offset {o:+.2f} mm")
     elif isinstance(measurement, (Position, Pose)):
-        Ym = Y[:, :3, 3] if kind == "pose" else Y
-        keep = np.ones(P.shape[0], bool)
-        for _ in range(2):
-            R, t = kabsch(P[keep], Ym[keep])
-            res = np.linalg.norm(P @ R.T + t - Ym, axis=1)
-            new_keep = _trim(res)
-            if np.array_equal(new_keep, keep):
-                break
-            keep = new_keep
+        est_base = "base" in estimate
         R0 = np.asarray(measurement.rotation, np.float64)
         t0 = np.asarray(measurement.translation, np.float64)
-        w = _matrix_to_rotvec(R @ R0.T)
-        dev = start.replace(base_rotation=jnp.asarray(w, dtype), base_translation=jnp.asarray(t - t0, dtype))
         R_guess = _rotvec(start.base_rotation) @ R0
-        angle = math.degrees(float(np.linalg.norm(_matrix_to_rotvec(R @ R_guess.T))))
-        what = [f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame, "
-                f"rotated {angle:.2f}° from the guess"]
+        b_guess = t0 + np.asarray(start.base_translation, np.float64)
+        if kind == "pose":
+            R, t, tool, keep = _pose_start(Pl, Fl, Y, R_guess, b_guess, tool0, est_base, est_tool)
+        elif est_tool:
+            R, t, tool, keep = _position_start(Pl, Fl, Y, R_guess, b_guess, tool0, est_base, est_tool)
+        else:  # the frame alone: Kabsch on the tool points
+            keep = np.ones(P.shape[0], bool)
+            for _ in range(2):
+                R, t = kabsch(P[keep], Y[keep])
+                new_keep = _trim(np.linalg.norm(P @ R.T + t - Y, axis=1))
+                if np.array_equal(new_keep, keep):
+                    break
+                keep = new_keep
+        dev, what = start, []
+        if est_base:
+            dev = dev.replace(base_rotation=jnp.asarray(_matrix_to_rotvec(R @ R0.T), dtype),
+                              base_translation=jnp.asarray(t - t0, dtype))
+            angle = math.degrees(float(np.linalg.norm(_matrix_to_rotvec(R @ R_guess.T))))
+            what.append(f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame, "
+                        f"rotated {angle:.2f}° from the guess")
     elif isinstance(measurement, Markers):
         est_base, est_markers = "base" in estimate, "markers" in estimate
         R, t, M, keep = _markers_start(measurement, robot, q, Y, start, est_base, est_markers)
@@ -398,6 +593,9 @@ def initial_extras(
                         f"{np.linalg.norm(M - M0, axis=1).max():.1f} mm from the guess")
     else:  # pragma: no cover - every model is handled above
         raise TypeError(f"no initialisation for {type(measurement).__name__}")
+    if est_tool:
+        dev = dev.replace(tool=jnp.asarray(tool - np.asarray(robot.tool, np.float64), dtype))
+        what.append(_tool_message(tool, tool0))
     after = rms(dev)
     n_trim = int((~keep).sum())
     msg = ("extras from the data: " + "; ".join(what) + f" (RMS residual of the nominal robot {before:.2f} → "

@@ -447,16 +447,25 @@ def _cmd_calibrate(args) -> int:
 
     # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions
     extra_names = [n for n in res.space.free_names if group_kind(n) == "extra"]
-    if extra_names:
-        dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+    # asked for but not identifiable next to the robot's parameters: kept at their closed-form start
+    from ._calibrate import SELECT_GROUPS
+    from ._params import group_of
+
+    asked = {g for e in extras for g in SELECT_GROUPS.get(e, ())}
+    frozen = [n for n in res.space.names if group_kind(n) == "extra" and group_of(n) in asked
+              and n not in res.space.free_names]
+    if extra_names or frozen:
+        dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
         units = dict(zip(res.space.names, res.space.units))
         parts = []
-        for n in extra_names:
+        for n in extra_names + frozen:
             unit = "°" if units[n] == "rad" else units[n]
             v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
             s_ = sd.get(n, (None,))[0]
-            parts.append(f"{n} {_fmt_value(v, s_, unit)} {unit}")
-        print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ): " + ", ".join(parts))
+            parts.append(f"{n} {_fmt_value(v, s_, unit)}{'*' if n in frozen else ''} {unit}")
+        print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ"
+              + ("; * not identifiable next to the robot's parameters, kept at its start" if frozen else "")
+              + "): " + ", ".join(parts))
 
     ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
     if ng_names:
