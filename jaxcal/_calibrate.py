@@ -395,8 +395,11 @@ def calibrate(
             ``"adamodw"``, and the baselines), a :class:`~jaxcal.methods.Method`, or any
             ``optax.GradientTransformation`` (run full batch; pass ``steps=``).
         key: ``jax.random`` key for the method's randomness (default ``jax.random.key(0)``).
-        space: free parameters; default: the identifiable subset of the DH deviations and the
-            ``extras`` (see :func:`resolve_space`).
+        space: free parameters; default (see :func:`resolve_space`): without a prior the
+            identifiable subset of the DH deviations and the ``extras``; with a ``prior`` every
+            candidate it covers and the data-identifiable extras (maximum a posteriori); after
+            the fit, identifiability is judged again with the extras where it put them, and
+            parameters that became identifiable are freed and refit (``diagnostics.reselection``).
         start: starting deviations (default: nominal, with the extras initialised from the
             data, see ``init``); entries that are not free keep these.
         extras: sensor/setup unknowns to estimate with the robot: ``"anchor"``,
@@ -409,9 +412,10 @@ def calibrate(
             ``free="anchor,cable_offset"`` fits the sensor with the DH table fixed), ``fix``
             removes some. The identifiable
             subset of the candidates is then freed (``space`` default).
-        init: ``"auto"`` (default): when anchor, cable offset or base frame are estimated,
-            start them from the data in closed form (:func:`jaxcal.initial_extras`:
-            multilateration / Kabsch on the nominal robot) — a guess far off is fine;
+        init: ``"auto"`` (default): when anchor, cable offset, tool point or base frame are
+            estimated, start them from the data in closed form (:func:`jaxcal.initial_extras`:
+            multilateration, Kabsch, the tool point jointly with the frame or anchor, on the
+            nominal robot) — a guess far off is fine;
             ``"none"``: start from ``start`` as given.
         prior: Gaussian priors toward nominal (maximum a posteriori): ``None`` (default, plain
             least squares), ``"default"`` (0.5°, 2 mm on the DH deviations, none on extras), a

@@ -447,7 +447,7 @@ def _cmd_calibrate(args) -> int:
 
     # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions
     extra_names = [n for n in res.space.free_names if group_kind(n) == "extra"]
-    # asked for but not identifiable next to the robot's parameters: kept at their closed-form start
+    # asked for but held (no prior, and the data cannot tell them from another extra): at their start
     from ._calibrate import SELECT_GROUPS
     from ._params import group_of
 
@@ -464,7 +464,8 @@ def _cmd_calibrate(args) -> int:
             s_ = sd.get(n, (None,))[0]
             parts.append(f"{n} {_fmt_value(v, s_, unit)}{'*' if n in frozen else ''} {unit}")
         print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ"
-              + ("; * not identifiable next to the robot's parameters, kept at its start" if frozen else "")
+              + ("; * held at its start value: without a prior the data cannot tell it from another extra"
+                 if frozen else "")
               + "): " + ", ".join(parts))
 
     ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
