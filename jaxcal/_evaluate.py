@@ -135,6 +135,24 @@ def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarra
     return np.asarray(sample_errors_at(pr, pr.x0()), np.float64)
 
 
+def joints_to_file_units(robot, q) -> np.ndarray:
+    """Joint readings ``[n, dof]`` (rad, mm at prismatic joints) in the files' units: degrees, mm."""
+    from ._diagnostics import joint_units
+
+    rad = np.asarray([u == "rad" for u in joint_units(robot)])
+    q = np.asarray(q, np.float64)
+    return np.where(rad[None, :], np.rad2deg(q), q)
+
+
+def joints_from_file_units(robot, q) -> np.ndarray:
+    """Inverse of :func:`joints_to_file_units`."""
+    from ._diagnostics import joint_units
+
+    rad = np.asarray([u == "rad" for u in joint_units(robot)])
+    q = np.asarray(q, np.float64)
+    return np.where(rad[None, :], np.deg2rad(q), q)
+
+
 def _metrics(e) -> Metrics:
     return Metrics(*(float(v) for v in compute_metrics(jnp.asarray(e))))
 
@@ -160,6 +178,7 @@ class Evaluation:
         outlier_rows: rows (0-based) whose after-residual exceeds 5 robust σ; ``outlier_scale_mm``
             that σ.
         deviations_before, deviations_after: the deviations evaluated.
+        q_file: ``[n, dof]`` the joint readings in the files' units (degrees; mm at prismatic joints).
         objective: the calibration's objective (one line), if known.
 
     ``rmse``/``mean``/``max`` are the ``after`` numbers; ``worse`` says whether the calibrated robot
@@ -180,6 +199,7 @@ class Evaluation:
     deviations_before: Deviations
     deviations_after: Deviations
     objective: str | None = None
+    q_file: np.ndarray | None = None
 
     @property
     def rmse(self) -> float:
@@ -243,7 +263,7 @@ class Evaluation:
             "outlier_rows": [r + 1 for r in self.outlier_rows],
             "outlier_scale_mm": self.outlier_scale_mm,
             "n_samples": self.n,
-            "rows": {"row": list(range(1, self.n + 1)), "q_deg": np.rad2deg(self.q).tolist(),
+            "rows": {"row": list(range(1, self.n + 1)), "q_deg": (np.rad2deg(self.q) if self.q_file is None else self.q_file).tolist(),
                      "before_mm": self.before_errors.tolist(), "after_mm": self.after_errors.tolist()},
             "deviations_before": self.deviations_before.named(),
             "deviations_after": self.deviations_after.named(),
@@ -334,4 +354,5 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
         outlier_rows=rows, outlier_scale_mm=scale if math.isfinite(scale) else float("nan"),
         deviations_before=dev_b, deviations_after=dev_a, objective=objective,
+        q_file=joints_to_file_units(robot, data.q),
     )

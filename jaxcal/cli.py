@@ -283,7 +283,14 @@ def _cmd_calibrate(args) -> int:
     from ._calibrate import CalibrationWarning, calibrate
     from ._dataset import load_csv
     from ._diagnostics import Checks
-    from ._evaluate import MEASURED_DEFAULTS, describe_objective, evaluate_result, nominal_with_extras, sample_errors
+    from ._evaluate import (
+        MEASURED_DEFAULTS,
+        describe_objective,
+        evaluate_result,
+        joints_to_file_units,
+        nominal_with_extras,
+        sample_errors,
+    )
     from ._io import save_result
     from ._metrics import Metrics, compute_metrics, format_table
     from ._objective import LOSSES, Prior
@@ -433,7 +440,7 @@ def _cmd_calibrate(args) -> int:
     def part(name, ds, rows_1based, ev=None):
         eb = ev.before_errors if ev is not None else sample_errors(robot, measurement, dev_before, ds)
         ea = ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64)
-        per_row[name] = {"row": rows_1based, "q_deg": np.rad2deg(np.asarray(ds.q, np.float64)).tolist(),
+        per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
         if estimated:
@@ -736,6 +743,21 @@ def _cmd_report(args) -> int:
     from ._io import load_sweep
 
     src = pathlib.Path(args.sweep_dir)
+    if src.suffix.lower() == ".json" or args.html:
+        if not src.is_file():
+            raise _Usage(f"{args.sweep_dir}: no such file (--html takes a RESULT.json or EVAL.json)")
+        if not args.html:
+            raise _Usage("a result or evaluation file needs --html PAGE.html (tables and figures for sweeps: "
+                         "the sweep directory)")
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise _Usage("the HTML report needs matplotlib (pip install 'jaxcal[plot]')") from None
+        from ._html import write_html
+
+        out = write_html(src, args.html)
+        print(f"wrote {out} (one self-contained page: figures inline, no network needed)")
+        return 0
     if not (src / "sweep.json").exists() and (src / "sweep" / "sweep.json").exists():
         src = src / "sweep"
     if not (src / "sweep.json").exists():
@@ -973,11 +995,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_simulate)
 
     rp = sub.add_parser(
-        "report", formatter_class=fmt, help="tables and figures from a sweep directory",
-        description="Print Tables III–V and write the tables and figures again from the chunks a sweep wrote "
-                    "(`jaxcal reproduce --out DIR` keeps them in DIR/sweep).",
+        "report", formatter_class=fmt, help="an HTML page for a calibration or evaluation; tables and figures of a sweep",
+        description="jaxcal report RESULT.json --html PAGE.html (or EVAL.json from `jaxcal evaluate --out`): one "
+                    "self-contained HTML page (figures inline, no network) with the summary (data, model, method, "
+                    "objective, status, warnings), the before/after tables, a residual histogram, residuals against "
+                    "each joint, the error over the workspace, the parameter table with σ and a correlation heat "
+                    "map, the identifiability report and the outlier rows.\n\n"
+                    "jaxcal report SWEEP_DIR: print Tables III–V and write the tables and figures again from the "
+                    "chunks a sweep wrote (`jaxcal reproduce --out DIR` keeps them in DIR/sweep).",
     )
-    rp.add_argument("sweep_dir", help="the reproduce --out directory or its sweep/ subdirectory")
+    rp.add_argument("sweep_dir", metavar="SOURCE",
+                    help="RESULT.json / EVAL.json (with --html), or the reproduce --out directory or its sweep/ "
+                         "subdirectory")
+    rp.add_argument("--html", metavar="PAGE.html", help="write the HTML page of a result or evaluation file")
     rp.add_argument("--out", help="where to write (default: next to the sweep)")
     rp.add_argument("--partial", action="store_true", help="use the trials finished so far of an interrupted sweep")
     rp.add_argument("--no-figures", action="store_true", help="skip the figures")
