@@ -119,7 +119,7 @@ def _identifiability(ident: dict | None) -> str:
     if not ident:
         return "<p>No identifiability report in this file.</p>"
     deps = ident.get("dependencies", {})
-    rows = [[n, " + ".join(f"{c:+.4g}·{m}" for c, m in deps.get(n, [])) or "no effect on the measurements"]
+    rows = [[n, " ".join(f"{c:+.4g}·{m}" for c, m in deps.get(n, [])) or "no effect on the measurements"]
             for n in ident.get("unidentifiable", [])]
     out = [f"<p>Identification Jacobian rank {ident.get('rank')} of {ident.get('n_free')} candidate parameters "
            f"(column-scaled, rtol {ident.get('rtol')}); condition number of the identifiable subset "
@@ -127,7 +127,8 @@ def _identifiability(ident: dict | None) -> str:
            f"<p>Identifiable (calibrated): {_e(', '.join(ident.get('identifiable', [])))}</p>"]
     if rows:
         out.append("<p>Not identifiable (kept at their start value); a change acts like:</p>"
-                   + _table(["parameter", "acts like (per unit change)"], rows, left=2))
+                   + _table(["parameter", "a change δ acts like (coefficient · parameter · δ; angles in rad, lengths in mm)"],
+                            rows, left=2))
     return "".join(out)
 
 
@@ -218,6 +219,10 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None) -> str
         res_d = d
         diag = d.get("diagnostics") or {}
         warnings_ = diag.get("warnings", [])
+        if s.get("outlier_rows_after"):  # the diagnostics count training rows from 0; the page uses data rows
+            rows_txt = ", ".join(map(str, s["outlier_rows_after"][:20]))
+            warnings_ = [f"{len(s['outlier_rows_after'])} outlier sample(s) at data rows {rows_txt} (1-based; see "
+                         "Outlier rows)" if "outlier sample(s)" in w else w for w in warnings_]
         data = s.get("data", "")
         if s:
             data = f"{data}: {s.get('n_samples')} rows → {s.get('n_train')} train, {s.get('n_test')} test" + (

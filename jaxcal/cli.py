@@ -389,6 +389,8 @@ def _cmd_calibrate(args) -> int:
     key = jax.random.key(args.seed)
     k_split, k_method = jax.random.split(key)
     train_idx, test_idx = _split_indices(k_split, data.n, test_fraction)
+    if test_file is not None:  # a separate test file: every row trains, in file order
+        train_idx = np.arange(data.n)
     train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")

@@ -393,10 +393,24 @@ def residuals_vs_joints(parts: dict, path=None, *, joint_names: Sequence[str] | 
     nrows = math.ceil(dof / ncols)
     fig = _figure((9.0, 2.3 * nrows + 0.4))
     axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    # a robust vertical range, so gross rows do not flatten the rest; they are drawn at its edge (▲/▼)
+    allv = np.concatenate([np.asarray(e, np.float64) for _, e in parts.values()])
+    allv = allv[np.isfinite(allv)]
+    lo, hi = (np.quantile(allv, [0.005, 0.995]) if allv.size else (-1.0, 1.0))
+    pad = 0.15 * max(hi - lo, 1e-9)
+    lo, hi = lo - pad, hi + pad
+    clipped = 0
     for j in range(dof):
         ax = axes[j]
         for i, (label, (q, e)) in enumerate(parts.items()):
-            ax.scatter(np.asarray(q)[:, j], e, s=6, alpha=0.6, color=PART_COLORS[i % len(PART_COLORS)], label=label)
+            qj, e = np.asarray(q)[:, j], np.asarray(e, np.float64)
+            inside = (e >= lo) & (e <= hi)
+            ax.scatter(qj[inside], e[inside], s=6, alpha=0.6, color=PART_COLORS[i % len(PART_COLORS)], label=label)
+            for sel, y, mk in ((e > hi, hi, "^"), (e < lo, lo, "v")):
+                if sel.any():
+                    ax.scatter(qj[sel], np.full(sel.sum(), y), s=30, marker=mk, color="black", zorder=3)
+            clipped += int((~inside).sum()) if j == 0 else 0
+        ax.set_ylim(lo, hi)
         ax.set_xlabel(f"q{j + 1}" + (f" {joint_names[j]}" if joint_names else "") + " / °", fontsize=8)
         ax.set_ylabel("error / mm", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -404,7 +418,8 @@ def residuals_vs_joints(parts: dict, path=None, *, joint_names: Sequence[str] | 
     for ax in axes[dof:]:
         ax.set_visible(False)
     axes[0].legend(fontsize=7)
-    fig.suptitle("Error after calibration against each joint", fontsize=10)
+    fig.suptitle("Error after calibration against each joint"
+                 + (f" ({clipped} row(s) beyond the range drawn at its edge: ▲ ▼)" if clipped else ""), fontsize=10)
     _save(fig, path)
     return fig
 
