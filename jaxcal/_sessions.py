@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._evaluate import MEASURED_DEFAULTS
+from ._evaluate import MEASURED_DEFAULTS, describe_objective
 from ._initialise import (
     MIN_FRAME_ROWS,
     ExtrasEstimate,
@@ -339,6 +339,7 @@ class SessionHoldout(NamedTuple):
         train_before_rmse, train_after_rmse: training RMSE (mm), nominal (+ closed-form
             extras) and calibrated.
         result: the training :class:`~jaxcal.CalibrationResult`.
+        objective: one line naming the training objective (the measured-data defaults, or not).
     """
 
     session: str
@@ -355,6 +356,7 @@ class SessionHoldout(NamedTuple):
     train_before_rmse: float
     train_after_rmse: float
     result: object
+    objective: str = ""
 
 
 def _rms(e) -> float:
@@ -446,7 +448,7 @@ def holdout_session(robot, data, session: str, *, n_markers: int | None = None, 
     return SessionHoldout(
         session, test, frame, placement, frame_seen, placement_seen, groups, _rms(eb), _rms(ea), eb, ea,
         _rms(_errors(robot, m_tr, nominal, q[train], y[train])),
-        _rms(_errors(robot, m_tr, res.deviations, q[train], y[train])), res)
+        _rms(_errors(robot, m_tr, res.deviations, q[train], y[train])), res, describe_objective(prior, loss))
 
 
 def leave_one_session_out(robot, data, **kw) -> tuple[list[SessionHoldout], float, float]:

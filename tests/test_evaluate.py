@@ -2,6 +2,7 @@
 honest "before", the measured-data defaults, and the HTML report."""
 
 import html.parser
+import inspect
 import json
 import math
 import warnings
@@ -113,7 +114,7 @@ def test_html_report_is_valid_and_self_contained(two_days, tmp_path, capsys):
 
 
 def test_objective_presets():
-    from jaxcal._evaluate import resolve_objective
+    from jaxcal._evaluate import describe_objective, resolve_objective
 
     assert resolve_objective(None, None, None) == (None, "linear")  # calibrate()'s bare default
     assert resolve_objective("measured", None, None) == ("default", "huber")
@@ -121,6 +122,10 @@ def test_objective_presets():
     assert jaxcal.MEASURED_DEFAULTS == {"prior": "default", "loss": "huber"}
     with pytest.raises(ValueError, match="unknown objective"):
         resolve_objective("robust", None, None)
+    sig = inspect.signature(jaxcal.holdout_session).parameters  # one set of defaults for measured data
+    assert (sig["prior"].default, sig["loss"].default) == ("default", "huber")
+    assert "measured-data defaults" in describe_objective("default", "huber")
+    assert "not the measured-data defaults" in describe_objective(None, "linear")
 
 
 def test_one_gross_outlier_under_the_measured_defaults():
