@@ -22,6 +22,9 @@ from ._dataset import save_csv as save_csv
 from ._diagnostics import Checks as Checks
 from ._diagnostics import Diagnostics as Diagnostics
 from ._diagnostics import Uncertainty as Uncertainty
+from ._evaluate import MEASURED_DEFAULTS as MEASURED_DEFAULTS
+from ._evaluate import Evaluation as Evaluation
+from ._evaluate import evaluate_result as evaluate_result
 from ._identifiability import KEEP_PREFERENCE as KEEP_PREFERENCE
 from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
 from ._identifiability import identifiability as identifiability
@@ -128,6 +131,9 @@ __all__ = [
     "SessionHoldout",
     "holdout_session",
     "initial_sessions",
+    "MEASURED_DEFAULTS",
+    "Evaluation",
+    "evaluate_result",
     "leave_one_session_out",
     "Pose",
     "Position",

@@ -28,6 +28,7 @@ from ._diagnostics import (
     prior_directions,
     weak_parameters,
 )
+from ._evaluate import resolve_objective
 from ._identifiability import identify_with_residuals
 from ._initialise import INITIALISABLE, initial_extras
 from ._kinematics import shared_joint_trig
@@ -378,7 +379,8 @@ def calibrate(
     fix=(),
     init: str = "auto",
     prior: Prior | str | None = None,
-    loss: str = "linear",
+    loss: str | None = None,
+    objective: str | None = None,
     loss_scale: float | None = None,
     checks: Checks | None = None,
     throw: bool = False,
@@ -417,12 +419,19 @@ def calibrate(
             multilateration, Kabsch, the tool point jointly with the frame or anchor, on the
             nominal robot) — a guess far off is fine;
             ``"none"``: start from ``start`` as given.
-        prior: Gaussian priors toward nominal (maximum a posteriori): ``None`` (default, plain
-            least squares), ``"default"`` (0.5°, 2 mm on the DH deviations, none on extras), a
+        prior: Gaussian priors toward nominal (maximum a posteriori): ``None`` (default: none,
+            unless ``objective`` gives one), ``"none"``, ``"default"`` (0.5°, 2 mm on the DH deviations, none on extras), a
             :class:`jaxcal.Prior`, or a ``"key=value,..."`` string. The prior's noise σ is
             estimated from the fit unless given (see ``Prior.noise_std``).
-        loss: ``"linear"`` (least squares), ``"huber"`` or ``"cauchy"`` (robust against gross
-            outliers; see :mod:`jaxcal._objective`).
+        loss: ``"linear"`` (least squares; the default unless ``objective`` gives another),
+            ``"huber"`` or ``"cauchy"`` (robust against gross outliers; see :mod:`jaxcal._objective`).
+        objective: a named preset of ``prior`` and ``loss`` filling in those not given:
+            ``"measured"`` = :data:`jaxcal.MEASURED_DEFAULTS` (the default prior + the Huber
+            loss: the defaults for measured data, used by the CLI, :func:`jaxcal.holdout_session`
+            and :func:`jaxcal.leave_one_session_out`; evidence in
+            ``benchmarks/results/measured_defaults_cpu.md``), ``"least_squares"``. Without it
+            (``None``, the default) ``calibrate`` is plain least squares with no prior — the
+            paper's experiment, on purpose; pass ``objective="measured"`` for real data.
         loss_scale: robust-loss scale ``c`` (mm); default ``k·σ̂`` re-estimated from the fit.
         checks: thresholds of the plausibility / conditioning / coverage / outlier checks
             (:class:`jaxcal.Checks`).
@@ -438,6 +447,7 @@ def calibrate(
         :class:`CalibrationWarning`).
     """
     meth = make_method(method, **hyperparameters)
+    prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
     q, y = _as_arrays(data, measurement, robot)
     warn_if_float32(q.dtype, "calibrate")
     checks = Checks() if checks is None else checks

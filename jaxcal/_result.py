@@ -295,8 +295,19 @@ class CalibrationResult:
         r = (self.predict(data.q) - data.y).reshape(q.shape[0], self.measurement.size)
         return self.measurement.sample_error(r)
 
-    def evaluate(self, data) -> Metrics:
-        """RMSE/MEAN/MAX (mm) on ``data`` (e.g. the held-out test split)."""
+    def evaluate(self, data, *, extras: str | None = None):
+        """RMSE/MEAN/MAX (mm) on ``data`` (e.g. the held-out test split of the training session),
+        with the result's own sensor extras: a :class:`~jaxcal._metrics.Metrics`.
+
+        With ``extras=`` (``"auto"``, ``"register"`` or ``"result"``): the calibration checked on
+        new measurements, before and after, the sensor extras (anchor, frame, markers) registered
+        again on ``data`` or taken from the result — a :class:`jaxcal.Evaluation` (its
+        ``rmse``/``mean``/``max`` are the after numbers); see :func:`jaxcal.evaluate_result`.
+        """
+        if extras is not None:
+            from ._evaluate import evaluate_result
+
+            return evaluate_result(self, data, extras=extras)
         return Metrics(*(float(v) for v in compute_metrics(self.sample_errors(data))))
 
     def dh_table(self) -> DHTable:

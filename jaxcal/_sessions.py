@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._evaluate import MEASURED_DEFAULTS, describe_objective
 from ._initialise import (
     MIN_FRAME_ROWS,
     ExtrasEstimate,
@@ -338,6 +339,7 @@ class SessionHoldout(NamedTuple):
         train_before_rmse, train_after_rmse: training RMSE (mm), nominal (+ closed-form
             extras) and calibrated.
         result: the training :class:`~jaxcal.CalibrationResult`.
+        objective: one line naming the training objective (the measured-data defaults, or not).
     """
 
     session: str
@@ -354,6 +356,7 @@ class SessionHoldout(NamedTuple):
     train_before_rmse: float
     train_after_rmse: float
     result: object
+    objective: str = ""
 
 
 def _rms(e) -> float:
@@ -383,13 +386,15 @@ def _register(robot, m, q, y, dev, groups, frames, placements):
 
 
 def holdout_session(robot, data, session: str, *, n_markers: int | None = None, positions_mm=None,
-                    prior="default", loss: str = "huber", **calibrate_kw) -> SessionHoldout:
+                    prior=MEASURED_DEFAULTS["prior"], loss: str = MEASURED_DEFAULTS["loss"],
+                    **calibrate_kw) -> SessionHoldout:
     """Calibrate on every session but ``session`` and evaluate on ``session``'s rows.
 
     Training: :func:`jaxcal.calibrate` with :class:`SessionMarkers` on the other sessions'
     rows (shared robot errors, the identifiable subset by QR, each frame/placement started in
     closed form; labels that occur only in the held-out session stay fixed), with ``prior`` and
-    ``loss`` (default: jaxcal's default prior and the Huber loss).
+    ``loss`` (default: :data:`jaxcal.MEASURED_DEFAULTS`, the defaults for measured data — the
+    default prior and the Huber loss, as ``calibrate(..., objective="measured")`` and the CLI).
 
     Held-out rows: a frame or placement label the training sessions use is predicted with its
     trained value; a label only the held-out session has is **registered** on the held-out rows
@@ -443,11 +448,12 @@ def holdout_session(robot, data, session: str, *, n_markers: int | None = None, 
     return SessionHoldout(
         session, test, frame, placement, frame_seen, placement_seen, groups, _rms(eb), _rms(ea), eb, ea,
         _rms(_errors(robot, m_tr, nominal, q[train], y[train])),
-        _rms(_errors(robot, m_tr, res.deviations, q[train], y[train])), res)
+        _rms(_errors(robot, m_tr, res.deviations, q[train], y[train])), res, describe_objective(prior, loss))
 
 
 def leave_one_session_out(robot, data, **kw) -> tuple[list[SessionHoldout], float, float]:
-    """:func:`holdout_session` for every session of ``data``; returns ``(per session, pooled
+    """:func:`holdout_session` for every session of ``data`` (same keywords; by default the
+    objective :data:`jaxcal.MEASURED_DEFAULTS`); returns ``(per session, pooled
     before RMSE, pooled after RMSE)`` — pooled over every held-out row (mm)."""
     sessions = _ordered(s for s, _, _ in session_labels(data))
     if len(sessions) < 2:

@@ -300,10 +300,18 @@ def _cmd_calibrate(args) -> int:
     from ._calibrate import CalibrationWarning, calibrate
     from ._dataset import load_csv
     from ._diagnostics import Checks
+    from ._evaluate import (
+        MEASURED_DEFAULTS,
+        describe_objective,
+        evaluate_result,
+        joints_to_file_units,
+        nominal_with_extras,
+        sample_errors,
+    )
     from ._io import save_result
     from ._metrics import Metrics, compute_metrics, format_table
     from ._objective import LOSSES, Prior
-    from ._problem import Problem
+    from ._params import Deviations, group_kind
     from .methods._stages import check_method_name
 
     try:
@@ -356,10 +364,26 @@ def _cmd_calibrate(args) -> int:
         if "tool" in estimate:
             raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
     measurement = _measurement(args.measurement, anchor, robot, data.y.shape[1] if data.kind == "markers" else None)
-    if not (0.0 <= args.test_fraction < 1.0):
-        raise _Usage(f"--test-fraction must be in [0, 1), got {args.test_fraction}")
-    if args.loss not in LOSSES:
-        raise _Usage(f"--loss must be one of {', '.join(LOSSES)}, got {args.loss!r}")
+    if args.test and args.test_fraction is not None:
+        raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
+    test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
+    if args.test:
+        test_fraction = 0.0
+    if not (0.0 <= test_fraction < 1.0):
+        raise _Usage(f"--test-fraction must be in [0, 1), got {test_fraction}")
+    loss = MEASURED_DEFAULTS["loss"] if args.loss is None else args.loss
+    if loss not in LOSSES:
+        raise _Usage(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    test_file = None
+    if args.test:
+        tpath = pathlib.Path(args.test)
+        if not tpath.exists():
+            raise _Usage(f"test file {args.test!r} not found")
+        test_file = load_csv(tpath, kind=data.kind, n_markers=data.y.shape[1] if data.kind == "markers" else None)
+        if test_file.dof != robot.dof:
+            raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+        if test_file.labels:
+            raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
     try:
         prior = Prior.parse(args.prior)
     except ValueError as e:
@@ -381,26 +405,29 @@ def _cmd_calibrate(args) -> int:
     data = data.subset(kept_rows)
     key = jax.random.key(args.seed)
     k_split, k_method = jax.random.split(key)
-    train_idx, test_idx = _split_indices(k_split, data.n, args.test_fraction)
-    train, test = data.subset(train_idx), data.subset(test_idx)
+    train_idx, test_idx = _split_indices(k_split, data.n, test_fraction)
+    if test_file is not None:  # a separate test file: every row trains, in file order
+        train_idx = np.arange(data.n)
+    train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
     extras = sorted({"offset": "cable_offset"}.get(e, e) for e in estimate)
     file_row = lambda i: int(kept_rows[train_idx[i]]) + 1  # noqa: E731  (1-based data row of a training row)
 
-    print(f"data: {data.n} {measurement.kind} samples from {path} → {train.n} train / {test.n} test "
-          f"(seed {args.seed}); robot {robot.name}; method {method}")
+    split = (f"{train.n} train / {test.n} test (seed {args.seed})" if test_file is None else
+             f"all {train.n} for training; test: {test.n} samples from {args.test}")
+    print(f"data: {data.n} {measurement.kind} samples from {path} → {split}; robot {robot.name}; method {method}")
     for n in notes:
         print(f"note: {n}")
-    print(f"objective: {'least squares' if args.loss == 'linear' else args.loss + ' loss'}"
-          + (f"; {prior.describe()}" if prior is not None else "; no prior (--prior default adds one)"))
+    objective_line = describe_objective(prior, loss)
+    print(objective_line)
 
     def run(train_set):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
             try:
                 res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
-                                loss=args.loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
+                                loss=loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
             except TypeError as e:
                 raise _Usage(str(e)) from None
         for w in caught:
@@ -425,19 +452,38 @@ def _cmd_calibrate(args) -> int:
     if res.diagnostics.extras:
         print(res.diagnostics.extras)
 
-    def before(ds):
-        from ._problem import sample_errors_at
+    # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start)
+    dev_before = nominal_with_extras(res)
+    zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
+    estimated = any(group_kind(n) == "extra" for n in res.space.free_names)
+    per_row = {}
 
-        pr = Problem(robot, measurement, ds.q, ds.y, res.space)
-        return Metrics(*(float(v) for v in compute_metrics(sample_errors_at(pr, pr.x0()))))
+    def part(name, ds, rows_1based, ev=None):
+        eb = ev.before_errors if ev is not None else sample_errors(robot, measurement, dev_before, ds)
+        ea = ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64)
+        per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
+                         "before_mm": eb.tolist(), "after_mm": ea.tolist()}
+        out = []
+        if estimated:
+            out.append((f"{name}, raw nominal", Metrics(*(float(v) for v in compute_metrics(
+                sample_errors(robot, measurement, zero, ds))))))
+        return out + [(f"{name}, before", Metrics(*(float(v) for v in compute_metrics(eb)))),
+                      (f"{name}, after", Metrics(*(float(v) for v in compute_metrics(ea))))]
 
-    rows = [("train, before", before(train)), ("train, after", res.evaluate(train))]
-    if test.n:
-        rows += [("test, before", before(test)), ("test, after", res.evaluate(test))]
+    rows = part("train", train, [file_row(i) for i in range(train.n)])
+    evaluation = None
+    if test_file is not None:
+        evaluation = evaluate_result(res, test_file, extras="result" if args.keep_extras else "auto")
+        rows += part("test", test_file, list(range(1, test_file.n + 1)), evaluation)
+    elif test.n:
+        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx])
     print()
     print(format_table(_metrics_rows(rows), ["data", "RMSE/mm", "MEAN/mm", "MAX/mm"],
                        title=f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
                              f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
+    print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
+          + ("; raw nominal = the guessed extras, nothing estimated" if estimated else "")
+          + ("" if evaluation is None else f"\ntest file: {evaluation.message}"))
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
     if hasattr(robot, "dh_table_deg"):
         _print_dh_table(robot, res, sd)
@@ -498,11 +544,15 @@ def _cmd_calibrate(args) -> int:
         print(f"jaxcal: warning: {w}", file=sys.stderr)
     if args.out:
         settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
-                    "seed": args.seed, "test_fraction": args.test_fraction, "method": method,
-                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": args.loss,
+                    "seed": args.seed, "test_fraction": test_fraction, "test_file": args.test, "method": method,
+                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": loss,
+                    "objective": objective_line,
                     "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
                     "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
-        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows})
+        info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
+                                "message": evaluation.message}} if evaluation is not None else {}
+        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
+                    rows=per_row, **info)
         print(f"\nwrote {args.out}")
     if args.verbose:
         t_end = time.perf_counter()
@@ -523,6 +573,56 @@ def _cmd_calibrate(args) -> int:
                     "or the robot's parameters absorb its error")
         print("jaxcal: calibration implausible (see the warning above); exit status 1 — use "
               f"--accept-implausible to accept it, or a stronger --prior{hint}", file=sys.stderr)
+        return _EXIT_FAILED
+    return 0
+
+
+# -- evaluate -----------------------------------------------------------------------------------------
+
+#: ``"format"`` of the files ``jaxcal evaluate --out`` writes.
+EVALUATION_FORMAT = "jaxcal-evaluation/1"
+
+
+def _cmd_evaluate(args) -> int:
+    """A saved calibration on new measurements: before/after, per-row errors, outliers (issue 24)."""
+    import json
+
+    from ._dataset import load_csv
+    from ._evaluate import evaluate_result
+    from ._io import load_result, load_result_dict, measurement_to_dict, robot_to_dict
+    from ._json import to_jsonable
+
+    src, path = pathlib.Path(args.result), pathlib.Path(args.data)
+    if not src.exists():
+        raise _Usage(f"result file {args.result!r} not found")
+    if not path.exists():
+        raise _Usage(f"data file {args.data!r} not found")
+    raw = load_result_dict(src)
+    res = load_result(src)
+    m = res.measurement
+    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" else None)
+    if data.dof != res.robot.dof:
+        raise _Usage(f"{path} has {data.dof} joint columns but the calibrated robot {res.robot.name!r} has "
+                     f"{res.robot.dof} joints")
+    if data.labels:
+        raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
+    objective = raw.get("settings", {}).get("objective") or (
+        f"objective: {raw.get('loss', 'linear')} loss; {raw.get('prior') or 'no prior'}")
+    ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective)
+    print(f"calibration: {src} ({res.robot.name}, {res.method}, {raw.get('status')}; {len(res.space.free_names)} "
+          f"free parameters); new data: {data.n} {m.kind} samples from {path}")
+    print(f"calibrated with the {objective}" if objective.startswith("measured") else f"calibrated with: {objective}")
+    print(ev)
+    if args.out:
+        out = {"format": EVALUATION_FORMAT, "result": str(src), "data": str(path), "method": res.method,
+               "status": raw.get("status"), "robot": robot_to_dict(res.robot), "measurement": measurement_to_dict(m),
+               **ev.to_dict()}
+        pathlib.Path(args.out).write_text(json.dumps(to_jsonable(out), indent=1, allow_nan=False) + "\n",
+                                          encoding="utf-8")
+        print(f"\nwrote {args.out}")
+    if ev.worse:
+        print(f"jaxcal: the calibrated robot predicts {path} worse than the nominal robot (RMSE {ev.after.rmse:.4g} "
+              f"vs {ev.before.rmse:.4g} mm); exit status 1", file=sys.stderr)
         return _EXIT_FAILED
     return 0
 
@@ -674,6 +774,21 @@ def _cmd_report(args) -> int:
     from ._io import load_sweep
 
     src = pathlib.Path(args.sweep_dir)
+    if src.suffix.lower() == ".json" or args.html:
+        if not src.is_file():
+            raise _Usage(f"{args.sweep_dir}: no such file (--html takes a RESULT.json or EVAL.json)")
+        if not args.html:
+            raise _Usage("a result or evaluation file needs --html PAGE.html (tables and figures for sweeps: "
+                         "the sweep directory)")
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise _Usage("the HTML report needs matplotlib (pip install 'jaxcal[plot]')") from None
+        from ._html import write_html
+
+        out = write_html(src, args.html)
+        print(f"wrote {out} (one self-contained page: figures inline, no network needed)")
+        return 0
     if not (src / "sweep.json").exists() and (src / "sweep" / "sweep.json").exists():
         src = src / "sweep"
     if not (src / "sweep.json").exists():
@@ -810,12 +925,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser(
         "calibrate", formatter_class=fmt, help="calibrate a robot from a CSV data file",
-        description="Calibrate the robot's parameters (under the default prior: every DH deviation and the estimated "
-                    "extras the data see, maximum a posteriori; with --prior none: the identifiable subset, found by QR with "
-                    "column pivoting at the start and judged again at the solution) from "
-                    "measured data: split off --test-fraction of the samples (at random, --seed), calibrate on the "
-                    "rest, print RMSE/MEAN/MAX (mm) before and after on both parts and the calibrated DH table, "
-                    "and write a JSON result (--out) that jaxcal.load_result reads back.",
+        description="Calibrate the robot's parameters from measured data (under the default prior: every DH "
+                    "deviation and the estimated extras the data see, maximum a posteriori; with --prior none: the "
+                    "identifiable subset, found by QR with column pivoting; either way judged again with the extras "
+                    "where the fit put them): split off --test-fraction of the samples (at random, --seed) or "
+                    "validate on a separate --test file, calibrate on the rest, print RMSE/MEAN/MAX (mm) before and "
+                    "after on both parts and the calibrated DH table, and write a JSON result (--out) that "
+                    "jaxcal.load_result, `jaxcal evaluate` and `jaxcal report --html` read back. 'before' is the "
+                    "nominal robot with the sensor extras estimated from the data (closed-form start); 'raw nominal' "
+                    "the guessed extras. Objective: the measured-data defaults (jaxcal.MEASURED_DEFAULTS: default "
+                    "prior + Huber loss) unless --prior/--loss say otherwise; printed in the output.",
         epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT + "\n\nexit status: 0 ok, 1 calibration failed, diverged, "
                "stopped at its step budget, or implausible (see --accept-implausible), 2 bad input.",
     )
@@ -857,8 +976,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Gaussian prior toward the nominal robot (MAP): 'default' (σ 0.5° on angles, 2 mm on DH "
                         "lengths, none on extras; the default), 'none' (plain least squares), or key=value pairs: "
                         "angle_deg=0.5,length_mm=2,extras_mm=500,noise_std=0.3 or a parameter name, e.g. d_1=10")
-    c.add_argument("--loss", default="linear", choices=("linear", "huber", "cauchy"),
-                   help="linear (least squares, default) or a robust loss against gross outliers")
+    c.add_argument("--loss", default=None, choices=("linear", "huber", "cauchy"),
+                   help="huber (the default: with the default prior, the measured-data defaults "
+                        "jaxcal.MEASURED_DEFAULTS), cauchy (robust losses against gross outliers) or linear (plain "
+                        "least squares)")
     c.add_argument("--exclude-outliers", action="store_true",
                    help="refit without the training rows flagged as outliers (> 5 robust σ) after the first fit; they "
                         "are listed")
@@ -875,7 +996,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="method hyperparameter, e.g. --set steps=1000 --set learning_rate=0.05 (repeatable); "
                         "for stages STAGE.NAME=VALUE, e.g. --set ga.generations=100 --set lm.max_steps=50")
-    c.add_argument("--test-fraction", type=float, default=0.2, help="held-out fraction in [0, 1) (default 0.2)")
+    c.add_argument("--test-fraction", type=float, default=None, help="held-out fraction in [0, 1) (default 0.2)")
+    c.add_argument("--test", metavar="TEST.csv",
+                   help="validate on this separate data file instead of a random split (all of DATA trains); the "
+                        "sensor extras (anchor, frame, markers) are registered again on it, for the nominal and the "
+                        "calibrated robot alike, unless --keep-extras")
+    c.add_argument("--keep-extras", action="store_true",
+                   help="with --test: the test file shares the training data's sensor set-up; take the extras from "
+                        "the calibration instead of registering them again")
     c.add_argument("--seed", type=int, default=0, help="seed of the split and the method (default 0)")
     c.add_argument("--out", metavar="RESULT.json", help="write the result as JSON")
     c.add_argument("--verbose", action="store_true", help="print where the time went (imports, data, fit, output)")
@@ -900,15 +1028,46 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_simulate)
 
     rp = sub.add_parser(
-        "report", formatter_class=fmt, help="tables and figures from a sweep directory",
-        description="Print Tables III–V and write the tables and figures again from the chunks a sweep wrote "
-                    "(`jaxcal reproduce --out DIR` keeps them in DIR/sweep).",
+        "report", formatter_class=fmt, help="an HTML page for a calibration or evaluation; tables and figures of a sweep",
+        description="jaxcal report RESULT.json --html PAGE.html (or EVAL.json from `jaxcal evaluate --out`): one "
+                    "self-contained HTML page (figures inline, no network) with the summary (data, model, method, "
+                    "objective, status, warnings), the before/after tables, a residual histogram, residuals against "
+                    "each joint, the error over the workspace, the parameter table with σ and a correlation heat "
+                    "map, the identifiability report and the outlier rows.\n\n"
+                    "jaxcal report SWEEP_DIR: print Tables III–V and write the tables and figures again from the "
+                    "chunks a sweep wrote (`jaxcal reproduce --out DIR` keeps them in DIR/sweep).",
     )
-    rp.add_argument("sweep_dir", help="the reproduce --out directory or its sweep/ subdirectory")
+    rp.add_argument("sweep_dir", metavar="SOURCE",
+                    help="RESULT.json / EVAL.json (with --html), or the reproduce --out directory or its sweep/ "
+                         "subdirectory")
+    rp.add_argument("--html", metavar="PAGE.html", help="write the HTML page of a result or evaluation file")
     rp.add_argument("--out", help="where to write (default: next to the sweep)")
     rp.add_argument("--partial", action="store_true", help="use the trials finished so far of an interrupted sweep")
     rp.add_argument("--no-figures", action="store_true", help="skip the figures")
     rp.set_defaults(func=_cmd_report)
+
+    ev = sub.add_parser(
+        "evaluate", formatter_class=fmt, help="check a saved calibration on new measurements (before/after)",
+        description="Check a calibration (`jaxcal calibrate --out RESULT.json`) on new measurements DATA.csv (e.g. "
+                    "the next day's): RMSE/MEAN/MAX (mm) of the nominal robot ('before') and the calibrated robot "
+                    "('after'), each with the sensor extras (draw-wire anchor and cable offset, tracker / mocap "
+                    "frame, marker positions) registered again on the new rows with the robot fixed (closed form, "
+                    "then a fit of the extras only) — a new day's set-up — or, with --keep-extras, the calibrated "
+                    "robot with the result's extras. The raw nominal line uses the guessed extras. Prints which "
+                    "extras were registered, the rows that are outliers after calibration (> 5 robust σ, 1-based), "
+                    "and writes per-row errors to --out (EVAL.json: metrics_mm.before/after with rmse, mean, max).",
+        epilog=_DATA_FORMAT + "\n\nThe data file's kind comes from the result (cable, position, pose, markers).\n\n"
+               "exit status: 0 the calibrated robot predicts the new data at least as well as the nominal one, "
+               "1 worse, 2 bad input.",
+    )
+    ev.add_argument("result", help="RESULT.json written by `jaxcal calibrate --out`")
+    ev.add_argument("data", help="CSV data file with new measurements (same robot and sensor kind)")
+    ev.add_argument("--out", metavar="EVAL.json", help="write the evaluation (metrics, per-row errors) as JSON; "
+                                                       "`jaxcal report EVAL.json --html page.html` shows it")
+    ev.add_argument("--keep-extras", action="store_true",
+                    help="the new data share the calibration's sensor set-up: take the extras from the result "
+                         "instead of registering them again")
+    ev.set_defaults(func=_cmd_evaluate)
 
     e = sub.add_parser(
         "export", formatter_class=fmt, help="write a calibrated model (URDF, DH table) from a result file",

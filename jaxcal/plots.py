@@ -9,6 +9,10 @@
 * :func:`grid_figure` — test RMSE over a two-axis hyperparameter grid (the ablation).
 * :func:`save_figures` — all of them as PNG and PDF.
 
+One calibration (the HTML page of ``jaxcal report RESULT.json --html``, :mod:`jaxcal._html`):
+:func:`residual_histogram`, :func:`residuals_vs_joints`, :func:`workspace_errors`,
+:func:`correlation_heatmap`.
+
 Figures are built on :class:`matplotlib.figure.Figure` directly (no ``pyplot`` state, no GUI):
 saving uses the Agg renderer whatever backend is active, so this works headless and in
 notebooks (``display(fig)``) alike.
@@ -25,7 +29,8 @@ import numpy as np
 from ._sweep import PAPER_METHODS, SweepResult, SweepRun
 from .report import batching_label, paper_label
 
-__all__ = ["fig2_accuracy", "fig3_training", "fig4_positioning", "grid_figure", "save_figures", "method_color"]
+__all__ = ["fig2_accuracy", "fig3_training", "fig4_positioning", "grid_figure", "save_figures", "method_color",
+           "residual_histogram", "residuals_vs_joints", "workspace_errors", "correlation_heatmap"]
 
 _OTHER_COLORS = ("#17becf", "#bcbd22", "#7f7f7f", "#8c564b", "#e377c2")
 
@@ -349,3 +354,111 @@ def save_figures(result: SweepResult, out_dir, *, formats: Sequence[str] = ("png
             fig.savefig(p, dpi=150)
             files[p.name] = p
     return files
+
+
+# -- one calibration (the HTML report of ``jaxcal report RESULT.json --html``) ------------------------
+#: colours of the data parts of one calibration (train, test, new data)
+PART_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
+
+
+def residual_histogram(parts: dict, path=None):
+    """Histogram of per-row error sizes (mm, ≥ 0): for each data part ``{label: (before [n], after [n])}`` the
+    calibrated robot's errors (filled) and the nominal robot's (outline, extras from the data)."""
+    fig = _figure((7.0, 3.6))
+    ax = fig.subplots()
+    allv = np.concatenate([np.concatenate([np.asarray(b), np.asarray(a)]) for b, a in parts.values()])
+    allv = allv[np.isfinite(allv)]
+    hi = float(np.quantile(allv, 0.99)) if allv.size else 1.0
+    bins = np.linspace(0.0, max(hi, 1e-9) * 1.05, 40)
+    for i, (label, (b, a)) in enumerate(parts.items()):
+        c = PART_COLORS[i % len(PART_COLORS)]
+        ax.hist(np.clip(a, 0, bins[-1]), bins=bins, color=c, alpha=0.45, label=f"{label}, after")
+        ax.hist(np.clip(b, 0, bins[-1]), bins=bins, color=c, histtype="step", ls="--", lw=1.2,
+                label=f"{label}, before")
+    ax.set_xlabel("per-row error size / mm (values beyond the 99th percentile in the last bin)")
+    ax.set_ylabel("rows")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.set_title("Residuals before (nominal robot, extras from the data) and after calibration", fontsize=10)
+    _save(fig, path)
+    return fig
+
+
+def residuals_vs_joints(parts: dict, path=None, *, joint_names: Sequence[str] | None = None):
+    """Per-row error after calibration (mm; signed for a draw-wire) against each joint reading (°),
+    one panel per joint;
+    ``parts``: ``{label: (q_deg [n, dof], after [n])}``. Trends show unmodelled errors."""
+    dof = next(iter(parts.values()))[0].shape[1]
+    ncols = 3 if dof > 4 else 2
+    nrows = math.ceil(dof / ncols)
+    fig = _figure((9.0, 2.3 * nrows + 0.4))
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    # a robust vertical range, so gross rows do not flatten the rest; they are drawn at its edge (▲/▼)
+    allv = np.concatenate([np.asarray(e, np.float64) for _, e in parts.values()])
+    allv = allv[np.isfinite(allv)]
+    lo, hi = (np.quantile(allv, [0.005, 0.995]) if allv.size else (-1.0, 1.0))
+    pad = 0.15 * max(hi - lo, 1e-9)
+    lo, hi = lo - pad, hi + pad
+    clipped = 0
+    for j in range(dof):
+        ax = axes[j]
+        for i, (label, (q, e)) in enumerate(parts.items()):
+            qj, e = np.asarray(q)[:, j], np.asarray(e, np.float64)
+            inside = (e >= lo) & (e <= hi)
+            ax.scatter(qj[inside], e[inside], s=6, alpha=0.6, color=PART_COLORS[i % len(PART_COLORS)], label=label)
+            for sel, y, mk in ((e > hi, hi, "^"), (e < lo, lo, "v")):
+                if sel.any():
+                    ax.scatter(qj[sel], np.full(sel.sum(), y), s=30, marker=mk, color="black", zorder=3)
+            clipped += int((~inside).sum()) if j == 0 else 0
+        ax.set_ylim(lo, hi)
+        ax.set_xlabel(f"q{j + 1}" + (f" {joint_names[j]}" if joint_names else "") + " / °", fontsize=8)
+        ax.set_ylabel("error / mm", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axes[dof:]:
+        ax.set_visible(False)
+    axes[0].legend(fontsize=7)
+    fig.suptitle("Error after calibration against each joint"
+                 + (f" ({clipped} row(s) beyond the range drawn at its edge: ▲ ▼)" if clipped else ""), fontsize=10)
+    _save(fig, path)
+    return fig
+
+
+def workspace_errors(points, errors, path=None, *, label: str = "tool point of the nominal robot"):
+    """Error after calibration (mm, colour) over the workspace: the ``points`` ``[n, 3]`` (mm, base
+    frame) seen from above (x–y) and from the side (x–z)."""
+    p = np.asarray(points, np.float64)
+    e = np.asarray(errors, np.float64)
+    fig = _figure((9.0, 3.8))
+    axes = fig.subplots(1, 2)
+    vmax = float(np.quantile(e, 0.98)) if e.size else 1.0
+    for ax, (a, b) in zip(axes, ((0, 1), (0, 2))):
+        sc = ax.scatter(p[:, a], p[:, b], c=e, s=10, cmap="viridis", vmin=0.0, vmax=max(vmax, 1e-9))
+        ax.set_xlabel(f"{'xyz'[a]} / mm")
+        ax.set_ylabel(f"{'xyz'[b]} / mm")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        ax.set_title(("from above" if b == 1 else "from the side") + f" ({'xyz'[a]}–{'xyz'[b]})", fontsize=9)
+    fig.colorbar(sc, ax=axes, label="error after calibration / mm", shrink=0.9)
+    fig.suptitle(f"Error over the workspace ({label})", fontsize=10)
+    _save(fig, path)
+    return fig
+
+
+def correlation_heatmap(covariance, names: Sequence[str], path=None):
+    """Posterior correlation of the free parameters (from their covariance), −1 … 1."""
+    c = np.asarray(covariance, np.float64)
+    s = np.sqrt(np.clip(np.diag(c), 1e-300, None))
+    r = np.clip(c / np.outer(s, s), -1.0, 1.0)
+    n = len(names)
+    size = min(9.0, max(4.5, 0.22 * n + 2.5))
+    fig = _figure((size, size * 0.85))
+    ax = fig.subplots()
+    im = ax.imshow(r, cmap="RdBu_r", vmin=-1, vmax=1)
+    fs = 7 if n <= 30 else 5
+    ax.set_xticks(np.arange(n), names, rotation=90, fontsize=fs)
+    ax.set_yticks(np.arange(n), names, fontsize=fs)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="correlation")
+    ax.set_title("Posterior correlation of the calibrated parameters", fontsize=10)
+    _save(fig, path)
+    return fig

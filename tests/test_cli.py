@@ -27,7 +27,7 @@ def _one_error_line(capsys, code, argv, match):
     assert "Traceback" not in err[0]
 
 
-@pytest.mark.parametrize("sub", [[], ["reproduce"], ["calibrate"], ["simulate"], ["report"]])
+@pytest.mark.parametrize("sub", [[], ["reproduce"], ["calibrate"], ["simulate"], ["report"], ["evaluate"]])
 def test_help(sub, capsys):
     assert main([*sub, "--help"]) == 0
     out = capsys.readouterr().out
