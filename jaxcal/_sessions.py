@@ -385,10 +385,11 @@ def _register(robot, m, q, y, dev, groups, frames, placements):
     return res.deviations
 
 
-def holdout_session(robot, data, session: str, *, n_markers: int | None = None, positions_mm=None,
+def holdout_session(robot, data, session: str, *, train=None, n_markers: int | None = None, positions_mm=None,
                     prior=MEASURED_DEFAULTS["prior"], loss: str = MEASURED_DEFAULTS["loss"],
                     **calibrate_kw) -> SessionHoldout:
-    """Calibrate on every session but ``session`` and evaluate on ``session``'s rows.
+    """Calibrate on other sessions (``train``: a list of session labels; default every session
+    but ``session``) and evaluate on ``session``'s rows.
 
     Training: :func:`jaxcal.calibrate` with :class:`SessionMarkers` on the other sessions'
     rows (shared robot errors, the identifiable subset by QR, each frame/placement started in
@@ -416,8 +417,17 @@ def holdout_session(robot, data, session: str, *, n_markers: int | None = None, 
     if session not in sessions:
         raise ValueError(f"unknown session {session!r}; sessions: {list(sessions)}")
     full = SessionMarkers.from_dataset(data, n_markers, positions_mm)
+    if train is None:
+        chosen = [s for s in sessions if s != session]
+    else:
+        chosen = [train] if isinstance(train, str) else list(train)
+        unknown = [s for s in chosen if s not in sessions]
+        if unknown:
+            raise ValueError(f"unknown training session(s) {unknown}; sessions: {list(sessions)}")
+        if session in chosen:
+            raise ValueError(f"session {session!r} is held out; it cannot also be a training session")
     test = np.flatnonzero([s == session for s, _, _ in labels])
-    train = np.flatnonzero([s != session for s, _, _ in labels])
+    train = np.flatnonzero([s in chosen for s, _, _ in labels])
     if train.size == 0:
         raise ValueError("holding out the only session leaves no training data")
     q, y = np.asarray(data.q), np.asarray(data.y)

@@ -162,6 +162,18 @@ def test_holdout_session_seen_labels_are_predicted_directly():
     assert h.after_rmse < 3 * 0.05 < 1.0 < h.before_rmse
 
 
+def test_holdout_session_trains_on_the_sessions_named():
+    """``train=``: only the named sessions train (here the two that share s5's frame and placement
+    with s1/s2 left out), and the model predicts the held-out session from them."""
+    chain = _chain()
+    sessions = SESSIONS + (("s5", "B", "p2"),)
+    ds, m, _ = _data(chain, n_per=12, sessions=sessions)
+    h = jaxcal.holdout_session(chain, ds, "s5", train=["s2", "s3"], free=FREE, prior=None, loss="linear")
+    n_train = sum(1 for s, _, _ in ds.labels if s in ("s2", "s3"))
+    assert len(h.result.measurement.frame_index) == n_train and h.frame_seen and h.placement_seen
+    assert h.after_rmse < 3 * 0.05 < 1.0 < h.before_rmse
+
+
 def test_labelled_csv_round_trip(tmp_path):
     chain = _chain()
     ds, _, _ = _data(chain, n_per=3)
@@ -195,6 +207,10 @@ def test_clear_errors(tmp_path, capsys):
         SessionMarkers(["A", "B"], ["p"])
     with pytest.raises(ValueError, match="unknown session"):
         jaxcal.holdout_session(chain, ds, "nope")
+    with pytest.raises(ValueError, match="unknown training session"):
+        jaxcal.holdout_session(chain, ds, "s1", train=["s2", "nope"])
+    with pytest.raises(ValueError, match="cannot also be a training session"):
+        jaxcal.holdout_session(chain, ds, "s1", train=["s1", "s2"])
     with pytest.raises(ValueError, match="made for 16 rows"):
         jaxcal.calibrate(chain, m, ds.subset(np.arange(8)), "lm")
     with pytest.raises(ValueError, match="no session labels"):
