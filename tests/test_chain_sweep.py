@@ -45,7 +45,7 @@ def chain_sweep(tmp_path_factory):
 def test_chain_sweep_trials_equal_simulate_and_calibrate(chain_sweep):
     res, _ = chain_sweep
     assert isinstance(res.robot, jaxcal.SerialChain) and res.measurement.kind == "cable"
-    assert all(n.split("_")[0] in ("offset", "dx", "dy", "dz", "drx", "dry", "drz", "anchor", "cable")
+    assert all(n.split("_")[0] in ("offset", "dx", "dy", "dz", "drx", "dry", "drz", "tip", "anchor", "cable")
                for n in res.space.free_names)
     lm, ad = res["lm"], res["adamodw"]
     assert np.all(lm.status == int(jaxcal.Status.CONVERGED))
