@@ -45,11 +45,13 @@ def chain_sweep(tmp_path_factory):
 def test_chain_sweep_trials_equal_simulate_and_calibrate(chain_sweep):
     res, _ = chain_sweep
     assert isinstance(res.robot, jaxcal.SerialChain) and res.measurement.kind == "cable"
-    assert all(n.split("_")[0] in ("offset", "dx", "dy", "dz", "drx", "dry", "drz", "anchor", "cable")
+    assert all(n.split("_")[0] in ("offset", "dx", "dy", "dz", "drx", "dry", "drz", "tip", "anchor", "cable")
                for n in res.space.free_names)
     lm, ad = res["lm"], res["adamodw"]
     assert np.all(lm.status == int(jaxcal.Status.CONVERGED))
-    assert np.all(res.before.rmse > 3 * lm.test.rmse)  # calibration helps a lot; LM is near the noise
+    # calibration helps a lot; LM is near the noise. (2.7×, 3.3×, 5.0× here since the simulated truths
+    # include the chain's tip errors, issue 22; before that 3.7×, 3.3×, 3.1×.)
+    assert np.all(res.before.rmse > 2.5 * lm.test.rmse)
     assert np.all(lm.test.rmse < 1.5 * res.oracle.rmse)
     for i in (0, 2):  # trial 2 sits in the padded chunk
         ex, k_method = _trial_data(res.robot, res.measurement, i)
