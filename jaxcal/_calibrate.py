@@ -193,6 +193,7 @@ SELECT_GROUPS = {
     "beta": ("beta",), "anchor": ("anchor",), "tool": ("tool",), "cable_offset": ("cable_offset",),
     "offset": ("cable_offset",), "base": ("base_rotation", "base_translation"),
     "base_rotation": ("base_rotation",), "base_translation": ("base_translation",), "extras": EXTRA_GROUPS,
+    "tip": ("tip_translation", "tip_rotation"),  # a generic chain's tip transform errors
 }
 
 
@@ -409,7 +410,8 @@ def calibrate(
             sensor frame, 6 parameters), as a list or a comma-separated string.
         free, fix: choose the candidate parameters by group (``"dh"``, ``"alpha"``, ``"a"``, ``"d"``,
             ``"theta"``, ``"beta"``, ``"anchor"``, ``"cable_offset"``, ``"tool"``, ``"base"``,
-            ``"extras"``) or name (``"d_6"``): ``free`` replaces the default DH candidates (all DH
+            ``"extras"``; a generic chain's ``"tip"`` = ``tip_translation`` + ``tip_rotation``, or
+            any group of its layout) or name (``"d_6"``, ``"tip_dx"``): ``free`` replaces the default DH candidates (all DH
             deviations; the ``extras`` stay; extras named in ``free`` are estimated too, e.g.
             ``free="anchor,cable_offset"`` fits the sensor with the DH table fixed), ``fix``
             removes some. The identifiable

@@ -11,24 +11,40 @@ rotates every joint frame so that its axis is the local ``z`` (the alignment ``R
 ``R_a·e_z = axis`` is absorbed into this joint's origin and ``R_aᵀ`` into the next one, host
 side), so the joint motion is always ``Rz(q)`` (revolute) or ``Tz(q)`` (prismatic). Fixed joints
 between two moving joints are folded into the next origin; fixed joints after the last moving
-joint form the constant ``flange`` transform to the tip link frame. The tool point ``tool``
-[3] mm is given in the tip link frame.
+joint form the ``flange`` transform ``F = (R_f, t_f)`` from the last joint frame to the tip link
+frame. The tool point ``tool`` [3] mm is given in the tip link frame.
 
 Error model (the ``"geometric"`` groups of :meth:`SerialChain.error_groups`), per joint ``i``::
 
     revolute:   T_i = Tr(t_o + [dx, dy, dz]) · R_o · Rx(drx) · Ry(dry) · Rz(q_i + offset)
     prismatic:  T_i = Tr(t_o + [dx, dy, dz]) · R_o · Rx(drx) · Ry(dry) · Rz(drz) · Tz(q_i + offset)
 
+and the tip transform (the ``"geometric"`` groups ``tip_translation``, ``tip_rotation``)::
+
+    tip:        F = Tr(t_f + [tip_dx, tip_dy, tip_dz]) · R_f · Rx(tip_drx) · Ry(tip_dry) · Rz(tip_drz)
+
 ``dx, dy, dz`` (mm, in the previous joint frame) and ``drx, dry, drz`` (rad) are a full
 6-parameter error of each fixed transform; at a revolute joint the ``z`` rotation cannot be told
 apart from the joint offset, so it is merged into ``offset`` (rad) and ``drz`` has no effect
-there (it is not free by default). At a prismatic joint ``offset`` is in mm. Six errors per
-transform are not minimal: a chain has at most ``4R + 2P + 6`` independent kinematic parameters
-(Everett, Driels & Mooring 1987), less what the measurement cannot see, so the identifiability
-QR (:func:`jaxcal.identifiability`, ``KEEP_PREFERENCE``) picks the identifiable subset with the
-real measurement model, preferring joint offsets, then translations, then rotations. This set is
-chosen over DH-style 4-parameter errors because it stays well conditioned for any axis layout
-(parallel, intersecting or skew axes need no Hayati special case) and every parameter names a
+there (it is not free by default). At a prismatic joint ``offset`` is in mm.
+
+The tip errors ``tip_dx, tip_dy, tip_dz`` (mm, in the last joint frame) and ``tip_drx, tip_dry,
+tip_drz`` (rad, about the tip link frame's axes) are the same 6-parameter error of the last
+link's fixed transform (where a DH robot's ``a_n, α_n`` and the flange's ``d`` live): without
+them nothing after the last joint's motion can be corrected, and a mechanical flange is as
+imprecise as the other links (DESIGN.md §10: a URDF robot ended 24 % above the statistical
+floor on tool-point data without them). All six are free by default; which of them the data
+can see is left to the identifiability QR: ``tip_dz`` always acts like a translation of the last
+joint along its axis, and on the positions of one tool point the tip rotation acts like a tip
+translation (pose data see it).
+
+Six errors per transform are not minimal: a chain has at most ``4R + 2P + 6`` independent
+kinematic parameters (Everett, Driels & Mooring 1987), less what the measurement cannot see, so
+the identifiability QR (:func:`jaxcal.identifiability`, ``KEEP_PREFERENCE``) picks the
+identifiable subset with the real measurement model, preferring joint offsets, then
+translations, then rotations, then the tip's translation and rotation. This set is chosen over
+DH-style 4-parameter errors because it stays well conditioned for any axis layout (parallel,
+intersecting or skew axes need no Hayati special case) and every parameter names a
 physical correction of one URDF ``<origin>``.
 
 The kernel works on a point in structure-of-arrays form (three ``[n]`` arrays) from the tip
@@ -40,6 +56,9 @@ product to the stacked ``[3, n]`` point, which makes XLA materialise the point p
 fused elementwise updates were as fast for a single output (a wire length) but made XLA CPU
 recompute the whole chain per output under ``jax.jacfwd`` when the three coordinates are
 stacked (a position residual): 1.7 s instead of 10 ms for 2 000 × 36 (measured here, Nov 2026).
+The tip error enters once, on the constant tool point (``point_in_base``: a ``[3]`` vector, before
+the batch) or on the final frame (``frame_soa``: one dense ``[3, 3]`` product instead of the
+sparse ``R_f``).
 """
 
 from __future__ import annotations
@@ -54,7 +73,7 @@ from jaxtyping import Array, Float
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 from ._robot import replace_tool
 
-__all__ = ["SerialChain", "GEOMETRIC_GROUPS", "correction_entries", "rpy_matrix", "matrix_rpy"]
+__all__ = ["SerialChain", "GEOMETRIC_GROUPS", "TIP_GROUPS", "correction_entries", "rpy_matrix", "matrix_rpy"]
 
 JOINT_TYPES = ("revolute", "prismatic")
 #: per-joint geometric error groups of a chain, in layout order, with their units
@@ -62,6 +81,12 @@ JOINT_TYPES = ("revolute", "prismatic")
 GEOMETRIC_GROUPS: tuple[tuple[str, str], ...] = (
     ("offset", "rad|mm"), ("dx", "mm"), ("dy", "mm"), ("dz", "mm"),
     ("drx", "rad"), ("dry", "rad"), ("drz", "rad"),
+)
+#: the tip transform's error groups (last joint frame → tip link frame), in layout order after
+#: the per-joint groups: ``(group, entry names, unit)``.
+TIP_GROUPS: tuple[tuple[str, tuple[str, str, str], str], ...] = (
+    ("tip_translation", ("tip_dx", "tip_dy", "tip_dz"), "mm"),
+    ("tip_rotation", ("tip_drx", "tip_dry", "tip_drz"), "rad"),
 )
 _SNAP = 1e-12
 
@@ -180,10 +205,11 @@ def _dev_get(dev, name: str):
 
 
 def correction_entries(chain, deviations) -> list[tuple[str, float, str]]:
-    """``(name, value, unit)`` of every per-joint correction of ``chain`` in ``deviations``, for
-    tables: group by group (:data:`GEOMETRIC_GROUPS`), joint by joint; angles in degrees
-    (``unit`` ``"deg"``), lengths and prismatic-joint offsets in mm; ``drz`` at prismatic joints
-    only (at a revolute joint it is the joint offset). A group the deviations lack reads 0."""
+    """``(name, value, unit)`` of every geometric correction of ``chain`` in ``deviations``, for
+    tables: group by group (:data:`GEOMETRIC_GROUPS`), joint by joint, then the tip transform
+    (:data:`TIP_GROUPS`: ``tip_dx … tip_drz``); angles in degrees (``unit`` ``"deg"``), lengths
+    and prismatic-joint offsets in mm; ``drz`` at prismatic joints only (at a revolute joint it
+    is the joint offset). A group the deviations lack reads 0."""
     out = []
     for g, unit in GEOMETRIC_GROUPS:
         vals = _dev_get(deviations, g)
@@ -193,7 +219,22 @@ def correction_entries(chain, deviations) -> list[tuple[str, float, str]]:
             deg = unit == "rad" or (unit == "rad|mm" and not chain.prismatic[j])
             v = 0.0 if vals is None else float(np.asarray(vals)[j])
             out.append((f"{g}_{j + 1}", float(np.degrees(v)) if deg else v, "deg" if deg else "mm"))
+    for g, names, unit in TIP_GROUPS:
+        vals = _dev_get(deviations, g)
+        for k, n in enumerate(names):
+            v = 0.0 if vals is None else float(np.asarray(vals)[k])
+            out.append((n, float(np.degrees(v)) if unit == "rad" else v, "deg" if unit == "rad" else "mm"))
     return out
+
+
+def _rxyz_j(a, b, c):
+    """``Rx(a)·Ry(b)·Rz(c)`` ``[3, 3]`` from traced scalars (rad)."""
+    ca, sa, cb, sb, cc, sc = jnp.cos(a), jnp.sin(a), jnp.cos(b), jnp.sin(b), jnp.cos(c), jnp.sin(c)
+    return jnp.stack([
+        jnp.stack([cb * cc, -cb * sc, sb]),
+        jnp.stack([sa * sb * cc + ca * sc, -sa * sb * sc + ca * cc, -sa * cb]),
+        jnp.stack([-ca * sb * cc + sa * sc, ca * sb * sc + sa * cc, ca * cb]),
+    ])
 
 
 class SerialChain(NonGeometricMixin, eqx.Module):
@@ -206,7 +247,8 @@ class SerialChain(NonGeometricMixin, eqx.Module):
     Attributes:
         origin_R: ``[dof, 3, 3]`` rotation of each joint origin (previous joint frame → joint frame).
         origin_t: ``[dof, 3]`` translation of each joint origin (mm, previous joint frame).
-        flange_R, flange_t: ``[3, 3]``, ``[3]`` mm: last joint frame → tip link frame.
+        flange_R, flange_t: ``[3, 3]``, ``[3]`` mm: nominal last joint frame → tip link frame
+            (corrected by the ``tip_translation`` / ``tip_rotation`` deviations).
         align: ``[dof, 3, 3]`` ``R_a`` per joint (URDF child-link frame = joint frame · ``R_aᵀ``).
         q_min, q_max: ``[dof]`` joint limits (rad; mm for prismatic joints).
         tool: ``[3]`` nominal tool point in the tip link frame (mm).
@@ -323,17 +365,22 @@ class SerialChain(NonGeometricMixin, eqx.Module):
 
     def error_groups(self):
         """The chain's geometric error groups (``offset, dx, dy, dz, drx, dry, drz``, one entry
-        per joint; ``offset`` is rad at revolute and mm at prismatic joints)."""
+        per joint; ``offset`` is rad at revolute and mm at prismatic joints), then the tip
+        transform's ``tip_translation`` ``[3]`` mm (``tip_dx, tip_dy, tip_dz``) and
+        ``tip_rotation`` ``[3]`` rad (``tip_drx, tip_dry, tip_drz``), then the non-geometric groups.
+        Their default prior σ is :class:`jaxcal.Prior`'s by unit (0.5°, 2 mm)."""
         from ._params import Group
 
         out = []
         for g, unit in GEOMETRIC_GROUPS:
             units = self.joint_units() if unit == "rad|mm" else unit
             out.append(Group.per_joint(g, self.dof, units, kind="geometric"))
+        out += [Group.vector(g, names, unit, kind="geometric") for g, names, unit in TIP_GROUPS]
         return tuple(out) + nongeometric_groups(self)
 
     def free_by_default(self, entry_name: str) -> bool:
-        """``drz`` at a revolute joint duplicates the joint offset: never free by default."""
+        """``drz`` at a revolute joint duplicates the joint offset: never free by default (every
+        other joint and tip entry is)."""
         group, _, j = entry_name.rpartition("_")
         if group == "drz" and j.isdigit():
             return self.prismatic[int(j) - 1]
@@ -407,11 +454,27 @@ class SerialChain(NonGeometricMixin, eqx.Module):
             M = M @ _ry_j(*[v[i] for v in rot["dry"]])
         return M
 
+    def _tip(self, dev, dtype):
+        """The (deviated) tip transform for the kernels: ``(M, pattern, t)`` with ``M`` ``[3, 3]``
+        = ``R_f`` (sparse ``pattern``) or ``R_f·Rx·Ry·Rz`` of ``tip_rotation`` (dense), and ``t``
+        ``[3]`` mm = ``t_f + tip_translation``, in ``dtype``."""
+        M = jnp.asarray(self.flange_R).astype(dtype)
+        t = jnp.asarray(self.flange_t).astype(dtype)
+        pattern = self.flange_pattern
+        dt, dr = _dev_get(dev, "tip_translation"), _dev_get(dev, "tip_rotation")
+        if dt is not None:
+            t = t + jnp.asarray(dt).astype(dtype)
+        if dr is not None:
+            dr = jnp.asarray(dr).astype(dtype)
+            M = M @ _rxyz_j(dr[0], dr[1], dr[2])
+            pattern = ((2, 2, 2),) * 3
+        return M, pattern, t
+
     def point_in_base(self, dev, q: Float[Array, "n dof"], point, *, fused: bool = False) -> Vec3:
         """A point ``[3]`` (mm) in the tip link frame, in the base link frame: three ``[n]`` arrays.
 
-        Applied from the tip inward, ``p ← O_i·M_i(q_i)·p`` for ``i = dof … 1`` (module
-        docstring); jittable and ``jax.jacfwd``-friendly in ``dev``. ``fused=True``: every joint
+        Applied from the tip inward, ``p ← F·p`` (the deviated tip transform), then
+        ``p ← O_i·M_i(q_i)·p`` for ``i = dof … 1`` (module docstring); jittable and ``jax.jacfwd``-friendly in ``dev``. ``fused=True``: every joint
         as elementwise plane rotations (the error rotations too) and the sparse constant origin,
         one XLA fusion — the fastest ``jacfwd`` when the caller reduces the three coordinates to
         one value per sample (draw-wire: 2 000 × 36 Jacobian 1.5 ms vs 13 ms); with three
@@ -419,9 +482,8 @@ class SerialChain(NonGeometricMixin, eqx.Module):
         each joint's error rotation as a matrix product.
         """
         qq, t, rot, R = self._terms(dev, q)
-        fR = jnp.asarray(self.flange_R).astype(q.dtype)
-        ft = jnp.asarray(self.flange_t).astype(q.dtype)
-        x, y, z = _matvec(fR, self.flange_pattern, tuple(point[k] for k in range(3)))
+        fR, fpat, ft = self._tip(dev, q.dtype)  # the tip transform on the constant point [3]
+        x, y, z = _matvec(fR, fpat, tuple(point[k] for k in range(3)))
         x, y, z = x + ft[0], y + ft[1], z + ft[2]
         n = q.shape[0]
         for i in reversed(range(self.dof)):
@@ -443,7 +505,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
 
     def frame_soa(self, dev, q: Float[Array, "n dof"]):
         """Tip link frame in the base frame as SoA: columns X, Y, Z and origin P (mm), each a
-        triple of ``[n]`` arrays (``T_base_tip``)."""
+        triple of ``[n]`` arrays (``T_base_tip``, with the joint and tip errors of ``dev``)."""
         qq, t, rot, R = self._terms(dev, q)
         n = q.shape[0]
         one = jnp.ones((n,), q.dtype)
@@ -471,10 +533,9 @@ class SerialChain(NonGeometricMixin, eqx.Module):
             else:
                 X, Y = rot_cols(X, Y, rot["q"][0][i], rot["q"][1][i])
             cols = (X, Y, Z)
-        fR = jnp.asarray(self.flange_R).astype(q.dtype)
-        ft = jnp.asarray(self.flange_t).astype(q.dtype)
+        fR, fpat, ft = self._tip(dev, q.dtype)
         P = tuple(P[k] + cols[0][k] * ft[0] + cols[1][k] * ft[1] + cols[2][k] * ft[2] for k in range(3))
-        X, Y, Z = _frame_mul(cols, fR, self.flange_pattern)
+        X, Y, Z = _frame_mul(cols, fR, fpat)
         return X, Y, Z, P
 
     # ------------------------------------------------------------------ host-side helpers
@@ -503,6 +564,20 @@ class SerialChain(NonGeometricMixin, eqx.Module):
                 E[:3, :3] = E[:3, :3] @ _rz(off[i])
             out.append(T @ E)
         return out
+
+    def tip_numpy(self, dev=None) -> np.ndarray:
+        """The (deviated) tip transform ``F`` (last joint frame → tip link frame) as a host
+        ``[4, 4]`` transform (mm): ``Tr(t_f + tip_translation)·R_f·Rx·Ry·Rz(tip_rotation)``."""
+        T = np.eye(4)
+        T[:3, :3] = np.asarray(self.flange_R, np.float64)
+        T[:3, 3] = np.asarray(self.flange_t, np.float64)
+        dt, dr = _dev_get(dev, "tip_translation"), _dev_get(dev, "tip_rotation")
+        if dt is not None:
+            T[:3, 3] += np.asarray(dt, np.float64)
+        if dr is not None:
+            a, b, c = np.asarray(dr, np.float64)
+            T[:3, :3] = T[:3, :3] @ _rx(a) @ _ry(b) @ _rz(c)
+        return T
 
 
 def _rx(a):

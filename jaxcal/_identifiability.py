@@ -28,11 +28,14 @@ __all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "defau
 #: the effect. Among the robot's parameters the joint offsets θ come first, because encoder zero
 #: offsets are what a calibration is most often for. Generic chains (:class:`~jaxcal.SerialChain`)
 #: follow the same idea: joint offsets, then the origins' translations dx, dy, dz, then their
-#: rotations drx, dry, drz. Other extras (marker positions) rank after ``base_translation``,
-#: other robots' geometric groups after β, the non-geometric groups after every geometric one.
+#: rotations drx, dry, drz, then the tip transform's translation (tip_dx, tip_dy, tip_dz) and
+#: rotation (tip_drx, tip_dry, tip_drz): an error the last joint's origin can carry stays there.
+#: Other extras (marker positions) rank after ``base_translation``, other robots' geometric
+#: groups after β, the non-geometric groups after every geometric one.
 KEEP_PREFERENCE: tuple[str, ...] = (
     "anchor", "tool", "cable_offset", "base_rotation", "base_translation",
     "theta", "d", "a", "alpha", "beta", "offset", "dx", "dy", "dz", "drx", "dry", "drz",
+    "tip_translation", "tip_rotation",
 )
 #: a dependent parameter is swapped for a less preferred kept one only if its (column-scaled)
 #: coefficient on that one is at least this large: the swap then keeps the subset about as well
@@ -66,7 +69,8 @@ def _preference_key(name: str) -> tuple[float, int]:
     full = group_of(name)
     g = full.split("@", 1)[0]  # per-session groups rank as their group
     tail = name.split("@", 1)[0].rsplit("_", 1)[-1]
-    order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3}.get(tail, 0)
+    order = int(tail) if tail.isdigit() else {"x": 1, "y": 2, "z": 3, "rx": 1, "ry": 2, "rz": 3, "dx": 1, "dy": 2,
+                                              "dz": 3, "drx": 1, "dry": 2, "drz": 3}.get(tail, 0)
     if g in NONGEOMETRIC_PREFERENCE:
         rank = len(KEEP_PREFERENCE) + 0.01 * NONGEOMETRIC_PREFERENCE.index(g)
     else:

@@ -328,8 +328,8 @@ def load_result(path) -> CalibrationResult:
     layout = layout_for(robot, measurement)
     names = layout.names
     dev = dict(d["deviations"])
-    for n in names:  # files written before the sensor-frame extras existed
-        if n.startswith("base_") and n not in dev:
+    for n in names:  # files written before the sensor-frame extras / a chain's tip errors existed
+        if n.startswith(("base_", "tip_")) and n not in dev:
             dev[n] = 0.0
     missing = [n for n in names if n not in dev]
     if missing:

@@ -358,30 +358,45 @@ def _urdf_origins(chain: SerialChain, deviations=None) -> list[np.ndarray]:
     return out
 
 
-def _flange_urdf(chain: SerialChain) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(chain.align)[-1] @ np.asarray(chain.flange_R)
-    T[:3, 3] = np.asarray(chain.align)[-1] @ np.asarray(chain.flange_t)
-    return T
+def _flange_urdf(chain: SerialChain, deviations=None) -> np.ndarray:
+    """The (deviated) tip transform in URDF frames ``[4, 4]`` mm: the last moving joint's child
+    link frame → tip link frame, ``R_a(last)·F`` (:meth:`SerialChain.tip_numpy`)."""
+    A = np.eye(4)
+    A[:3, :3] = np.asarray(chain.align)[-1]
+    return A @ chain.tip_numpy(deviations)
 
 
-def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_tool_point") -> str:
+def _has_tip_error(deviations) -> bool:
+    return any(_dev_get(deviations, g) is not None and np.any(np.asarray(_dev_get(deviations, g)) != 0)
+               for g in ("tip_translation", "tip_rotation"))
+
+
+def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_tool_point",
+                tip_link: str = "jaxcal_calibrated_tip") -> str:
     """Write a calibrated model as URDF; returns the text (and writes it to ``path`` if given).
 
     Args:
         model: a :class:`~jaxcal.SerialChain` or a :class:`~jaxcal.DHRobot`.
-        deviations: calibrated deviations (chain groups ``offset, dx … drz``, or DH groups for a
-            DH robot; a ``tool`` group moves the tool point), or ``None`` for the nominal model.
+        deviations: calibrated deviations (chain groups ``offset, dx … drz`` and the tip errors
+            ``tip_translation``, ``tip_rotation``, or DH groups for a DH robot; a ``tool`` group
+            moves the tool point), or ``None`` for the nominal model.
         path: output file (optional).
         tool_link: name of a link fixed to the tip link at the (calibrated) tool point, added when
             the tool point is not the tip link origin (URDF has no other place for it).
+        tip_link: name of a link added at the calibrated tip frame when the tip errors are not
+            zero and the loaded URDF has no fixed joint between the last moving joint and the tip
+            (the tip link is then the last joint's child, whose frame URDF ties to the joint);
+            the tool link hangs from it, and FK to it is the calibrated FK.
 
     For a chain loaded from a URDF, the original file is kept (meshes, inertials, other
     branches) and only the ``<origin>`` of each moving joint between base and tip is replaced by
     the corrected one: the fixed transforms before it (folded into the chain) are taken out
     again, and the error rotations and the joint offset are folded into the origin, so the
     exported URDF gives the calibrated FK with the same raw joint readings. The offsets also
-    appear in a comment. A chain built from DH (or a DH robot) is written as a minimal URDF
+    appear in a comment. The calibrated tip transform goes into the ``<origin>`` of the first
+    fixed joint after the last moving joint (the one on the last moving link), the later fixed
+    joints kept, so every link fixed below it moves with the correction; without such a joint,
+    see ``tip_link``. A chain built from DH (or a DH robot) is written as a minimal URDF
     ``base_link → link_1 … → flange`` with a comment holding the calibrated DH table.
     """
     from ._robot import DHRobot
@@ -425,8 +440,14 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
                 o = ET.SubElement(j, "origin")
             for k, v in _origin_attrs(T).items():
                 o.set(k, v)
+        tool_parent = chain.tip
+        if _has_tip_error(deviations):
+            tool_parent = _write_tip(root, chain, children, _flange_urdf(chain, deviations), tip_link)
+            note += f"; tip transform ({chain.link_names[-1]} → {chain.tip}) corrected"
+            if tool_parent != chain.tip:
+                note += f" in the added link {tool_parent!r}"
         root.insert(0, ET.Comment(" " + note + " "))
-        _add_tool_link(root, chain.tip, tool, tool_link)
+        _add_tool_link(root, tool_parent, tool, tool_link)
         text = ET.tostring(root, encoding="unicode")
         text = '<?xml version="1.0"?>\n' + text + "\n"
     else:
@@ -463,7 +484,7 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
             parent = child
         ET.SubElement(root, "link", name=chain.tip)
         j = ET.SubElement(root, "joint", name=f"{chain.tip}_joint", type="fixed")
-        ET.SubElement(j, "origin", **_origin_attrs(_flange_urdf(chain)))
+        ET.SubElement(j, "origin", **_origin_attrs(_flange_urdf(chain, deviations)))
         ET.SubElement(j, "parent", link=parent)
         ET.SubElement(j, "child", link=chain.tip)
         _add_tool_link(root, chain.tip, tool, tool_link)
@@ -472,6 +493,39 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
     if path is not None:
         pathlib.Path(path).write_text(text)
     return text
+
+
+def _write_tip(root, chain: SerialChain, children: dict, T_tip: np.ndarray, name: str) -> str:
+    """Write the calibrated tip transform ``T_tip`` (URDF frames, mm) into the loaded URDF
+    ``root``: into the first fixed joint below the last moving link, solved so that the product
+    of the fixed joints down to the tip is ``T_tip``; returns the tip link's name. Without a fixed
+    joint there, add link ``name`` fixed to the tip at ``T_tip`` and return ``name``."""
+    path = []  # fixed joints from the last moving link down to the tip, top first
+    link = chain.tip
+    while link != chain.link_names[-1]:
+        fj = children[link]
+        path.insert(0, fj)
+        link = fj.find("parent").get("link")
+    if not path:
+        if not name:
+            raise ValueError(f"the tip errors need a link to carry them: {chain.tip!r} is the last moving "
+                             "joint's child; pass tip_link=")
+        ET.SubElement(root, "link", name=name)
+        j = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+        ET.SubElement(j, "origin", **_origin_attrs(T_tip))
+        ET.SubElement(j, "parent", link=chain.tip)
+        ET.SubElement(j, "child", link=name)
+        return name
+    below = np.eye(4)
+    for fj in path[1:]:
+        below = below @ _origin(fj, "")
+    T = T_tip @ np.linalg.inv(below)
+    o = path[0].find("origin")
+    if o is None:
+        o = ET.SubElement(path[0], "origin")
+    for k, v in _origin_attrs(T).items():
+        o.set(k, v)
+    return chain.tip
 
 
 def _add_tool_link(root, tip: str, tool, name: str) -> None:

@@ -248,8 +248,9 @@ def _set_by_prior(res) -> set:
 
 def _print_chain_table(robot, res, sd) -> None:
     """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
-    (mm), drx, dry, drz (°); ± one posterior σ; * = not calibrated (not identifiable or fixed)."""
-    from ._chain import GEOMETRIC_GROUPS, correction_entries
+    (mm), drx, dry, drz (°), and a last row with the tip transform's tip_dx … tip_drz; ± one
+    posterior σ; * = not calibrated (not identifiable or fixed)."""
+    from ._chain import GEOMETRIC_GROUPS, TIP_GROUPS, correction_entries
     from ._metrics import format_table
 
     free = set(res.space.free_names)
@@ -266,6 +267,7 @@ def _print_chain_table(robot, res, sd) -> None:
 
     rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
             for j in range(robot.dof)]
+    rows.append([f"tip → {robot.tip}", ""] + [cell(n) for _, names, _ in TIP_GROUPS for n in names])
     print()
     print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
                        title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "

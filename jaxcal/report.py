@@ -311,7 +311,8 @@ def dh_table(result: SweepResult, method: str | None = None, trial: int = 0, *, 
 
 def _chain_rows(robot, cal, true, free) -> list[dict]:
     """Table V rows of a generic chain (:class:`~jaxcal.SerialChain`): every per-joint correction
-    (offset, dx, dy, dz, drx, dry; drz at prismatic joints) as a deviation from the URDF origin, so
+    (offset, dx, dy, dz, drx, dry; drz at prismatic joints) and the tip's (tip_dx … tip_drz) as a
+    deviation from the URDF origin, so
     ``nominal`` is 0; angles in degrees, lengths (and prismatic offsets) in mm."""
     from ._chain import correction_entries
 
@@ -321,14 +322,16 @@ def _chain_rows(robot, cal, true, free) -> list[dict]:
 
 
 def _chain_table(result: SweepResult, label: str, trial: int, rows: list[dict], markdown: bool) -> str:
-    """Table V for a generic chain: joint × calibrated corrections, then per-parameter details."""
-    from ._chain import GEOMETRIC_GROUPS
+    """Table V for a generic chain: joint × calibrated corrections (a last row for the tip
+    transform), then per-parameter details."""
+    from ._chain import GEOMETRIC_GROUPS, TIP_GROUPS
 
     robot = result.robot
     by = {r["parameter"]: r for r in rows}
     groups = [g for g, _ in GEOMETRIC_GROUPS]
     cell = lambda n: "" if n not in by else f"{by[n]['calibrated']:+.4f}" + ("" if by[n]["free"] else "*")  # noqa: E731
     layout = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g in groups] for j in range(robot.dof)]
+    layout.append([f"tip → {robot.tip}", ""] + [cell(n) for _, names, _ in TIP_GROUPS for n in names])
     t1 = format_table(layout, ["Joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
                       markdown=markdown, title=f"Table V. Joint corrections of {robot.name} ({robot.base} → {robot.tip}) "
                                                f"after {label} calibration (trial {trial}; deviations from the URDF origins)")

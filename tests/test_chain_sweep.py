@@ -45,11 +45,13 @@ def chain_sweep(tmp_path_factory):
 def test_chain_sweep_trials_equal_simulate_and_calibrate(chain_sweep):
     res, _ = chain_sweep
     assert isinstance(res.robot, jaxcal.SerialChain) and res.measurement.kind == "cable"
-    assert all(n.split("_")[0] in ("offset", "dx", "dy", "dz", "drx", "dry", "drz", "anchor", "cable")
+    assert all(n.split("_")[0] in ("offset", "dx", "dy", "dz", "drx", "dry", "drz", "tip", "anchor", "cable")
                for n in res.space.free_names)
     lm, ad = res["lm"], res["adamodw"]
     assert np.all(lm.status == int(jaxcal.Status.CONVERGED))
-    assert np.all(res.before.rmse > 3 * lm.test.rmse)  # calibration helps a lot; LM is near the noise
+    # calibration helps a lot; LM is near the noise. (2.7×, 3.3×, 5.0× here since the simulated truths
+    # include the chain's tip errors, issue 22; before that 3.7×, 3.3×, 3.1×.)
+    assert np.all(res.before.rmse > 2.5 * lm.test.rmse)
     assert np.all(lm.test.rmse < 1.5 * res.oracle.rmse)
     for i in (0, 2):  # trial 2 sits in the padded chunk
         ex, k_method = _trial_data(res.robot, res.measurement, i)
@@ -58,14 +60,17 @@ def test_chain_sweep_trials_equal_simulate_and_calibrate(chain_sweep):
         np.testing.assert_allclose(res.before_errors[i], np.asarray(nominal.sample_errors(nominal.x0())), rtol=0,
                                    atol=1e-9)  # mm (a wire length minus a reading: round-off of ~1e-13 mm)
         one_lm = calibrate(ex.robot, ex.measurement, ex.train, "lm", key=k_method, space=res.space)
-        np.testing.assert_allclose(lm.x[i], one_lm.x, rtol=1e-9, atol=1e-9)
         # the two compiled programs differ (calibrate's also returns the uncertainty's Jacobian
-        # products), so their round-off differs in the last bits; a converged LM may then take one
-        # more round-off-level step (the training RMSE changes by ~1e-14 mm)
-        assert abs(int(lm.n_iterations[i]) - one_lm.n_iterations) <= 1
+        # products), so their round-off differs in the last bits. Under vmap a trial that has
+        # converged keeps taking round-off-level LM steps until the slowest trial of its chunk
+        # stops (with the tip error free, trial 0 of this chunk: 24 steps against calibrate's 6,
+        # x moving by 7e-8 along a shallow direction) — well inside LM's own stopping tolerance
+        # (rtol = atol = 1e-5 on the step), so x is compared at 1e-6 and the held-out RMSE at 1e-7
+        np.testing.assert_allclose(lm.x[i], one_lm.x, rtol=1e-6, atol=1e-6)
+        assert int(lm.n_iterations[i]) >= one_lm.n_iterations - 1
         k = min(int(lm.n_iterations[i]), one_lm.n_iterations)
         np.testing.assert_allclose(lm.history[i][: k + 1], one_lm.history[: k + 1], rtol=1e-12)
-        assert lm.test.rmse[i] == pytest.approx(one_lm.evaluate(ex.test).rmse, rel=1e-9)
+        assert lm.test.rmse[i] == pytest.approx(one_lm.evaluate(ex.test).rmse, rel=1e-7)  # 2e-8 measured
         one_ad = calibrate(ex.robot, ex.measurement, ex.train, "adamodw", key=k_method, space=res.space, steps=STEPS)
         np.testing.assert_allclose(ad.x[i], one_ad.x, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(ad.history[i], one_ad.history, rtol=1e-9)
