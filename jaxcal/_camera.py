@@ -620,9 +620,9 @@ def camera_floor(noise_px: float, n_params: int, y):
 
 
 # -- simulation ------------------------------------------------------------------------------------
-def _look_at(view_dir_cam_z, up=np.array([0.0, 0.0, 1.0])):
+def _look_at(view_dir_cam_z, up=(0.0, 0.0, 1.0)):
     z = view_dir_cam_z / np.linalg.norm(view_dir_cam_z)
-    x = np.cross(up, z)
+    x = np.cross(np.asarray(up, np.float64), z)
     if np.linalg.norm(x) < 1e-6:
         x = np.cross(np.array([0.0, 1.0, 0.0]), z)
     x /= np.linalg.norm(x)
