@@ -236,8 +236,8 @@ class Camera(MeasurementModel):
         whose residual is exactly 0.0 would be too: a measure-zero event with noisy data)."""
         r = residual.reshape(residual.shape[0], self.n_points, 2)
         sq = jnp.sum(r * r, axis=-1)
-        count = jnp.sum(sq > 0, axis=-1)
-        return jnp.sqrt(jnp.sum(sq, axis=-1) / jnp.maximum(count, 1))
+        count = jnp.sum(sq > 0, axis=-1).astype(sq.dtype)
+        return jnp.sqrt(jnp.sum(sq, axis=-1) / jnp.maximum(count, 1.0))
 
     def check_measurements(self, y, n: int) -> None:
         """``[n, N, 2]``, finite or NaN (not detected); ±inf is an error."""
