@@ -15,6 +15,11 @@ from ._calibrate import CalibrationError as CalibrationError
 from ._calibrate import CalibrationWarning as CalibrationWarning
 from ._calibrate import Calibrator as Calibrator
 from ._calibrate import calibrate as calibrate
+from ._camera import Camera as Camera
+from ._camera import checkerboard as checkerboard
+from ._camera import hand_eye_park as hand_eye_park
+from ._camera import simulate_camera as simulate_camera
+from ._camera import solve_pnp as solve_pnp
 from ._chain import SerialChain as SerialChain
 from ._dataset import Dataset as Dataset
 from ._dataset import load_csv as load_csv
@@ -127,6 +132,11 @@ __all__ = [
     "Metrics",
     "ParameterSpace",
     "Markers",
+    "Camera",
+    "checkerboard",
+    "hand_eye_park",
+    "simulate_camera",
+    "solve_pnp",
     "SessionMarkers",
     "SessionHoldout",
     "holdout_session",

@@ -462,6 +462,8 @@ def calibrate(
     flags = {e: any(_family(group_of(n)) in SELECT_GROUPS[e] for n in cand.free_names)
              for e in ("anchor", "cable_offset", "base", "tool")}
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
+    for g in ("handeye", "target"):  # camera extras (jaxcal._camera)
+        flags[g] = any(group_of(n).startswith(g + "_") for n in cand.free_names)
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]

@@ -26,9 +26,11 @@ KINDS: dict[str, tuple[str, ...]] = {
     "position": ("x_mm", "y_mm", "z_mm"),
     "pose": ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"),
     "markers": (),  # marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ... (N from the file)
+    "camera": (),  # u_1_px, v_1_px, u_2_px, ... (N target points from the file; empty = not detected)
 }
 _SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4)}
 _MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
+_CAMERA = re.compile(r"([uv])_(\d+)_px")
 
 
 def marker_columns(n_markers: int) -> list[str]:
@@ -70,8 +72,10 @@ class Dataset(eqx.Module):
             ``mm_joints`` metadata, e.g. ``"1"``).
         y: measurements: ``[n]`` wire lengths (mm) for ``kind="cable"``, ``[n, 3]`` positions
             (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
-            positions (mm, sensor frame) for ``"markers"``.
-        kind: ``"cable"``, ``"position"``, ``"pose"`` or ``"markers"`` (static).
+            positions (mm, sensor frame) for ``"markers"``, ``[n, N, 2]`` image points (px) of
+            ``N`` target points for ``"camera"`` (NaN: not detected, masked; see
+            :class:`jaxcal.Camera`).
+        kind: ``"cable"``, ``"position"``, ``"pose"``, ``"markers"`` or ``"camera"`` (static).
         metadata: ``((key, value), ...)`` strings kept with the data and in CSV headers (static).
         labels: per-row ``(session, frame, placement)`` labels of marker data recorded in
             several sessions (static; ``()`` = one session). See :class:`jaxcal.SessionMarkers`;
@@ -169,7 +173,15 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
     if q.ndim != 2 or q.shape[1] < 1:
         raise ValueError(f"joint angles must have shape [n, dof], got {list(q.shape)}")
     n = q.shape[0]
-    if kind == "markers":
+    if kind == "camera":
+        if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 2 or y.shape[1] < 1:
+            raise ValueError(f"camera measurements must have shape [{n}, N, 2] (u, v px of N target points), "
+                             f"got {list(y.shape)}")
+        if np.isinf(y).any():
+            raise ValueError("camera measurements contain ±inf; a corner that was not detected is NaN (an empty "
+                             "CSV cell)")
+        y = np.where(np.isnan(y), 0.0, y)  # NaN = not detected: masked by the camera model, not an error
+    elif kind == "markers":
         if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
             raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
     else:
@@ -251,11 +263,15 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         vals = y[:, None]
     elif data.kind == "position":
         vals = y
-    elif data.kind == "markers":
+    elif data.kind in ("markers", "camera"):
         vals = y.reshape(y.shape[0], -1)
     else:
         vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
     value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
+    if data.kind == "camera":
+        from ._camera import camera_columns
+
+        value_cols = camera_columns(y.shape[1])
     header = qnames + value_cols
     buf = io.StringIO()
     buf.write("# jaxcal dataset v1\n")
@@ -266,7 +282,8 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []))
     for r, row in enumerate(np.concatenate([qcols, vals], axis=1)):
-        w.writerow([repr(float(x)) for x in row] + (list(data.labels[r]) if data.labels else []))
+        # NaN (a camera corner not detected) is written as an empty cell
+        w.writerow([repr(float(x)) if x == x else "" for x in row] + (list(data.labels[r]) if data.labels else []))
     with open(os.fspath(path), "w", encoding="utf-8") as f:
         f.write(buf.getvalue())
 
@@ -391,6 +408,9 @@ def load_csv(
     markers_found = {h: (int(m[1]), m[2]) for h, m in markers_found.items() if m}
     if kind is None and markers_found:
         kind = "markers"
+    camera_found = {m for m in (_CAMERA.fullmatch(h) for h in header) if m}
+    if kind is None and camera_found:
+        kind = "camera"
     if kind is None:
         kind = next((k for k in ("pose", "position", "cable") if all(c in header for c in KINDS[k])), None)
         if kind is None:
@@ -410,8 +430,18 @@ def load_csv(
         if n_markers_expected is not None and n_markers != n_markers_expected:
             raise ValueError(f"{path}: file has {n_markers} marker(s) but {n_markers_expected} were expected")
         value_cols = marker_columns(n_markers)
-    elif n_markers_expected is not None:
-        raise ValueError(f"{path}: n_markers applies to marker data, not {kind!r}")
+    elif n_markers_expected is not None and kind != "camera":
+        raise ValueError(f"{path}: n_markers applies to marker (and camera) data, not {kind!r}")
+    if kind == "camera":  # u_k_px, v_k_px for k = 1..N (N from the file, or n_markers = target points)
+        from ._camera import camera_columns
+
+        if not camera_found:
+            raise ValueError(f"{path}: no image-point columns (expected u_1_px, v_1_px, u_2_px, ...); "
+                             f"header: {list(header)}")
+        n_pts = max(int(m[2]) for m in camera_found)
+        if n_markers_expected is not None and n_pts != n_markers_expected:
+            raise ValueError(f"{path}: file has {n_pts} target point(s) but {n_markers_expected} were expected")
+        value_cols = camera_columns(n_pts)
     missing = [c for c in value_cols if c not in header]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
@@ -430,8 +460,11 @@ def load_csv(
         warnings.warn(msg + " (strict=True makes this an error)", UserWarning, stacklevel=2)
     if not t.rows:
         raise ValueError(f"{path}: no data rows")
-    table = t.floats(used)
     n_joints = len(qcols)
+    if kind == "camera":  # empty cells (corners not detected) → NaN, masked by the camera model
+        table = np.concatenate([t.floats(qcols), _camera_cells(t, value_cols)], axis=1)
+    else:
+        table = t.floats(used)
     q, mm = joint_values(path, table[:, :n_joints], qcols, unit)
     if mm:
         meta[MM_JOINTS] = ",".join(str(j + 1) for j in mm)
@@ -442,6 +475,8 @@ def load_csv(
         y = vals
     elif kind == "markers":
         y = vals.reshape(vals.shape[0], -1, 3)
+    elif kind == "camera":
+        y = vals.reshape(vals.shape[0], -1, 2)
     else:
         y = np.zeros((vals.shape[0], 4, 4))
         y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))
@@ -465,3 +500,32 @@ def load_csv(
         meta.pop(meta_kind)
     dt = dtype or jnp.result_type(float)
     return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), kind, meta, labels)
+
+
+def _camera_cells(t, columns) -> np.ndarray:
+    """``[n_rows, len(columns)]`` image coordinates (px) of a camera file: an empty cell is NaN
+    (a corner not detected); ``u`` and ``v`` of a point must be empty together; other text that
+    is not a number, NaN/inf text, is an error naming row, line and column."""
+    idx = [t.header.index(c) for c in columns]
+    out = np.full((len(t.rows), len(idx)), np.nan)
+    for r, row in enumerate(t.rows):
+        for k, i in enumerate(idx):
+            text = row[i].strip()
+            if not text:
+                continue
+            try:
+                if "_" in text:
+                    raise ValueError
+                v = float(text.replace(",", ".") if t.decimal_comma else text)
+            except ValueError:
+                raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r} is not a number") from None
+            if not math.isfinite(v):
+                raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r}; leave the cell empty where a "
+                                 "corner was not detected")
+            out[r, k] = v
+        pair = np.isnan(out[r].reshape(-1, 2))
+        odd = np.flatnonzero(pair[:, 0] != pair[:, 1])
+        if odd.size:
+            raise ValueError(f"{t.path}: {t.where(r)}: point {odd[0] + 1} has only one of u_{odd[0] + 1}_px, "
+                             f"v_{odd[0] + 1}_px (leave both empty where a corner was not detected)")
+    return out

@@ -67,7 +67,7 @@ __all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "wire_with_tool"
 
 #: extras :func:`initial_extras` can start from data, per measurement kind.
 INITIALISABLE = {"cable": ("anchor", "cable_offset", "tool"), "position": ("base", "tool"), "pose": ("base", "tool"),
-                 "markers": ("base", "markers")}
+                 "markers": ("base", "markers"), "camera": ("handeye", "target")}
 
 #: σ (mm) of the weak prior toward the guessed tool point in the draw-wire and pose starts: it
 #: holds only the directions the data barely see (bias ``w/(s² + w)`` along a direction with
@@ -483,6 +483,10 @@ def initial_extras(
         return initial_sessions(robot, measurement, data, start=start, frames=None if "base" in est else [],
                                 placements=None if "markers" in est else [])
     q, y = (data.q, data.y) if hasattr(data, "q") else data
+    if measurement.kind == "camera":  # per-image PnP + Park–Martin hand-eye (jaxcal._camera)
+        from ._camera import initial_camera_extras
+
+        return initial_camera_extras(robot, measurement, q, y, estimate=estimate, start=start)
     q = jnp.asarray(q)
     dtype = q.dtype
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)

@@ -211,6 +211,13 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
     ``[3, 3]`` sensor-from-base rotation, ``t`` mm)."""
     if isinstance(m, CableLength):
         return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
+    if getattr(m, "kind", None) == "camera":  # jaxcal._camera.Camera
+        f = lambda a: np.asarray(a, np.float64).tolist()  # noqa: E731
+        return {"kind": "camera", "points_mm": f(m.points), "intrinsics": f(m.intrinsics), "mount": m.mount,
+                "handeye_rotation": f(m.handeye_rotation), "handeye_translation_mm": f(m.handeye_translation),
+                "target_rotation": f(m.target_rotation), "target_translation_mm": f(m.target_translation),
+                "image_size": None if m.image_size is None else list(m.image_size),
+                "calibrate_intrinsics": bool(m.calibrate_intrinsics)}
     frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
              "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
     if isinstance(m, Pose):
@@ -226,6 +233,13 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
 def measurement_from_dict(d: dict) -> MeasurementModel:
     """Inverse of :func:`measurement_to_dict`."""
     kind = d.get("kind")
+    if kind == "camera":
+        from ._camera import Camera
+
+        return Camera(d["points_mm"], d["intrinsics"], d["mount"], handeye_rotation=d["handeye_rotation"],
+                      handeye_translation=d["handeye_translation_mm"], target_rotation=d["target_rotation"],
+                      target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
+                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
     if kind == "cable":
         return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
     frame = {"rotation": jnp.asarray(np.asarray(d.get("rotation", np.eye(3)), np.float64)),

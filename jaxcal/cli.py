@@ -40,7 +40,17 @@ sample. Columns: q1_deg … qN_deg joint angles in degrees (or q1_rad … in rad
 measurement: length_mm (draw-wire length, --measurement cable) or x_mm,y_mm,z_mm (tool point
 in the robot base frame, --measurement position). Rows with empty/NaN values are rejected,
 not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
-as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given)."""
+as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given).
+
+camera data (--measurement camera): one row per image, q1_deg … qN_deg then u_1_px,v_1_px,
+u_2_px,v_2_px, … the pixel coordinates of target point k (OpenCV convention: origin at the
+top-left pixel's centre, u right, v down). Leave both cells of a point empty where it was not
+detected: it is masked (zero weight), counted and reported, not dropped. The target layout
+(--target: checkerboard:COLSxROWS:SQUARE_MM or a CSV file x_mm,y_mm,z_mm, one row per point k)
+and the calibrated camera (--camera fx,fy,cx,cy,k1,k2,p1,p2,k3, OpenCV's intrinsics, px) may
+instead come from the data file's '# target: …', '# camera_intrinsics: …', '# mount: …' lines
+(`jaxcal simulate --measurement camera` writes them). Errors are reported in px: RMS over an
+image's detected corners of the 2-D reprojection distance."""
 
 _ROBOT_FORMAT = """\
 robot: a preset name (hsr_jr680, puma560, ur5, abb_irb120) or a DH table file (CSV): optional
@@ -109,6 +119,42 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
     raise _Usage(f"unknown robot {spec!r}; presets: {', '.join(robots.PRESETS)} (or a DH table CSV file)")
 
 
+def _camera_measurement(args, data, path):
+    """The :class:`~jaxcal.Camera` of ``jaxcal calibrate --measurement camera`` from ``--target``,
+    ``--camera``, ``--mount`` (or the data file's ``# target:``, ``# camera_intrinsics:``,
+    ``# mount:`` lines), hand-eye and target pose unknown (started from the data)."""
+    from ._camera import Camera, load_target
+
+    meta = data.meta
+    target = args.target or meta.get("target")
+    if not target:
+        raise _Usage("--measurement camera needs the target layout: --target checkerboard:COLSxROWS:SQUARE_MM or "
+                     "--target FILE.csv (x_mm,y_mm,z_mm per point), or a '# target: …' line in the data file")
+    try:
+        points = load_target(target, base_dir=pathlib.Path(path).parent)
+    except (ValueError, OSError) as e:
+        raise _Usage(f"--target: {e}") from None
+    if points.shape[0] != data.y.shape[1]:
+        raise _Usage(f"the target has {points.shape[0]} points but {path} has image columns for {data.y.shape[1]} "
+                     "(u_k_px, v_k_px)")
+    spec = args.camera or meta.get("camera_intrinsics")
+    if not spec:
+        raise _Usage("--measurement camera needs the camera's intrinsics: --camera fx,fy,cx,cy[,k1,k2,p1,p2[,k3]] "
+                     "(px; OpenCV's camera matrix and distortion) or a '# camera_intrinsics: …' line")
+    parts = [p for p in spec.replace(";", ",").split(",") if p.strip()]
+    intr = _floats(spec, len(parts), "--camera") if len(parts) in (4, 8, 9) else None
+    if intr is None:
+        raise _Usage(f"--camera takes 4, 8 or 9 numbers fx,fy,cx,cy[,k1,k2,p1,p2[,k3]], got {spec!r}")
+    mount = (args.mount or meta.get("mount") or "eye_in_hand").replace("-", "_").lower()
+    size = meta.get("image_size_px")
+    size = tuple(int(v) for v in _floats(size, 2, "the file's image_size_px")) if size else None
+    try:
+        return Camera(points, intr, mount, image_size=size, calibrate_intrinsics="intrinsics" in
+                      {e.strip().lower() for e in (args.estimate or "").split(",")})
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+
+
 def _measurement(kind: str, anchor, robot, n_markers: int | None = None):
     from ._measurement import CableLength, Markers, Pose, Position
     from ._simulate import default_anchor
@@ -148,6 +194,8 @@ def _cmd_simulate(args) -> int:
     from ._dataset import Dataset
     from ._simulate import simulate_experiment
 
+    if args.measurement == "camera":
+        return _simulate_camera(args)
     robot, measurement = _robot_and_sensor(args)
     if args.samples < 2:
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
@@ -166,6 +214,40 @@ def _cmd_simulate(args) -> int:
     Dataset(q, y, measurement.kind, meta).to_csv(args.out)
     print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
           f"seed {args.seed}) to {args.out}")
+    return 0
+
+
+def _simulate_camera(args) -> int:
+    """``jaxcal simulate --measurement camera``: :func:`jaxcal.simulate_camera` (a 9×6 checkerboard of
+    20 mm squares, 1280×1024 px, f = 1000 px), written with the target, intrinsics and mount lines."""
+    import jax
+    import numpy as np
+
+    from ._camera import Camera, checkerboard, simulate_camera
+    from ._dataset import Dataset, mm_joints_metadata
+
+    robot = _robot(args.robot, args.base, args.tip)
+    if args.anchor:
+        raise _Usage("--anchor applies to --measurement cable only")
+    if args.samples < 3:
+        raise _Usage(f"--samples (images) must be at least 3, got {args.samples}")
+    if not 0.0 <= args.missing_corners < 1.0:
+        raise _Usage(f"--missing-corners must be in [0, 1), got {args.missing_corners}")
+    target = "checkerboard:9x6:20"
+    intr = [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0]
+    cam = Camera(checkerboard(9, 6, 20.0), intr, args.mount.replace("-", "_"), image_size=(1280, 1024))
+    try:
+        q, y, cam, truth = simulate_camera(jax.random.key(args.seed), robot, cam, n_views=args.samples,
+                                           noise_px=args.noise_std, missing=args.missing_corners)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+    n_masked = int(np.isnan(np.asarray(y)).any(axis=-1).sum())
+    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_px": args.noise_std,
+            "target": target, "camera_intrinsics": ",".join(repr(v) for v in intr), "mount": cam.mount,
+            "image_size_px": "1280,1024", **mm_joints_metadata(robot)}
+    Dataset(q, y, "camera", meta).to_csv(args.out)
+    print(f"wrote {args.samples} camera images ({cam.mount}, {cam.n_points} target points, {n_masked} corner(s) "
+          f"left undetected) of robot {robot.name} (σ = {args.noise_std} px, seed {args.seed}) to {args.out}")
     return 0
 
 
@@ -342,6 +424,11 @@ def _cmd_calibrate(args) -> int:
                      "jaxcal.calibrate, jaxcal.leave_one_session_out) or drop those columns")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
+    if args.measurement == "camera":
+        if estimate - {"intrinsics"}:
+            raise _Usage(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the target "
+                         f"pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
+        estimate = set()  # intrinsics: a group of the camera model (--estimate read again below)
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
     if bad:
         raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
@@ -365,7 +452,18 @@ def _cmd_calibrate(args) -> int:
                          "are estimated (closed-form Kabsch start from the data, then the joint fit)")
         if "tool" in estimate:
             raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
-    measurement = _measurement(args.measurement, anchor, robot, data.y.shape[1] if data.kind == "markers" else None)
+    if args.measurement == "camera":
+        from ._camera import masked_corners
+
+        measurement = _camera_measurement(args, data, path)
+        n_mask, n_all, n_img = masked_corners(data.y)
+        notes.append(f"camera ({measurement.mount}): hand-eye transform and target pose estimated (per-image PnP, "
+                     f"Park–Martin hand-eye, then the joint fit){'; intrinsics estimated' if measurement.calibrate_intrinsics else ''}; "
+                     f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "
+                     "(zero weight), not dropped")
+    else:
+        measurement = _measurement(args.measurement, anchor, robot,
+                                   data.y.shape[1] if data.kind == "markers" else None)
     if args.test and args.test_fraction is not None:
         raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
     test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
@@ -480,7 +578,8 @@ def _cmd_calibrate(args) -> int:
     elif test.n:
         rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx])
     print()
-    print(format_table(_metrics_rows(rows), ["data", "RMSE/mm", "MEAN/mm", "MAX/mm"],
+    unit = getattr(measurement, "unit", "mm")  # px for camera data
+    print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
                        title=f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
                              f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
     print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
@@ -529,7 +628,7 @@ def _cmd_calibrate(args) -> int:
                 parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
         print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
     if res.uncertainty is not None:
-        print(f"residual σ̂ {res.uncertainty.noise_std:.4f} mm, effective parameters "
+        print(f"residual σ̂ {res.uncertainty.noise_std:.4f} {unit}, effective parameters "
               f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}")
     diag = res.diagnostics
     if diag.outliers_after:
@@ -945,19 +1044,30 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
-    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers"), default="cable",
+    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "camera"), default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
                         "rotation vector rx,ry,rz (deg) of the flange orientation; markers: N markers on the "
                         "flange seen by a motion-capture system or tracker, columns marker_k_x_mm, marker_k_y_mm, "
-                        "marker_k_z_mm (sensor frame); the sensor frame and the marker positions are estimated")
+                        "marker_k_z_mm (sensor frame); the sensor frame and the marker positions are estimated; "
+                        "camera: a calibrated camera sees a known target, columns u_k_px, v_k_px (see below); the "
+                        "hand-eye transform and the target pose are estimated")
+    c.add_argument("--target", metavar="SPEC",
+                   help="camera: the target layout, checkerboard:COLSxROWS:SQUARE_MM (inner corners, row by row) or "
+                        "a CSV file with x_mm,y_mm,z_mm per point (default: the file's '# target:' line)")
+    c.add_argument("--camera", metavar="FX,FY,CX,CY,K1,K2,P1,P2,K3",
+                   help="camera: OpenCV intrinsics (px) and distortion (default: the file's '# camera_intrinsics:')")
+    c.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand", "eye_in_hand", "eye_to_hand"),
+                   help="camera: on the flange with the target fixed (eye-in-hand, default) or fixed with the target "
+                        "on the flange (eye-to-hand); default: the file's '# mount:' line")
     c.add_argument("--markers", type=int, metavar="N",
                    help="number of markers per sample (--measurement markers; default: as many as the file has)")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
     c.add_argument("--estimate", metavar="LIST",
                    help="also estimate extras: comma list of anchor (wire exit point), offset (cable zero offset), "
                         "tool (tool point in the flange frame), base (position sensor's frame relative to the robot "
-                        "base, 6 parameters). Anchor, offset and base start from the data in closed form, so a "
+                        "base, 6 parameters), intrinsics (camera: fx, fy, cx, cy, k1, k2, p1, p2, k3; off by "
+                        "default). Anchor, offset and base start from the data in closed form, so a "
                         "rough --anchor guess is fine. Without --anchor (and no anchor_mm line in the file) the "
                         "anchor and offset are estimated.")
     c.add_argument("--free", metavar="LIST",
@@ -1024,8 +1134,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
-    s.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
-                   help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default cable)")
+    s.add_argument("--measurement", choices=("cable", "position", "pose", "camera"), default="cable",
+                   help="sensor: cable (draw-wire length), position (x,y,z), pose (x,y,z + rotation vector) or camera "
+                        "(--samples images of a 9×6 checkerboard, 20 mm squares, 1280×1024 px, f = 1000 px, only poses "
+                        "that see the whole target; --noise-std in px; default cable)")
+    s.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand"), default="eye-in-hand",
+                   help="camera: on the flange (eye-in-hand, default) or fixed, the target on the flange")
+    s.add_argument("--missing-corners", type=float, default=0.0, metavar="FRACTION",
+                   help="camera: fraction of corners left undetected at random (empty cells; default 0)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
     s.set_defaults(func=_cmd_simulate)
 
