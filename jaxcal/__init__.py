@@ -16,6 +16,9 @@ from ._calibrate import CalibrationWarning as CalibrationWarning
 from ._calibrate import Calibrator as Calibrator
 from ._calibrate import calibrate as calibrate
 from ._chain import SerialChain as SerialChain
+from ._contact import FixedPoint as FixedPoint
+from ._contact import PlaneContact as PlaneContact
+from ._contact import simulate_contact as simulate_contact
 from ._dataset import Dataset as Dataset
 from ._dataset import load_csv as load_csv
 from ._dataset import save_csv as save_csv
@@ -128,6 +131,9 @@ __all__ = [
     "ParameterSpace",
     "Markers",
     "SessionMarkers",
+    "PlaneContact",
+    "FixedPoint",
+    "simulate_contact",
     "SessionHoldout",
     "holdout_session",
     "initial_sessions",

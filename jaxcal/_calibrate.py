@@ -460,6 +460,7 @@ def calibrate(
     flags = {e: any(_family(group_of(n)) in SELECT_GROUPS[e] for n in cand.free_names)
              for e in ("anchor", "cable_offset", "base", "tool")}
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
+    flags.update({e: any(_family(group_of(n)) == e for n in cand.free_names) for e in ("plane", "point")})
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]

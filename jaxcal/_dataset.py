@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._contact import CONTACT_KINDS, contact_label_cells, contact_labels_from_cells
 from ._csvfile import read_table
 
 __all__ = ["Dataset", "load_csv", "save_csv", "KINDS", "marker_columns"]
@@ -26,8 +27,10 @@ KINDS: dict[str, tuple[str, ...]] = {
     "position": ("x_mm", "y_mm", "z_mm"),
     "pose": ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"),
     "markers": (),  # marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ... (N from the file)
+    "plane": (),  # a text column `plane` (jaxcal._contact): y = the label's index
+    "point": (),  # a text column `point` (jaxcal._contact): y = the label's index
 }
-_SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4)}
+_SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4), "plane": (), "point": ()}
 _MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
 
 
@@ -253,6 +256,8 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         vals = y
     elif data.kind == "markers":
         vals = y.reshape(y.shape[0], -1)
+    elif data.kind in CONTACT_KINDS:
+        vals = np.zeros((y.shape[0], 0))
     else:
         vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
     value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
@@ -264,9 +269,11 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         if k != "kind":
             buf.write(f"# {k}: {v}\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []))
+    contact = contact_label_cells(data) if data.kind in CONTACT_KINDS else None
+    w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []) + ([CONTACT_KINDS[data.kind]] if contact else []))
     for r, row in enumerate(np.concatenate([qcols, vals], axis=1)):
-        w.writerow([repr(float(x)) for x in row] + (list(data.labels[r]) if data.labels else []))
+        w.writerow([repr(float(x)) for x in row] + (list(data.labels[r]) if data.labels else [])
+                   + ([contact[r]] if contact else []))
     with open(os.fspath(path), "w", encoding="utf-8") as f:
         f.write(buf.getvalue())
 
@@ -392,6 +399,8 @@ def load_csv(
     if kind is None and markers_found:
         kind = "markers"
     if kind is None:
+        kind = next((k for k, col in CONTACT_KINDS.items() if col in header), None)
+    if kind is None:
         kind = next((k for k in ("pose", "position", "cable") if all(c in header for c in KINDS[k])), None)
         if kind is None:
             raise ValueError(
@@ -417,6 +426,11 @@ def load_csv(
         raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
     used = qcols + value_cols
     label_cols = [c for c in LABEL_COLUMNS if c in header] if kind == "markers" else []
+    if kind in CONTACT_KINDS:
+        label_cols = [CONTACT_KINDS[kind]]
+        if label_cols[0] not in header:
+            raise ValueError(f"{path}: {kind} data need a text column {label_cols[0]!r} naming each row's "
+                             f"{label_cols[0]}; header: {list(header)}")
     unused = [h for h in header if h not in used and h not in label_cols]
     if unused:
         odd = [h for h in unused if h not in _BOOKKEEPING]
@@ -442,6 +456,9 @@ def load_csv(
         y = vals
     elif kind == "markers":
         y = vals.reshape(vals.shape[0], -1, 3)
+    elif kind in CONTACT_KINDS:
+        y, meta = contact_labels_from_cells(path, t, header, kind, meta)
+        label_cols = []
     else:
         y = np.zeros((vals.shape[0], 4, 4))
         y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))

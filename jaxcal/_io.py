@@ -211,6 +211,10 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
     ``[3, 3]`` sensor-from-base rotation, ``t`` mm)."""
     if isinstance(m, CableLength):
         return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
+    if m.kind in ("plane", "point"):  # jaxcal._contact
+        from ._contact import contact_to_dict
+
+        return contact_to_dict(m)
     frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
              "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
     if isinstance(m, Pose):
@@ -228,6 +232,10 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
     kind = d.get("kind")
     if kind == "cable":
         return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
+    if kind in ("plane", "point"):  # jaxcal._contact
+        from ._contact import contact_from_dict
+
+        return contact_from_dict(d)
     frame = {"rotation": jnp.asarray(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
              "translation": jnp.asarray(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
     if kind == "position":

@@ -38,8 +38,10 @@ _DATA_FORMAT = """\
 data file (CSV): optional '# key: value' comment lines, then a header row, then one row per
 sample. Columns: q1_deg … qN_deg joint angles in degrees (or q1_rad … in radians), then the
 measurement: length_mm (draw-wire length, --measurement cable) or x_mm,y_mm,z_mm (tool point
-in the robot base frame, --measurement position). Rows with empty/NaN values are rejected,
-not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
+in the robot base frame, --measurement position). Contact data without a tracker: a text column
+`plane` naming the plane the probe touched (--measurement plane), or `point` naming the fixed
+point the tool tip was put on (--measurement point); no value columns. Rows with empty/NaN
+values are rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
 as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given)."""
 
 _ROBOT_FORMAT = """\
@@ -109,9 +111,16 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
     raise _Usage(f"unknown robot {spec!r}; presets: {', '.join(robots.PRESETS)} (or a DH table CSV file)")
 
 
-def _measurement(kind: str, anchor, robot, n_markers: int | None = None):
+def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):
     from ._measurement import CableLength, Markers, Pose, Position
     from ._simulate import default_anchor
+
+    if kind in ("plane", "point"):  # contact data (jaxcal._contact): planes/points from the data's labels
+        if anchor is not None:
+            raise _Usage("--anchor applies to --measurement cable only")
+        from ._contact import contact_model
+
+        return contact_model(kind, robot, data)
 
     if kind == "cable":
         import jax.numpy as jnp
@@ -151,6 +160,11 @@ def _cmd_simulate(args) -> int:
     robot, measurement = _robot_and_sensor(args)
     if args.samples < 2:
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
+    if measurement.kind in ("plane", "point"):
+        from ._contact import save_simulated_contact
+
+        save_simulated_contact(args, robot, measurement)
+        return 0
     ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=args.noise_std,
                              measurement=measurement, test_fraction=0.5)
     import jax.numpy as jnp
@@ -340,6 +354,16 @@ def _cmd_calibrate(args) -> int:
                      "jaxcal.calibrate, jaxcal.leave_one_session_out) or drop those columns")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
+    notes = []
+    if args.measurement in ("plane", "point"):
+        if "base" in estimate:
+            raise _Usage(f"--estimate base does not apply to {args.measurement} data: the {args.measurement}s are "
+                         "in the robot base frame and carry any base-frame error")
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append(f"{args.measurement} data: the {args.measurement}s and the tool point are estimated "
+                         "(closed-form start from the data, then the joint fit); contact data have no length "
+                         "reference, so the prior (or a --fix'ed length) sets the robot's scale")
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
     if bad:
         raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
@@ -347,7 +371,6 @@ def _cmd_calibrate(args) -> int:
         raise _Usage("--estimate anchor/offset apply to --measurement cable only")
     if args.measurement == "cable" and "base" in estimate:
         raise _Usage("--estimate base applies to --measurement position only")
-    notes = []
     if anchor is None and args.measurement == "cable":
         if "anchor_mm" in data.meta:
             anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
@@ -363,7 +386,8 @@ def _cmd_calibrate(args) -> int:
                          "are estimated (closed-form Kabsch start from the data, then the joint fit)")
         if "tool" in estimate:
             raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
-    measurement = _measurement(args.measurement, anchor, robot, data.y.shape[1] if data.kind == "markers" else None)
+    measurement = _measurement(args.measurement, anchor, robot, data.y.shape[1] if data.kind == "markers" else None,
+                               data=data)
     if args.test and args.test_fraction is not None:
         raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
     test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
@@ -384,6 +408,10 @@ def _cmd_calibrate(args) -> int:
             raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
         if test_file.labels:
             raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
+        if test_file.kind in ("plane", "point"):
+            from ._contact import relabel
+
+            test_file = relabel(test_file, measurement.labels)
     try:
         prior = Prior.parse(args.prior)
     except ValueError as e:
@@ -606,6 +634,10 @@ def _cmd_evaluate(args) -> int:
                      f"{res.robot.dof} joints")
     if data.labels:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
+    if data.kind in ("plane", "point"):
+        from ._contact import relabel
+
+        data = relabel(data, m.labels)
     objective = raw.get("settings", {}).get("objective") or (
         f"objective: {raw.get('loss', 'linear')} loss; {raw.get('prior') or 'no prior'}")
     ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective)
@@ -943,12 +975,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
-    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers"), default="cable",
+    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "plane", "point"), default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
                         "rotation vector rx,ry,rz (deg) of the flange orientation; markers: N markers on the "
                         "flange seen by a motion-capture system or tracker, columns marker_k_x_mm, marker_k_y_mm, "
-                        "marker_k_z_mm (sensor frame); the sensor frame and the marker positions are estimated")
+                        "marker_k_z_mm (sensor frame); the sensor frame and the marker positions are estimated; "
+                        "plane: the tool tip touched the plane named in a text column `plane` (residual: signed "
+                        "distance, mm); point: the tool tip was put on the fixed point named in a text column "
+                        "`point` (pivoting; residual: 3-D distance, mm); for plane/point the planes/points and the "
+                        "tool point are estimated (closed form from the data, then the joint fit)")
     c.add_argument("--markers", type=int, metavar="N",
                    help="number of markers per sample (--measurement markers; default: as many as the file has)")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
@@ -1022,8 +1058,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
-    s.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
-                   help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default cable)")
+    s.add_argument("--measurement", choices=("cable", "position", "pose", "plane", "point"), default="cable",
+                   help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default "
+                        "cable); plane: a probe touching three planes (a `plane` label column); point: the tool tip "
+                        "pivoting on two fixed points (a `point` label column)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
     s.set_defaults(func=_cmd_simulate)
 
