@@ -57,3 +57,62 @@ def test_point_cli_pivot_at_floor(robot, tmp_path):
     res, ratio, _ = _cli_at_floor(robot, "point", tmp_path)
     print("point: test RMSE / floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
+
+
+def test_one_plane_report_names_what_it_cannot_see(robot):
+    """One horizontal plane: rotation about its normal (θ_1) is invisible and d_1 is the plane's
+    offset; the words name the in-plane translations and the turn about the normal. Three planes with
+    independent normals: nothing left unseen."""
+    m0 = default_setup("plane", robot)
+    one = PlaneContact(("table",), [[0.0, 0.0, 1.0]], [float(m0.offsets[0])])
+    ex = simulate_contact(jax.random.key(5), robot, one, n_samples=120, noise_std=SIGMA, test_fraction=0.0)
+    space = ParameterSpace.for_robot(robot, measurement=one, tool=True)
+    rep = jaxcal.identifiability(robot, one, ex.train.q, space, ex.true_deviations)
+    assert "theta_1" in rep.unidentifiable
+    assert "d_1" in rep.unidentifiable and any(n == "plane_d@table" for _, n in rep.dependencies["d_1"])
+    words = unobservable_directions(np.asarray(one.normals))
+    assert len(words) == 2 and "translation along the plane" in words[0] and "rotation about the plane normal" in words[1]
+    assert "intersection line" in unobservable_directions([[0, 0, 1], [1, 0, 0]])[0]
+    assert unobservable_directions(np.asarray(m0.normals)) == []
+
+
+def test_closed_form_starts_recover_planes_points_and_tool(robot):
+    """Noise-free data on the nominal robot: SVD plane fit + linear tool solve, and the linear pivot
+    solve, give the true planes / centres and tool point."""
+    m = default_setup("plane", robot)
+    layout_truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])}, jaxcal._params.layout_for(robot, m))
+    ex = simulate_contact(jax.random.key(7), robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
+                          true_deviations=layout_truth)
+    cm = PlaneContact.from_dataset(ex.train)
+    est = initial_contact(robot, cm, ex.train, estimate=("plane", "tool"))
+    assert est.rmse_after < 1e-6
+    np.testing.assert_allclose(np.asarray(est.deviations.tool), [3.0, -2.0, 1.5], atol=1e-6)
+    n, d = cm.planes(est.deviations)
+    np.testing.assert_allclose(np.asarray(n), np.asarray(m.normals), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(d), np.asarray(m.offsets), atol=1e-6)
+    p = default_setup("point", robot)
+    truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])}, jaxcal._params.layout_for(robot, p))
+    ex = simulate_contact(jax.random.key(8), robot, p, n_samples=60, noise_std=0.0, test_fraction=0.0,
+                          true_deviations=truth)
+    cp = FixedPoint.from_dataset(ex.train)
+    est = initial_contact(robot, cp, ex.train, estimate=("point", "tool"))
+    np.testing.assert_allclose(np.asarray(est.deviations.tool), [3.0, -2.0, 1.5], atol=1e-6)
+    c, _ = cp.points(est.deviations)
+    np.testing.assert_allclose(np.asarray(c), np.asarray(p.centres), atol=1e-6)
+
+
+def test_csv_round_trip_and_relabel(robot, tmp_path):
+    m = default_setup("plane", robot)
+    ex = simulate_contact(jax.random.key(9), robot, m, n_samples=30, noise_std=SIGMA, test_fraction=0.0)
+    path = tmp_path / "p.csv"
+    ex.train.to_csv(path)
+    text = path.read_text()
+    assert any(line.endswith(",plane") for line in text.splitlines())
+    back = jaxcal.load_csv(path)
+    assert back.kind == "plane" and back.meta["plane_labels"] == "table,wall_a,wall_b"
+    np.testing.assert_array_equal(np.asarray(back.y), np.asarray(ex.train.y))
+    other = relabel(back, ("wall_b", "table", "wall_a"))
+    r0 = m.residual(robot, ex.true_deviations, back.q, back.y)
+    m2 = PlaneContact(("wall_b", "table", "wall_a"), np.asarray(m.normals)[[2, 0, 1]], np.asarray(m.offsets)[[2, 0, 1]])
+    np.testing.assert_allclose(np.asarray(m2.residual(robot, ex.true_deviations.replace(), other.q, other.y)),
+                               np.asarray(r0), atol=1e-9)
