@@ -62,7 +62,7 @@ from ._precision import to_device
 
 __all__ = ["PlaneContact", "FixedPoint", "plane_group", "point_groups", "initial_contact", "simulate_contact",
            "unobservable_directions", "contact_model", "default_setup", "dataset_labels", "CONTACT_KINDS",
-           "label_metadata_key", "relabel"]
+           "label_metadata_key", "relabel", "DistanceBar", "simulate_distance"]
 
 #: measurement kinds of this module and the CSV label column of each
 CONTACT_KINDS = {"plane": "plane", "point": "point"}
@@ -313,6 +313,8 @@ def contact_model(kind: str, robot, data=None):
     """The model the command line uses: from ``data``'s labels with unknown planes / points (the
     closed-form start finds them), or without data the simulation set-up of
     :func:`default_setup`."""
+    if kind == "distance":
+        return DistanceBar(robot.dof)
     if data is not None:
         return PlaneContact.from_dataset(data) if kind == "plane" else FixedPoint.from_dataset(data)
     return default_setup(kind, robot)
@@ -477,6 +479,8 @@ def _plane_start(m: PlaneContact, start, F, P, lab, t0, est_planes, est_tool, it
 
 
 def _point_start(m: FixedPoint, start, F, P, lab, t0, est_points, est_tool, iterations):
+    from ._initialise import _trim
+
     c_cur, r_cur = (np.array(a, np.float64) for a in m.points(start))
     K = len(m.labels)
     t = t0.copy()
@@ -508,11 +512,18 @@ def _point_start(m: FixedPoint, start, F, P, lab, t0, est_points, est_tool, iter
                 rows = lab == k
                 if rows.sum() >= 4:
                     x = p[rows]
-                    A = np.concatenate([2 * x, np.ones((len(x), 1))], axis=1)
-                    sol = np.linalg.lstsq(A, np.sum(x * x, axis=1), rcond=None)[0]
+                    use = np.ones(len(x), bool)
+                    for _ in range(3):  # algebraic fit, then again without rows beyond 5 robust σ
+                        A = np.concatenate([2 * x, np.ones((len(x), 1))], axis=1)
+                        sol = np.linalg.lstsq(A[use], np.sum(x * x, axis=1)[use], rcond=None)[0]
+                        rad = math.sqrt(max(sol[3] + sol[:3] @ sol[:3], 0.0))
+                        new_use = _trim(np.linalg.norm(x - sol[:3], axis=1) - rad)
+                        if new_use.sum() < 4 or np.array_equal(new_use, use):
+                            break
+                        use = new_use
                     c_cur[k] = sol[:3]
                     if m.estimate_radius:
-                        r_cur[k] = math.sqrt(max(sol[3] + sol[:3] @ sol[:3], 0.0))
+                        r_cur[k] = rad
         # Gauss–Newton on everything asked for
         for _ in range(iterations):
             p = P + F @ t
@@ -533,7 +544,8 @@ def _point_start(m: FixedPoint, start, F, P, lab, t0, est_points, est_tool, iter
             if not cols:
                 break
             J = np.concatenate(cols, axis=1)
-            step = np.linalg.lstsq(J, -r, rcond=None)[0]
+            use = _trim(r)  # Gauss–Newton without the rows beyond 5 robust σ (a wrong label is ~100 mm off)
+            step = np.linalg.lstsq(J[use], -r[use], rcond=None)[0]
             i = 0
             if est_tool:
                 t = t + step[:3]
@@ -707,6 +719,8 @@ def contact_to_dict(m) -> dict:
     """``{"kind": "plane", "labels": [...], "normals": [[...]], "offsets_mm": [...]}`` or
     ``{"kind": "point", "labels": [...], "centres_mm": [[...]], "radii_mm": [...] | None,
     "estimate_radius": bool}``."""
+    if isinstance(m, DistanceBar):
+        return {"kind": "distance", "dof": m.dof}
     if isinstance(m, PlaneContact):
         return {"kind": "plane", "labels": list(m.labels), "normals": np.asarray(m.normals, np.float64).tolist(),
                 "offsets_mm": np.asarray(m.offsets, np.float64).tolist()}
@@ -717,6 +731,8 @@ def contact_to_dict(m) -> dict:
 
 def contact_from_dict(d: dict):
     """Inverse of :func:`contact_to_dict`."""
+    if d["kind"] == "distance":
+        return DistanceBar(int(d["dof"]))
     if d["kind"] == "plane":
         return PlaneContact(d["labels"], d["normals"], d["offsets_mm"])
     return FixedPoint(d["labels"], d["centres_mm"], d.get("radii_mm"), bool(d.get("estimate_radius", False)))
@@ -746,11 +762,211 @@ def save_simulated_contact(args, robot, measurement) -> None:
     """``jaxcal simulate --measurement plane|point``: :func:`simulate_contact` → ``args.out``."""
     from ._dataset import Dataset, mm_joints_metadata
 
-    ex = simulate_contact(jax.random.key(args.seed), robot, measurement, n_samples=args.samples,
-                          noise_std=args.noise_std, test_fraction=0.0)
     meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std,
-            label_metadata_key(measurement.kind): ",".join(measurement.labels), **mm_joints_metadata(robot)}
+            **mm_joints_metadata(robot)}
+    if measurement.kind == "distance":
+        ex = simulate_distance(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=args.noise_std,
+                               test_fraction=0.0)
+        what = "bar lengths 150 and 300 mm"
+    else:
+        ex = simulate_contact(jax.random.key(args.seed), robot, measurement, n_samples=args.samples,
+                              noise_std=args.noise_std, test_fraction=0.0)
+        meta[label_metadata_key(measurement.kind)] = ",".join(measurement.labels)
+        what = f"{len(measurement.labels)} {measurement.kind}s: {', '.join(measurement.labels)}"
     Dataset(ex.train.q, ex.train.y, measurement.kind, meta).to_csv(args.out)
     print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
-          f"seed {args.seed}, {len(measurement.labels)} {measurement.kind}s: {', '.join(measurement.labels)}) to "
-          f"{args.out}")
+          f"seed {args.seed}, {what}) to {args.out}")
+
+
+# -- distance bar / ballbar ------------------------------------------------------------------------
+class DistanceBar(MeasurementModel):
+    """Two poses per row whose tool points are a known distance apart (a calibrated bar with two
+    nests, a double ball bar): kind ``"distance"``.
+
+    ``q`` ``[n, dof]`` is pose *a*; the reading ``y`` ``[n, dof + 1]`` is pose *b* (rad) and the
+    bar length ``L`` (mm). Residual ``[n, 1]`` (mm): ``‖p(q_a) − p(q_b)‖ − L``, ``p`` the tool
+    point (nominal tool + the ``tool`` extra). The model adds no extra groups (a bar length that
+    is not known exactly would be one more: ``L`` is taken as calibrated here).
+
+    Distance data can never see the robot's base frame: a rigid motion of the whole robot
+    (3 translations, 3 rotations) changes no distance, so ``d_1``, ``theta_1`` and every other
+    base-frame direction are unidentifiable (the report lists them) and the calibrated robot is
+    only defined up to where its base is; its *length scale*, unlike plane or point contact, is
+    seen (``L`` is a length reference). ``predict`` pairs each row with the next one (the last
+    with the first) and returns ``[q_next, ‖p(q) − p(q_next)‖]``: readings of a bar between
+    consecutive poses, for code that asks a model for readings at poses.
+
+    Attributes:
+        dof: joints of the robot (static; sets the reading's shape).
+    """
+
+    dof: int = eqx.field(static=True)
+    kind: ClassVar[str] = "distance"
+    size: ClassVar[int] = 1
+
+    def __init__(self, dof: int):
+        self.dof = int(dof)
+
+    @property
+    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
+        return (self.dof + 1,)
+
+    @property
+    def jacobian_free_of_data(self) -> bool:
+        return True  # pose b lives in the readings: use the measured ones where they are given
+
+    def _ends(self, robot, deviations, q, qb):
+        q = check_joint_angles(robot, q)
+        n = q.shape[0]
+        p = tool_point_soa(robot, deviations, jnp.concatenate([q, qb.astype(q.dtype)], axis=0))
+        return [c[:n] for c in p], [c[n:] for c in p]
+
+    def predict(self, robot, deviations, q) -> Float[Array, "n dof1"]:
+        """``[n, dof + 1]``: the next row's joint angles and the distance to its tool point (mm)."""
+        q = check_joint_angles(robot, q)
+        qb = jnp.roll(q, -1, axis=0)
+        pa, pb = self._ends(robot, deviations, q, qb)
+        d = jnp.sqrt(sum((pa[k] - pb[k]) ** 2 for k in range(3)))
+        return jnp.concatenate([qb, d[:, None]], axis=1)
+
+    def residual(self, robot, deviations, q, y) -> Float[Array, "n 1"]:
+        """``‖p(q_a) − p(q_b)‖ − L`` ``[n, 1]`` (mm)."""
+        y = jnp.asarray(y)
+        pa, pb = self._ends(robot, deviations, q, y[:, : self.dof])
+        return (jnp.sqrt(sum((pa[k] - pb[k]) ** 2 for k in range(3))) - y[:, self.dof].astype(pa[0].dtype))[:, None]
+
+
+def _pair_constraint(robot, dev, qa, qb):
+    pa = jnp.stack(tool_point_soa(robot, dev, qa[None]), -1)[0]
+    pb = jnp.stack(tool_point_soa(robot, dev, qb[None]), -1)[0]
+    return jnp.atleast_1d(jnp.linalg.norm(pa - pb))
+
+
+@eqx.filter_jit
+def _pair_step(robot, dev, qa, qb, target):
+    g = jax.vmap(lambda a, b: _pair_constraint(robot, dev, a, b))(qa, qb)
+    J = jax.vmap(jax.jacfwd(lambda b, a: _pair_constraint(robot, dev, a, b)))(qb, qa)  # [n, 1, dof]
+    e = (g - target)[:, 0]
+    step = J[:, 0] * (e / (jnp.sum(J[:, 0] ** 2, axis=1) + 1e-12))[:, None]
+    return qb - step, jnp.abs(e)
+
+
+def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.05, lengths_mm=(150.0, 300.0),
+                      test_fraction: float = 0.2, true_deviations: Deviations | None = None,
+                      angle_std_deg: float | None = None, length_std_mm: float | None = None,
+                      tool_std_mm: float = 2.0, iterations: int = 30):
+    """A simulated distance-bar experiment (:class:`jaxcal.Experiment`, model :class:`DistanceBar`).
+
+    Pose *a* random within the joint limits (tool point above the base plane); pose *b* the random
+    pose whose tool point is nearest to a bar length from *a*'s (lengths ``lengths_mm`` in turn),
+    then moved by minimum-norm Newton steps on the true robot until the distance is ``L + ε``,
+    ``ε ~ N(0, σ²)``; the reading holds ``L`` (the noise is in the bar's reading). Rows that
+    leave the joint limits or do not converge are not used."""
+    from ._dataset import Dataset, mm_joints_metadata
+    from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, Experiment, draw_deviations
+
+    m = DistanceBar(robot.dof)
+    dtype = jnp.result_type(float)
+    k_dev, k_a, k_b, k_noise, k_split = jax.random.split(key, 5)
+    layout = layout_for(robot, m)
+    if true_deviations is None:
+        dh = draw_deviations(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
+                             length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
+                             tool_std_mm=tool_std_mm, dtype=dtype)
+        true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
+    true_deviations = true_deviations.astype(dtype)
+    n_try = 2 * n_samples
+    qa = _sample_q(k_a, robot, n_try)
+    pool = _sample_q(k_b, robot, min(8 * n_try, 8192))
+    pa = np.asarray(jnp.stack(tool_point_soa(robot, true_deviations, qa), -1))
+    pp = np.asarray(jnp.stack(tool_point_soa(robot, true_deviations, pool), -1))
+    L = np.resize(np.asarray(lengths_mm, np.float64), n_try)
+    best = np.empty(n_try, int)
+    for i in range(0, n_try, 256):  # the pool pose nearest to a bar length away, in blocks (memory)
+        dist = np.sqrt(((pa[i:i + 256, None, :] - pp[None, :, :]) ** 2).sum(-1))
+        best[i:i + 256] = np.argmin(np.abs(dist - L[i:i + 256, None]), axis=1)
+    qb = pool[best]
+    eps = noise_std * np.asarray(jax.random.normal(k_noise, (n_try,), dtype))
+    target = jnp.asarray(L + eps, dtype)[:, None]
+    for _ in range(iterations):
+        qb_new, err = _pair_step(robot, true_deviations, qa, qb, target)
+        if float(jnp.max(err)) < 1e-9:
+            break
+        qb = qb_new
+    qa_n, qb_n, errn = np.asarray(qa), np.asarray(qb), np.asarray(err)
+    lo, hi = np.asarray(robot.q_min), np.asarray(robot.q_max)
+    ok = (errn < 1e-6) & np.all((qb_n >= lo) & (qb_n <= hi), axis=1) & (pa[:, 2] > 0)
+    idx = np.flatnonzero(ok)[:n_samples]
+    if idx.size < n_samples:
+        raise ValueError(f"simulate_distance: only {idx.size} of {n_samples} pose pairs converged inside the limits")
+    y = np.concatenate([qb_n[idx], L[idx, None]], axis=1)
+    meta = {"source": "simulate_distance", "robot": robot.name, "noise_std_mm": str(noise_std),
+            **mm_joints_metadata(robot)}
+    data = Dataset(jnp.asarray(qa_n[idx], dtype), jnp.asarray(y, dtype), "distance", meta)
+    n_test = int(round(n_samples * test_fraction))
+    perm = np.asarray(jax.random.permutation(k_split, n_samples))
+    return Experiment(robot, m, true_deviations, data.subset(perm[n_test:]), data.subset(perm[:n_test]),
+                      jnp.asarray(noise_std, dtype))
+
+
+# -- distance CSV (called by jaxcal._dataset) -------------------------------------------------------
+def distance_columns(dof: int, unit: str = "deg") -> list[str]:
+    """``q1a_<unit> … qNa_<unit>, q1b_<unit> … qNb_<unit>, distance_mm``."""
+    return ([f"q{j}a_{unit}" for j in range(1, dof + 1)] + [f"q{j}b_{unit}" for j in range(1, dof + 1)]
+            + ["distance_mm"])
+
+
+def save_distance_csv(data, path, angle_unit: str = "deg") -> None:
+    """Write distance-bar data: ``# key: value`` lines, then :func:`distance_columns`."""
+    import csv
+    import io
+    import os
+
+    from ._dataset import _rad_to_deg_roundtrip
+
+    q = np.asarray(data.q, np.float64)
+    y = np.asarray(data.y, np.float64)
+    dof = q.shape[1]
+    conv = _rad_to_deg_roundtrip if angle_unit == "deg" else (lambda a: a)
+    buf = io.StringIO()
+    buf.write("# jaxcal dataset v1\n# kind: distance\n")
+    for k, v in data.metadata:
+        if k != "kind":
+            buf.write(f"# {k}: {v}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(distance_columns(dof, angle_unit))
+    for row in np.concatenate([conv(q), conv(y[:, :dof]), y[:, dof:]], axis=1):
+        w.writerow([repr(float(x)) for x in row])
+    with open(os.fspath(path), "w", encoding="utf-8") as f:
+        f.write(buf.getvalue())
+
+
+def load_distance_table(path, t, meta: dict, dof: int | None):
+    """``(q_a [n, dof] rad, y [n, dof + 1])`` from a read table with :func:`distance_columns`."""
+    import re
+
+    cols = {h: re.fullmatch(r"q(\d+)([ab])_(deg|rad)", h) for h in t.header}
+    cols = {h: mt for h, mt in cols.items() if mt}
+    units = {mt[3] for mt in cols.values()}
+    if len(units) != 1:
+        raise ValueError(f"{path}: distance data need q1a_deg … qNa_deg and q1b_deg … qNb_deg (one angle unit); "
+                         f"header: {list(t.header)}")
+    unit = units.pop()
+    n_dof = max(int(mt[1]) for mt in cols.values())
+    if dof is not None and n_dof != dof:
+        raise ValueError(f"{path}: file has {n_dof} joints per pose but the robot has {dof} joints")
+    want = distance_columns(n_dof, unit)
+    missing = [c for c in want if c not in t.header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing} for distance data; header: {list(t.header)}")
+    unused = [h for h in t.header if h not in want]
+    if unused:
+        import warnings
+
+        warnings.warn(f"{path}: column(s) {unused} are not used; distance data uses {','.join(want)}", UserWarning,
+                      stacklevel=3)
+    if not t.rows:
+        raise ValueError(f"{path}: no data rows")
+    v = t.floats(want)
+    ang = np.deg2rad(v[:, : 2 * n_dof]) if unit == "deg" else v[:, : 2 * n_dof]
+    return ang[:, :n_dof], np.concatenate([ang[:, n_dof:], v[:, 2 * n_dof:]], axis=1)

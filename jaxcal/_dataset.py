@@ -29,6 +29,7 @@ KINDS: dict[str, tuple[str, ...]] = {
     "markers": (),  # marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ... (N from the file)
     "plane": (),  # a text column `plane` (jaxcal._contact): y = the label's index
     "point": (),  # a text column `point` (jaxcal._contact): y = the label's index
+    "distance": ("distance_mm",),  # q1a_deg…, q1b_deg…, distance_mm (jaxcal._contact.DistanceBar)
 }
 _SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4), "plane": (), "point": ()}
 _MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
@@ -172,7 +173,11 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
     if q.ndim != 2 or q.shape[1] < 1:
         raise ValueError(f"joint angles must have shape [n, dof], got {list(q.shape)}")
     n = q.shape[0]
-    if kind == "markers":
+    if kind == "distance":  # y = [pose b (rad), bar length (mm)]
+        if y.ndim != 2 or y.shape != (n, q.shape[1] + 1):
+            raise ValueError(f"distance readings must have shape [{n}, {q.shape[1] + 1}] (pose b, length), "
+                             f"got {list(y.shape)}")
+    elif kind == "markers":
         if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
             raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
     else:
@@ -248,6 +253,10 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     """
     if angle_unit not in ("deg", "rad"):
         raise ValueError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if data.kind == "distance":
+        from ._contact import save_distance_csv
+
+        return save_distance_csv(data, path, angle_unit)
     qnames, qcols = joint_columns_out(np.asarray(data.q, dtype=np.float64), mm_joints(data.metadata), angle_unit)
     y = np.asarray(data.y, dtype=np.float64)
     if data.kind == "cable":
@@ -390,8 +399,16 @@ def load_csv(
     n_markers_expected = n_markers
     t = read_table(path, delimiter=delimiter, what="data file", row_name="data row")
     path, header, meta = t.path, t.header, dict(t.meta)
-    qcols, unit = _joint_columns(path, header, dof)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
+    if kind == "distance" or (kind is None and "distance_mm" in header):  # two poses per row (jaxcal._contact)
+        from ._contact import load_distance_table
+
+        if meta_kind is not None:
+            meta.pop(meta_kind)
+        qa, yd = load_distance_table(path, t, meta, dof)
+        dt = dtype or jnp.result_type(float)
+        return Dataset(jnp.asarray(qa, dt), jnp.asarray(yd, dt), "distance", meta)
+    qcols, unit = _joint_columns(path, header, dof)
     if kind is None and meta_kind is not None:
         kind = meta[meta_kind].lower()
     markers_found = {h: _MARKER.fullmatch(h) for h in header}

@@ -67,7 +67,8 @@ __all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "wire_with_tool"
 
 #: extras :func:`initial_extras` can start from data, per measurement kind.
 INITIALISABLE = {"cable": ("anchor", "cable_offset", "tool"), "position": ("base", "tool"), "pose": ("base", "tool"),
-                 "markers": ("base", "markers"), "plane": ("plane", "tool"), "point": ("point", "tool")}
+                 "markers": ("base", "markers"), "plane": ("plane", "tool"), "point": ("point", "tool"),
+                 "distance": ()}
 
 #: σ (mm) of the weak prior toward the guessed tool point in the draw-wire and pose starts: it
 #: holds only the directions the data barely see (bias ``w/(s² + w)`` along a direction with

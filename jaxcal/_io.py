@@ -211,7 +211,7 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
     ``[3, 3]`` sensor-from-base rotation, ``t`` mm)."""
     if isinstance(m, CableLength):
         return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
-    if m.kind in ("plane", "point"):  # jaxcal._contact
+    if m.kind in ("plane", "point", "distance"):  # jaxcal._contact
         from ._contact import contact_to_dict
 
         return contact_to_dict(m)
@@ -232,7 +232,7 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
     kind = d.get("kind")
     if kind == "cable":
         return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
-    if kind in ("plane", "point"):  # jaxcal._contact
+    if kind in ("plane", "point", "distance"):  # jaxcal._contact
         from ._contact import contact_from_dict
 
         return contact_from_dict(d)

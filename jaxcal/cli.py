@@ -115,7 +115,7 @@ def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=No
     from ._measurement import CableLength, Markers, Pose, Position
     from ._simulate import default_anchor
 
-    if kind in ("plane", "point"):  # contact data (jaxcal._contact): planes/points from the data's labels
+    if kind in ("plane", "point", "distance"):  # contact data (jaxcal._contact): planes/points from the data's labels
         if anchor is not None:
             raise _Usage("--anchor applies to --measurement cable only")
         from ._contact import contact_model
@@ -160,7 +160,7 @@ def _cmd_simulate(args) -> int:
     robot, measurement = _robot_and_sensor(args)
     if args.samples < 2:
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
-    if measurement.kind in ("plane", "point"):
+    if measurement.kind in ("plane", "point", "distance"):
         from ._contact import save_simulated_contact
 
         save_simulated_contact(args, robot, measurement)
@@ -355,6 +355,14 @@ def _cmd_calibrate(args) -> int:
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
     notes = []
+    if args.measurement == "distance":
+        if "base" in estimate:
+            raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append("distance data: the tool point is estimated (from its nominal value); distances never see "
+                         "the robot's base frame (d_1, theta_1 and the base's position and orientation stay at "
+                         "nominal or are set by the prior)")
     if args.measurement in ("plane", "point"):
         if "base" in estimate:
             raise _Usage(f"--estimate base does not apply to {args.measurement} data: the {args.measurement}s are "
@@ -975,7 +983,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
-    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "plane", "point"), default="cable",
+    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "plane", "point", "distance"),
+                   default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
                         "rotation vector rx,ry,rz (deg) of the flange orientation; markers: N markers on the "
@@ -984,7 +993,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "plane: the tool tip touched the plane named in a text column `plane` (residual: signed "
                         "distance, mm); point: the tool tip was put on the fixed point named in a text column "
                         "`point` (pivoting; residual: 3-D distance, mm); for plane/point the planes/points and the "
-                        "tool point are estimated (closed form from the data, then the joint fit)")
+                        "tool point are estimated (closed form from the data, then the joint fit); distance: two poses "
+                        "per row (columns q1a_deg … qNa_deg, q1b_deg … qNb_deg) whose tool points are distance_mm "
+                        "apart (a bar or ballbar; residual: distance error, mm); it never sees the base frame")
     c.add_argument("--markers", type=int, metavar="N",
                    help="number of markers per sample (--measurement markers; default: as many as the file has)")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
@@ -1058,10 +1069,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
-    s.add_argument("--measurement", choices=("cable", "position", "pose", "plane", "point"), default="cable",
+    s.add_argument("--measurement", choices=("cable", "position", "pose", "plane", "point", "distance"),
+                   default="cable",
                    help="sensor: cable (draw-wire length), position (x,y,z) or pose (x,y,z + rotation vector; default "
                         "cable); plane: a probe touching three planes (a `plane` label column); point: the tool tip "
-                        "pivoting on two fixed points (a `point` label column)")
+                        "pivoting on two fixed points (a `point` label column); distance: pose pairs 150 or 300 mm apart "
+                        "(a bar with two nests)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
     s.set_defaults(func=_cmd_simulate)
 

@@ -10,7 +10,14 @@ import pytest
 import jaxcal
 import jaxcal.cli
 from jaxcal import FixedPoint, PlaneContact, simulate_contact, statistical_floor
-from jaxcal._contact import default_setup, initial_contact, relabel, unobservable_directions
+from jaxcal._contact import (
+    default_setup,
+    initial_contact,
+    relabel,
+    simulate_distance,
+    unobservable_directions,
+)
+from jaxcal._io import load_result_dict
 from jaxcal._params import ParameterSpace
 
 SIGMA = 0.05
@@ -33,11 +40,16 @@ def _cli_at_floor(robot, kind, tmp_path, seed=3):
                               "--test-fraction", "0", "--out", str(out)])
     assert rc == 0
     res = jaxcal.load_result(out)
-    m = default_setup(kind, robot)
-    truth = simulate_contact(jax.random.key(seed), robot, m, n_samples=300, noise_std=SIGMA).true_deviations
-    big = simulate_contact(jax.random.key(1000 + seed), robot, m, n_samples=3000, noise_std=SIGMA,
-                           true_deviations=truth, test_fraction=0.0).train
-    big = relabel(big, res.measurement.labels)
+    if kind == "distance":
+        truth = simulate_distance(jax.random.key(seed), robot, n_samples=300, noise_std=SIGMA).true_deviations
+        big = simulate_distance(jax.random.key(1000 + seed), robot, n_samples=3000, noise_std=SIGMA,
+                                true_deviations=truth, test_fraction=0.0).train
+    else:
+        m = default_setup(kind, robot)
+        truth = simulate_contact(jax.random.key(seed), robot, m, n_samples=300, noise_std=SIGMA).true_deviations
+        big = simulate_contact(jax.random.key(1000 + seed), robot, m, n_samples=3000, noise_std=SIGMA,
+                               true_deviations=truth, test_fraction=0.0).train
+        big = relabel(big, res.measurement.labels)
     rank = res.identifiability["rank"]
     floor = statistical_floor(SIGMA, rank, 300, res.measurement.size).test
     return res, res.evaluate(big).rmse / floor, truth
@@ -116,3 +128,42 @@ def test_csv_round_trip_and_relabel(robot, tmp_path):
     m2 = PlaneContact(("wall_b", "table", "wall_a"), np.asarray(m.normals)[[2, 0, 1]], np.asarray(m.offsets)[[2, 0, 1]])
     np.testing.assert_allclose(np.asarray(m2.residual(robot, ex.true_deviations.replace(), other.q, other.y)),
                                np.asarray(r0), atol=1e-9)
+
+
+def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
+    """Bar data: at the floor; θ_1 and d_1 (the base frame) have no effect on any distance."""
+    res, ratio, _ = _cli_at_floor(robot, "distance", tmp_path)
+    print("distance: test RMSE / floor", ratio)
+    assert abs(ratio - 1) < 0.03, ratio
+    deps = res.identifiability["dependencies"]
+    assert {"theta_1", "d_1"} <= set(res.identifiability["unidentifiable"])
+    assert deps.get("theta_1") in ([], None, {}) and deps.get("d_1") in ([], None, {})
+    std = load_result_dict(tmp_path / "distance.json")["uncertainty"]["std"]
+    assert all(v is not None and np.isfinite(v) for v in std.values())  # a round-off column made every σ inf
+
+
+def test_sphere_start_and_robust_fit_with_an_outlier(robot):
+    """A flange ball on two spheres of unknown radius: the algebraic start + Gauss–Newton finds
+    centres and radii; one gross outlier row (a wrong label) does not move a Huber fit away from
+    the floor, while plain least squares is pulled off."""
+    p = default_setup("point", robot)
+    m = FixedPoint(p.labels, np.asarray(p.centres), [30.0, 45.0])
+    ex = simulate_contact(jax.random.key(11), robot, m, n_samples=200, noise_std=SIGMA, test_fraction=0.0)
+    cm = FixedPoint(m.labels, radii_mm=[0.0, 0.0], estimate_radius=True)
+    est = initial_contact(robot, cm, ex.train, estimate=("point",))
+    c, r = cm.points(est.deviations)
+    np.testing.assert_allclose(np.asarray(r), [30.0, 45.0], atol=2.0)
+    np.testing.assert_allclose(np.asarray(c), np.asarray(m.centres), atol=3.0)
+    y = np.asarray(ex.train.y).copy()
+    y[0] = 1.0 - y[0]  # one row names the wrong sphere: a gross outlier (~400 mm)
+    bad = jaxcal.Dataset(ex.train.q, y, "point", ex.train.metadata)
+    big = simulate_contact(jax.random.key(12), robot, m, n_samples=2000, noise_std=SIGMA,
+                           true_deviations=ex.true_deviations, test_fraction=0.0).train
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        hub = jaxcal.calibrate(robot, cm, bad, "lm", extras=["tool"], prior="default", loss="huber")
+        lin = jaxcal.calibrate(robot, cm, bad, "lm", extras=["tool"], prior="default", loss="linear")
+    floor = statistical_floor(SIGMA, hub.identifiability.rank, 199, 1).test
+    assert hub.evaluate(big).rmse < 1.1 * floor
+    assert lin.evaluate(big).rmse > 2 * floor
+    assert np.all(np.isfinite(hub.uncertainty.std[[i for i, n in enumerate(hub.space.free_names) if "@" in n]]))
