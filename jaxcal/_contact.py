@@ -1,6 +1,8 @@
-"""Calibration without a tracker: a probe touching planes, a tool tip pivoting on fixed points.
+"""Calibration without a tracker: a probe touching planes, a tool tip pivoting on fixed points,
+a distance bar.
 
-Two cheap set-ups (issue 23) as measurement models whose reading is a **label**, not a number:
+Three cheap set-ups (issue 23). Two are measurement models whose reading is a **label**, not a
+number (the third, :class:`DistanceBar`, reads a second pose and a length; see its docstring):
 
 * :class:`PlaneContact` (kind ``"plane"``): the tool tip (a touch probe, a dial indicator at
   zero) touches one of ``K`` planes (a table, the faces of a calibration cube). Row ``i`` says

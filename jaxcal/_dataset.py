@@ -74,7 +74,9 @@ class Dataset(eqx.Module):
             ``mm_joints`` metadata, e.g. ``"1"``).
         y: measurements: ``[n]`` wire lengths (mm) for ``kind="cable"``, ``[n, 3]`` positions
             (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
-            positions (mm, sensor frame) for ``"markers"``.
+            positions (mm, sensor frame) for ``"markers"``; ``[n]`` label indices for ``"plane"`` /
+            ``"point"`` (names in the ``plane_labels`` / ``point_labels`` metadata) and ``[n, dof + 1]``
+            (pose b in rad, bar length in mm) for ``"distance"`` (see :mod:`jaxcal._contact`).
         kind: ``"cable"``, ``"position"``, ``"pose"`` or ``"markers"`` (static).
         metadata: ``((key, value), ...)`` strings kept with the data and in CSV headers (static).
         labels: per-row ``(session, frame, placement)`` labels of marker data recorded in

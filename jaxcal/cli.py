@@ -40,8 +40,10 @@ sample. Columns: q1_deg … qN_deg joint angles in degrees (or q1_rad … in rad
 measurement: length_mm (draw-wire length, --measurement cable) or x_mm,y_mm,z_mm (tool point
 in the robot base frame, --measurement position). Contact data without a tracker: a text column
 `plane` naming the plane the probe touched (--measurement plane), or `point` naming the fixed
-point the tool tip was put on (--measurement point); no value columns. Rows with empty/NaN
-values are rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
+point the tool tip was put on (--measurement point); no value columns. A distance bar
+(--measurement distance): q1a_deg … qNa_deg, q1b_deg … qNb_deg (two poses per row) and
+distance_mm (the bar's length between their tool points). Rows with empty/NaN values are
+rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
 as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given)."""
 
 _ROBOT_FORMAT = """\
