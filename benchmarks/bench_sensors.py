@@ -4,7 +4,7 @@ HSR-JR680, n = 2 000 samples (and 20 000), float64, ``Problem.jacobian`` (``jax.
 residual with respect to the free parameters) jitted; every DH deviation (+β at the Hayati
 joint) and the tool point free, plus each model's own extras: the sensor frame (position,
 6), three planes (plane, 9), two pivot points (point, 6), two spheres with unknown radii
-(sphere, 8). Median of repeated calls after compilation, the models timed in turn (round robin)
+(sphere, 8), none (distance bar: two poses per row, so twice the kinematics). Median of repeated calls after compilation, the models timed in turn (round robin)
 so that load from other processes hits them alike; ``uptime`` load average printed with the
 table. Target: each model within 2× of the position model for the same robot and sample count.
 The camera model may add its row here.
@@ -24,7 +24,7 @@ from _common import machine
 
 import jaxcal
 from jaxcal import FixedPoint, ParameterSpace, Position, Problem, simulate_contact
-from jaxcal._contact import default_setup
+from jaxcal._contact import DistanceBar, default_setup, simulate_distance
 
 jaxcal.enable_x64()
 
@@ -33,10 +33,13 @@ def _models(robot):
     p = default_setup("point", robot)
     sphere = FixedPoint(p.labels, np.asarray(p.centres), [25.0, 25.0], estimate_radius=True)
     return {"position": (Position(), {"base": True}), "plane": (default_setup("plane", robot), {}),
-            "point": (p, {}), "sphere": (sphere, {})}
+            "point": (p, {}), "sphere": (sphere, {}), "distance": (DistanceBar(robot.dof), {})}
 
 
 def _data(robot, name, m, n):
+    if name == "distance":
+        ex = simulate_distance(jax.random.key(0), robot, n_samples=n, noise_std=0.05, test_fraction=0.0)
+        return ex.train.q, ex.train.y
     if name == "position":
         q = jaxcal._simulate.sample_joint_angles(jax.random.key(0), robot, n)
         return q, m.predict(robot, None, q)
