@@ -21,6 +21,9 @@ from ._camera import hand_eye_park as hand_eye_park
 from ._camera import simulate_camera as simulate_camera
 from ._camera import solve_pnp as solve_pnp
 from ._chain import SerialChain as SerialChain
+from ._contact import FixedPoint as FixedPoint
+from ._contact import PlaneContact as PlaneContact
+from ._contact import simulate_contact as simulate_contact
 from ._dataset import Dataset as Dataset
 from ._dataset import load_csv as load_csv
 from ._dataset import save_csv as save_csv
@@ -138,6 +141,9 @@ __all__ = [
     "simulate_camera",
     "solve_pnp",
     "SessionMarkers",
+    "PlaneContact",
+    "FixedPoint",
+    "simulate_contact",
     "SessionHoldout",
     "holdout_session",
     "initial_sessions",

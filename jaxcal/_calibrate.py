@@ -464,6 +464,7 @@ def calibrate(
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
     for g in ("handeye", "target"):  # camera extras (jaxcal._camera)
         flags[g] = any(group_of(n).startswith(g + "_") for n in cand.free_names)
+    flags.update({e: any(_family(group_of(n)) == e for n in cand.free_names) for e in ("plane", "point")})
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._contact import CONTACT_KINDS, contact_label_cells, contact_labels_from_cells
 from ._csvfile import read_table
 
 __all__ = ["Dataset", "load_csv", "save_csv", "KINDS", "marker_columns"]
@@ -27,8 +28,11 @@ KINDS: dict[str, tuple[str, ...]] = {
     "pose": ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"),
     "markers": (),  # marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ... (N from the file)
     "camera": (),  # u_1_px, v_1_px, u_2_px, ... (N target points from the file; empty = not detected)
+    "plane": (),  # a text column `plane` (jaxcal._contact): y = the label's index
+    "point": (),  # a text column `point` (jaxcal._contact): y = the label's index
+    "distance": ("distance_mm",),  # q1a_deg…, q1b_deg…, distance_mm (jaxcal._contact.DistanceBar)
 }
-_SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4)}
+_SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4), "plane": (), "point": ()}
 _MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
 _CAMERA = re.compile(r"([uv])_(\d+)_px")
 
@@ -74,8 +78,11 @@ class Dataset(eqx.Module):
             (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
             positions (mm, sensor frame) for ``"markers"``, ``[n, N, 2]`` image points (px) of
             ``N`` target points for ``"camera"`` (NaN: not detected, masked; see
-            :class:`jaxcal.Camera`).
-        kind: ``"cable"``, ``"position"``, ``"pose"``, ``"markers"`` or ``"camera"`` (static).
+            :class:`jaxcal.Camera`); ``[n]`` label indices for ``"plane"`` / ``"point"`` (names in
+            the ``plane_labels`` / ``point_labels`` metadata) and ``[n, dof + 1]`` (pose b in rad,
+            bar length in mm) for ``"distance"`` (see :mod:`jaxcal._contact`).
+        kind: ``"cable"``, ``"position"``, ``"pose"``, ``"markers"``, ``"camera"``, ``"plane"``,
+            ``"point"`` or ``"distance"`` (static).
         metadata: ``((key, value), ...)`` strings kept with the data and in CSV headers (static).
         labels: per-row ``(session, frame, placement)`` labels of marker data recorded in
             several sessions (static; ``()`` = one session). See :class:`jaxcal.SessionMarkers`;
@@ -181,6 +188,10 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
             raise ValueError("camera measurements contain ±inf; a corner that was not detected is NaN (an empty "
                              "CSV cell)")
         y = np.where(np.isnan(y), 0.0, y)  # NaN = not detected: masked by the camera model, not an error
+    if kind == "distance":  # y = [pose b (rad), bar length (mm)]
+        if y.ndim != 2 or y.shape != (n, q.shape[1] + 1):
+            raise ValueError(f"distance readings must have shape [{n}, {q.shape[1] + 1}] (pose b, length), "
+                             f"got {list(y.shape)}")
     elif kind == "markers":
         if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
             raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
@@ -257,6 +268,10 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     """
     if angle_unit not in ("deg", "rad"):
         raise ValueError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
+    if data.kind == "distance":
+        from ._contact import save_distance_csv
+
+        return save_distance_csv(data, path, angle_unit)
     qnames, qcols = joint_columns_out(np.asarray(data.q, dtype=np.float64), mm_joints(data.metadata), angle_unit)
     y = np.asarray(data.y, dtype=np.float64)
     if data.kind == "cable":
@@ -265,6 +280,8 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         vals = y
     elif data.kind in ("markers", "camera"):
         vals = y.reshape(y.shape[0], -1)
+    elif data.kind in CONTACT_KINDS:
+        vals = np.zeros((y.shape[0], 0))
     else:
         vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
     value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
@@ -280,10 +297,12 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         if k != "kind":
             buf.write(f"# {k}: {v}\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []))
+    contact = contact_label_cells(data) if data.kind in CONTACT_KINDS else None
+    w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []) + ([CONTACT_KINDS[data.kind]] if contact else []))
     for r, row in enumerate(np.concatenate([qcols, vals], axis=1)):
         # NaN (a camera corner not detected) is written as an empty cell
-        w.writerow([repr(float(x)) if x == x else "" for x in row] + (list(data.labels[r]) if data.labels else []))
+        w.writerow([repr(float(x)) if x == x else "" for x in row] + (list(data.labels[r]) if data.labels else [])
+                   + ([contact[r]] if contact else []))
     with open(os.fspath(path), "w", encoding="utf-8") as f:
         f.write(buf.getvalue())
 
@@ -400,8 +419,16 @@ def load_csv(
     n_markers_expected = n_markers
     t = read_table(path, delimiter=delimiter, what="data file", row_name="data row")
     path, header, meta = t.path, t.header, dict(t.meta)
-    qcols, unit = _joint_columns(path, header, dof)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
+    if kind == "distance" or (kind is None and "distance_mm" in header):  # two poses per row (jaxcal._contact)
+        from ._contact import load_distance_table
+
+        if meta_kind is not None:
+            meta.pop(meta_kind)
+        qa, yd = load_distance_table(path, t, meta, dof)
+        dt = dtype or jnp.result_type(float)
+        return Dataset(jnp.asarray(qa, dt), jnp.asarray(yd, dt), "distance", meta)
+    qcols, unit = _joint_columns(path, header, dof)
     if kind is None and meta_kind is not None:
         kind = meta[meta_kind].lower()
     markers_found = {h: _MARKER.fullmatch(h) for h in header}
@@ -411,6 +438,8 @@ def load_csv(
     camera_found = {m for m in (_CAMERA.fullmatch(h) for h in header) if m}
     if kind is None and camera_found:
         kind = "camera"
+    if kind is None:
+        kind = next((k for k, col in CONTACT_KINDS.items() if col in header), None)
     if kind is None:
         kind = next((k for k in ("pose", "position", "cable") if all(c in header for c in KINDS[k])), None)
         if kind is None:
@@ -447,6 +476,11 @@ def load_csv(
         raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
     used = qcols + value_cols
     label_cols = [c for c in LABEL_COLUMNS if c in header] if kind == "markers" else []
+    if kind in CONTACT_KINDS:
+        label_cols = [CONTACT_KINDS[kind]]
+        if label_cols[0] not in header:
+            raise ValueError(f"{path}: {kind} data need a text column {label_cols[0]!r} naming each row's "
+                             f"{label_cols[0]}; header: {list(header)}")
     unused = [h for h in header if h not in used and h not in label_cols]
     if unused:
         odd = [h for h in unused if h not in _BOOKKEEPING]
@@ -477,6 +511,9 @@ def load_csv(
         y = vals.reshape(vals.shape[0], -1, 3)
     elif kind == "camera":
         y = vals.reshape(vals.shape[0], -1, 2)
+    elif kind in CONTACT_KINDS:
+        y, meta = contact_labels_from_cells(path, t, header, kind, meta)
+        label_cols = []
     else:
         y = np.zeros((vals.shape[0], 4, 4))
         y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))

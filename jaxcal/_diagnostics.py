@@ -147,7 +147,15 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     N, p = problem.n_residuals, A.shape[0]
     rss = float(rss)
     lam = np.zeros(p) if prior_inv_std is None else np.asarray(prior_inv_std, np.float64) ** 2
-    d = np.where(d > 0, d, 1.0)
+    # a column the data cannot see can come out at round-off size (1e-12 where a difference of two
+    # tool points cancels: distance data and θ_1) instead of 0: scaled by its own norm it became a
+    # unit column of noise, and its prior term λ/d² ~ 1e28 wrecked the eigenvalue threshold (every σ
+    # came out infinite). Such columns are taken as zero, unscaled, like an exactly zero one.
+    tiny = d <= 1e-10 * (d.max() if d.size else 0.0)
+    if tiny.any():
+        keep = np.where(tiny, 0.0, 1.0)
+        A, G = A * np.outer(keep, keep), G * np.outer(keep, keep)
+    d = np.where(tiny | (d <= 0), 1.0, d)
     ev_g = np.linalg.eigvalsh(G)  # squared singular values of the column-scaled Jacobian
     cond = float(np.sqrt(ev_g[-1] / ev_g[0])) if ev_g[0] > 0 else math.inf
     p_eff = float(p)

@@ -50,7 +50,8 @@ OBJECTIVES = {"measured": MEASURED_DEFAULTS, "least_squares": {"prior": None, "l
 
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
-                "base_translation": "base", "marker": "markers"}
+                "base_translation": "base", "marker": "markers",
+                "plane": "plane", "point": "point", "radius": "point"}  # contact set-ups (jaxcal._contact)
 
 
 def resolve_objective(objective, prior, loss):

@@ -313,6 +313,10 @@ def _start_factor(robot, measurement, q, deviations, space, y=None):
         else:
             resid = measurement.residual(robot, deviations, q, jnp.asarray(y, q.dtype))
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
+    # a column the data cannot see may come out at round-off size (e.g. θ_1 under distance data, where
+    # two tool points' derivatives cancel): scaled by its own norm it would look like a unit column
+    # of noise, independent of the others. Take it as zero.
+    d = jnp.where(d > 1e-10 * jnp.max(d), d, 0.0)
     R, piv = pivot_triangular(householder_r(J / jnp.where(d > 0, d, 1.0)))
     return d, R, piv, resid, (J if free else None)
 

@@ -67,7 +67,8 @@ __all__ = ["ExtrasEstimate", "initial_extras", "multilaterate", "wire_with_tool"
 
 #: extras :func:`initial_extras` can start from data, per measurement kind.
 INITIALISABLE = {"cable": ("anchor", "cable_offset", "tool"), "position": ("base", "tool"), "pose": ("base", "tool"),
-                 "markers": ("base", "markers"), "camera": ("handeye", "target")}
+                 "markers": ("base", "markers"), "camera": ("handeye", "target"), "plane": ("plane", "tool"),
+                 "point": ("point", "tool"), "distance": ()}
 
 #: σ (mm) of the weak prior toward the guessed tool point in the draw-wire and pose starts: it
 #: holds only the directions the data barely see (bias ``w/(s² + w)`` along a direction with
@@ -482,6 +483,10 @@ def initial_extras(
             raise ValueError(f"cannot initialise {sorted(bad)} for session marker data; possible: base, markers")
         return initial_sessions(robot, measurement, data, start=start, frames=None if "base" in est else [],
                                 placements=None if "markers" in est else [])
+    if measurement.kind in ("plane", "point"):  # contact models (jaxcal._contact)
+        from ._contact import initial_contact
+
+        return initial_contact(robot, measurement, data, estimate=estimate, start=start)
     q, y = (data.q, data.y) if hasattr(data, "q") else data
     if measurement.kind == "camera":  # per-image PnP + Park–Martin hand-eye (jaxcal._camera)
         from ._camera import initial_camera_extras

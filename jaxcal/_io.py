@@ -218,6 +218,10 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
                 "target_rotation": f(m.target_rotation), "target_translation_mm": f(m.target_translation),
                 "image_size": None if m.image_size is None else list(m.image_size),
                 "calibrate_intrinsics": bool(m.calibrate_intrinsics)}
+    if m.kind in ("plane", "point", "distance"):  # jaxcal._contact
+        from ._contact import contact_to_dict
+
+        return contact_to_dict(m)
     frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
              "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
     if isinstance(m, Pose):
@@ -242,6 +246,10 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
                       calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
     if kind == "cable":
         return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
+    if kind in ("plane", "point", "distance"):  # jaxcal._contact
+        from ._contact import contact_from_dict
+
+        return contact_from_dict(d)
     frame = {"rotation": jnp.asarray(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
              "translation": jnp.asarray(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
     if kind == "position":

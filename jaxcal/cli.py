@@ -38,8 +38,12 @@ _DATA_FORMAT = """\
 data file (CSV): optional '# key: value' comment lines, then a header row, then one row per
 sample. Columns: q1_deg … qN_deg joint angles in degrees (or q1_rad … in radians), then the
 measurement: length_mm (draw-wire length, --measurement cable) or x_mm,y_mm,z_mm (tool point
-in the robot base frame, --measurement position). Rows with empty/NaN values are rejected,
-not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
+in the robot base frame, --measurement position). Contact data without a tracker: a text column
+`plane` naming the plane the probe touched (--measurement plane), or `point` naming the fixed
+point the tool tip was put on (--measurement point); no value columns. A distance bar
+(--measurement distance): q1a_deg … qNa_deg, q1b_deg … qNb_deg (two poses per row) and
+distance_mm (the bar's length between their tool points). Rows with empty/NaN values are
+rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
 as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given).
 
 camera data (--measurement camera): one row per image, q1_deg … qN_deg then u_1_px,v_1_px,
@@ -155,9 +159,16 @@ def _camera_measurement(args, data, path):
         raise _Usage(str(e)) from None
 
 
-def _measurement(kind: str, anchor, robot, n_markers: int | None = None):
+def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):
     from ._measurement import CableLength, Markers, Pose, Position
     from ._simulate import default_anchor
+
+    if kind in ("plane", "point", "distance"):  # contact data (jaxcal._contact): planes/points from the data's labels
+        if anchor is not None:
+            raise _Usage("--anchor applies to --measurement cable only")
+        from ._contact import contact_model
+
+        return contact_model(kind, robot, data)
 
     if kind == "cable":
         import jax.numpy as jnp
@@ -199,6 +210,11 @@ def _cmd_simulate(args) -> int:
     robot, measurement = _robot_and_sensor(args)
     if args.samples < 2:
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
+    if measurement.kind in ("plane", "point", "distance"):
+        from ._contact import save_simulated_contact
+
+        save_simulated_contact(args, robot, measurement)
+        return 0
     ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=args.noise_std,
                              measurement=measurement, test_fraction=0.5)
     import jax.numpy as jnp
@@ -424,11 +440,29 @@ def _cmd_calibrate(args) -> int:
                      "jaxcal.calibrate, jaxcal.leave_one_session_out) or drop those columns")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
+    notes = []
     if args.measurement == "camera":
         if estimate - {"intrinsics"}:
             raise _Usage(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the target "
                          f"pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
         estimate = set()  # intrinsics: a group of the camera model (--estimate read again below)
+    if args.measurement == "distance":
+        if "base" in estimate:
+            raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append("distance data: the tool point is estimated (from its nominal value); distances never see "
+                         "the robot's base frame (d_1, theta_1 and the base's position and orientation stay at "
+                         "nominal or are set by the prior)")
+    if args.measurement in ("plane", "point"):
+        if "base" in estimate:
+            raise _Usage(f"--estimate base does not apply to {args.measurement} data: the {args.measurement}s are "
+                         "in the robot base frame and carry any base-frame error")
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append(f"{args.measurement} data: the {args.measurement}s and the tool point are estimated "
+                         "(closed-form start from the data, then the joint fit); contact data have no length "
+                         "reference, so the prior (or a --fix'ed length) sets the robot's scale")
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
     if bad:
         raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
@@ -436,7 +470,6 @@ def _cmd_calibrate(args) -> int:
         raise _Usage("--estimate anchor/offset apply to --measurement cable only")
     if args.measurement == "cable" and "base" in estimate:
         raise _Usage("--estimate base applies to --measurement position only")
-    notes = []
     if anchor is None and args.measurement == "cable":
         if "anchor_mm" in data.meta:
             anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
@@ -463,7 +496,7 @@ def _cmd_calibrate(args) -> int:
                      "(zero weight), not dropped")
     else:
         measurement = _measurement(args.measurement, anchor, robot,
-                                   data.y.shape[1] if data.kind == "markers" else None)
+                                   data.y.shape[1] if data.kind == "markers" else None, data=data)
     if args.test and args.test_fraction is not None:
         raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
     test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
@@ -484,6 +517,10 @@ def _cmd_calibrate(args) -> int:
             raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
         if test_file.labels:
             raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
+        if test_file.kind in ("plane", "point"):
+            from ._contact import relabel
+
+            test_file = relabel(test_file, measurement.labels)
     try:
         prior = Prior.parse(args.prior)
     except ValueError as e:
@@ -707,6 +744,10 @@ def _cmd_evaluate(args) -> int:
                      f"{res.robot.dof} joints")
     if data.labels:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
+    if data.kind in ("plane", "point"):
+        from ._contact import relabel
+
+        data = relabel(data, m.labels)
     objective = raw.get("settings", {}).get("objective") or (
         f"objective: {raw.get('loss', 'linear')} loss; {raw.get('prior') or 'no prior'}")
     ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective)
@@ -1044,14 +1085,21 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
-    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "camera"), default="cable",
+    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "camera", "plane", "point",
+                                             "distance"), default="cable",
                    help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
                         "rotation vector rx,ry,rz (deg) of the flange orientation; markers: N markers on the "
                         "flange seen by a motion-capture system or tracker, columns marker_k_x_mm, marker_k_y_mm, "
                         "marker_k_z_mm (sensor frame); the sensor frame and the marker positions are estimated; "
                         "camera: a calibrated camera sees a known target, columns u_k_px, v_k_px (see below); the "
-                        "hand-eye transform and the target pose are estimated")
+                        "hand-eye transform and the target pose are estimated; "
+                        "plane: the tool tip touched the plane named in a text column `plane` (residual: signed "
+                        "distance, mm); point: the tool tip was put on the fixed point named in a text column "
+                        "`point` (pivoting; residual: 3-D distance, mm); for plane/point the planes/points and the "
+                        "tool point are estimated (closed form from the data, then the joint fit); distance: two poses "
+                        "per row (columns q1a_deg … qNa_deg, q1b_deg … qNb_deg) whose tool points are distance_mm "
+                        "apart (a bar or ballbar; residual: distance error, mm); it never sees the base frame")
     c.add_argument("--target", metavar="SPEC",
                    help="camera: the target layout, checkerboard:COLSxROWS:SQUARE_MM (inner corners, row by row) or "
                         "a CSV file with x_mm,y_mm,z_mm per point (default: the file's '# target:' line)")
@@ -1134,10 +1182,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
-    s.add_argument("--measurement", choices=("cable", "position", "pose", "camera"), default="cable",
-                   help="sensor: cable (draw-wire length), position (x,y,z), pose (x,y,z + rotation vector) or camera "
-                        "(--samples images of a 9×6 checkerboard, 20 mm squares, 1280×1024 px, f = 1000 px, only poses "
-                        "that see the whole target; --noise-std in px; default cable)")
+    s.add_argument("--measurement", choices=("cable", "position", "pose", "camera", "plane", "point", "distance"),
+                   default="cable",
+                   help="sensor: cable (draw-wire length), position (x,y,z), pose (x,y,z + rotation vector; default "
+                        "cable); camera (--samples images of a 9×6 checkerboard, 20 mm squares, 1280×1024 px, "
+                        "f = 1000 px, only poses that see the whole target; --noise-std in px); plane: a probe "
+                        "touching three planes (a `plane` label column); point: the tool tip pivoting on two fixed "
+                        "points (a `point` label column); distance: pose pairs 150 or 300 mm apart (a bar with two "
+                        "nests)")
     s.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand"), default="eye-in-hand",
                    help="camera: on the flange (eye-in-hand, default) or fixed, the target on the flange")
     s.add_argument("--missing-corners", type=float, default=0.0, metavar="FRACTION",

@@ -704,6 +704,127 @@ writes the poses as a data file with an empty `length_mm` column: fill in the re
     ]
 
 
+# ---------------------------------------------------------------------------------------------------
+def low_cost():
+    return [
+        md("""
+# 07 · Calibrate without a tracker: a probe touching three planes
+
+No laser tracker, no motion capture: a touch probe (or a dial indicator zeroed on contact) on the
+tool, and three flat surfaces — a table and two walls or the faces of a machined block. Each
+contact gives one number, the signed distance of the tool tip to the plane it touched, which the
+calibrated robot should make zero. Neither the planes nor the probe tip are known: both start from
+the data in closed form (an SVD plane fit per plane, the tip by linear least squares) and are
+then calibrated with the robot (`jaxcal.PlaneContact`, README "Without a tracker").
+"""),
+        code(setup(stdlib=("import tempfile", "import warnings"),
+                   third=("import jax", "import matplotlib.pyplot as plt", "import numpy as np",
+                          "from IPython.display import Image, display"),
+                   first=("from jaxcal._contact import default_setup, unobservable_directions",))),
+        md("""
+## Simulated probing
+
+A "true" HSR-JR680 (the paper's Table V magnitudes of DH errors, a probe tip 2 mm off its nominal
+position); random poses moved onto the planes by minimum-norm Newton steps on the true robot, the
+contact noise σ = 0.05 mm along each plane's normal. The file has one text column, `plane`.
+"""),
+        code("""
+robot = jaxcal.robots.hsr_jr680()
+setup_ = default_setup("plane", robot)  # a table tilted 5°, two walls 60° apart
+N = 150 if QUICK else 300
+SIGMA = 0.05
+ex = jaxcal.simulate_contact(jax.random.key(0), robot, setup_, n_samples=N, noise_std=SIGMA, test_fraction=0.0)
+fresh = jaxcal.simulate_contact(jax.random.key(1), robot, setup_, n_samples=1000 if QUICK else 3000,
+                                noise_std=SIGMA, true_deviations=ex.true_deviations, test_fraction=0.0).train
+path = os.path.join(tempfile.mkdtemp(), "probing.csv")
+ex.train.to_csv(path)
+print("".join(open(path).readlines()[:10]))
+data = jaxcal.load_csv(path)
+print(data.kind, data.n, "rows; planes:", data.meta["plane_labels"])
+"""),
+        md("""
+## The closed-form start
+
+`calibrate` calls `jaxcal.initial_extras`, which for plane data fits each plane to the nominal
+robot's tool points and then solves for the probe tip and the offsets with the normals fixed. The
+model's nominal planes are all `z = 0`: the start turns them into walls where the data say so.
+"""),
+        code("""
+model = jaxcal.PlaneContact.from_dataset(data)  # labels only: normals (0, 0, 1), offsets 0
+start = jaxcal.initial_extras(robot, model, data, estimate=("plane", "tool"))
+print(start.message)
+n_fit, d_fit = model.planes(start.deviations)
+for k, name in enumerate(model.labels):
+    tilt = np.degrees(np.arccos(np.clip(np.asarray(n_fit[k]) @ np.asarray(setup_.normals[k]), -1, 1)))
+    print(f"{name:7s} normal off by {tilt:.3f}°, offset off by {float(d_fit[k] - setup_.offsets[k]):+.3f} mm")
+"""),
+        md("""
+## What planes can see
+
+With one plane the robot can slide along it and turn about its normal without changing a single
+contact: the identifiability report shows it as θ₁ without effect and d₁ acting like the plane's
+offset. Three planes with independent normals see every rigid motion. (The planes are in the
+robot's base frame, so they absorb any base-frame error; that is why there is no `base` extra.)
+"""),
+        code("""
+print("one plane:   ", unobservable_directions(np.asarray(setup_.normals[:1])))
+print("two planes:  ", unobservable_directions(np.asarray(setup_.normals[:2])))
+print("three planes:", unobservable_directions(np.asarray(setup_.normals)))
+space = jaxcal.ParameterSpace.for_robot(robot, measurement=model, tool=True)
+rep = jaxcal.identifiability(robot, model, data.q, space, start.deviations)
+print(f"three planes: rank {rep.rank} of {len(rep.names)}; not identifiable: {', '.join(rep.unidentifiable)}")
+"""),
+        md("""
+## Calibrate, and compare with the statistical floor
+
+The measured-data defaults: a prior toward the nominal robot and the Huber loss. The prior matters
+more here than elsewhere: **contact data carry no length reference** — scaling every length of the
+robot, the tip and the planes' offsets by the same factor keeps every contact — and since the
+residuals shrink with the scale, plain least squares walks toward a robot of size zero. The
+prior's 2 mm on each DH length holds the scale (so would fixing one length, `fix="a_2"`).
+"""),
+        code("""
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    res = jaxcal.calibrate(robot, model, data, "lm", extras=["tool"], objective="measured")
+    plain = jaxcal.calibrate(robot, model, data, "lm", extras=["tool"])  # no prior, no length reference
+floor = jaxcal.statistical_floor(SIGMA, res.identifiability.rank, data.n, 1)
+test = res.evaluate(fresh).rmse
+print(f"with the prior: train {res.train_metrics.rmse:.4f} mm, fresh poses {test:.4f} mm, floor {floor.test:.4f} mm "
+      f"(ratio {test / floor.test:.3f})")
+print(f"plain least squares: train {plain.train_metrics.rmse:.2e} mm, Δa_2 = {float(plain.deviations.a[1]):+.0f} mm "
+      f"— the robot shrank")
+tip = np.asarray(res.deviations.tool) - np.asarray(ex.true_deviations.tool)
+print("probe tip error (mm):", np.round(tip, 3))
+"""),
+        code("""
+before = np.asarray(model.residual(robot, start.deviations, fresh.q, fresh.y))[:, 0]
+after = np.asarray(model.residual(robot, res.deviations, fresh.q, fresh.y))[:, 0]
+lab = np.asarray(fresh.y).astype(int)
+fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
+for k, name in enumerate(model.labels):
+    ax[0].hist(before[lab == k], bins=40, alpha=0.6, label=name)
+ax[0].set(title="fresh contacts, nominal robot + closed-form planes", xlabel="signed distance / mm")
+ax[0].legend()
+ax[1].hist(after, bins=40, color="C2")
+ax[1].axvline(-floor.test, color="k", ls="--", label="± floor (RMS)")
+ax[1].axvline(floor.test, color="k", ls="--")
+ax[1].set(title=f"after calibration (RMSE {test:.3f} mm)", xlabel="signed distance / mm")
+ax[1].legend()
+fig.tight_layout()
+show(fig)
+plt.close(fig)
+"""),
+        md("""
+The same from the command line: `jaxcal simulate --measurement plane --out probing.csv`, then
+`jaxcal calibrate probing.csv --robot hsr_jr680 --measurement plane --out result.json` (the planes
+and the tip are estimated by default). `--measurement point` (pivoting on fixed points) and
+`--measurement distance` (a bar or ballbar; it never sees the base frame, but it does see the
+scale) work the same way.
+"""),
+    ]
+
+
 NOTEBOOKS = {
     "01_quickstart.ipynb": quickstart,
     "02_reproduce_paper.ipynb": reproduce,
@@ -711,6 +832,7 @@ NOTEBOOKS = {
     "04_seed_sweeps.ipynb": seed_sweeps,
     "05_real_data.ipynb": real_data,
     "06_plan_measurements.ipynb": plan_measurements,
+    "07_low_cost_calibration.ipynb": low_cost,
 }
 
 
