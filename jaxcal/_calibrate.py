@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, pad_rows
 from ._dataset import Dataset, mm_joints_metadata
 from ._diagnostics import (
     Checks,
@@ -99,16 +100,19 @@ class Calibrator(eqx.Module):
     report: bool = eqx.field(static=True, default=False)
     start_jacobian: Array | None = None
 
-    def problem(self, q, y) -> Problem:
-        return Problem(self.robot, self.measurement, q, y, self.space, self.start)
+    def problem(self, q, y, weight=None) -> Problem:
+        return Problem(self.robot, self.measurement, q, y, self.space, self.start, weight)
 
-    def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array) -> CalibrationOutput:
-        problem = self.problem(q, y)
+    def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array, weight: Array | None = None
+                 ) -> CalibrationOutput:
+        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._buckets`);
+        the output then equals the unpadded run's to round-off."""
+        problem = self.problem(q, y, weight)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
             scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian)
             raw = self.method.run(scaled, key)
             x = scaled.x(raw.z)
-            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
+            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra), problem.weight)
             gram = deviations = None
             if self.report:
                 ob = self.objective
@@ -121,9 +125,9 @@ class Calibrator(eqx.Module):
 
 
 @functools.partial(jax.jit, static_argnums=1)
-def _run_calibrator(dynamic, static, q, y, key) -> CalibrationOutput:
+def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutput:
     """The jitted core of :func:`calibrate` (module level, so compilations are cached)."""
-    return eqx.combine(dynamic, static)(q, y, key)
+    return eqx.combine(dynamic, static)(q, y, key, weight)
 
 
 def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
@@ -290,8 +294,11 @@ _take_columns = jax.jit(lambda J, columns: jnp.take(J, columns, axis=1))
 
 
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
-#: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores)
-_COMPILED: dict = {}
+#: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores). A
+#: least-recently-used cache of at most 16 programs (``$JAXCAL_CALIBRATE_CACHE``): with shape
+#: buckets (:mod:`jaxcal._buckets`) one model and method need one program per bucket, and memory
+#: stays flat however many sample counts a session calibrates.
+_COMPILED = BoundedCache(cache_size("calibrate", 16))
 
 
 def _signature(tree) -> tuple:
@@ -300,27 +307,56 @@ def _signature(tree) -> tuple:
                           for leaf in leaves)
 
 
+def _pad_to_bucket(cal: Calibrator, dyn, q, y):
+    """``(dyn, q, y, weight)``: the data padded with zero-weight rows to their bucket size
+    (:func:`~jaxcal._buckets.bucket_size`) when the method allows it (:attr:`Method.paddable`;
+    weights all 1 at a bucket size exactly), the start Jacobian (if any) padded with zero rows
+    to match; unchanged with ``weight=None`` otherwise."""
+    n = int(q.shape[0])
+    n_to = bucket_size(n) if buckets_enabled() and cal.method.paddable else n
+    J = dyn.start_jacobian
+    w = None
+    if buckets_enabled() and cal.method.paddable:
+        q, y, w = pad_rows(q, y, n_to)
+    if J is not None:
+        m = cal.measurement.size
+        if J.shape[0] == n * m and n_to != n:  # computed on the real rows: zero rows for the padding
+            Jn = np.asarray(J)
+            J = jax.device_put(np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)]))
+        elif J.shape[0] != n_to * m:
+            # computed on another padding (the identifiability program pads whatever the method):
+            # the real rows on the host, padded again when needed
+            Jn = np.asarray(J)[: n * m]
+            if n_to != n:
+                Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
+            J = jax.device_put(Jn)
+        dyn = eqx.tree_at(lambda c: c.start_jacobian, dyn, J, is_leaf=lambda v: v is None)
+    return dyn, q, y, w
+
+
 def _launch(cal: Calibrator, q, y, key):
     """Compile (cached) and start ``cal`` without waiting for it (JAX dispatches asynchronously):
-    ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``."""
+    ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``.
+    The data are padded to their shape bucket (:func:`_pad_to_bucket`); the output is the
+    unpadded run's, except ``gram``'s residual vector, which carries the padding rows (zeros) at
+    its end."""
     dyn, stat = eqx.partition(cal, eqx.is_array)
     with dtype_scope(q.dtype):
         dyn = cast_floating(dyn, q.dtype)
+        dyn, q, y, w = _pad_to_bucket(cal, dyn, q, y)
         t0 = time.perf_counter()
         try:
-            ck = (stat, _signature((dyn, q, y, key)), jax.default_backend(), jax.config.jax_enable_x64)
+            ck = (stat, _signature((dyn, q, y, key, w)), jax.default_backend(), jax.config.jax_enable_x64)
             hash(ck)
         except TypeError:  # unhashable static part: no cache
             ck = None
         compiled = _COMPILED.get(ck) if ck is not None else None
         if compiled is None:
-            compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key))
+            compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
             if ck is not None:
-                if len(_COMPILED) > 64:
-                    _COMPILED.clear()
-                _COMPILED[ck] = compiled
+                _COMPILED.put(ck, compiled)
         t1 = time.perf_counter()
-        out = compiled(dyn, q, y, key)
+        out = compiled(dyn, q, y, key, w)
     return out, t1 - t0, t1
 
 

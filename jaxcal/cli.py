@@ -284,7 +284,7 @@ def _cmd_calibrate(args) -> int:
     from ._dataset import load_csv
     from ._diagnostics import Checks
     from ._io import save_result
-    from ._metrics import Metrics, compute_metrics, format_table
+    from ._metrics import format_table, metrics_numpy
     from ._objective import LOSSES, Prior
     from ._problem import Problem
     from .methods._stages import check_method_name
@@ -410,7 +410,7 @@ def _cmd_calibrate(args) -> int:
         from ._problem import sample_errors_at
 
         pr = Problem(robot, measurement, ds.q, ds.y, res.space)
-        return Metrics(*(float(v) for v in compute_metrics(sample_errors_at(pr, pr.x0()))))
+        return metrics_numpy(sample_errors_at(pr, pr.x0()))
 
     rows = [("train, before", before(train)), ("train, after", res.evaluate(train))]
     if test.n:
