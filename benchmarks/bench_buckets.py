@@ -7,8 +7,8 @@ program. This script runs ``--calls`` calibrations (``"lm"``, the default experi
 draw-wire model) on as many different sample counts spread evenly over ``--min..--max``, each in
 a random order, and reports per bucket: the count of XLA compilations (all of them, JAX's
 ``backend_compile`` events, not only jaxcal's), the first call's time and the median time of the
-other calls; next to them the median of a warm call repeated on one count, and the resident
-memory (RSS) before the first and after the last call. ``--no-buckets`` runs the same with
+other calls; next to them the median of a warm call (the bucket's last count, 5 times), and the
+resident memory (RSS) before the first and after the last call. ``--no-buckets`` runs the same with
 ``JAXCAL_BUCKETS=off`` (the behaviour before shape buckets) for comparison; ``--both`` runs both
 in fresh processes and writes ``benchmarks/results/buckets_cpu.md``.
 
@@ -69,15 +69,20 @@ def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
             rows.append(dict(n=int(n), bucket=bucket_size(int(n)), s=dt, compiles=events["n"] - c0,
                              compile_s=events["s"] - s0, rmse=res.train_metrics.rmse, status=int(res.status)))
         rss1 = rss_mb()
-        # a warm call: the same count again and again (the first count's program is compiled)
-        n0 = int(counts[0])
-        warm = []
-        for _ in range(15):
-            t = time.perf_counter()
-            jaxcal.calibrate(robot, meas, (qn[:n0], yn[:n0]), "lm")
-            warm.append(time.perf_counter() - t)
-    return dict(rows=rows, rss0=rss0, rss1=rss1, warm_s=float(np.median(warm)), warm_n=n0,
-                buckets=buckets_enabled(), load=os.getloadavg())
+        # warm calls: the last count of each bucket again, 5 times (its program is compiled;
+        # with buckets off only the last few counts' programs are still cached, see the LRU)
+        warm = {}
+        for r in rows[::-1]:
+            if r["bucket"] in warm or len(warm) >= 12:
+                continue
+            ts = []
+            for _ in range(5):
+                t = time.perf_counter()
+                jaxcal.calibrate(robot, meas, (qn[:r["n"]], yn[:r["n"]]), "lm")
+                ts.append(time.perf_counter() - t)
+            warm[r["bucket"]] = float(np.median(ts))
+    return dict(rows=rows, rss0=rss0, rss1=rss1, warm=warm, buckets=buckets_enabled(), load=os.getloadavg(),
+                compiles_after=events["n"])
 
 
 def summarise(out: dict) -> list[str]:
@@ -87,29 +92,30 @@ def summarise(out: dict) -> list[str]:
     by = collections.defaultdict(list)
     for r in rows:
         by[r["bucket"]].append(r)
+    warm = {int(k): v for k, v in out["warm"].items()}
     lines = ["| bucket (samples) | counts | XLA compilations (first call / the others) | first call (s) | "
-             "median of the others (s) | × warm call |",
-             "|---|---|---|---|---|---|"]
+             "median of the others (ms) | warm call, same bucket (ms) | ratio |",
+             "|---|---|---|---|---|---|---|"]
     for b in sorted(by):
         rs = by[b]
         rest = [r["s"] for r in rs[1:]]
         med = float(np.median(rest)) if rest else float("nan")
+        w = warm.get(b, float("nan"))
         lines.append(f"| {b} | {len(rs)} | {rs[0]['compiles']} / {sum(r['compiles'] for r in rs[1:])} | "
-                     f"{rs[0]['s']:.2f} | {med:.3f} | {med / out['warm_s']:.2f} |")
+                     f"{rs[0]['s']:.2f} | {1e3 * med:.1f} | {1e3 * w:.1f} | {med / w:.2f} |")
     total = sum(r["compiles"] for r in rows)
     lines += ["",
               f"{len(rows)} calls on {len(rows)} sample counts, {len(by)} buckets: {total} XLA compilations "
-              f"({sum(r['compile_s'] for r in rows):.1f} s of compiling), warm call ({out['warm_n']} samples, median "
-              f"of 15) {out['warm_s'] * 1e3:.1f} ms; resident memory {out['rss0']:.0f} MB before the first call, "
-              f"{out['rss1']:.0f} MB after the last (+{out['rss1'] - out['rss0']:.0f} MB); "
-              f"load average {out['load'][0]:.2f} at the end."]
+              f"({sum(r['compile_s'] for r in rows):.1f} s of compiling); {out['compiles_after'] - total} more in the "
+              f"warm repeats; resident memory {out['rss0']:.0f} MB after setup, {out['rss1']:.0f} MB after the last "
+              f"call (+{out['rss1'] - out['rss0']:.0f} MB); load average {out['load'][0]:.2f} at the end."]
     return lines
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--calls", type=int, default=100)
-    ap.add_argument("--calls-off", type=int, default=12, help="calls of the --both run without buckets")
+    ap.add_argument("--calls-off", type=int, default=10, help="calls of the --both run without buckets")
     ap.add_argument("--min", type=int, default=200)
     ap.add_argument("--max", type=int, default=5000)
     ap.add_argument("--no-buckets", action="store_true")

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, pad_rows
+from ._buckets import BoundedCache, LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows, release_memory
 from ._dataset import Dataset, mm_joints_metadata
 from ._diagnostics import (
     Checks,
@@ -34,7 +34,7 @@ from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
-from ._precision import cast_floating, dtype_scope, warn_if_float32
+from ._precision import cast_floating, dtype_scope, to_device, warn_if_float32
 from ._problem import Problem, residual_blocks_numpy, signed_residuals
 from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
 from ._robot import DHRobot
@@ -137,8 +137,9 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
         q, y = data.q, data.y
     elif isinstance(data, (tuple, list)) and len(data) == 2:
         q, y = data
-        q = jnp.asarray(q)
-        y = jnp.asarray(y, q.dtype)
+        # host arrays by jax.device_put (jnp.asarray compiles a small program per shape)
+        q = q if isinstance(q, jax.Array) else to_device(np.asarray(q))
+        y = y if isinstance(y, jax.Array) and y.dtype == q.dtype else to_device(np.asarray(y), q.dtype)
         Dataset(q, y, measurement.kind, mm_joints_metadata(robot))  # validates shapes, NaN/inf, degrees
     else:
         raise TypeError("data must be a jaxcal.Dataset or a (q, y) pair of arrays")
@@ -290,7 +291,7 @@ def _resolve_candidates(cand, robot, measurement, q, space, start, y=None):
 
 
 #: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)
-_take_columns = jax.jit(lambda J, columns: jnp.take(J, columns, axis=1))
+_take_columns = LeanJit(lambda J, columns: jnp.take(J, columns, axis=1), maxsize=16)
 
 
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
@@ -307,31 +308,30 @@ def _signature(tree) -> tuple:
                           for leaf in leaves)
 
 
-def _pad_to_bucket(cal: Calibrator, dyn, q, y):
-    """``(dyn, q, y, weight)``: the data padded with zero-weight rows to their bucket size
+def _pad_to_bucket(cal: Calibrator, q, y):
+    """``(cal, q, y, weight)``: the data padded with zero-weight rows to their bucket size
     (:func:`~jaxcal._buckets.bucket_size`) when the method allows it (:attr:`Method.paddable`;
-    weights all 1 at a bucket size exactly), the start Jacobian (if any) padded with zero rows
-    to match; unchanged with ``weight=None`` otherwise."""
+    weights all 1 at a bucket size exactly), the measurement model's per-row arrays
+    (:meth:`MeasurementModel.pad_rows`) and the start Jacobian (if any) padded to match;
+    unchanged with ``weight=None`` otherwise."""
     n = int(q.shape[0])
-    n_to = bucket_size(n) if buckets_enabled() and cal.method.paddable else n
-    J = dyn.start_jacobian
+    pad = buckets_enabled() and cal.method.paddable
+    n_to = bucket_size(n) if pad else n
     w = None
-    if buckets_enabled() and cal.method.paddable:
+    if pad:
         q, y, w = pad_rows(q, y, n_to)
-    if J is not None:
-        m = cal.measurement.size
-        if J.shape[0] == n * m and n_to != n:  # computed on the real rows: zero rows for the padding
-            Jn = np.asarray(J)
-            J = jax.device_put(np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)]))
-        elif J.shape[0] != n_to * m:
-            # computed on another padding (the identifiability program pads whatever the method):
-            # the real rows on the host, padded again when needed
-            Jn = np.asarray(J)[: n * m]
-            if n_to != n:
-                Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
-            J = jax.device_put(Jn)
-        dyn = eqx.tree_at(lambda c: c.start_jacobian, dyn, J, is_leaf=lambda v: v is None)
-    return dyn, q, y, w
+        if n_to != n:
+            cal = eqx.tree_at(lambda c: c.measurement, cal, cal.measurement.pad_rows(n, n_to))
+    J = cal.start_jacobian
+    m = cal.measurement.size
+    if J is not None and J.shape[0] != n_to * m:
+        # computed on the real rows, or on another padding (the identifiability program pads
+        # whatever the method): the real rows on the host, zero rows for this padding
+        Jn = np.asarray(J)[: n * m]
+        if n_to != n:
+            Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
+        cal = eqx.tree_at(lambda c: c.start_jacobian, cal, jax.device_put(Jn))
+    return cal, q, y, w
 
 
 def _launch(cal: Calibrator, q, y, key):
@@ -340,10 +340,10 @@ def _launch(cal: Calibrator, q, y, key):
     The data are padded to their shape bucket (:func:`_pad_to_bucket`); the output is the
     unpadded run's, except ``gram``'s residual vector, which carries the padding rows (zeros) at
     its end."""
-    dyn, stat = eqx.partition(cal, eqx.is_array)
     with dtype_scope(q.dtype):
+        cal, q, y, w = _pad_to_bucket(cal, q, y)
+        dyn, stat = eqx.partition(cal, eqx.is_array)
         dyn = cast_floating(dyn, q.dtype)
-        dyn, q, y, w = _pad_to_bucket(cal, dyn, q, y)
         t0 = time.perf_counter()
         try:
             ck = (stat, _signature((dyn, q, y, key, w)), jax.default_backend(), jax.config.jax_enable_x64)
@@ -355,6 +355,10 @@ def _launch(cal: Calibrator, q, y, key):
             compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
             if ck is not None:
                 _COMPILED.put(ck, compiled)
+                # the executable is all a later call needs: drop the trace (jaxpr, lowering) that
+                # jax.jit keeps per shape, tens of MB for a solve, never freed otherwise
+                _run_calibrator.clear_cache()
+            release_memory()
         t1 = time.perf_counter()
         out = compiled(dyn, q, y, key, w)
     return out, t1 - t0, t1

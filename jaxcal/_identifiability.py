@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._buckets import bucket_size, buckets_enabled, pad_rows
+from ._buckets import LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
@@ -247,7 +247,6 @@ def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(R, np.float64), np.asarray(piv)
 
 
-@functools.partial(jax.jit, static_argnames="space")
 def _start_factor(robot, measurement, q, deviations, space, y=None, weight=None):
     """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the pivoted
     triangular factor of its column-scaled ``J/d`` (:func:`householder_r`, then
@@ -277,6 +276,10 @@ def _start_factor(robot, measurement, q, deviations, space, y=None, weight=None)
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     R, piv = pivot_triangular(householder_r(J / jnp.where(d > 0, d, 1.0)))
     return d, R, piv, resid, (J if free else None)
+
+
+#: compiled once per (models, parameter space, bucket of sample counts): an LRU of executables
+_start_factor = LeanJit(_start_factor, static_argnames=("space",), maxsize=cache_size("identifiability", 16))
 
 
 def identifiability(
@@ -326,6 +329,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     qp, yp, w = q, y, None
     if buckets_enabled():
         qp, yp, w = pad_rows(q, y, bucket_size(n))
+        measurement = measurement.pad_rows(n, bucket_size(n))
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
     if resid is not None and w is not None:
         resid = np.asarray(resid)[:n]

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._buckets import bucket_size, buckets_enabled, pad_rows
+from ._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
@@ -138,12 +138,14 @@ class Problem(eqx.Module):
         return Problem(self.robot, self.measurement, self.q, self.y, space, self.base, self.weight)
 
 
-@jax.jit
 def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n m"]:
     """``prediction − measured`` as ``[n, m]`` (mm) at free parameters ``x``, jitted (compiled once
     per shape): the host-side checks, metrics and diagnostics call this instead of evaluating
     the kinematics op by op."""
     return problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
+
+
+residual_blocks = LeanJit(residual_blocks, maxsize=16)
 
 
 def signed_residuals(problem: Problem, x) -> np.ndarray:
@@ -154,8 +156,10 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
     if problem.weight is None and buckets_enabled() and bucket_size(n) != n:
         # evaluated on the rows padded to their shape bucket (one program per bucket), the
         # padding cut off on the host
-        q, y, _ = pad_rows(problem.q, problem.y, bucket_size(n))
-        return residual_blocks_numpy(problem, np.asarray(residual_blocks(problem.with_data(q, y), x))[:n])
+        n_to = bucket_size(n)
+        q, y, _ = pad_rows(problem.q, problem.y, n_to)
+        padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, problem.space, problem.base)
+        return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, x))[:n])
     return residual_blocks_numpy(problem, residual_blocks(problem, x))
 
 

@@ -172,14 +172,32 @@ def _cmd_simulate(args) -> int:
 # -- calibrate --------------------------------------------------------------------------------------
 
 
-def _split_indices(key, n: int, test_fraction: float):
-    """Row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test parts."""
-    import jax
+def _seed_split(seed: int, n: int, test_fraction: float):
+    """``(k_method, train_idx, test_idx)``: ``k_split, k_method = jax.random.split(jax.random.key(seed))``
+    and the row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test
+    parts drawn with ``k_split``, as one compiled program (op by op it was five, each loaded from
+    the compilation cache at every start)."""
     import numpy as np
 
+    k_method, perm = _seed_split_program()(seed, n)
+    perm = np.asarray(perm)
     n_test = int(round(n * test_fraction))
-    perm = np.asarray(jax.random.permutation(key, n))
-    return perm[n_test:], perm[:n_test]
+    return k_method, perm[n_test:], perm[:n_test]
+
+
+def _seed_split_program():
+    import functools
+
+    import jax
+
+    @functools.partial(jax.jit, static_argnums=1)
+    def program(seed, n):
+        k_split, k_method = jax.random.split(jax.random.key(seed))
+        return k_method, jax.random.permutation(k_split, n)
+
+    global _seed_split_program
+    _seed_split_program = lambda: program  # noqa: E731  (built once, on first use: jax imported lazily)
+    return program
 
 
 def _rows(text: str | None) -> list[int]:
@@ -277,7 +295,6 @@ def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
 
 def _cmd_calibrate(args) -> int:
     t_start = time.perf_counter()
-    import jax
     import numpy as np
 
     from ._calibrate import CalibrationWarning, calibrate
@@ -362,9 +379,7 @@ def _cmd_calibrate(args) -> int:
     if excluded:
         notes.append(f"excluded data rows (your choice): {', '.join(map(str, excluded))}")
     data = data.subset(kept_rows)
-    key = jax.random.key(args.seed)
-    k_split, k_method = jax.random.split(key)
-    train_idx, test_idx = _split_indices(k_split, data.n, args.test_fraction)
+    k_method, train_idx, test_idx = _seed_split(args.seed, data.n, args.test_fraction)
     train, test = data.subset(train_idx), data.subset(test_idx)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")

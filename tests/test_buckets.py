@@ -165,7 +165,8 @@ def test_one_compilation_per_bucket_and_bounded_cache(ex, buckets_on, monkeypatc
                 calibrate(ex.robot, ex.measurement, (qn[:n], yn[:n]), "lm")
             assert counts["n"] == first, "a sample count of a known bucket compiled something"
             assert first >= 1
-            for n in (200, 400):  # buckets 256, 512: new programs; the LRU keeps two
+            _buckets.set_buckets(64)  # smaller buckets: 100 -> 128, 150 -> 192 rows, new programs
+            for n in (100, 150):
                 calibrate(ex.robot, ex.measurement, (qn[:n], yn[:n]), "lm")
             assert len(_calibrate._COMPILED) == 2 and _calibrate._COMPILED.evictions >= 1
     finally:

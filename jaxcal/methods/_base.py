@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._buckets import BoundedCache
 from .._kinematics import shared_joint_trig
 from .._objective import Objective, robust_factor
 from .._problem import Problem, value_and_jacfwd
@@ -411,7 +412,8 @@ def make_method(method, **hyperparameters) -> Method:
     return built
 
 
-_METHOD_CACHE: dict = {}
+#: built methods by (name, settings), least recently used first out beyond 256 entries
+_METHOD_CACHE = BoundedCache(256)
 
 
 def method_settings(name: str) -> list[str] | None:
