@@ -193,6 +193,14 @@ def __getattr__(name: str):
         value = mod if attr is None else getattr(mod, attr)
         globals()[name] = value
         return value
+    if not name.startswith("__"):  # a submodule (jaxcal._simulate...): imported eagerly before
+        import importlib
+
+        try:
+            return importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise
     raise AttributeError(f"module 'jaxcal' has no attribute {name!r}")
 
 
