@@ -8,79 +8,11 @@ Float64: ``import jaxcal`` changes nothing global; call :func:`jaxcal.enable_x64
 program start (see ``jaxcal._precision`` for the policy).
 """
 
-from . import methods as methods
-from . import optim as optim
-from . import robots as robots
-from ._calibrate import CalibrationError as CalibrationError
-from ._calibrate import CalibrationWarning as CalibrationWarning
-from ._calibrate import Calibrator as Calibrator
-from ._calibrate import calibrate as calibrate
-from ._camera import Camera as Camera
-from ._camera import checkerboard as checkerboard
-from ._camera import hand_eye_park as hand_eye_park
-from ._camera import simulate_camera as simulate_camera
-from ._camera import solve_pnp as solve_pnp
-from ._chain import SerialChain as SerialChain
-from ._contact import FixedPoint as FixedPoint
-from ._contact import PlaneContact as PlaneContact
-from ._contact import simulate_contact as simulate_contact
-from ._dataset import Dataset as Dataset
-from ._dataset import load_csv as load_csv
-from ._dataset import save_csv as save_csv
-from ._diagnostics import Checks as Checks
-from ._diagnostics import Diagnostics as Diagnostics
-from ._diagnostics import Uncertainty as Uncertainty
-from ._evaluate import MEASURED_DEFAULTS as MEASURED_DEFAULTS
-from ._evaluate import Evaluation as Evaluation
-from ._evaluate import evaluate_result as evaluate_result
-from ._identifiability import KEEP_PREFERENCE as KEEP_PREFERENCE
-from ._identifiability import IdentifiabilityReport as IdentifiabilityReport
-from ._identifiability import identifiability as identifiability
-from ._initialise import ExtrasEstimate as ExtrasEstimate
-from ._initialise import initial_extras as initial_extras
-from ._initialise import pose_from_markers as pose_from_markers
-from ._io import load_result as load_result
-from ._io import load_sweep as load_sweep
-from ._io import save_result as save_result
-from ._kinematics import fk_pose as fk_pose
-from ._kinematics import fk_position as fk_position
-from ._measurement import CableLength as CableLength
-from ._measurement import Markers as Markers
-from ._measurement import MeasurementModel as MeasurementModel
-from ._measurement import Pose as Pose
-from ._measurement import Position as Position
-from ._measurement import residuals as residuals
-from ._metrics import Metrics as Metrics
-from ._metrics import compute_metrics as compute_metrics
-from ._metrics import format_table as format_table
-from ._metrics import statistical_floor as statistical_floor
-from ._nongeometric import MassModel as MassModel
-from ._nongeometric import gravity_torques as gravity_torques
-from ._objective import Prior as Prior
-from ._params import Deviations as Deviations
-from ._params import ParameterSpace as ParameterSpace
-from ._precision import PrecisionWarning as PrecisionWarning
-from ._precision import enable_x64 as enable_x64
-from ._problem import Problem as Problem
-from ._result import CalibrationResult as CalibrationResult
-from ._result import DHTable as DHTable
-from ._result import Status as Status
-from ._result import iterations_to_converge as iterations_to_converge
-from ._robot import DHRobot as DHRobot
-from ._sessions import SessionHoldout as SessionHoldout
-from ._sessions import SessionMarkers as SessionMarkers
-from ._sessions import holdout_session as holdout_session
-from ._sessions import initial_sessions as initial_sessions
-from ._sessions import leave_one_session_out as leave_one_session_out
-from ._simulate import Experiment as Experiment
-from ._simulate import simulate_experiment as simulate_experiment
-from ._urdf import chain_from_dh as chain_from_dh
-from ._urdf import export_urdf as export_urdf
-from ._urdf import load_urdf as load_urdf
-
 __version__ = "0.1.0"
 
 __all__ = [
+    "bucket_size",
+    "set_buckets",
     "SerialChain",
     "chain_from_dh",
     "export_urdf",
@@ -174,31 +106,103 @@ __all__ = [
 ]
 
 
-#: Names imported on first use (PEP 562): the sweep, planning, messy-data, cross-validation,
-#: report and plot modules are not needed to calibrate, and importing them with the package cost
-#: ~0.1 s of every command-line call. ``name: (module, attribute or None for the module)``.
+#: Every public name is imported on first use (PEP 562): ``import jaxcal`` imports neither JAX
+#: nor any jaxcal module, so ``jaxcal --help`` (and a command that needs a part of the package)
+#: pays only for what it uses; ``from jaxcal import calibrate`` imports the calibration modules.
+#: ``name: (module, attribute or None for the module)``.
 _LAZY = {
+    'bucket_size': ('_buckets', 'bucket_size'),
+    'set_buckets': ('_buckets', 'set_buckets'),
     'AccuracyCurve': ('_plan', 'AccuracyCurve'),
+    'CableLength': ('_measurement', 'CableLength'),
+    'CalibrationError': ('_calibrate', 'CalibrationError'),
+    'CalibrationResult': ('_result', 'CalibrationResult'),
+    'CalibrationWarning': ('_calibrate', 'CalibrationWarning'),
+    'Calibrator': ('_calibrate', 'Calibrator'),
+    'Checks': ('_diagnostics', 'Checks'),
+    'DHRobot': ('_robot', 'DHRobot'),
+    'DHTable': ('_result', 'DHTable'),
+    'Dataset': ('_dataset', 'Dataset'),
+    'Deviations': ('_params', 'Deviations'),
+    'Diagnostics': ('_diagnostics', 'Diagnostics'),
+    'Experiment': ('_simulate', 'Experiment'),
+    'ExtrasEstimate': ('_initialise', 'ExtrasEstimate'),
+    'IdentifiabilityReport': ('_identifiability', 'IdentifiabilityReport'),
+    'KEEP_PREFERENCE': ('_identifiability', 'KEEP_PREFERENCE'),
+    'Markers': ('_measurement', 'Markers'),
+    'MassModel': ('_nongeometric', 'MassModel'),
+    'MeasurementModel': ('_measurement', 'MeasurementModel'),
     'MessyExperiment': ('_messy', 'MessyExperiment'),
+    'Metrics': ('_metrics', 'Metrics'),
     'ObservabilityIndices': ('_plan', 'ObservabilityIndices'),
     'PAPER_METHODS': ('_sweep', 'PAPER_METHODS'),
+    'ParameterSpace': ('_params', 'ParameterSpace'),
+    'Pose': ('_measurement', 'Pose'),
     'PoseSelection': ('_plan', 'PoseSelection'),
+    'Position': ('_measurement', 'Position'),
+    'PrecisionWarning': ('_precision', 'PrecisionWarning'),
     'PredictedAccuracy': ('_plan', 'PredictedAccuracy'),
+    'Prior': ('_objective', 'Prior'),
     'PriorCV': ('_validation', 'PriorCV'),
+    'Problem': ('_problem', 'Problem'),
+    'SerialChain': ('_chain', 'SerialChain'),
+    'SessionHoldout': ('_sessions', 'SessionHoldout'),
+    'SessionMarkers': ('_sessions', 'SessionMarkers'),
+    'Status': ('_result', 'Status'),
     'SweepResult': ('_sweep', 'SweepResult'),
+    'Uncertainty': ('_diagnostics', 'Uncertainty'),
     'accuracy_curve': ('_plan', 'accuracy_curve'),
+    'calibrate': ('_calibrate', 'calibrate'),
     'candidate_poses': ('_plan', 'candidate_poses'),
+    'chain_from_dh': ('_urdf', 'chain_from_dh'),
+    'compute_metrics': ('_metrics', 'compute_metrics'),
     'cross_validate_prior': ('_validation', 'cross_validate_prior'),
+    'enable_x64': ('_precision', 'enable_x64'),
+    'export_urdf': ('_urdf', 'export_urdf'),
+    'fk_pose': ('_kinematics', 'fk_pose'),
+    'fk_position': ('_kinematics', 'fk_position'),
+    'format_table': ('_metrics', 'format_table'),
+    'gravity_torques': ('_nongeometric', 'gravity_torques'),
+    'holdout_session': ('_sessions', 'holdout_session'),
+    'identifiability': ('_identifiability', 'identifiability'),
+    'initial_extras': ('_initialise', 'initial_extras'),
+    'initial_sessions': ('_sessions', 'initial_sessions'),
+    'iterations_to_converge': ('_result', 'iterations_to_converge'),
+    'leave_one_session_out': ('_sessions', 'leave_one_session_out'),
+    'load_csv': ('_dataset', 'load_csv'),
+    'load_result': ('_io', 'load_result'),
+    'load_sweep': ('_io', 'load_sweep'),
+    'load_urdf': ('_urdf', 'load_urdf'),
+    'methods': ('methods', None),
     'observability_indices': ('_plan', 'observability_indices'),
+    'optim': ('optim', None),
     'plots': ('plots', None),
+    'pose_from_markers': ('_initialise', 'pose_from_markers'),
     'predicted_accuracy': ('_plan', 'predicted_accuracy'),
     'region_folds': ('_messy', 'region_folds'),
     'region_split': ('_messy', 'region_split'),
     'relaxed_design': ('_plan', 'relaxed_design'),
     'report': ('report', None),
+    'residuals': ('_measurement', 'residuals'),
+    'robots': ('robots', None),
+    'save_csv': ('_dataset', 'save_csv'),
+    'save_result': ('_io', 'save_result'),
     'select_poses': ('_plan', 'select_poses'),
+    'simulate_experiment': ('_simulate', 'simulate_experiment'),
     'simulate_messy': ('_messy', 'simulate_messy'),
+    'statistical_floor': ('_metrics', 'statistical_floor'),
     'sweep': ('_sweep', 'sweep'),
+    'Camera': ('_camera', 'Camera'),
+    'checkerboard': ('_camera', 'checkerboard'),
+    'hand_eye_park': ('_camera', 'hand_eye_park'),
+    'simulate_camera': ('_camera', 'simulate_camera'),
+    'solve_pnp': ('_camera', 'solve_pnp'),
+    'FixedPoint': ('_contact', 'FixedPoint'),
+    'PlaneContact': ('_contact', 'PlaneContact'),
+    'simulate_contact': ('_contact', 'simulate_contact'),
+    'MEASURED_DEFAULTS': ('_evaluate', 'MEASURED_DEFAULTS'),
+    'Evaluation': ('_evaluate', 'Evaluation'),
+    'evaluate_result': ('_evaluate', 'evaluate_result'),
 }
 
 
@@ -211,6 +215,14 @@ def __getattr__(name: str):
         value = mod if attr is None else getattr(mod, attr)
         globals()[name] = value
         return value
+    if not name.startswith("__"):  # a submodule (jaxcal._simulate...): imported eagerly before
+        import importlib
+
+        try:
+            return importlib.import_module(f".{name}", __name__)
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise
     raise AttributeError(f"module 'jaxcal' has no attribute {name!r}")
 
 

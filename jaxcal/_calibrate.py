@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ._buckets import BoundedCache, LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows, release_memory
 from ._dataset import Dataset, mm_joints_metadata
 from ._diagnostics import (
     Checks,
@@ -36,7 +37,7 @@ from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
-from ._precision import cast_floating, dtype_scope, warn_if_float32
+from ._precision import cast_floating, dtype_scope, to_device, warn_if_float32
 from ._problem import Problem, residual_blocks_numpy, signed_residuals
 from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
 from ._robot import DHRobot
@@ -102,16 +103,19 @@ class Calibrator(eqx.Module):
     report: bool = eqx.field(static=True, default=False)
     start_jacobian: Array | None = None
 
-    def problem(self, q, y) -> Problem:
-        return Problem(self.robot, self.measurement, q, y, self.space, self.start)
+    def problem(self, q, y, weight=None) -> Problem:
+        return Problem(self.robot, self.measurement, q, y, self.space, self.start, weight)
 
-    def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array) -> CalibrationOutput:
-        problem = self.problem(q, y)
+    def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array, weight: Array | None = None
+                 ) -> CalibrationOutput:
+        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._buckets`);
+        the output then equals the unpadded run's to round-off."""
+        problem = self.problem(q, y, weight)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
             scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian)
             raw = self.method.run(scaled, key)
             x = scaled.x(raw.z)
-            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra))
+            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra), problem.weight)
             gram = deviations = None
             if self.report:
                 ob = self.objective
@@ -124,9 +128,9 @@ class Calibrator(eqx.Module):
 
 
 @functools.partial(jax.jit, static_argnums=1)
-def _run_calibrator(dynamic, static, q, y, key) -> CalibrationOutput:
+def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutput:
     """The jitted core of :func:`calibrate` (module level, so compilations are cached)."""
-    return eqx.combine(dynamic, static)(q, y, key)
+    return eqx.combine(dynamic, static)(q, y, key, weight)
 
 
 def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
@@ -136,8 +140,9 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
         q, y = data.q, data.y
     elif isinstance(data, (tuple, list)) and len(data) == 2:
         q, y = data
-        q = jnp.asarray(q)
-        y = jnp.asarray(y, q.dtype)
+        # host arrays by jax.device_put (jnp.asarray compiles a small program per shape)
+        q = q if isinstance(q, jax.Array) else to_device(np.asarray(q))
+        y = y if isinstance(y, jax.Array) and y.dtype == q.dtype else to_device(np.asarray(y), q.dtype)
         Dataset(q, y, measurement.kind, mm_joints_metadata(robot))  # validates shapes, NaN/inf, degrees
     else:
         raise TypeError("data must be a jaxcal.Dataset or a (q, y) pair of arrays")
@@ -328,12 +333,15 @@ def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace) -> None:
 
 
 #: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)
-_take_columns = jax.jit(lambda J, columns: jnp.take(J, columns, axis=1))
+_take_columns = LeanJit(lambda J, columns: jnp.take(J, columns, axis=1), maxsize=16)
 
 
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
-#: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores)
-_COMPILED: dict = {}
+#: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores). A
+#: least-recently-used cache of at most 16 programs (``$JAXCAL_CALIBRATE_CACHE``): with shape
+#: buckets (:mod:`jaxcal._buckets`) one model and method need one program per bucket, and memory
+#: stays flat however many sample counts a session calibrates.
+_COMPILED = BoundedCache(cache_size("calibrate", 16))
 
 
 def _signature(tree) -> tuple:
@@ -342,27 +350,59 @@ def _signature(tree) -> tuple:
                           for leaf in leaves)
 
 
+def _pad_to_bucket(cal: Calibrator, q, y):
+    """``(cal, q, y, weight)``: the data padded with zero-weight rows to their bucket size
+    (:func:`~jaxcal._buckets.bucket_size`) when the method allows it (:attr:`Method.paddable`;
+    weights all 1 at a bucket size exactly), the measurement model's per-row arrays
+    (:meth:`MeasurementModel.pad_rows`) and the start Jacobian (if any) padded to match;
+    unchanged with ``weight=None`` otherwise."""
+    n = int(q.shape[0])
+    pad = buckets_enabled() and cal.method.paddable
+    n_to = bucket_size(n) if pad else n
+    w = None
+    if pad:
+        q, y, w = pad_rows(q, y, n_to)
+        if n_to != n:
+            cal = eqx.tree_at(lambda c: c.measurement, cal, cal.measurement.pad_rows(n, n_to))
+    J = cal.start_jacobian
+    m = cal.measurement.size
+    if J is not None and J.shape[0] != n_to * m:
+        # computed on the real rows, or on another padding (the identifiability program pads
+        # whatever the method): the real rows on the host, zero rows for this padding
+        Jn = np.asarray(J)[: n * m]
+        if n_to != n:
+            Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
+        cal = eqx.tree_at(lambda c: c.start_jacobian, cal, jax.device_put(Jn))
+    return cal, q, y, w
+
+
 def _launch(cal: Calibrator, q, y, key):
     """Compile (cached) and start ``cal`` without waiting for it (JAX dispatches asynchronously):
-    ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``."""
-    dyn, stat = eqx.partition(cal, eqx.is_array)
+    ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``.
+    The data are padded to their shape bucket (:func:`_pad_to_bucket`); the output is the
+    unpadded run's, except ``gram``'s residual vector, which carries the padding rows (zeros) at
+    its end."""
     with dtype_scope(q.dtype):
+        cal, q, y, w = _pad_to_bucket(cal, q, y)
+        dyn, stat = eqx.partition(cal, eqx.is_array)
         dyn = cast_floating(dyn, q.dtype)
         t0 = time.perf_counter()
         try:
-            ck = (stat, _signature((dyn, q, y, key)), jax.default_backend(), jax.config.jax_enable_x64)
+            ck = (stat, _signature((dyn, q, y, key, w)), jax.default_backend(), jax.config.jax_enable_x64)
             hash(ck)
         except TypeError:  # unhashable static part: no cache
             ck = None
         compiled = _COMPILED.get(ck) if ck is not None else None
         if compiled is None:
-            compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key))
+            compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
             if ck is not None:
-                if len(_COMPILED) > 64:
-                    _COMPILED.clear()
-                _COMPILED[ck] = compiled
+                _COMPILED.put(ck, compiled)
+                # the executable is all a later call needs: drop the trace (jaxpr, lowering) that
+                # jax.jit keeps per shape, tens of MB for a solve, never freed otherwise
+                _run_calibrator.clear_cache()
+            release_memory()
         t1 = time.perf_counter()
-        out = compiled(dyn, q, y, key)
+        out = compiled(dyn, q, y, key, w)
     return out, t1 - t0, t1
 
 

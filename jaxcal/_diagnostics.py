@@ -183,7 +183,9 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     unc = Uncertainty(space.free_names, space.free_units, std, C, math.sqrt(sigma2), p_eff, N)
     if not return_residuals:
         return unc, cond
-    return unc, cond, residual_blocks_numpy(problem, np.asarray(r).reshape(problem.n_samples, problem.measurement.size))
+    # a padded solve's residual carries its zero padding rows at the end (jaxcal._buckets)
+    r = np.asarray(r)[: problem.n_residuals]
+    return unc, cond, residual_blocks_numpy(problem, r.reshape(problem.n_samples, problem.measurement.size))
 
 
 def outlier_rows(problem, x, k: float = 5.0, *, residuals=None) -> tuple[np.ndarray, np.ndarray, float]:

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from ._buckets import LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
@@ -286,8 +287,7 @@ def pivoted_qr(A) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(R, np.float64), np.asarray(piv)
 
 
-@functools.partial(jax.jit, static_argnames="space")
-def _start_factor(robot, measurement, q, deviations, space, y=None):
+def _start_factor(robot, measurement, q, deviations, space, y=None, weight=None):
     """Column norms ``d`` ``[p]`` of the identification Jacobian at the start and the pivoted
     triangular factor of its column-scaled ``J/d`` (:func:`householder_r`, then
     :func:`pivot_triangular`; ``(R, piv)``), in one compiled program, with the prediction at the
@@ -295,7 +295,8 @@ def _start_factor(robot, measurement, q, deviations, space, y=None):
     also their residual blocks ``[n, m]`` at the start (what :func:`jaxcal.calibrate` scans
     first; the kinematics are shared) and, where it does not depend on the readings
     (:attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), the Jacobian ``[N, p]`` itself (the
-    start Jacobian of the fit); else ``None`` for each."""
+    start Jacobian of the fit); else ``None`` for each. ``weight``: ``[n]`` 0 on padding rows
+    (:mod:`jaxcal._buckets`), whose Jacobian rows are then zero (the factor is the real rows')."""
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
     # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely);
     # where the Jacobian does not depend on the readings, take the readings (the residual there
@@ -304,7 +305,7 @@ def _start_factor(robot, measurement, q, deviations, space, y=None):
     with shared_joint_trig(q):  # one cos/sin of q for the prediction, the Jacobian and the residuals
         sample = jnp.asarray(y, q.dtype) if free else measurement.predict(robot, deviations, q).astype(q.dtype)
         problem = Problem(robot, measurement, q, sample.reshape(q.shape[0], *measurement.sample_shape), space,
-                          deviations)
+                          deviations, weight)
         r, J = value_and_jacfwd(problem.residual, problem.x0(), q)
         if y is None:
             resid = None
@@ -319,6 +320,10 @@ def _start_factor(robot, measurement, q, deviations, space, y=None):
     d = jnp.where(d > 1e-10 * jnp.max(d), d, 0.0)
     R, piv = pivot_triangular(householder_r(J / jnp.where(d > 0, d, 1.0)))
     return d, R, piv, resid, (J if free else None)
+
+
+#: compiled once per (models, parameter space, bucket of sample counts): an LRU of executables
+_start_factor = LeanJit(_start_factor, static_argnames=("space",), maxsize=cache_size("identifiability", 16))
 
 
 def identifiability(
@@ -401,7 +406,13 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     ``prior_std``: ``[p]`` prior σ of the candidates (``inf`` = no prior) for a
     maximum-a-posteriori fit: the report's ``space`` then frees every candidate with a prior and
     the data-identifiable subset of the others (:func:`select_free`); without it ``space`` frees
-    the identifiable subset."""
+    the identifiable subset.
+
+
+    The compiled program runs on the samples padded to their shape bucket
+    (:mod:`jaxcal._buckets`; one program per bucket, not per sample count): the report and the
+    residuals are the real rows', and the Jacobian carries zero rows for the padding at its end
+    (``bucket_size(n)·m`` rows)."""
     q = jnp.asarray(q)
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
@@ -411,7 +422,14 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     # singular values and least-squares solutions of the columns of the small triangular factor,
     # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian (multithreaded
     # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
-    norms, R, piv, resid, J = _start_factor(robot, measurement, q, dev0, space, y)
+    n = int(q.shape[0])
+    qp, yp, w = q, y, None
+    if buckets_enabled():
+        qp, yp, w = pad_rows(q, y, bucket_size(n))
+        measurement = measurement.pad_rows(n, bucket_size(n))
+    norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
+    if resid is not None and w is not None:
+        resid = np.asarray(resid)[:n]
     norms, R, piv = np.asarray(norms, np.float64), np.asarray(R, np.float64), np.asarray(piv)
     if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R))):
         raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")

@@ -41,6 +41,13 @@ class MeasurementModel(eqx.Module):
         """``prediction − measured`` as ``[n, m]`` (mm)."""
         return (self.predict(robot, deviations, q) - y).reshape(q.shape[0], self.size)
 
+    def pad_rows(self, n: int, n_to: int) -> MeasurementModel:
+        """The model for data of ``n`` rows padded to ``n_to`` rows that repeat row 0
+        (:mod:`jaxcal._buckets`): itself, unless the model holds per-row arrays (e.g.
+        :class:`~jaxcal.SessionMarkers`' frame and placement of every row)."""
+        del n, n_to
+        return self
+
     @property
     def jacobian_free_of_data(self) -> bool:
         """Whether ``∂residual/∂Δ`` does not depend on the measured ``y`` (the residual is

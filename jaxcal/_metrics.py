@@ -16,6 +16,7 @@ __all__ = [
     "mean_abs_error",
     "max_abs_error",
     "compute_metrics",
+    "metrics_numpy",
     "statistical_floor",
     "format_table",
 ]
@@ -49,9 +50,27 @@ class Metrics(NamedTuple):
     max: Float[Array, ...]
 
 
-def compute_metrics(errors: Float[Array, " n"]) -> Metrics:
-    """RMSE/MEAN/MAX of per-sample errors ``[n]`` (e.g. ``measurement.sample_error``). Jittable."""
-    return Metrics(rmse(errors), mean_abs_error(errors), max_abs_error(errors))
+def compute_metrics(errors: Float[Array, " n"], weight: Float[Array, " n"] | None = None) -> Metrics:
+    """RMSE/MEAN/MAX of per-sample errors ``[n]`` (e.g. ``measurement.sample_error``). Jittable.
+
+    ``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._buckets`); the
+    metrics are then those of the real rows alone."""
+    if weight is None:
+        return Metrics(rmse(errors), mean_abs_error(errors), max_abs_error(errors))
+    e = jnp.abs(jnp.asarray(errors))
+    real = weight > 0
+    e = jnp.where(real, e, 0.0)
+    n = jnp.sum(weight)
+    return Metrics(jnp.sqrt(jnp.sum(e * e) / n), jnp.sum(e) / n, jnp.max(e))
+
+
+def metrics_numpy(errors) -> Metrics:
+    """RMSE/MEAN/MAX (Python floats, mm) of per-sample errors, in NumPy on the host: for callers
+    outside ``jit`` (a result's :meth:`~jaxcal.CalibrationResult.evaluate`, the command line),
+    where the same three reductions as eager JAX operations are five small XLA programs, each
+    compiled (or loaded from the persistent cache) once per process and shape."""
+    e = np.abs(np.asarray(errors, np.float64))
+    return Metrics(float(np.sqrt(np.mean(e * e))), float(np.mean(e)), float(np.max(e)))
 
 
 class Floor(NamedTuple):

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._params import Deviations, ParameterSpace, layout_for
@@ -41,6 +42,11 @@ class Problem(eqx.Module):
         y: measurements, ``[n, *measurement.sample_shape]`` (mm).
         space: free parameters (static).
         base: values of the deviations that are not free (zeros = nominal).
+        weight: ``[n]`` row weights, 1 for a real sample and 0 for a padding row
+            (:mod:`jaxcal._buckets`), or ``None`` (every row real). Padding rows contribute
+            nothing: :meth:`residual` and :meth:`sample_errors` are 0 there, and every mean divides
+            by :attr:`n_real` (a traced count), so a padded problem gives the unpadded one's
+            values to round-off.
     """
 
     robot: DHRobot
@@ -49,8 +55,9 @@ class Problem(eqx.Module):
     y: Array
     base: Deviations
     space: ParameterSpace = eqx.field(static=True)
+    weight: Array | None = None
 
-    def __init__(self, robot, measurement, q, y, space=None, base=None):
+    def __init__(self, robot, measurement, q, y, space=None, base=None, weight=None):
         self.robot = robot
         self.measurement = measurement
         self.q = jnp.asarray(q)
@@ -62,14 +69,40 @@ class Problem(eqx.Module):
                              f"joints, but robot {robot.name!r} with this measurement has {list(layout.group_names)} "
                              f"for {robot.dof} joints")
         self.base = Deviations.zeros(layout, self.q.dtype) if base is None else base.astype(self.q.dtype)
+        self.weight = None if weight is None else jnp.asarray(weight, self.q.dtype)
 
     @property
     def n_samples(self) -> int:
+        """Rows of the data (padding rows included)."""
         return int(self.q.shape[0])
 
     @property
     def n_residuals(self) -> int:
+        """Residual entries of the data (padding rows included)."""
         return self.n_samples * self.measurement.size
+
+    @property
+    def n_real(self):
+        """Real samples: ``n_samples`` (a Python int) without weights, else ``Σ weight`` (an array)."""
+        return self.n_samples if self.weight is None else jnp.sum(self.weight)
+
+    @property
+    def n_real_residuals(self):
+        """Real residual entries (``n_real · m``), what the means divide by."""
+        return self.n_residuals if self.weight is None else self.n_real * self.measurement.size
+
+    def mean_weights(self) -> Float[Array, " n"]:
+        """``[n]`` weights of the per-sample mean: ``1/n`` each, or ``weight / n_real``."""
+        if self.weight is None:
+            n = self.n_samples
+            return jnp.full((n,), 1.0 / n, self.dtype)
+        return self.weight / self.n_real
+
+    def weighted_blocks(self, r: Array) -> Array:
+        """Residual blocks ``[n, ...]`` with the padding rows zeroed (``r`` itself without weights)."""
+        if self.weight is None:
+            return r
+        return r * self.weight.reshape(-1, *([1] * (r.ndim - 1)))
 
     @property
     def dtype(self):
@@ -86,26 +119,25 @@ class Problem(eqx.Module):
     def residual(self, x: Float[Array, " p"]) -> Float[Array, " n*m"]:
         """``prediction − measured`` flattened to ``[n·m]`` (mm)."""
         r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
-        return r.reshape(-1)
+        return self.weighted_blocks(r).reshape(-1)
 
     def sample_errors(self, x: Float[Array, " p"]) -> Float[Array, " n"]:
-        """Per-sample errors for the metrics (mm)."""
+        """Per-sample errors for the metrics (mm; 0 on padding rows)."""
         r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
-        return self.measurement.sample_error(r)
+        return self.weighted_blocks(self.measurement.sample_error(r))
 
     def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
         """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
         return value_and_jacfwd(self.residual, x, self.q)[1]
 
-    def with_data(self, q, y) -> Problem:
+    def with_data(self, q, y, weight=None) -> Problem:
         """Same models and parameters, other data (e.g. the test split)."""
-        return Problem(self.robot, self.measurement, q, y, self.space, self.base)
+        return Problem(self.robot, self.measurement, q, y, self.space, self.base, weight)
 
     def with_space(self, space: ParameterSpace) -> Problem:
-        return Problem(self.robot, self.measurement, self.q, self.y, space, self.base)
+        return Problem(self.robot, self.measurement, self.q, self.y, space, self.base, self.weight)
 
 
-@jax.jit
 def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n m"]:
     """``prediction − measured`` as ``[n, m]`` (mm) at free parameters ``x``, jitted (compiled once
     per shape): the host-side checks, metrics and diagnostics call this instead of evaluating
@@ -113,10 +145,21 @@ def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n 
     return problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
 
 
+residual_blocks = LeanJit(residual_blocks, maxsize=16)
+
+
 def signed_residuals(problem: Problem, x) -> np.ndarray:
     """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
     robust scales and outlier scans."""
     x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else to_device(x, problem.dtype)
+    n = problem.n_samples
+    if problem.weight is None and buckets_enabled() and bucket_size(n) != n:
+        # evaluated on the rows padded to their shape bucket (one program per bucket), the
+        # padding cut off on the host
+        n_to = bucket_size(n)
+        q, y, _ = pad_rows(problem.q, problem.y, n_to)
+        padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, problem.space, problem.base)
+        return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, x))[:n])
     return residual_blocks_numpy(problem, residual_blocks(problem, x))
 
 

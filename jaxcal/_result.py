@@ -12,7 +12,7 @@ from jaxtyping import Array, Float, Int
 
 from ._json import to_jsonable
 from ._measurement import MeasurementModel
-from ._metrics import Metrics, compute_metrics
+from ._metrics import Metrics, metrics_numpy
 from ._params import Deviations, ParameterSpace
 from ._robot import DHRobot
 
@@ -308,7 +308,7 @@ class CalibrationResult:
             from ._evaluate import evaluate_result
 
             return evaluate_result(self, data, extras=extras)
-        return Metrics(*(float(v) for v in compute_metrics(self.sample_errors(data))))
+        return metrics_numpy(self.sample_errors(data))
 
     def dh_table(self) -> DHTable:
         """Calibrated DH table ``[dof, 4]``: α/°, a/mm, d/mm, θ/° per joint (the paper's

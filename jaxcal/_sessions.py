@@ -172,6 +172,12 @@ class SessionMarkers(MarkerModel):
         return SessionMarkers([self.frames[i] for i in fi], [self.placements[i] for i in pi], self.n_markers,
                               np.asarray(self.positions), frame_labels=self.frames, placement_labels=self.placements)
 
+    def pad_rows(self, n: int, n_to: int) -> SessionMarkers:
+        """The model of the rows padded to ``n_to`` by repeating row 0 (:mod:`jaxcal._buckets`)."""
+        if n_to == n:
+            return self
+        return self.take(np.concatenate([np.arange(n), np.zeros(n_to - n, int)]))
+
     # -- shape ----------------------------------------------------------------------------
     @property
     def n_markers(self) -> int:

@@ -673,6 +673,25 @@ def _to_host(tree):
     return jax.tree.map(get, tree)
 
 
+def _put_global(tree, sharding):
+    """``jax.device_put(tree, sharding)``, also when the sharding spans devices of other processes
+    (multi-process runs after ``jax.distributed.initialize()``, where ``device_put`` refuses a
+    non-addressable sharding): every process holds the same host values, and each puts the shards
+    of its own devices (``jax.make_array_from_callback``)."""
+    if sharding.is_fully_addressable:
+        return jax.device_put(tree, sharding)
+
+    def one(x):
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            return x  # already a global array
+        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
+            return jax.random.wrap_key_data(one(jax.random.key_data(x)), impl=jax.random.key_impl(x))
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
+
+    return jax.tree.map(one, tree)
+
+
 def _one_trial_like(runner, eval_shape, dtype):
     """Shapes of one trial's output: from the unit's compiled chunk (``[chunk, ...]`` outputs), or,
     when every chunk was loaded from disk (nothing compiled), by tracing the trial."""
@@ -689,7 +708,7 @@ class _Runner:
         self.dyn, self.static = eqx.partition(trial, eqx.is_array)
         self.dyn = cast_floating(self.dyn, dtype)
         if mesh is not None:  # the trial's own arrays are replicated on every device
-            self.dyn = jax.device_put(self.dyn, NamedSharding(mesh, P()))
+            self.dyn = _put_global(self.dyn, NamedSharding(mesh, P()))
         elif device is not None:  # one given device (e.g. the CPU of a GPU machine): run there
             self.dyn = jax.device_put(self.dyn, device)
         self.mesh, self.dtype, self.grid, self.sequential = mesh, dtype, grid, sequential
@@ -708,8 +727,8 @@ class _Runner:
                 return jax.device_put((inputs, hyper), self.device)
             return inputs, hyper
         rep = NamedSharding(self.mesh, P())
-        inputs = jax.device_put(inputs, NamedSharding(self.mesh, P("trials")))
-        return inputs, jax.device_put(hyper, rep)
+        inputs = _put_global(inputs, NamedSharding(self.mesh, P("trials")))
+        return inputs, _put_global(hyper, rep)
 
     def lower(self, inputs, hyper):
         """Trace and lower the chunk function for ``inputs`` (Python-bound: the main thread)."""

@@ -270,14 +270,32 @@ def _simulate_camera(args) -> int:
 # -- calibrate --------------------------------------------------------------------------------------
 
 
-def _split_indices(key, n: int, test_fraction: float):
-    """Row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test parts."""
-    import jax
+def _seed_split(seed: int, n: int, test_fraction: float):
+    """``(k_method, train_idx, test_idx)``: ``k_split, k_method = jax.random.split(jax.random.key(seed))``
+    and the row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test
+    parts drawn with ``k_split``, as one compiled program (op by op it was five, each loaded from
+    the compilation cache at every start)."""
     import numpy as np
 
+    k_method, perm = _seed_split_program()(seed, n)
+    perm = np.asarray(perm)
     n_test = int(round(n * test_fraction))
-    perm = np.asarray(jax.random.permutation(key, n))
-    return perm[n_test:], perm[:n_test]
+    return k_method, perm[n_test:], perm[:n_test]
+
+
+def _seed_split_program():
+    import functools
+
+    import jax
+
+    @functools.partial(jax.jit, static_argnums=1)
+    def program(seed, n):
+        k_split, k_method = jax.random.split(jax.random.key(seed))
+        return k_method, jax.random.permutation(k_split, n)
+
+    global _seed_split_program
+    _seed_split_program = lambda: program  # noqa: E731  (built once, on first use: jax imported lazily)
+    return program
 
 
 def _rows(text: str | None) -> list[int]:
@@ -394,7 +412,6 @@ def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
 
 def _cmd_calibrate(args) -> int:
     t_start = time.perf_counter()
-    import jax
     import numpy as np
 
     from ._calibrate import CalibrationWarning, calibrate
@@ -409,7 +426,7 @@ def _cmd_calibrate(args) -> int:
         sample_errors,
     )
     from ._io import save_result
-    from ._metrics import Metrics, compute_metrics, format_table
+    from ._metrics import format_table, metrics_numpy
     from ._objective import LOSSES, Prior
     from ._params import Deviations, group_kind
     from .methods._stages import check_method_name
@@ -540,9 +557,7 @@ def _cmd_calibrate(args) -> int:
     if excluded:
         notes.append(f"excluded data rows (your choice): {', '.join(map(str, excluded))}")
     data = data.subset(kept_rows)
-    key = jax.random.key(args.seed)
-    k_split, k_method = jax.random.split(key)
-    train_idx, test_idx = _split_indices(k_split, data.n, test_fraction)
+    k_method, train_idx, test_idx = _seed_split(args.seed, data.n, test_fraction)
     if test_file is not None:  # a separate test file: every row trains, in file order
         train_idx = np.arange(data.n)
     train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
@@ -602,10 +617,9 @@ def _cmd_calibrate(args) -> int:
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
         if estimated:
-            out.append((f"{name}, raw nominal", Metrics(*(float(v) for v in compute_metrics(
-                sample_errors(robot, measurement, zero, ds))))))
-        return out + [(f"{name}, before", Metrics(*(float(v) for v in compute_metrics(eb)))),
-                      (f"{name}, after", Metrics(*(float(v) for v in compute_metrics(ea))))]
+            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, measurement, zero, ds))))
+        return out + [(f"{name}, before", metrics_numpy(eb)),
+                      (f"{name}, after", metrics_numpy(ea))]
 
     rows = part("train", train, [file_row(i) for i in range(train.n)])
     evaluation = None

@@ -4,13 +4,6 @@ Every method is an ``equinox.Module`` with a pure ``run(problem, key) -> RawRun`
 calibration can be ``jax.jit``-ed and ``jax.vmap``-ed over keys and datasets.
 """
 
-from . import _bso as _bso  # noqa: F401  (registers bso)
-from . import _ekf as _ekf  # noqa: F401  (registers ekf)
-from . import _ga as _ga  # noqa: F401  (registers ga)
-from . import _gradient as _gradient  # noqa: F401  (registers adam, adamw, adamod, adamodw)
-from . import _iwoa as _iwoa  # noqa: F401  (registers iwoa)
-from . import _least_squares as _least_squares  # noqa: F401  (registers lm, gn)
-from . import _rbfnn as _rbfnn  # noqa: F401  (registers rbfnn)
 from ._base import METHODS as METHODS
 from ._base import Method as Method
 from ._base import RawRun as RawRun
@@ -18,20 +11,51 @@ from ._base import ScaledProblem as ScaledProblem
 from ._base import default_half_width as default_half_width
 from ._base import make_method as make_method
 from ._base import method_settings as method_settings
+from ._base import register_builtin as _register_builtin
 from ._base import register_method as register_method
-from ._bso import BeetleSwarm as BeetleSwarm
-from ._ekf import ExtendedKalmanFilter as ExtendedKalmanFilter
-from ._ga import GeneticAlgorithm as GeneticAlgorithm
-from ._gradient import DEFAULTS as GRADIENT_DEFAULTS
-from ._gradient import OptaxMethod as OptaxMethod
-from ._iwoa import ImprovedWhale as ImprovedWhale
-from ._least_squares import GaussNewton as GaussNewton
-from ._least_squares import LevenbergMarquardt as LevenbergMarquardt
-from ._rbfnn import RBFNetwork as RBFNetwork
-from ._rbfnn import RBFNetworkMethod as RBFNetworkMethod
-from ._stages import Staged as Staged
-from ._stages import StageInfo as StageInfo
-from ._stages import stages as stages
+
+#: the built-in methods, registered by name and imported on first use (a command that runs
+#: ``lm`` does not import optax or the population methods): ``name: module``
+_BUILTIN = {
+    "bso": "_bso", "ekf": "_ekf", "ga": "_ga", "adam": "_gradient", "adamw": "_gradient",
+    "adamod": "_gradient", "adamodw": "_gradient", "iwoa": "_iwoa", "lm": "_least_squares",
+    "gn": "_least_squares", "rbfnn": "_rbfnn",
+}
+for _name, _module in _BUILTIN.items():
+    _register_builtin(_name, f"{__name__}.{_module}")
+
+#: public names imported on first use (PEP 562): ``name: (module, attribute)``
+_LAZY = {
+    "BeetleSwarm": ("_bso", "BeetleSwarm"),
+    "ExtendedKalmanFilter": ("_ekf", "ExtendedKalmanFilter"),
+    "GeneticAlgorithm": ("_ga", "GeneticAlgorithm"),
+    "GRADIENT_DEFAULTS": ("_gradient", "DEFAULTS"),
+    "OptaxMethod": ("_gradient", "OptaxMethod"),
+    "ImprovedWhale": ("_iwoa", "ImprovedWhale"),
+    "GaussNewton": ("_least_squares", "GaussNewton"),
+    "LevenbergMarquardt": ("_least_squares", "LevenbergMarquardt"),
+    "RBFNetwork": ("_rbfnn", "RBFNetwork"),
+    "RBFNetworkMethod": ("_rbfnn", "RBFNetworkMethod"),
+    "Staged": ("_stages", "Staged"),
+    "StageInfo": ("_stages", "StageInfo"),
+    "stages": ("_stages", "stages"),
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        value = getattr(importlib.import_module(f".{module}", __name__), attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "GRADIENT_DEFAULTS",

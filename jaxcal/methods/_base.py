@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._buckets import BoundedCache
 from .._kinematics import shared_joint_trig
 from .._objective import Objective, robust_factor
 from .._problem import Problem, value_and_jacfwd
@@ -75,8 +76,9 @@ class ScaledProblem(eqx.Module):
         # sqrt(sum(J²)) rather than jnp.linalg.norm: the latter's column reduction is ~10x
         # slower on XLA:CPU for a [N, p] Jacobian (measured, JAX 0.10)
         norms = jnp.sqrt(jnp.sum(J * J, axis=0))
-        n = J.shape[0]
-        scale = jnp.where(norms > 0, math.sqrt(n) / jnp.where(norms > 0, norms, 1.0), 1.0)
+        # sqrt(N) of the real residuals (padding rows of a bucketed problem have zero Jacobian rows)
+        root_n = math.sqrt(J.shape[0]) if problem.weight is None else jnp.sqrt(problem.n_real_residuals)
+        scale = jnp.where(norms > 0, root_n / jnp.where(norms > 0, norms, 1.0), 1.0)
         if objective is not None:
             objective = jax.tree.map(lambda a: jnp.asarray(a, problem.dtype), objective)
         return cls(problem, x_start, scale, objective, None if jacobian is None else J)
@@ -107,9 +109,9 @@ class ScaledProblem(eqx.Module):
         e = pr.measurement.sample_error(r)
         ob = self.objective
         if ob is None or ob.loss == "linear":
-            return r, e
+            return pr.weighted_blocks(r), pr.weighted_blocks(e)
         f = robust_factor(ob.loss, e * e, ob.loss_scale)
-        return r * f[:, None], e * f
+        return problem.weighted_blocks(r * f[:, None]), problem.weighted_blocks(e * f)
 
     def objective_residual(self, z: Float[Array, " p"], problem: Problem | None = None) -> Float[Array, " M"]:
         """What least squares minimises: robust-scaled data residuals ``[N]`` followed, with a
@@ -152,18 +154,21 @@ class ScaledProblem(eqx.Module):
     def rmse(self, z: Float[Array, " p"]) -> Float[Array, ""]:
         """Training RMSE over the per-sample errors (mm); with a prior or robust loss the
         objective as an RMS per sample (see the class docstring)."""
+        pr = self.problem
         if self.objective is None:
-            e = self.problem.sample_errors(self.x(z))
-            return jnp.sqrt(jnp.mean(e * e))
-        _, e = self._robust_blocks(self.problem, self.x(z))
+            e = pr.sample_errors(self.x(z))
+            return jnp.sqrt(jnp.mean(e * e) if pr.weight is None else jnp.sum(e * e) / pr.n_real)
+        _, e = self._robust_blocks(pr, self.x(z))
         pz = self.prior_residual(z)
-        return jnp.sqrt(jnp.mean(e * e) + jnp.sum(pz * pz) / e.shape[0])
+        if pr.weight is None:
+            return jnp.sqrt(jnp.mean(e * e) + jnp.sum(pz * pz) / e.shape[0])
+        return jnp.sqrt((jnp.sum(e * e) + jnp.sum(pz * pz)) / pr.n_real)
 
     def loss(self, z: Float[Array, " p"]) -> Float[Array, ""]:
         """``½·(Σ r̃² + Σ prior²)/N`` (mm², ``N`` data residuals), the objective of the gradient
         methods (``½·mean(r²)`` for plain least squares)."""
         r = self.objective_residual(z)
-        return 0.5 * jnp.sum(r * r) / self.problem.n_residuals
+        return 0.5 * jnp.sum(r * r) / self.problem.n_real_residuals
 
     def jacobian(self, z: Float[Array, " p"]) -> Float[Array, "N p"]:
         """``∂residual/∂z`` by ``jax.jacfwd``."""
@@ -185,7 +190,7 @@ class ScaledProblem(eqx.Module):
         """
         r, J = self.objective_residual_and_jacobian(z, problem)
         pr = self.problem if problem is None else problem
-        n = pr.n_residuals
+        n = pr.n_real_residuals
         return 0.5 * jnp.sum(r * r) / n, jnp.sum(J * r[:, None], axis=0) / n
 
     def rmse_batch(self, Z: Float[Array, "P p"]) -> Float[Array, " P"]:
@@ -198,15 +203,15 @@ class ScaledProblem(eqx.Module):
         and ran ~14x slower (1600 samples, P = 64: 127 ms vs 9 ms).
         """
         with shared_joint_trig(self.problem.q):  # cos/sin of the data once, not per candidate
+            mw = self.problem.mean_weights()  # 1/n, or weight/n_real for a padded problem
             if self.objective is None:
                 e = jax.vmap(lambda z: self.problem.sample_errors(self.x(z)))(Z)  # [P, n]
-                n = e.shape[-1]
-                r = jnp.sqrt((e * e) @ jnp.full((n,), 1.0 / n, e.dtype))
+                r = jnp.sqrt((e * e) @ mw.astype(e.dtype))
             else:
                 e = jax.vmap(lambda z: self._robust_blocks(self.problem, self.x(z))[1])(Z)  # [P, n]
-                n = e.shape[-1]
+                n = e.shape[-1] if self.problem.weight is None else self.problem.n_real
                 pz = jax.vmap(self.prior_residual)(Z)
-                r = jnp.sqrt((e * e) @ jnp.full((n,), 1.0 / n, e.dtype) + jnp.sum(pz * pz, axis=-1) / n)
+                r = jnp.sqrt((e * e) @ mw.astype(e.dtype) + jnp.sum(pz * pz, axis=-1) / n)
         return jnp.where(jnp.isfinite(r), r, jnp.inf)
 
     def half_width_z(self, half_width_x: Float[Array, " p"]) -> Float[Array, " p"]:
@@ -281,6 +286,13 @@ class Method(eqx.Module):
     def label(self) -> str:
         return type(self).name
 
+    @property
+    def paddable(self) -> bool:
+        """Whether a run on data padded with zero-weight rows (:mod:`jaxcal._buckets`) equals the
+        unpadded run to round-off. Methods whose result depends on the rows themselves (random
+        mini-batches, RBF centres) say ``False``; :func:`jaxcal.calibrate` then does not pad."""
+        return True
+
     def sample_errors(self, problem: Problem, x: Float[Array, " p"], extra: Any) -> Float[Array, " n"]:
         """Per-sample errors (mm) of the calibrated model on ``problem``'s data (pure, vmappable).
 
@@ -291,8 +303,50 @@ class Method(eqx.Module):
         return problem.sample_errors(x)
 
 
+class _Builtin:
+    """A registry entry whose module is imported on first use (it registers the real factory)."""
+
+    def __init__(self, name: str, module: str):
+        self.name, self.module = name, module
+
+    def resolve(self):
+        import importlib
+
+        importlib.import_module(self.module)
+        factory = METHODS[self.name]
+        if isinstance(factory, _Builtin):  # pragma: no cover - a module that does not register
+            raise RuntimeError(f"{self.module} did not register method {self.name!r}")
+        return factory
+
+    def __call__(self, *args, **kwargs):
+        return self.resolve()(*args, **kwargs)
+
+
+class _Registry(dict):
+    """``name → factory``; built-in entries are imported when first looked up."""
+
+    def __getitem__(self, name):
+        v = dict.__getitem__(self, name)
+        return v.resolve() if isinstance(v, _Builtin) else v
+
+    def get(self, name, default=None):
+        return self[name] if name in self else default
+
+    def values(self):
+        return [self[k] for k in self]
+
+    def items(self):
+        return [(k, self[k]) for k in self]
+
+
 #: name → factory(**hyperparameters) → Method
-METHODS: dict[str, Callable[..., Method]] = {}
+METHODS: dict[str, Callable[..., Method]] = _Registry()
+
+
+def register_builtin(name: str, module: str) -> None:
+    """Register built-in method ``name`` whose module (absolute name) is imported on first use."""
+    if name not in METHODS:
+        METHODS[name] = _Builtin(name, module)
 
 
 def register_method(name: str):
@@ -309,15 +363,16 @@ def make_method(method, **hyperparameters) -> Method:
     """A :class:`Method` from a registry name, stages of registry names joined by ``>``
     (``"ga>lm"``, settings as ``"lm.max_steps"``; :func:`~jaxcal.methods.stages`), a Method
     instance, or an ``optax.GradientTransformation`` (run as a full-batch gradient method)."""
-    import optax
-
-    from ._gradient import OptaxMethod
+    import sys
 
     if isinstance(method, Method):
         if hyperparameters:
             raise ValueError("pass hyperparameters to the method's constructor, not with a Method instance")
         return method
-    if isinstance(method, optax.GradientTransformation):
+    optax = sys.modules.get("optax")  # an optax transformation implies optax is imported
+    if optax is not None and isinstance(method, optax.GradientTransformation):
+        from ._gradient import OptaxMethod
+
         return OptaxMethod.from_transformation(method, **hyperparameters)
     if not isinstance(method, str):
         raise TypeError(f"method must be a name, a jaxcal Method or an optax.GradientTransformation, got {type(method)}")
@@ -357,7 +412,8 @@ def make_method(method, **hyperparameters) -> Method:
     return built
 
 
-_METHOD_CACHE: dict = {}
+#: built methods by (name, settings), least recently used first out beyond 256 entries
+_METHOD_CACHE = BoundedCache(256)
 
 
 def method_settings(name: str) -> list[str] | None:

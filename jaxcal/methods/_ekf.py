@@ -104,7 +104,7 @@ class ExtendedKalmanFilter(BoxSearch):
 
         def update(carry, sample):
             z, P, z_lin = carry
-            q_i, y_i = sample
+            q_i, y_i, w_i = sample
             # one forward pass: r [m], H [m, p]
             if map_prior:
                 r, H = problem.residual_and_jacobian(z_lin, pr.with_data(q_i[None], y_i[None]))
@@ -117,12 +117,16 @@ class ExtendedKalmanFilter(BoxSearch):
             z = z - K @ r
             A = eye - K @ H
             P = A @ P @ A.T + K @ R @ K.T + Q
-            return (z, 0.5 * (P + P.T), z_lin), None
+            z_new, P_new = z, 0.5 * (P + P.T)
+            if w_i is not None:  # a padding row (weight 0) leaves the filter as it was
+                z_new = jnp.where(w_i > 0, z_new, carry[0])
+                P_new = jnp.where(w_i > 0, P_new, carry[1])
+            return (z_new, P_new, z_lin), None
 
         def one_pass(carry, _):
             z, diverged = carry
             z_first = z_prior if map_prior else z
-            (z_new, P_new, _), _ = jax.lax.scan(update, (z_first, P0, z), (pr.q, pr.y))
+            (z_new, P_new, _), _ = jax.lax.scan(update, (z_first, P0, z), (pr.q, pr.y, pr.weight))
             rmse = problem.rmse(z_new)
             bad = (
                 ~jnp.all(jnp.isfinite(z_new))

@@ -83,6 +83,10 @@ class OptaxMethod(Method):
     def label(self) -> str:
         return self.label_
 
+    @property
+    def paddable(self) -> bool:
+        return self.batch_size is None  # mini-batches are drawn from the rows
+
     def hyperparameters(self) -> dict[str, Any]:
         return dict(self.settings)
 

@@ -86,13 +86,19 @@ class RoundoffAwareTrustRegion(optx.ClassicalTrustRegion):
     trials waits for its slowest member. Accepting such a step changes the loss by at most its
     rounding error, and lets the Cauchy termination (step below ``atol + rtol·|z|``) end the
     solve.
+
+    ``n_residuals``: the count ``N`` of real residuals when the residual vector carries padding
+    rows (:mod:`jaxcal._buckets`), so the threshold is the unpadded one; ``None``: its length.
     """
+
+    n_residuals: object = None
 
     def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
         step_size, accept, result, new_state = super().step(first_step, y, y_eval, f_info, f_eval_info, state)
         r = f_info.residual
         loss = f_info.as_min()
-        noise = r.size * jnp.finfo(r.dtype).eps * loss
+        size = r.size if self.n_residuals is None else self.n_residuals
+        noise = size * jnp.finfo(r.dtype).eps * loss
         predicted = self.predict_reduction(y_eval - y, f_info)
         roundoff = (~first_step) & (jnp.abs(predicted) <= noise) & (f_eval_info.as_min() - loss <= noise)
         step_size = jnp.where(roundoff & ~accept, state.step_size, step_size)
@@ -107,10 +113,10 @@ def _rmse_from_residual(problem: ScaledProblem, z, r):
     measurement = problem.problem.measurement
     if isinstance(measurement, Pose):
         return problem.rmse(z)
-    if problem.plain:
+    if problem.plain and problem.problem.weight is None:
         return jnp.sqrt(measurement.size * jnp.mean(r * r))
-    # data residuals (robust-scaled) and prior residuals, per data residual
-    return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_residuals)
+    # data residuals (robust-scaled) and prior residuals, per real data residual (padding rows are 0)
+    return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_real_residuals)
 
 
 def _start_residual_and_jacobian(problem: ScaledProblem):
@@ -145,6 +151,12 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     slowest member terminates; finished members do not move, and the conditional Jacobian is
     computed for every member).
     """
+    pr = problem.problem
+    if pr.weight is not None and isinstance(solver.search, RoundoffAwareTrustRegion):
+        # the round-off threshold counts the real residuals (data + prior), not the padding
+        extra = problem.n_objective_residuals - pr.n_residuals
+        solver = eqx.tree_at(lambda s: s.search.n_residuals, solver, pr.n_real_residuals + extra,
+                             is_leaf=lambda v: v is None)
     search, descent = solver.search, solver.descent
     z0 = jnp.zeros(problem.n_free, problem.dtype)
     r0, J0 = _start_residual_and_jacobian(problem)

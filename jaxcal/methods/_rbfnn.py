@@ -203,6 +203,10 @@ class RBFNetworkMethod(Method):
     def label(self) -> str:
         return "rbfnn" if self.base == "lm" else f"rbfnn[base={self.base}]"
 
+    @property
+    def paddable(self) -> bool:
+        return False  # the centres and the ridge fit use the rows themselves
+
     def run(self, problem: ScaledProblem, key) -> RawRun:
         pr = problem.problem
         if not isinstance(pr.measurement, (CableLength, Position)):

@@ -135,6 +135,10 @@ class Staged(Method):
         info = StageInfo(jnp.stack(ends), jnp.stack(its), jnp.stack(statuses), tuple(extras))
         return RawRun(problem.z(x), hist, offset, status, info)
 
+    @property
+    def paddable(self) -> bool:
+        return all(m.paddable for m in self.stages)
+
     def sample_errors(self, problem, x, extra):
         """The last stage's model (e.g. an RBF network on top of the kinematics)."""
         return self.stages[-1].sample_errors(problem, x, extra.extras[-1])
