@@ -324,11 +324,16 @@ def _extras_moved(start: Deviations, cur: Deviations) -> Deviations:
     return start.replace(**extras) if extras else start
 
 
-def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace) -> None:
-    if n_res <= space.n_free:
+def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace, report=None, prior=None) -> None:
+    """Raise unless the data have more residuals than the parameters they must determine: every
+    free one, or under a prior (MAP) the data-identifiable ones (``report.rank``) — the prior
+    determines the rest, but the noise σ the prior is weighed against needs ``N > rank``."""
+    need = space.n_free if prior is None or report is None else report.rank
+    if n_res <= need:
+        what = (f"{need} data-identifiable parameters (of {space.n_free} free under the prior)" if need != space.n_free
+                else f"{space.n_free} free parameters")
         raise ValueError(
-            f"too few samples: {n} sample(s) give {n_res} residuals for {space.n_free} free parameters; "
-            "need more residuals than parameters"
+            f"too few samples: {n} sample(s) give {n_res} residuals for {what}; need more residuals than that"
         )
 
 
@@ -514,7 +519,7 @@ def calibrate(
     selecting = _default_selection(space)
     space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior)
     n_res = q.shape[0] * measurement.size
-    _check_enough_residuals(q.shape[0], n_res, space)
+    _check_enough_residuals(q.shape[0], n_res, space, report, prior)
     key = _default_key() if key is None else key
     problem = Problem(robot, measurement, q, y, space, start)
     x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
@@ -587,7 +592,7 @@ def calibrate(
             unidentifiable=tuple(n for n in report.unidentifiable if n not in added),
             dependencies={k: v for k, v in report.dependencies.items() if k not in added})
         start_jac = None
-        _check_enough_residuals(q.shape[0], n_res, space)
+        _check_enough_residuals(q.shape[0], n_res, space, report, prior)
         problem = Problem(robot, measurement, q, y, space, cur)
         resid_start = signed_residuals(problem, space.to_vector_numpy(cur))
     status = Status(int(out.status))

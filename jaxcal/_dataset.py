@@ -188,7 +188,7 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
             raise ValueError("camera measurements contain ±inf; a corner that was not detected is NaN (an empty "
                              "CSV cell)")
         y = np.where(np.isnan(y), 0.0, y)  # NaN = not detected: masked by the camera model, not an error
-    if kind == "distance":  # y = [pose b (rad), bar length (mm)]
+    elif kind == "distance":  # y = [pose b (rad), bar length (mm)]
         if y.ndim != 2 or y.shape != (n, q.shape[1] + 1):
             raise ValueError(f"distance readings must have shape [{n}, {q.shape[1] + 1}] (pose b, length), "
                              f"got {list(y.shape)}")

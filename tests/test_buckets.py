@@ -87,7 +87,10 @@ def _compare(a, b, rtol=1e-9):
     da, db = a.diagnostics, b.diagnostics
     np.testing.assert_allclose(da.outlier_scale_mm, db.outlier_scale_mm, rtol=rtol)
     assert da.outliers_before == db.outliers_before and da.outliers_after == db.outliers_after
-    np.testing.assert_allclose(da.condition_number, db.condition_number, rtol=1e-7)
+    if max(da.condition_number, db.condition_number) < 1e6:  # under a prior (MAP over every candidate,
+        # issue 22) the data Jacobian of the free set is rank deficient by design: its condition
+        # number is round-off (inf or 1e8-3e8 here), not a statistic of the real rows
+        np.testing.assert_allclose(da.condition_number, db.condition_number, rtol=1e-7)
     assert da.rounds == db.rounds
     ia, ib = a.identifiability, b.identifiability
     if ia is not None:

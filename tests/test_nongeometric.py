@@ -233,10 +233,12 @@ def test_mass_model_files(tmp_path):
         MassModel.load(c)
 
 
-def test_identifiability_keeps_geometric_before_nongeometric_before_extras():
+def test_identifiability_keeps_extras_before_geometric_before_nongeometric():
+    """The keep order: sensor/set-up extras (unknown size, no nominal to stay at) before the robot's
+    geometric groups, which come before the non-geometric ones (issue 22)."""
     from jaxcal._identifiability import _preference_key
 
-    keys = [_preference_key(n) for n in ("beta_2", "compliance_2", "h1s_1", "h2c_1", "anchor_x")]
+    keys = [_preference_key(n) for n in ("anchor_x", "beta_2", "compliance_2", "h1s_1", "h2c_1")]
     assert keys == sorted(keys)
 
 

@@ -242,10 +242,16 @@ def test_prior_information_tightens_the_prediction(hsr):
     q = np.asarray(cand[:30])  # few poses: the prior matters
     plain = jaxcal.predicted_accuracy(robot, meas, q, 0.5, q_test=cand[-500:])
     prior = jaxcal.predicted_accuracy(robot, meas, q, 0.5, q_test=cand[-500:], prior="default")
-    assert prior.names == plain.names
-    assert np.all(prior.param_std <= plain.param_std + 1e-15) and prior.test_rmse < plain.test_rmse
+    # under the prior the posterior covers every DH deviation (the MAP free set, as calibrate);
+    # without it the identifiable subset
+    assert set(plain.names) < set(prior.names) and len(prior.names) == 24
+    # (a parameter's σ is not compared one by one: the subset without a prior holds the others
+    # fixed, which hides their uncertainty; the prediction is what both determine)
+    idx = [prior.names.index(n) for n in plain.names]
+    assert prior.test_rmse < plain.test_rmse
     std = jaxcal.Prior().std(jaxcal.ParameterSpace.from_names(robot.dof, prior.names))
-    assert np.all(prior.param_std < std)
+    assert np.all(prior.param_std <= std * (1 + 1e-9))  # = where the data see nothing (α6, θ6)
+    assert np.all(prior.param_std[idx] < std[idx])
     # selection with the prior as the starting information: still n distinct poses
     sel = jaxcal.select_poses(robot, meas, cand, 20, prior="default", exchange=False)
     assert len(set(sel.index.tolist())) == 20

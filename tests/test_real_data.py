@@ -46,15 +46,18 @@ def test_far_off_guess_reaches_the_fit_from_the_true_extras(kind, extras):
 
 
 def test_prior_posterior_sigma_covers_the_truth():
-    """Narrow coverage, quantised readings, far-off anchor: every identifiable deviation (its
-    first-order equivalent of the truth) lies within 3 reported σ."""
+    """Narrow coverage, quantised readings, far-off anchor: the identifiable combinations — the
+    predicted wire lengths at held-out poses, in the measured region and over the whole workspace —
+    lie within 3 predicted σ of the true robot's (under the prior every DH deviation is free, MAP,
+    so single parameters are partly set by the prior and are not compared with the truth)."""
     ex = jaxcal.simulate_messy(jax.random.key(2), n_samples=N, n_outliers=0, compliance_deg_per_knm=0.0,
                                gear_error_deg=0.0)
     res = _quiet(jaxcal.calibrate, ex.robot, ex.measurement, ex.train, "lm", extras="anchor,cable_offset",
                  prior="default")
-    truth = res.identifiability.equivalent(ex.true_deviations, held=res.start)
-    z = (res.x - truth) / res.uncertainty.std
-    assert np.all(np.abs(z) < 3), dict(zip(res.space.free_names, np.round(z, 2)))
+    for part in (ex.test, ex.far):  # measured 100 / 500 poses: max |z| 2.96 / 2.65
+        truth = np.asarray(ex.measurement.predict(ex.robot, ex.true_deviations, part.q))
+        z = (np.asarray(res.predict(part.q)) - truth) / np.asarray(res.prediction_std(part.q))
+        assert np.mean(np.abs(z) < 3) >= 0.97 and np.abs(z).max() < 4, np.abs(z).max()
     # predicted error std at far poses is finite and larger than in the measured region
     assert np.median(res.prediction_std(ex.far.q)) > np.median(res.prediction_std(ex.test.q)) > 0
 
