@@ -112,6 +112,12 @@ def _labels_of(y, n_labels: int):
     return jnp.clip(jnp.round(y).astype(jnp.int32), 0, n_labels - 1).reshape(-1)
 
 
+
+def _per_label(deviations: Deviations, group: str, labels, dtype) -> Array:
+    """The per-label groups ``group@label`` of ``deviations`` stacked in ``labels`` order ``[K, ...]``."""
+    vals = deviations.values
+    return jnp.stack([jnp.asarray(vals[f"{group}@{s}"]).astype(dtype) for s in labels])
+
 class _LabelModel(MeasurementModel):
     """Shared by the contact models: the reading is a label index ``[n]``."""
 
@@ -188,8 +194,7 @@ class PlaneContact(_LabelModel):
         n0, d0 = self.normals.astype(dtype), self.offsets.astype(dtype)
         if deviations is None:
             return n0, d0
-        vals = deviations.values
-        dev = jnp.stack([jnp.asarray(vals[f"plane@{s}"]).astype(dtype) for s in self.labels])  # [K, 3]
+        dev = _per_label(deviations, "plane", self.labels, dtype)  # [K, 3]
         w = dev[:, :1] * self.basis_u.astype(dtype) + dev[:, 1:2] * self.basis_v.astype(dtype)
         n = jnp.einsum("kij,kj->ki", rotvec_to_matrix(w), n0)
         return n, d0 + dev[:, 2]
@@ -273,10 +278,9 @@ class FixedPoint(_LabelModel):
         c, r = self.centres.astype(dtype), self.radii.astype(dtype)
         if deviations is None:
             return c, r
-        vals = deviations.values
-        c = c + jnp.stack([jnp.asarray(vals[f"point@{s}"]).astype(dtype) for s in self.labels])
+        c = c + _per_label(deviations, "point", self.labels, dtype)
         if self.estimate_radius:
-            r = r + jnp.stack([jnp.asarray(vals[f"radius@{s}"]).astype(dtype) for s in self.labels])
+            r = r + _per_label(deviations, "radius", self.labels, dtype)
         return c, r
 
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:
