@@ -118,11 +118,6 @@ class IdentifiabilityReport:
     rtol: float
     prior_covered: tuple[str, ...] = ()
     @property
-    def free(self) -> tuple[str, ...]:
-        """The names the fit frees (``space``'s free names)."""
-        return self.space.free_names
-
-    @property
     def held(self) -> tuple[str, ...]:
         """The candidates held at their start value: neither the data nor a prior determine them."""
         free = set(self.space.free_names)
