@@ -1,0 +1,74 @@
+"""mkdocs hooks: pages built from the repository at build time, nothing copied or committed.
+
+* ``notebooks/*.ipynb`` (executed and committed) and ``benchmarks/results/*`` are mounted into
+  the site at the same paths (``notebooks/...``, ``benchmarks/results/...``): mkdocs-jupyter
+  renders the notebooks without running them, the results files are rendered as they are.
+* ``reference/cli.md`` is generated from :func:`jaxcal.cli.build_parser`: the ``--help`` of the
+  command and of every sub-command, so the page cannot drift from the parser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+from pathlib import Path
+
+from mkdocs.structure.files import File, Files
+
+ROOT = Path(__file__).resolve().parents[2]
+MOUNTED = ("notebooks/*.ipynb", "benchmarks/results/*.md", "benchmarks/results/*.png",
+           "benchmarks/results/*.html")
+
+
+@contextlib.contextmanager
+def _columns(n: int):
+    """argparse wraps help text to $COLUMNS: fix it so the page does not depend on the terminal."""
+    old = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = str(n)
+    try:
+        yield
+    finally:
+        if old is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = old
+
+
+def cli_reference() -> str:
+    """Markdown of every sub-command's ``--help``, in the parser's order."""
+    from jaxcal.cli import build_parser
+
+    with _columns(100):
+        parser = build_parser()
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parts = [
+            "# Command-line reference\n",
+            "Generated at build time from `jaxcal.cli.build_parser()` (the text of `--help`); "
+            "see the [how-to guides](../howto/index.md) for worked examples.\n",
+            "## `jaxcal`\n",
+            "```text\n" + parser.format_help().rstrip() + "\n```\n",
+        ]
+        for name, command in sub.choices.items():
+            parts += [f"## `jaxcal {name}`\n", "```text\n" + command.format_help().rstrip() + "\n```\n"]
+    return "\n".join(parts)
+
+
+def on_files(files: Files, config) -> Files:
+    for pattern in MOUNTED:
+        for path in sorted(ROOT.glob(pattern)):
+            rel = path.relative_to(ROOT).as_posix()
+            if files.get_file_from_path(rel) is None:
+                files.append(File(rel, src_dir=str(ROOT), dest_dir=config["site_dir"],
+                                  use_directory_urls=config["use_directory_urls"]))
+    files.append(File.generated(config, "reference/cli.md", content=cli_reference()))
+    return files
+
+
+def on_page_markdown(markdown: str, page, config, files: Files) -> str:
+    """benchmarks.md ends with a list of every results file, so a new one is never missing."""
+    if page.file.src_uri != "benchmarks.md":
+        return markdown
+    rows = [f"- [`{f.src_uri.rsplit('/', 1)[-1]}`]({f.src_uri})" for f in sorted(files, key=lambda f: f.src_uri)
+            if f.src_uri.startswith("benchmarks/results/") and f.src_uri.endswith(".md")]
+    return markdown.rstrip() + "\n\n## Every results file\n\n" + "\n".join(rows) + "\n"
