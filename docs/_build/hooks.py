@@ -1,6 +1,6 @@
 """mkdocs hooks: pages built from the repository at build time, nothing copied or committed.
 
-* ``notebooks/*.ipynb`` (executed and committed) and ``benchmarks/results/*`` are mounted into
+* ``notebooks/*.ipynb`` (executed and committed), ``benchmarks/results/*`` and ``PERF_NOTES.md`` are mounted into
   the site at the same paths (``notebooks/...``, ``benchmarks/results/...``): mkdocs-jupyter
   renders the notebooks without running them, the results files are rendered as they are.
 * ``reference/cli.md`` is generated from :func:`jaxcal.cli.build_parser`: the ``--help`` of the
@@ -17,7 +17,7 @@ from pathlib import Path
 from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[2]
-MOUNTED = ("notebooks/*.ipynb", "benchmarks/results/*.md", "benchmarks/results/*.png",
+MOUNTED = ("PERF_NOTES.md", "notebooks/*.ipynb", "benchmarks/results/*.md", "benchmarks/results/*.png",
            "benchmarks/results/*.html")
 
 
