@@ -14,6 +14,7 @@ import contextlib
 import os
 from pathlib import Path
 
+from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File, Files
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -54,6 +55,7 @@ def cli_reference() -> str:
     return "\n".join(parts)
 
 
+@event_priority(100)  # before mkdocs-jupyter's on_files, which turns the notebooks into pages
 def on_files(files: Files, config) -> Files:
     for pattern in MOUNTED:
         for path in sorted(ROOT.glob(pattern)):
