@@ -3,6 +3,9 @@
 * ``notebooks/*.ipynb`` (executed and committed), ``benchmarks/results/*`` and ``PERF_NOTES.md`` are mounted into
   the site at the same paths (``notebooks/...``, ``benchmarks/results/...``): mkdocs-jupyter
   renders the notebooks without running them, the results files are rendered as they are.
+* A page may link to a mounted file by its path in the repository (``../../notebooks/x.ipynb``
+  from ``docs/howto/``), so the link also works on GitHub; the link is rewritten to the mounted
+  copy's place in the site.
 * ``reference/cli.md`` is generated from :func:`jaxcal.cli.build_parser`: the ``--help`` of the
   command and of every sub-command, so the page cannot drift from the parser.
 """
@@ -12,6 +15,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import posixpath
+import re
 from pathlib import Path
 
 from mkdocs.plugins import event_priority
@@ -67,8 +72,29 @@ def on_files(files: Files, config) -> Files:
     return files
 
 
+_LINK = re.compile(r"\]\(([^)\s#]+)(#[^)\s]*)?\)")
+
+
+def _repository_links(markdown: str, src_uri: str, files: Files) -> str:
+    """``](../../notebooks/x.ipynb)`` in ``docs/howto/p.md`` → ``](../notebooks/x.ipynb)``."""
+    docs = Path(src_uri).parent.as_posix()
+
+    def fix(m: re.Match) -> str:
+        target = m.group(1)
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith("/"):
+            return m.group(0)
+        in_repo = posixpath.normpath(posixpath.join("docs", docs, target))
+        if in_repo.startswith("docs/") or files.get_file_from_path(in_repo) is None:
+            return m.group(0)
+        return f"]({posixpath.relpath(in_repo, docs or '.')}{m.group(2) or ''})"
+
+    return _LINK.sub(fix, markdown)
+
+
 def on_page_markdown(markdown: str, page, config, files: Files) -> str:
-    """benchmarks.md ends with a list of every results file, so a new one is never missing."""
+    """Links to mounted repository files are rewritten (see above); benchmarks.md ends with a
+    list of every results file, so a new one is never missing."""
+    markdown = _repository_links(markdown, page.file.src_uri, files)
     if page.file.src_uri != "benchmarks.md":
         return markdown
     rows = [f"- [`{f.src_uri.rsplit('/', 1)[-1]}`]({f.src_uri})" for f in sorted(files, key=lambda f: f.src_uri)
