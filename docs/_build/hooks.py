@@ -60,6 +60,22 @@ def cli_reference() -> str:
     return "\n".join(parts)
 
 
+def on_config(config):
+    """The nav's ``Benchmarks: benchmarks.md`` becomes a section with every results page after it
+    (titles from their first heading), and a notebook missing from the ``Notebooks`` section is
+    appended to it, so a new results file or notebook appears without editing mkdocs.yml (and
+    does not fail ``--strict`` as a page left out of the nav)."""
+    results = [p.relative_to(ROOT).as_posix() for p in sorted(ROOT.glob("benchmarks/results/*.md"))]
+    notebooks = [p.relative_to(ROOT).as_posix() for p in sorted(ROOT.glob("notebooks/*.ipynb"))]
+    for i, item in enumerate(config["nav"] or []):
+        if isinstance(item, dict) and item.get("Benchmarks") == "benchmarks.md":
+            config["nav"][i] = {"Benchmarks": ["benchmarks.md", *results]}
+        if isinstance(item, dict) and isinstance(item.get("Notebooks"), list):
+            listed = {v for entry in item["Notebooks"] for v in (entry.values() if isinstance(entry, dict) else [entry])}
+            item["Notebooks"] += [nb for nb in notebooks if nb not in listed]
+    return config
+
+
 @event_priority(100)  # before mkdocs-jupyter's on_files, which turns the notebooks into pages
 def on_files(files: Files, config) -> Files:
     for pattern in MOUNTED:
