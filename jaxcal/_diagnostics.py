@@ -137,7 +137,9 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
             (``calibrate`` gets it from the solve's program); computed here otherwise.
 
     Returns:
-        ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian —
+        ``(Uncertainty, condition_number)`` — the latter of the column-scaled data Jacobian, or
+        with a prior of the posterior information (the column-scaled data Jacobian over σ̂ stacked
+        on the prior's rows: what the MAP fit inverts; the data alone are singular by design) —
         and with ``return_residuals`` the residual blocks as a third element.
     """
     if gram is None:
@@ -175,6 +177,10 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
             sigma2 = new
             break
         sigma2 = new
+    if prior_inv_std is not None and np.any(lam > 0) and ev.size:
+        # under a prior the MAP solve inverts the data information plus the prior's: the data
+        # Jacobian alone is rank deficient by design (cond = inf), so report the posterior's
+        cond = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
     C = Cs / np.outer(d, d)
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
     undetermined = np.abs(V[:, ~np.isfinite(inv)]).max(axis=1) > 1e-6 if (~np.isfinite(inv)).any() else np.zeros(p, bool)
@@ -217,7 +223,9 @@ class Diagnostics:
         warnings: plain sentences, one per finding (also issued as ``CalibrationWarning``).
         implausible: ``((name, deviation, unit), ...)`` DH deviations beyond the bounds (angles in
             degrees, wrapped).
-        condition_number: of the column-scaled Jacobian of the free parameters at the solution.
+        condition_number: of the column-scaled Jacobian of the free parameters at the solution;
+            with a prior, of that Jacobian (over σ̂) stacked on the prior's rows (the posterior
+            information, which is what a MAP fit inverts; the data Jacobian alone may be singular).
         coverage_deg: ``[dof, 2]`` per joint: range moved in the data and range of the limits (°;
             mm for prismatic joints).
         narrow_joints: 1-based joints that moved less than ``Checks.narrow_joint_deg``.

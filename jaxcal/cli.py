@@ -680,7 +680,8 @@ def _cmd_calibrate(args) -> int:
         print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
     if res.uncertainty is not None:
         print(f"residual σ̂ {res.uncertainty.noise_std:.4f} {unit}, effective parameters "
-              f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}")
+              f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}"
+              + (" (data and prior together)" if res.prior is not None else ""))
     diag = res.diagnostics
     if diag.outliers_after:
         listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])

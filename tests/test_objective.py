@@ -48,6 +48,19 @@ def test_lm_with_prior_is_the_map_estimate(ex):
     # equal to a thousandth of the parameters' posterior σ (scipy: numeric Jacobian, its own stopping)
     assert np.max(np.abs(res.x - x_ref) / res.uncertainty.std) < 1e-3
     assert res.diagnostics.rounds == 1  # noise σ given: one round
+    # the reported condition number is the posterior information's (the MAP fit inverts it; the
+    # data Jacobian of all 24 is singular): column-scaled J over σ̂ stacked on the prior rows, with J
+    # by central differences here
+    pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, res.space)
+    x0, h = np.asarray(res.x, np.float64), 1e-6
+    J = np.stack([(np.asarray(pr.residual(jnp.asarray(x0 + h * e))) - np.asarray(pr.residual(jnp.asarray(x0 - h * e))))
+                  / (2 * h) for e in np.eye(x0.size)], axis=1)
+    d = np.linalg.norm(J, axis=0)
+    blind = d < 1e-6 * d.max()  # columns the distance data cannot see at all (zero, unscaled)
+    J[:, blind], d[blind] = 0.0, 1.0
+    H = (J / d).T @ (J / d) / res.uncertainty.noise_std ** 2 + np.diag(1.0 / (s * d) ** 2)
+    ev = np.linalg.eigvalsh(H)
+    assert res.diagnostics.condition_number == pytest.approx(math.sqrt(ev[-1] / ev[0]), rel=1e-4)
 
 
 @pytest.mark.parametrize("method", ["adam", "ekf"])
