@@ -227,9 +227,9 @@ class _Batch:
     once, unbatched; the others are stacked along a new leading axis, padded to ``size`` units by
     repeating the first (one program for every round, however many units are still iterating)."""
 
-    def __init__(self, units, static, treedef, leaves_per_unit, size):
+    def __init__(self, units, static, treedef, leaves_per_unit, own, size):
         self.units, self.static, self.treedef, self.size = units, static, treedef, size
-        self.leaves_per_unit = leaves_per_unit
+        self.leaves_per_unit, self.own = leaves_per_unit, own
         self.out = self.host = None
         self.compile_s = self.run_s = 0.0
 
@@ -238,11 +238,11 @@ class _Batch:
         axes, leaves = [], []
         for j, leaf in enumerate(first):
             column = [u[j] for u in self.leaves_per_unit]
-            if all(c is leaf for c in column):
+            if not self.own[j] and all(c is leaf for c in column):
                 axes.append(None)
                 leaves.append(leaf)
                 continue
-            column += [leaf] * (self.size - len(column))
+            column += [leaf] * (self.size - len(column))  # slots of finished units
             axes.append(0)
             if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
                 leaves.append(jax.numpy.stack(column))
@@ -298,12 +298,28 @@ def _batches(pending: dict, size: int) -> list[_Batch]:
             cal, q, y, w = _pad_to_bucket(cal, q, y, n_to if cal.method.paddable else None)
             dyn, static = eqx.partition(cal, eqx.is_array)
             dyn = cast_floating(dyn, q.dtype)
-        leaves, treedef = jax.tree_util.tree_flatten((dyn, q, y, key, w))
+        paths, treedef = jax.tree_util.tree_flatten_with_path((dyn, q, y, key, w))
+        leaves = [leaf for _, leaf in paths]
         gk = (static, treedef, _signature(leaves))
-        groups.setdefault(gk, ([], static, treedef, []))
+        if gk not in groups:
+            groups[gk] = ([], static, treedef, [], tuple(_own(path) for path, _ in paths))
         groups[gk][0].append(i)
         groups[gk][3].append(leaves)
-    return [_Batch(units, static, treedef, leaves, size) for units, static, treedef, leaves in groups.values()]
+    return [_Batch(*g, size) for g in groups.values()]
+
+
+#: the :class:`~jaxcal.Calibrator` fields that belong to one unit (always batched, even where two
+#: units hold the same object, so that a batch of one unit runs the same program)
+_UNIT_FIELDS = ("start", "objective", "start_jacobian")
+
+
+def _own(path) -> bool:
+    """Whether the leaf at ``path`` of ``(calibrator, q, y, key, weight)`` is the unit's own (data,
+    start, objective), not the fleet's (robot, measurement, method, key) when all units share it."""
+    top = path[0].idx
+    if top in (1, 2, 4):  # q, y, weight
+        return True
+    return top == 0 and len(path) > 1 and getattr(path[1], "name", None) in _UNIT_FIELDS
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2))
