@@ -147,7 +147,7 @@ class FleetResult(NamedTuple):
 
 
 def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tolerance_mm: float | None = None,
-                   noise_std: float | None = None, **kwargs) -> FleetResult:
+                   noise_std: float | None = None, batching: str = "auto", **kwargs) -> FleetResult:
     """Calibrate many units of one robot model, their solves as one vmapped compiled program.
 
     Args:
@@ -161,6 +161,11 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
         names: one name per unit for the summary (default ``"1"``, ``"2"``, ...).
         tolerance_mm: flag units whose train RMSE exceeds this (mm) in the summary.
         noise_std: the sensor's noise σ per reading (mm), for the statistical floor column.
+        batching: how the one compiled program runs the units (as :func:`jaxcal.sweep`'s
+            ``batching``): ``"vmap"`` (all at once, vectorised: what fills a GPU; a vmapped
+            Levenberg–Marquardt batch iterates until its slowest unit converges), ``"map"``
+            (``jax.lax.map``: one unit after the other inside the program, each as long as it
+            needs), or ``"auto"`` (default): ``"map"`` on a CPU, else ``"vmap"``.
         **kwargs: every other keyword of :func:`jaxcal.calibrate` (``key``, ``extras``,
             ``prior``, ``loss``, ``objective``, ``free``, ``fix``, ``checks``, the method's
             hyperparameters, ...), the same for every unit. ``throw`` is not accepted: a unit's
@@ -172,6 +177,9 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
         (its ``wall_time_s`` and ``compile_time_s`` are the unit's share of the batched
         program's); warnings of a unit are issued with its name in front.
     """
+    if batching not in ("auto", "vmap", "map"):
+        raise ValueError(f"batching must be 'auto', 'vmap' or 'map', got {batching!r}")
+    sequential = batching == "map" or (batching == "auto" and jax.devices()[0].platform == "cpu")
     if "throw" in kwargs:
         raise TypeError("calibrate_many has no throw=: a unit that fails is reported in the summary, not raised")
     datasets = list(datasets)
@@ -205,7 +213,7 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
         raise ValueError(f"every unit failed: {errors[0]}")
     compile_s = solve_s = 0.0
     while pending:
-        batches = _batches(pending, k)
+        batches = _batches(pending, k, sequential)
         for batch in batches:
             batch.launch()
             compile_s += batch.compile_s
@@ -227,8 +235,8 @@ class _Batch:
     once, unbatched; the others are stacked along a new leading axis, padded to ``size`` units by
     repeating the first (one program for every round, however many units are still iterating)."""
 
-    def __init__(self, units, static, treedef, leaves_per_unit, own, size):
-        self.units, self.static, self.treedef, self.size = units, static, treedef, size
+    def __init__(self, units, static, treedef, leaves_per_unit, own, size, sequential):
+        self.units, self.static, self.treedef, self.size, self.sequential = units, static, treedef, size, sequential
         self.leaves_per_unit, self.own = leaves_per_unit, own
         self.out = self.host = None
         self.compile_s = self.run_s = 0.0
@@ -249,18 +257,20 @@ class _Batch:
             else:
                 leaves.append(jax.device_put(np.stack([np.asarray(c) for c in column])))
         axes = tuple(axes)
+        active = jax.device_put(np.arange(self.size) < len(self.units))
         t0 = time.perf_counter()
-        ck = (self.static, self.treedef, axes, tuple((tuple(x.shape), str(x.dtype)) for x in leaves),
+        ck = (self.static, self.treedef, axes, self.sequential, tuple((tuple(x.shape), str(x.dtype)) for x in leaves),
               jax.default_backend(), jax.config.jax_enable_x64)
         compiled = _COMPILED_MANY.get(ck)
         if compiled is None:
-            compiled = compile_lowered(_run_batched.lower(self.static, self.treedef, axes, tuple(leaves)))
+            compiled = compile_lowered(_run_batched.lower(self.static, self.treedef, axes, self.sequential,
+                                                          tuple(leaves), active))
             _COMPILED_MANY.put(ck, compiled)
             _run_batched.clear_cache()
             release_memory()
         t1 = time.perf_counter()
         self.compile_s = t1 - t0
-        self.out = compiled(tuple(leaves))
+        self.out = compiled(tuple(leaves), active)
         self.t_started = t1
 
     def result(self, j: int) -> CalibrationOutput:
@@ -287,7 +297,7 @@ class _Share(_Launched):
         return out, self.batch.run_s / len(self.batch.units)
 
 
-def _batches(pending: dict, size: int) -> list[_Batch]:
+def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
     """The pending requests ``{unit: (cal, q, y, key)}`` grouped into :class:`_Batch` es: padded
     to one row count (the bucket of the largest unit; methods that cannot pad keep theirs), then
     grouped by static part and leaf shapes."""
@@ -305,7 +315,7 @@ def _batches(pending: dict, size: int) -> list[_Batch]:
             groups[gk] = ([], static, treedef, [], tuple(_own(path) for path, _ in paths))
         groups[gk][0].append(i)
         groups[gk][3].append(leaves)
-    return [_Batch(*g, size) for g in groups.values()]
+    return [_Batch(*g, size, sequential) for g in groups.values()]
 
 
 #: the :class:`~jaxcal.Calibrator` fields that belong to one unit (always batched, even where two
@@ -322,15 +332,31 @@ def _own(path) -> bool:
     return top == 0 and len(path) > 1 and getattr(path[1], "name", None) in _UNIT_FIELDS
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2))
-def _run_batched(static, treedef, axes, leaves) -> CalibrationOutput:
-    """The vmapped :class:`~jaxcal.Calibrator` over the units of a :class:`_Batch`."""
-    in_axes = jax.tree_util.tree_unflatten(treedef, axes)
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _run_batched(static, treedef, axes, sequential: bool, leaves, active) -> CalibrationOutput:
+    """The :class:`~jaxcal.Calibrator` over the units of a :class:`_Batch`: ``jax.vmap``-ed, or
+    with ``sequential`` ``jax.lax.map``-ed (one unit after the other inside the program, each
+    solve's loop as long as that unit needs; the slots of finished units (``active`` False) are
+    skipped by ``lax.cond``)."""
 
-    def one(dyn, q, y, key, w):
+    def one(leaves):
+        dyn, q, y, key, w = jax.tree_util.tree_unflatten(treedef, leaves)
         return eqx.combine(dyn, static)(q, y, key, w)
 
-    return jax.vmap(one, in_axes=in_axes)(*jax.tree_util.tree_unflatten(treedef, leaves))
+    if not sequential:
+        return jax.vmap(one, in_axes=(list(axes),))(list(leaves))
+    mapped = [j for j, a in enumerate(axes) if a == 0]
+
+    def body(xs):
+        unit_leaves, on = xs
+        full = list(leaves)
+        for j, x in zip(mapped, unit_leaves):
+            full[j] = x
+        shape = jax.eval_shape(one, full)
+        return jax.lax.cond(on, one, lambda _: jax.tree_util.tree_map(
+            lambda s: jax.numpy.zeros(s.shape, s.dtype), shape), full)
+
+    return jax.lax.map(body, ([leaves[j] for j in mapped], active))
 
 
 #: compiled fleet programs (a least-recently-used cache; ``$JAXCAL_CALIBRATE_MANY_CACHE``)
