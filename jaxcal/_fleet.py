@@ -3,9 +3,12 @@
 A production line calibrates every unit of one model with the same sensor and the same
 settings. :func:`calibrate_many` runs the per-unit host steps of :func:`jaxcal.calibrate`
 (data checks, closed-form extras, identifiability and the choice of free parameters, the
-re-estimated noise and robust scales, the diagnostics) for each unit, and the expensive part —
-the compiled solve (:class:`~jaxcal.Calibrator`) — for all units at once, as **one**
-``jax.vmap``-ed program over their data:
+re-estimated noise and robust scales, the diagnostics) for each unit — ``calibrate`` is written
+as a generator of its solves (:func:`~jaxcal._calibrate._calibration_steps`) so both share one
+code path — and the expensive part, the compiled solve (:class:`~jaxcal.Calibrator`), for all
+units at once, as **one** compiled program over their data (``batching="vmap"``: vectorised
+with ``jax.vmap``; ``"map"``, the default on a CPU: ``jax.lax.map``, one unit after the other
+inside the program):
 
 * every unit's samples are padded with zero-weight rows (:func:`~jaxcal._buckets.pad_rows`) to
   one row count, the shape bucket (:func:`~jaxcal._buckets.bucket_size`, smallest 256) of the
@@ -16,17 +19,21 @@ the compiled solve (:class:`~jaxcal.Calibrator`) — for all units at once, as *
 * each solve request of :func:`jaxcal.calibrate` becomes one batch: with a prior or a robust loss
   (``objective="measured"``) ``calibrate`` re-estimates the noise σ and the loss scale over a
   few rounds; the units still iterating run the next round together (the batch keeps the fleet's
-  size, finished units' slots repeat another unit's inputs, so one compiled program serves every
-  round);
-* a unit that fails — NaN/inf readings, too few samples, a diverged solve — gets its own failed
-  row and error in the summary and ``None`` in ``results``; the others go on.
+  size, so one compiled program serves every round: vectorised, finished units' slots repeat
+  another unit's inputs; mapped, they are skipped);
+* a unit that cannot be calibrated — NaN/inf readings, too few samples — gets ``None`` in
+  ``results`` and its error in its summary row; a solve that diverges or fails keeps its result
+  with that status (flagged in the summary); the others go on either way.
 
 Each unit's result equals :func:`jaxcal.calibrate` on that unit alone to round-off (the
-vmapped, padded program sums in another order; tests/test_fleet.py). Speed: on the 2-core CPU
-the batched solve is about as fast per unit as a loop of warm ``calibrate`` calls (vmapped
-Levenberg–Marquardt runs every unit until the slowest converges); the gain is one compilation
-per fleet instead of one per sample count, and on a GPU one launch instead of k
-(``benchmarks/results/fleet_cpu.md``).
+padded, batched program sums in another order: tests/test_fleet.py; at most 1e-10 relative
+over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``): on the 2-core CPU the compiled solves of
+100 units × 1 000 samples take about as long as a loop of warm ``calibrate`` calls with
+``"map"`` and several times longer vectorised (a vmapped Levenberg–Marquardt batch iterates
+until its slowest unit converges); the per-unit host steps dominate either way, so
+``calibrate_many`` is not faster than a warm loop on a CPU. What it gives there is one
+compilation per fleet (bucket and free set), one call with per-unit failures contained, and the
+summary table; the vectorised program is what fills a GPU.
 """
 
 from __future__ import annotations
@@ -148,7 +155,7 @@ class FleetResult(NamedTuple):
 
 def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tolerance_mm: float | None = None,
                    noise_std: float | None = None, batching: str = "auto", **kwargs) -> FleetResult:
-    """Calibrate many units of one robot model, their solves as one vmapped compiled program.
+    """Calibrate many units of one robot model, their solves as one compiled program.
 
     Args:
         robot: the nominal robot model every unit is an instance of.
@@ -231,9 +238,10 @@ def _n_rows(q) -> int:
 
 class _Batch:
     """The pending solves of several units with one static part and one set of shapes, run as one
-    vmapped program. Leaves every unit shares (the same object: the robot, the key) are passed
-    once, unbatched; the others are stacked along a new leading axis, padded to ``size`` units by
-    repeating the first (one program for every round, however many units are still iterating)."""
+    compiled program (vmapped or mapped). Leaves every unit shares (the same object: the robot, the
+    key) are passed once, unbatched; the others are stacked along a new leading axis, padded to
+    ``size`` units by repeating the first (one program for every round, however many units are
+    still iterating)."""
 
     def __init__(self, units, static, treedef, leaves_per_unit, own, size, sequential):
         self.units, self.static, self.treedef, self.size, self.sequential = units, static, treedef, size, sequential
@@ -280,8 +288,11 @@ class _Batch:
             self.run_s = time.perf_counter() - self.t_started
             self.host = jax.tree_util.tree_map(
                 lambda a: a if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key) else np.asarray(a), out)
-        return jax.tree_util.tree_map(lambda a: jax.device_put(a[j]) if isinstance(a, np.ndarray) else a[j],
-                                      self.host)
+        # host slices: what calibrate's host steps read (status, x, history, metrics, the Jacobian
+        # products); only the deviations, the next round's start and the result's, go back to the
+        # device (a device_put costs ~0.2 ms per leaf on the 2-core CPU)
+        out = jax.tree_util.tree_map(lambda a: a[j], self.host)
+        return out._replace(deviations=jax.device_put(out.deviations))
 
 
 class _Share(_Launched):

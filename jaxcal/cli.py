@@ -555,7 +555,7 @@ FLEET_KINDS = ("cable", "position", "pose")
 
 def _cmd_calibrate_fleet(args, method: str) -> int:
     """`jaxcal calibrate a.csv b.csv ... --out-dir DIR`: every file one unit of the same robot model,
-    calibrated by :func:`jaxcal.calibrate_many` (the solves as one vmapped program); one result
+    calibrated by :func:`jaxcal.calibrate_many` (the solves as one compiled program); one result
     JSON per unit and the summary table (``summary.md``, ``summary.csv``) in ``DIR``."""
     import numpy as np
 
@@ -1209,7 +1209,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument("data", nargs="+",
                    help="CSV data file (format below); several files: one unit each of the same robot model, "
-                        "calibrated together (jaxcal.calibrate_many: the solves as one vmapped program) — give "
+                        "calibrated together (jaxcal.calibrate_many: the solves as one compiled program) — give "
                         "--out-dir")
     c.add_argument("--robot", required=True, help="preset name, DH table CSV file or URDF file (format below)")
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
