@@ -27,11 +27,12 @@ inside the program):
 
 Each unit's result equals :func:`jaxcal.calibrate` on that unit alone to round-off (the
 padded, batched program sums in another order: tests/test_fleet.py; at most 1e-10 relative
-over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``): on the 2-core CPU the compiled solves of
-100 units × 1 000 samples take about as long as a loop of warm ``calibrate`` calls with
-``"map"`` and several times longer vectorised (a vmapped Levenberg–Marquardt batch iterates
-until its slowest unit converges); the per-unit host steps dominate either way, so
-``calibrate_many`` is not faster than a warm loop on a CPU. What it gives there is one
+over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``, 100 units ×
+1 000 samples on the busy 2-core CPU): with ``"map"`` the compiled solves take about as long as
+in a loop of warm ``calibrate`` calls, vectorised 3–5× longer (a vmapped Levenberg–Marquardt
+batch iterates until its slowest unit converges); the per-unit host steps are the same as
+``calibrate``'s, so a warm ``calibrate_many`` took 0.7× (plain least squares) to 1.1×
+(``objective="measured"``) the time of a warm loop — no speed-up on a CPU. What it gives there is one
 compilation per fleet (bucket and free set), one call with per-unit failures contained, and the
 summary table; the vectorised program is what fills a GPU.
 """
