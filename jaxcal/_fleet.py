@@ -31,8 +31,8 @@ over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``, 10
 1 000 samples on the busy 2-core CPU): with ``"map"`` the compiled solves take about as long as
 in a loop of warm ``calibrate`` calls, vectorised 3–5× longer (a vmapped Levenberg–Marquardt
 batch iterates until its slowest unit converges); the per-unit host steps are the same as
-``calibrate``'s, so a warm ``calibrate_many`` took 0.7× (plain least squares) to 1.1×
-(``objective="measured"``) the time of a warm loop — no speed-up on a CPU. What it gives there is one
+``calibrate``'s, so a warm ``calibrate_many`` took 1.5× (plain least squares) to 0.9×
+(``objective="measured"``) the time of a warm loop — no real speed-up on a CPU. What it gives there is one
 compilation per fleet (bucket and free set), one call with per-unit failures contained, and the
 summary table; the vectorised program is what fills a GPU.
 """
