@@ -36,14 +36,10 @@ def rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
-def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
+def count_compilations() -> collections.Counter:
+    """A counter of this process's XLA compilations from now on: ``["n"]`` (count), ``["s"]`` (seconds)."""
     import jax
-    import numpy as np
 
-    import jaxcal
-    from jaxcal._buckets import bucket_size, buckets_enabled
-
-    jaxcal.enable_x64()
     events = collections.Counter()
 
     def listener(event, duration, **kw):
@@ -52,6 +48,18 @@ def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
             events["s"] += duration
 
     jax.monitoring.register_event_duration_secs_listener(listener)
+    return events
+
+
+def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
+    import jax
+    import numpy as np
+
+    import jaxcal
+    from jaxcal._buckets import bucket_size, buckets_enabled
+
+    jaxcal.enable_x64()
+    events = count_compilations()
     ex = jaxcal.simulate_experiment(jax.random.key(0), n_samples=int(hi / 0.8) + 2)
     robot, meas = ex.robot, ex.measurement
     qn, yn = np.asarray(ex.train.q), np.asarray(ex.train.y)
@@ -116,20 +124,12 @@ def run_sweep(counts: list[int], n_seeds: int) -> dict:
     """``jaxcal.sweep("lm", n_seeds, n_samples=n)`` for each ``n`` in ``counts`` (issue 25's second
     acceptance row): XLA compilations, time and resident memory per call. ``sweep`` simulates the
     data inside its compiled trial, so the sample count is part of the program's shapes."""
-    import jax
 
     import jaxcal
     from jaxcal._buckets import bucket_size, buckets_enabled
 
     jaxcal.enable_x64()
-    events = collections.Counter()
-
-    def listener(event, duration, **kw):
-        if event == "/jax/core/compile/backend_compile_duration":
-            events["n"] += 1
-            events["s"] += duration
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
+    events = count_compilations()
     rss0 = rss_mb()
     rows = []
     with warnings.catch_warnings():
