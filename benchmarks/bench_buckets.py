@@ -36,14 +36,10 @@ def rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
-def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
+def count_compilations() -> collections.Counter:
+    """A counter of this process's XLA compilations from now on: ``["n"]`` (count), ``["s"]`` (seconds)."""
     import jax
-    import numpy as np
 
-    import jaxcal
-    from jaxcal._buckets import bucket_size, buckets_enabled
-
-    jaxcal.enable_x64()
     events = collections.Counter()
 
     def listener(event, duration, **kw):
@@ -52,6 +48,18 @@ def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
             events["s"] += duration
 
     jax.monitoring.register_event_duration_secs_listener(listener)
+    return events
+
+
+def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
+    import jax
+    import numpy as np
+
+    import jaxcal
+    from jaxcal._buckets import bucket_size, buckets_enabled
+
+    jaxcal.enable_x64()
+    events = count_compilations()
     ex = jaxcal.simulate_experiment(jax.random.key(0), n_samples=int(hi / 0.8) + 2)
     robot, meas = ex.robot, ex.measurement
     qn, yn = np.asarray(ex.train.q), np.asarray(ex.train.y)
@@ -112,6 +120,42 @@ def summarise(out: dict) -> list[str]:
     return lines
 
 
+def run_sweep(counts: list[int], n_seeds: int) -> dict:
+    """``jaxcal.sweep("lm", n_seeds, n_samples=n)`` for each ``n`` in ``counts`` (issue 25's second
+    acceptance row): XLA compilations, time and resident memory per call. ``sweep`` simulates the
+    data inside its compiled trial, so the sample count is part of the program's shapes."""
+
+    import jaxcal
+    from jaxcal._buckets import bucket_size, buckets_enabled
+
+    jaxcal.enable_x64()
+    events = count_compilations()
+    rss0 = rss_mb()
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for n in counts:
+            c0, s0 = events["n"], events["s"]
+            t = time.perf_counter()
+            jaxcal.sweep("lm", n_seeds, n_samples=int(n), progress=False)
+            rows.append(dict(n=int(n), bucket=bucket_size(int(n)), s=time.perf_counter() - t,
+                             compiles=events["n"] - c0, compile_s=events["s"] - s0, rss=rss_mb()))
+    return dict(rows=rows, rss0=rss0, buckets=buckets_enabled(), load=os.getloadavg())
+
+
+def summarise_sweep(out: dict) -> list[str]:
+    lines = ["| n_samples | bucket | XLA compilations | compile (s) | call (s) | resident memory after (MB) |",
+             "|---|---|---|---|---|---|"]
+    for r in out["rows"]:
+        lines.append(f"| {r['n']} | {r['bucket']} | {r['compiles']} | {r['compile_s']:.1f} | {r['s']:.1f} | "
+                     f"{r['rss']:.0f} |")
+    rows = out["rows"]
+    lines += ["", f"{len(rows)} sweeps, {sum(r['compiles'] for r in rows)} XLA compilations; resident memory "
+              f"{out['rss0']:.0f} MB before, {rows[-1]['rss']:.0f} MB after (+{rows[-1]['rss'] - out['rss0']:.0f} MB); "
+              f"buckets {'on' if out['buckets'] else 'off'}; load average {out['load'][0]:.2f} at the end."]
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--calls", type=int, default=100)
@@ -121,7 +165,24 @@ def main() -> None:
     ap.add_argument("--no-buckets", action="store_true")
     ap.add_argument("--json", help="write the raw numbers here")
     ap.add_argument("--both", action="store_true", help="with and without buckets, fresh processes; writes the md")
+    ap.add_argument("--sweep", type=int, metavar="K", default=0,
+                    help="instead: jaxcal.sweep('lm') over K sample counts in --min..--max with buckets on "
+                         "(--sweep-seeds trials each); appends its table to results/buckets_cpu.md")
+    ap.add_argument("--sweep-seeds", type=int, default=2)
     args = ap.parse_args()
+    if args.sweep:
+        import numpy as np
+        from _common import machine
+
+        os.environ.setdefault("JAXCAL_BUCKETS", "on")
+        counts = [int(c) for c in np.linspace(args.min, args.max, args.sweep).round()]
+        out = run_sweep(counts, args.sweep_seeds)
+        md = ["", f"## `sweep` over different `n_samples` (`--sweep {args.sweep}`, {args.sweep_seeds} LM trials each, "
+              f"`JAXCAL_BUCKETS={os.environ['JAXCAL_BUCKETS']}`; {machine()})", "", *summarise_sweep(out)]
+        with open(HERE / "results" / "buckets_cpu.md", "a") as f:
+            f.write("\n".join(md) + "\n")
+        print("\n".join(md))
+        return
     if args.both:
         from _common import machine  # noqa: F401  (imports jax only in this branch's parent)
 

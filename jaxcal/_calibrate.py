@@ -6,6 +6,7 @@ import dataclasses
 import functools
 import time
 import warnings
+from collections.abc import Generator
 from typing import NamedTuple
 
 import equinox as eqx
@@ -133,7 +134,7 @@ def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutpu
     return eqx.combine(dynamic, static)(q, y, key, weight)
 
 
-def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
+def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot, stacklevel: int = 3):
     if isinstance(data, Dataset):
         if data.kind != measurement.kind:
             raise ValueError(f"data are {data.kind!r} measurements but the measurement model is {measurement.kind!r}")
@@ -158,7 +159,7 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot):
             f"{int(outside.any(axis=1).sum())} sample(s) have joint angles outside robot {robot.name!r}'s limits "
             f"(joints {joints}); check the units (radians expected) and the robot model",
             UserWarning,
-            stacklevel=3,
+            stacklevel=stacklevel,
         )
     return q, y
 
@@ -355,15 +356,16 @@ def _signature(tree) -> tuple:
                           for leaf in leaves)
 
 
-def _pad_to_bucket(cal: Calibrator, q, y):
+def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None):
     """``(cal, q, y, weight)``: the data padded with zero-weight rows to their bucket size
     (:func:`~jaxcal._buckets.bucket_size`) when the method allows it (:attr:`Method.paddable`;
     weights all 1 at a bucket size exactly), the measurement model's per-row arrays
     (:meth:`MeasurementModel.pad_rows`) and the start Jacobian (if any) padded to match;
-    unchanged with ``weight=None`` otherwise."""
+    unchanged with ``weight=None`` otherwise. ``n_to``: pad to this row count instead (a paddable
+    method; :func:`jaxcal.calibrate_many` pads every unit to one size)."""
     n = int(q.shape[0])
-    pad = buckets_enabled() and cal.method.paddable
-    n_to = bucket_size(n) if pad else n
+    pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
+    n_to = n if not pad else bucket_size(n) if n_to is None else n_to
     w = None
     if pad:
         q, y, w = pad_rows(q, y, n_to)
@@ -409,6 +411,21 @@ def _launch(cal: Calibrator, q, y, key):
         t1 = time.perf_counter()
         out = compiled(dyn, q, y, key, w)
     return out, t1 - t0, t1
+
+
+class _Launched:
+    """A solve started by a driver of :func:`_calibration_steps`: ``out`` (possibly still
+    computing), ``compile_s``; :meth:`wait` gives ``(output, run seconds)``. ``run_s`` given: the
+    output is ready (a share of a batched solve, :func:`jaxcal.calibrate_many`)."""
+
+    def __init__(self, out, compile_s: float, t_started: float, run_s: float | None = None):
+        self.out, self.compile_s, self.t_started, self.run_s = out, compile_s, t_started, run_s
+
+    def wait(self):
+        if self.run_s is not None:
+            return self.out, self.run_s
+        out = jax.block_until_ready(self.out)
+        return out, time.perf_counter() - self.t_started
 
 
 def calibrate(
@@ -493,9 +510,47 @@ def calibrate(
         (plausibility, conditioning, coverage, outliers; its warnings are also issued as
         :class:`CalibrationWarning`).
     """
+    steps = _calibration_steps(robot, measurement, data, method, key=key, space=space, start=start, extras=extras,
+                               free=free, fix=fix, init=init, prior=prior, loss=loss, objective=objective,
+                               loss_scale=loss_scale, checks=checks, throw=throw, **hyperparameters)
+    launched = None
+    while True:  # each request is one compiled solve (calibrate_many batches the requests of many units)
+        try:
+            cal, q, y, k = steps.send(launched)
+        except StopIteration as done:
+            return done.value
+        launched = _Launched(*_launch(cal, q, y, k))
+
+
+def _calibration_steps(
+    robot: DHRobot,
+    measurement: MeasurementModel,
+    data,
+    method="lm",
+    *,
+    key: Array | None = None,
+    space: ParameterSpace | str | None = None,
+    start: Deviations | None = None,
+    extras=(),
+    free=None,
+    fix=(),
+    init: str = "auto",
+    prior: Prior | str | None = None,
+    loss: str | None = None,
+    objective: str | None = None,
+    loss_scale: float | None = None,
+    checks: Checks | None = None,
+    throw: bool = False,
+    **hyperparameters,
+) -> Generator[tuple, _Launched, CalibrationResult]:
+    """:func:`calibrate` as a generator: it yields each solve it needs as ``(Calibrator, q, y, key)``
+    and is sent back a :class:`_Launched` (the solve started; ``wait()`` gives its output), so that
+    one driver runs one unit's solves one by one (:func:`calibrate`) and another runs the solves of
+    many units as one vmapped program (:func:`jaxcal.calibrate_many`). Its warnings name the frame
+    two levels above it (the caller of the driver)."""
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
-    q, y = _as_arrays(data, measurement, robot)
+    q, y = _as_arrays(data, measurement, robot, stacklevel=4)
     warn_if_float32(q.dtype, "calibrate")
     checks = Checks() if checks is None else checks
     prior = resolve_prior(prior)
@@ -557,12 +612,12 @@ def calibrate(
                              # the identifiability program's Jacobian serves a one-round fit (several rounds
                              # share one compiled program, which then computes it)
                              start_jacobian=None if adaptive else start_jac)
-            out, c_s, t_started = _launch(cal, q, y, key)
+            launched = yield cal, q, y, key
+            out, c_s = launched.out, launched.compile_s
             if before_rows is None:  # host work that does not need the fit, while the device runs it
                 before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
                 cov = coverage(robot, q)
-            out = jax.block_until_ready(out)
-            r_s = time.perf_counter() - t_started
+            out, r_s = launched.wait()
             compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
             cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
             histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
@@ -629,12 +684,12 @@ def calibrate(
     if status in (Status.DIVERGED, Status.FAILED):
         if throw:
             raise CalibrationError(result.message)
-        warnings.warn(result.message, CalibrationWarning, stacklevel=2)
+        warnings.warn(result.message, CalibrationWarning, stacklevel=3)
     diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection))
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
-        warnings.warn(w, CalibrationWarning, stacklevel=2)
+        warnings.warn(w, CalibrationWarning, stacklevel=3)
     return result
 
 

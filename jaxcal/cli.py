@@ -25,6 +25,7 @@ import math
 import pathlib
 import sys
 import time
+import types
 import warnings
 
 _T0 = time.perf_counter()  # process start-up (as near as the CLI can tell)
@@ -410,35 +411,19 @@ def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
     return robot
 
 
-def _cmd_calibrate(args) -> int:
-    t_start = time.perf_counter()
-    import numpy as np
-
-    from ._calibrate import CalibrationWarning, calibrate
+def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespace:
+    """What `jaxcal calibrate` builds from its arguments and one data file before fitting: the robot,
+    the loaded data, the measurement model, the extras to estimate, the objective, the checks and the
+    method's settings (raises :class:`_Usage` on bad input)."""
     from ._dataset import load_csv
     from ._diagnostics import Checks
-    from ._evaluate import (
-        MEASURED_DEFAULTS,
-        describe_objective,
-        evaluate_result,
-        joints_to_file_units,
-        nominal_with_extras,
-        sample_errors,
-    )
-    from ._io import save_result
-    from ._metrics import format_table, metrics_numpy
+    from ._evaluate import MEASURED_DEFAULTS
     from ._objective import LOSSES, Prior
-    from ._params import Deviations, group_kind
-    from .methods._stages import check_method_name
 
-    try:
-        method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
-    except ValueError as e:
-        raise _Usage(str(e)) from None
     robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
-    path = pathlib.Path(args.data)
+    path = pathlib.Path(data_file)
     if not path.exists():
-        raise _Usage(f"data file {args.data!r} not found")
+        raise _Usage(f"data file {data_file!r} not found")
     if args.markers is not None and args.measurement != "markers":
         raise _Usage("--markers applies to --measurement markers only")
     if args.markers is not None and args.markers < 1:
@@ -550,6 +535,134 @@ def _cmd_calibrate(args) -> int:
     if valid is not None and set(hyper) - set(valid):
         raise _Usage(f"--set: unknown setting(s) {sorted(set(hyper) - set(valid))} for method {method}; "
                      f"its settings: {', '.join(valid)}")
+    return types.SimpleNamespace(robot=robot, path=path, data=data, estimate=estimate, notes=notes,
+                                 measurement=measurement, test_fraction=test_fraction, loss=loss,
+                                 test_file=test_file, prior=prior, checks=checks, hyper=hyper)
+
+
+def _same_tree(a, b) -> bool:
+    """Two pytrees (measurement models) with the same structure and equal array leaves."""
+    import jax
+    import numpy as np
+
+    (la, ta), (lb, tb) = jax.tree_util.tree_flatten(a), jax.tree_util.tree_flatten(b)
+    return ta == tb and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+
+#: measurement kinds `jaxcal calibrate` takes several files of (one sensor set-up per fleet)
+FLEET_KINDS = ("cable", "position", "pose")
+
+
+def _cmd_calibrate_fleet(args, method: str) -> int:
+    """`jaxcal calibrate a.csv b.csv ... --out-dir DIR`: every file one unit of the same robot model,
+    calibrated by :func:`jaxcal.calibrate_many` (the solves as one compiled program); one result
+    JSON per unit and the summary table (``summary.md``, ``summary.csv``) in ``DIR``."""
+    import numpy as np
+
+    from ._calibrate import CalibrationWarning
+    from ._fleet import calibrate_many
+    from ._io import save_result
+    from ._metrics import metrics_numpy
+
+    for given, flag in ((args.out, "--out"), (args.test, "--test"), (args.exclude_rows, "--exclude-rows"),
+                        (args.exclude_outliers, "--exclude-outliers")):
+        if given:
+            raise _Usage(f"{flag} applies to one data file; several files write one result each to --out-dir DIR")
+    if not args.out_dir:
+        raise _Usage("several data files: give --out-dir DIR (one RESULT.json per file and the summary table)")
+    if args.measurement not in FLEET_KINDS:
+        raise _Usage(f"several data files take --measurement {', '.join(FLEET_KINDS)}; calibrate "
+                     f"{args.measurement} data one file at a time")
+    setups = [_calibration_setup(args, method, f) for f in args.data]
+    first = setups[0]
+    for s in setups[1:]:
+        if not _same_tree(s.measurement, first.measurement) or s.estimate != first.estimate:
+            raise _Usage(f"{s.path} and {first.path} imply different sensor set-ups (the files' anchor_mm or "
+                         "columns differ); give --anchor (or --estimate anchor,offset), or calibrate them separately")
+    names = [s.path.stem for s in setups]
+    if len(set(names)) != len(names):
+        names = [str(s.path) for s in setups]
+    trains, tests = [], []
+    k_method = None
+    for s in setups:
+        k, train_idx, test_idx = _seed_split(args.seed, s.data.n, first.test_fraction)
+        k_method = k if k_method is None else k_method  # one key for every unit (same seed)
+        trains.append(s.data.subset(train_idx))
+        tests.append(s.data.subset(test_idx))
+    extras = sorted({"offset": "cable_offset"}.get(e, e) for e in first.estimate)
+    robot, measurement = first.robot, first.measurement
+    print(f"fleet: {len(setups)} units of robot {robot.name}, {measurement.kind} data, method {method}; "
+          f"{first.test_fraction:g} of each file held out (seed {args.seed})")
+    for n in first.notes:
+        print(f"note: {n}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationWarning)
+        try:
+            fleet = calibrate_many(robot, measurement, trains, method, names=names, key=k_method, extras=extras,
+                                   prior=first.prior, loss=first.loss, checks=first.checks, free=args.free,
+                                   fix=args.fix or (), tolerance_mm=args.tolerance_mm, noise_std=args.noise_std,
+                                   **first.hyper)
+        except TypeError as e:
+            raise _Usage(str(e)) from None
+    for w in caught:
+        if issubclass(w.category, CalibrationWarning):
+            print(f"jaxcal: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    out = pathlib.Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for s, name, res, train, test in zip(setups, names, fleet.results, trains, tests):
+        if res is None:
+            continue
+        metrics = {"train, after": res.train_metrics._asdict()}
+        if test.n:
+            metrics["test, after"] = metrics_numpy(np.asarray(res.sample_errors(test), np.float64))._asdict()
+        settings = {"data": str(s.path), "n_samples": s.data.n, "n_train": train.n, "n_test": test.n,
+                    "seed": args.seed, "test_fraction": first.test_fraction, "method": method, "estimate": extras,
+                    "hyperparameters": first.hyper, "prior": args.prior, "loss": first.loss, "fleet": names}
+        save_result(res, out / f"{pathlib.Path(name).stem}.json", settings=settings, metrics_mm=metrics)
+    table = fleet.summary.table()
+    print()
+    print(table)
+    (out / "summary.md").write_text(fleet.summary.table(markdown=True) + "\n", encoding="utf-8")
+    fleet.summary.to_csv(out / "summary.csv")
+    print(f"\nwrote {sum(r is not None for r in fleet.results)} result(s), summary.md and summary.csv to {out} "
+          f"(compilation {fleet.compile_time_s:.1f} s, batched solves {fleet.solve_time_s:.2f} s)")
+    if fleet.summary.flagged:
+        print(f"jaxcal: {len(fleet.summary.flagged)} unit(s) failed or out of tolerance: "
+              f"{', '.join(fleet.summary.flagged)}", file=sys.stderr)
+        return _EXIT_FAILED
+    return 0
+
+
+def _cmd_calibrate(args) -> int:
+    t_start = time.perf_counter()
+    import numpy as np
+
+    from ._calibrate import CalibrationWarning, calibrate
+    from ._evaluate import (
+        describe_objective,
+        evaluate_result,
+        joints_to_file_units,
+        nominal_with_extras,
+        sample_errors,
+    )
+    from ._io import save_result
+    from ._metrics import format_table, metrics_numpy
+    from ._params import Deviations, group_kind
+    from .methods._stages import check_method_name
+
+    try:
+        method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+    if len(args.data) > 1 or args.out_dir:
+        return _cmd_calibrate_fleet(args, method)
+    setup = _calibration_setup(args, method, args.data[0])
+    robot, path, data, estimate, notes, measurement = (
+        setup.robot, setup.path, setup.data, setup.estimate, setup.notes, setup.measurement)
+    test_fraction, loss, test_file, prior, checks, hyper = (
+        setup.test_fraction, setup.loss, setup.test_file, setup.prior, setup.checks, setup.hyper)
     excluded = sorted(set(_rows(args.exclude_rows)))
     if excluded and (excluded[0] < 1 or excluded[-1] > data.n):
         raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
@@ -1095,7 +1208,10 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT + "\n\nexit status: 0 ok, 1 calibration failed, diverged, "
                "stopped at its step budget, or implausible (see --accept-implausible), 2 bad input.",
     )
-    c.add_argument("data", help="CSV data file (format below)")
+    c.add_argument("data", nargs="+",
+                   help="CSV data file (format below); several files: one unit each of the same robot model, "
+                        "calibrated together (jaxcal.calibrate_many: the solves as one compiled program) — give "
+                        "--out-dir")
     c.add_argument("--robot", required=True, help="preset name, DH table CSV file or URDF file (format below)")
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
@@ -1181,6 +1297,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "the calibration instead of registering them again")
     c.add_argument("--seed", type=int, default=0, help="seed of the split and the method (default 0)")
     c.add_argument("--out", metavar="RESULT.json", help="write the result as JSON")
+    c.add_argument("--out-dir", metavar="DIR",
+                   help="several data files (a fleet): write DIR/<file name>.json per unit and the summary table "
+                        "DIR/summary.md and DIR/summary.csv (unit, samples, status, train RMSE/MAX, σ̂, floor, "
+                        "out-of-tolerance flag); exit status 1 when a unit failed or is out of tolerance. "
+                        "Cable, position and pose data; no --test/--exclude-*")
+    c.add_argument("--tolerance-mm", type=float, metavar="MM",
+                   help="with several files: flag units whose train RMSE exceeds MM in the summary")
+    c.add_argument("--noise-std", type=float, metavar="MM",
+                   help="with several files: the sensor's noise σ per reading (mm), for the summary's "
+                        "statistical-floor column (train RMSE / floor ≈ 1 for a good fit)")
     c.add_argument("--verbose", action="store_true", help="print where the time went (imports, data, fit, output)")
     c.set_defaults(func=_cmd_calibrate)
 
