@@ -78,7 +78,8 @@ class Dataset(eqx.Module):
             (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
             positions (mm, sensor frame) for ``"markers"``, ``[n, N, 2]`` image points (px) of
             ``N`` target points for ``"camera"`` (NaN: not detected, masked; see
-            :class:`jaxcal.Camera`); ``[n]`` label indices for ``"plane"`` / ``"point"`` (names in
+            :class:`jaxcal.Camera`; for ``"markers"`` NaN in x, y and z is a missing marker,
+            masked by :class:`jaxcal.SessionMarkers`); ``[n]`` label indices for ``"plane"`` / ``"point"`` (names in
             the ``plane_labels`` / ``point_labels`` metadata) and ``[n, dof + 1]`` (pose b in rad,
             bar length in mm) for ``"distance"`` (see :mod:`jaxcal._contact`).
         kind: ``"cable"``, ``"position"``, ``"pose"``, ``"markers"``, ``"camera"``, ``"plane"``,
@@ -195,6 +196,11 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
     elif kind == "markers":
         if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
             raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
+        if np.isnan(y).any():  # a missing marker (NaN x, y, z): masked by SessionMarkers, refused by Markers
+            from ._sessions import marker_gaps
+
+            marker_gaps(y)  # partial points, ±inf, rows without any marker: errors
+            y = np.where(np.isnan(y), 0.0, y)
     else:
         want = (n, *_SAMPLE_SHAPE[kind])
         if y.shape != want:
