@@ -48,7 +48,8 @@ from ._params import Deviations, Group, ParameterSpace, layout_for
 from ._precision import to_device
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "SessionHoldout",
-           "holdout_session", "leave_one_session_out", "session_labels", "marker_gaps", "masked_markers"]
+           "holdout_session", "leave_one_session_out", "session_labels", "marker_gaps", "masked_markers",
+           "evaluate_sessions"]
 
 
 
@@ -510,7 +511,7 @@ def _errors(robot, m, dev, q, y) -> np.ndarray:
     return np.asarray(_sample_error(m, _residual(m, robot, dev, jnp.asarray(q), jnp.asarray(y))), np.float64)
 
 
-def _register(robot, m, q, y, dev, groups, frames, placements):
+def _register(robot, m, q, y, dev, groups, frames, placements, loss: str = "linear"):
     """Closed form, then LM on ``groups`` only (robot and other extras fixed at ``dev``)."""
     from ._calibrate import calibrate
 
@@ -522,7 +523,8 @@ def _register(robot, m, q, y, dev, groups, frames, placements):
     space = ParameterSpace.from_names(layout, names)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none")
+        res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none",
+                        loss=loss)
     return res.deviations
 
 
@@ -613,3 +615,78 @@ def leave_one_session_out(robot, data, **kw) -> tuple[list[SessionHoldout], floa
     before = _rms(np.concatenate([h.before_errors for h in out]))
     after = _rms(np.concatenate([h.after_errors for h in out]))
     return out, before, after
+
+
+# -- a session calibration on new data ------------------------------------------------------------
+def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | None = None):
+    """:func:`jaxcal.evaluate_result` for a :class:`SessionMarkers` calibration: the calibrated
+    robot on new marker ``data`` (a :class:`~jaxcal.Dataset`; with session labels, or without:
+    then one new session labelled ``"new"``), whose sessions may have other frames, placements
+    and marker counts (a one-point session: NaN in the other markers' columns).
+
+    The new data get their own :class:`SessionMarkers` (:meth:`SessionMarkers.from_dataset`); the
+    robot's deviations are the result's. Every frame and placement of the new data is
+    **registered** on its rows with the robot fixed (closed form, then a Huber fit of those
+    groups only), for the nominal and the calibrated robot alike — ``extras="register"``, and
+    ``"auto"`` when there are more residuals than twice the extras' parameters; with
+    ``"result"`` the calibrated robot keeps the result's values of the labels it was trained on
+    (same label, same marker) and only labels the result has not seen are registered.
+
+    Returns:
+        :class:`jaxcal.Evaluation` (``registered`` names every group fitted on the new rows).
+    """
+    from ._dataset import Dataset
+    from ._evaluate import Evaluation, _metrics, _outliers, joints_to_file_units
+
+    robot, trained = result.robot, result.measurement
+    if extras not in ("auto", "register", "result"):
+        raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")
+    if not isinstance(data, Dataset) or data.kind != "markers":
+        raise ValueError("a session-marker result is evaluated on marker data: give a jaxcal.Dataset of kind "
+                         "'markers' (load_csv of a marker file)")
+    if not data.labels:
+        data = Dataset(data.q, data.y, "markers", data.metadata, labels=[("new", "new", "new")] * data.n)
+    m = SessionMarkers.from_dataset(data)
+    m.check_measurements(data.y, data.n)
+    q, y = np.asarray(data.q), np.asarray(data.y)
+    layout = layout_for(robot, m)
+    dtype = q.dtype
+    zero = Deviations.zeros(layout, dtype)
+    # the robot's groups (every group without a session label) from the result
+    robot_groups = [g for g in layout.group_names if "@" not in g and g in result.deviations.values]
+    calibrated = zero.replace(**{g: jnp.asarray(result.deviations.values[g]).astype(dtype) for g in robot_groups})
+    every = tuple(g for f in m.frames for g in m.groups_of(frame=f)) + tuple(
+        g for p in m.placements for g in m.groups_of(placement=p))
+    n_par = sum(len(layout.group(g).names) for g in every)
+    obs = m.observed(y)
+    enough = int(y.size if obs is None else obs.sum()) > 2 * n_par
+    mode = extras if extras != "auto" else ("register" if enough else "result")
+    known = set(result.deviations.values) if mode == "result" else set()
+    kept = tuple(g for g in every if g in known)
+    if kept:
+        calibrated = calibrated.replace(**{g: jnp.asarray(result.deviations.values[g]).astype(dtype) for g in kept})
+    new = tuple(g for g in every if g not in kept)
+    if not enough and new:
+        raise ValueError(f"{data.n} rows are too few to register {', '.join(new)} ({n_par} parameters) on the new "
+                         "data; give more rows")
+    new_f = [f for f in m.frames if any(g in new for g in m.groups_of(frame=f))]
+    new_p = [p for p in m.placements if any(g in new for g in m.groups_of(placement=p))]
+    dev_b = _register(robot, m, q, y, zero, every, list(m.frames), list(m.placements), loss="huber")
+    dev_a = _register(robot, m, q, y, calibrated, new, new_f, new_p, loss="huber")
+    eb, ea = _errors(robot, m, dev_b, q, y), _errors(robot, m, dev_a, q, y)
+    raw = _errors(robot, m, zero, q, y)
+    rows, scale = _outliers(robot, m, dev_a, data)
+    n_miss, n_all, n_rows = masked_markers(y)
+    gaps = (f"; {n_miss} of {n_all} marker readings missing (NaN) in {n_rows} row(s): masked (zero weight)"
+            if n_miss else "")
+    source = "registered" if new else "result"
+    how = ("re-registered on the new rows" if not kept else
+           f"{len(new)} group(s) registered on the new rows, {len(kept)} taken from the result")
+    msg = (f"session frames ({', '.join(m.frames)}) and marker placements ({', '.join(m.placements)}) of the new "
+           f"data: {how}, robot fixed (the nominal robot's all registered); closed form, then a Huber fit of the "
+           f"extras only{gaps}")
+    return Evaluation(
+        before=_metrics(eb), after=_metrics(ea), raw_nominal=_metrics(raw), before_errors=eb, after_errors=ea,
+        q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
+        outlier_scale_mm=scale if np.isfinite(scale) else float("nan"), deviations_before=dev_b,
+        deviations_after=dev_a, objective=objective, q_file=joints_to_file_units(robot, q))

@@ -451,10 +451,9 @@ def _cmd_calibrate(args) -> int:
         raise _Usage(str(e)) from None
     if data.dof != robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
-    if data.labels:
-        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions); the command line "
-                     "calibrates one session: use the Python API (jaxcal.SessionMarkers.from_dataset, "
-                     "jaxcal.calibrate, jaxcal.leave_one_session_out) or drop those columns")
+    if data.labels and args.test:
+        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
+                     "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
     notes = []
@@ -496,7 +495,7 @@ def _cmd_calibrate(args) -> int:
             notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
                          "from the data (multilateration on the nominal robot, then the joint fit)")
     if args.measurement == "markers":
-        if "base" not in estimate:
+        if "base" not in estimate and not data.labels:  # sessions: every session frame is always estimated
             estimate.add("base")
             notes.append("marker data: the motion-capture frame (base extras) and the marker positions on the flange "
                          "are estimated (closed-form Kabsch start from the data, then the joint fit)")
@@ -511,6 +510,16 @@ def _cmd_calibrate(args) -> int:
                      f"Park–Martin hand-eye, then the joint fit){'; intrinsics estimated' if measurement.calibrate_intrinsics else ''}; "
                      f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "
                      "(zero weight), not dropped")
+    elif data.labels:  # marker data of several sessions: SessionMarkers (one frame / placement per label)
+        from ._sessions import SessionMarkers, masked_markers
+
+        measurement = SessionMarkers.from_dataset(data)
+        n_miss, n_all, n_rows = masked_markers(data.y)
+        places = ", ".join(f"{p} ({len(k)})" for p, k in zip(measurement.placements, measurement.markers))
+        notes.append(f"{len(dict.fromkeys(s for s, _, _ in data.labels))} recording sessions: frames "
+                     f"{', '.join(measurement.frames)}; placements (markers) {places}; shared robot errors"
+                     + (f"; {n_miss} of {n_all} marker readings missing (empty cells) in {n_rows} row(s): masked "
+                        "(zero weight), not dropped" if n_miss else ""))
     else:
         measurement = _measurement(args.measurement, anchor, robot,
                                    data.y.shape[1] if data.kind == "markers" else None, data=data)
@@ -561,6 +570,15 @@ def _cmd_calibrate(args) -> int:
     if test_file is not None:  # a separate test file: every row trains, in file order
         train_idx = np.arange(data.n)
     train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
+    full = None
+    if hasattr(measurement, "frame_index"):  # SessionMarkers: a model per row set (train, test)
+        full = measurement.take(kept_rows)
+        lonely = sorted({lab for i in test_idx for lab in data.labels[i][1:]}
+                        - {lab for i in train_idx for lab in data.labels[i][1:]})
+        if lonely:
+            raise _Usage(f"frame/placement label(s) {lonely} have no training rows after the random split; give "
+                         "them more rows, --test-fraction 0, or hold the session out in Python (jaxcal.holdout_session)")
+        measurement = full.take(train_idx)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
     extras = sorted({"offset": "cable_offset"}.get(e, e) for e in estimate)
@@ -596,6 +614,8 @@ def _cmd_calibrate(args) -> int:
         keep = np.setdiff1d(np.arange(train.n), np.asarray(res.diagnostics.outliers_after))
         train_idx = train_idx[keep]
         train = data.subset(train_idx)
+        if full is not None:
+            measurement = full.take(train_idx)
         res = run(train)
     if res.identifiability is not None:
         print(res.identifiability)
@@ -610,14 +630,15 @@ def _cmd_calibrate(args) -> int:
     estimated = any(group_kind(n) == "extra" for n in res.space.free_names)
     per_row = {}
 
-    def part(name, ds, rows_1based, ev=None):
-        eb = ev.before_errors if ev is not None else sample_errors(robot, measurement, dev_before, ds)
-        ea = ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64)
+    def part(name, ds, rows_1based, ev=None, m=measurement):
+        eb = ev.before_errors if ev is not None else sample_errors(robot, m, dev_before, ds)
+        ea = (ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64) if m is measurement
+              else sample_errors(robot, m, res.deviations, ds))
         per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
         if estimated:
-            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, measurement, zero, ds))))
+            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, m, zero, ds))))
         return out + [(f"{name}, before", metrics_numpy(eb)),
                       (f"{name}, after", metrics_numpy(ea))]
 
@@ -627,7 +648,8 @@ def _cmd_calibrate(args) -> int:
         evaluation = evaluate_result(res, test_file, extras="result" if args.keep_extras else "auto")
         rows += part("test", test_file, list(range(1, test_file.n + 1)), evaluation)
     elif test.n:
-        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx])
+        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx],
+                     m=measurement if full is None else full.take(test_idx))
     print()
     unit = getattr(measurement, "unit", "mm")  # px for camera data
     print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
@@ -752,11 +774,13 @@ def _cmd_evaluate(args) -> int:
     raw = load_result_dict(src)
     res = load_result(src)
     m = res.measurement
-    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" else None)
+    sessions = hasattr(m, "frame_index")  # a SessionMarkers result: the file's own sessions and marker count
+    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" and not sessions
+                    else None)
     if data.dof != res.robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but the calibrated robot {res.robot.name!r} has "
                      f"{res.robot.dof} joints")
-    if data.labels:
+    if data.labels and not sessions:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
     if data.kind in ("plane", "point"):
         from ._contact import relabel

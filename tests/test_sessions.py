@@ -3,6 +3,7 @@ and marker placements shared by label, joint calibration with shared kinematics,
 sessions, labelled CSV files, clear errors; FIGAROH's TIAGo Vicon sessions (skipped without the
 TIAGo URDF)."""
 
+import json
 import pathlib
 import warnings
 
@@ -232,12 +233,16 @@ def test_clear_errors(tmp_path, capsys):
     (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(ValueError, match="empty label"):
         load_csv(tmp_path / "bad.csv")
-    # the command line calibrates one session and says so
+    # the command line: a labelled file calibrates every session jointly, but --test takes one-session files
     from jaxcal.cli import main
 
     assert main(["calibrate", str(tmp_path / "s.csv"), "--robot", str(UR10E), "--base", "base_link", "--tip", "tool0",
-                 "--measurement", "markers"]) == 2
+                 "--measurement", "markers", "--test", str(tmp_path / "s.csv")]) == 2
     assert "session/frame/placement" in capsys.readouterr().err
+    # a label whose rows all fall into the random test split: said so, not fitted at its start values
+    assert main(["calibrate", str(tmp_path / "s.csv"), "--robot", str(UR10E), "--base", "base_link", "--tip", "tool0",
+                 "--measurement", "markers", "--test-fraction", "0.9"]) == 2
+    assert "no training rows after the random split" in capsys.readouterr().err
 
 
 # -- FIGAROH's TIAGo Vicon sessions (tests/data/figaroh_tiago_vicon, Apache-2.0) ---------------------
@@ -445,3 +450,48 @@ def test_partial_marker_reading_is_an_error(tmp_path):
     (tmp_path / "partial.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(ValueError, match="marker 2 has only some of"):
         load_csv(tmp_path / "partial.csv")
+
+
+@pytest.mark.slow  # ~6 min on 2 loaded cores: a joint fit under the measured-data defaults, two registrations
+def test_cli_calibrates_and_evaluates_mixed_marker_sessions(tmp_path, capsys):
+    """``jaxcal calibrate`` on a labelled marker file with a one-point session beside three-marker
+    ones (empty cells): every session jointly, the masked readings counted and said; the result
+    saved and ``jaxcal evaluate`` on new sessions (other frames, a one-point and a three-marker
+    placement) registers them and predicts at the noise level; ``jaxcal report`` renders both."""
+    from jaxcal.cli import main
+
+    chain = _chain()
+    sigma = 0.05
+    ds, truth = _mixed(chain, n_per=30, noise=sigma)
+    ds.to_csv(tmp_path / "mixed.csv", angle_unit="deg")
+    base = ["--robot", str(UR10E), "--base", "base_link", "--tip", "tool0"]
+    assert main(["calibrate", str(tmp_path / "mixed.csv"), *base, "--measurement", "markers", "--free", FREE,
+                 "--out", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    assert "3 recording sessions" in out and "p3 (1)" in out and "60 of 270 marker readings missing" in out
+    res = jaxcal.load_result(tmp_path / "r.json")
+    assert res.measurement.markers == ((1, 2, 3), (1, 2, 3), (1,))
+    # new sessions: frame D with a one-point placement, frame E with three markers
+    rng = np.random.default_rng(11)
+    new = (("s4", "D", "p4"),) * 30 + (("s5", "E", "p5"),) * 30
+    q = rng.uniform(0.8 * np.asarray(chain.q_min), 0.8 * np.asarray(chain.q_max), (60, chain.dof))
+    m = SessionMarkers([f for _, f, _ in new], [p for *_, p in new], 3, markers={"p4": [1], "p5": [1, 2, 3]})
+    vals = {g: truth.values[g] for g in ("offset", "dx", "dy")}
+    vals |= {"base_rotation@D": jnp.asarray([0.3, 0.2, -0.4]), "base_translation@D": jnp.asarray([800.0, 100.0, 0.0]),
+             "base_rotation@E": jnp.asarray([-0.2, 0.1, 1.0]), "base_translation@E": jnp.asarray([-200.0, 700.0, 90.0]),
+             "marker_1@p4": jnp.asarray([20.0, 30.0, 90.0])}
+    vals |= {f"marker_{k}@p5": jnp.asarray(rng.normal(0, 60, 3)) for k in (1, 2, 3)}
+    y = np.asarray(m.predict(chain, Deviations(vals, layout_for(chain, m)), jnp.asarray(q)))
+    y = y + sigma * rng.normal(size=y.shape)
+    y[:30, 1:] = np.nan
+    Dataset(q, y, "markers", labels=new).to_csv(tmp_path / "new.csv", angle_unit="deg")
+    assert main(["evaluate", str(tmp_path / "r.json"), str(tmp_path / "new.csv"), "--out",
+                 str(tmp_path / "ev.json")]) == 0
+    ev = json.loads((tmp_path / "ev.json").read_text())
+    assert ev["extras"]["source"] == "registered"
+    assert ev["extras"]["registered"] == ["base_rotation@D", "base_translation@D", "base_rotation@E",
+                                          "base_translation@E", "marker_1@p4", "marker_1@p5", "marker_2@p5",
+                                          "marker_3@p5"]
+    assert ev["metrics_mm"]["before"]["rmse"] > 1.0 and ev["metrics_mm"]["after"]["rmse"] < 2.5 * sigma, ev["metrics_mm"]
+    for src in ("r.json", "ev.json"):
+        assert main(["report", str(tmp_path / src), "--html", str(tmp_path / "r.html")]) == 0
