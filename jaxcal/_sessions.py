@@ -18,8 +18,18 @@ from the CSV columns ``session``, ``frame`` and ``placement`` by :func:`~jaxcal.
 :func:`initial_sessions` starts every frame and placement in closed form (Kabsch per frame on
 the nominal robot's marker points, alternating with the per-placement marker positions, as
 :func:`jaxcal.initial_extras` does for one session); :func:`jaxcal.calibrate` calls it.
-:func:`holdout_session` calibrates on all sessions but one and evaluates the held-out one;
-:func:`leave_one_session_out` does it for each session.
+:func:`holdout_session` calibrates on all sessions but one (or on the sessions named in
+``train=``) and evaluates the held-out one; :func:`leave_one_session_out` does it for each
+session; :func:`evaluate_sessions` (``jaxcal.evaluate_result``, ``jaxcal evaluate``) checks a
+session calibration on new sessions, registering their frames and placements.
+
+Sessions may have **different marker counts** (a one-point session beside three-marker ones):
+each placement has its own marker set (``SessionMarkers(markers=...)``, read from the data by
+:meth:`SessionMarkers.from_dataset`) and groups only for those markers; rows carry NaN (empty CSV
+cells) in the columns of markers they lack. Such readings are masked (residual exactly 0), counted
+(:func:`masked_markers`, the closed-form start's message, the CLI's note) and never dropped
+silently, and every statistic counts only real readings (:meth:`SessionMarkers.observed`). A NaN
+in only some coordinates of a marker is an error (:func:`marker_gaps`).
 """
 
 from __future__ import annotations
@@ -638,7 +648,7 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
     from ._dataset import Dataset
     from ._evaluate import Evaluation, _metrics, _outliers, joints_to_file_units
 
-    robot, trained = result.robot, result.measurement
+    robot = result.robot
     if extras not in ("auto", "register", "result"):
         raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")
     if not isinstance(data, Dataset) or data.kind != "markers":

@@ -43,7 +43,7 @@ in the robot base frame, --measurement position). Contact data without a tracker
 point the tool tip was put on (--measurement point); no value columns. A distance bar
 (--measurement distance): q1a_deg … qNa_deg, q1b_deg … qNb_deg (two poses per row) and
 distance_mm (the bar's length between their tool points). Rows with empty/NaN values are
-rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
+rejected, not dropped (except a missing marker or camera corner, below). `jaxcal simulate --out data.csv` writes an example (it also records the anchor
 as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given).
 
 camera data (--measurement camera): one row per image, q1_deg … qN_deg then u_1_px,v_1_px,
@@ -54,7 +54,20 @@ detected: it is masked (zero weight), counted and reported, not dropped. The tar
 and the calibrated camera (--camera fx,fy,cx,cy,k1,k2,p1,p2,k3, OpenCV's intrinsics, px) may
 instead come from the data file's '# target: …', '# camera_intrinsics: …', '# mount: …' lines
 (`jaxcal simulate --measurement camera` writes them). Errors are reported in px: RMS over an
-image's detected corners of the 2-D reprojection distance."""
+image's detected corners of the 2-D reprojection distance.
+
+marker data (--measurement markers): q1_deg … qN_deg then marker_1_x_mm, marker_1_y_mm,
+marker_1_z_mm, marker_2_x_mm, … the positions of N markers on the end effector in the
+motion-capture frame (mm); the frame and the markers' positions on the flange are estimated.
+Several recording sessions in one file: text columns `session` and/or `frame`, `placement`;
+sessions with the same frame label share one sensor frame, with the same placement label one
+set of marker positions; the robot's errors are shared by all. A session with fewer markers (a
+one-point session beside three-marker ones) leaves the other markers' cells empty (x, y and z
+together; one coordinate alone is an error): those readings are masked (zero weight), counted
+and reported, not dropped, and its placement has positions only for the markers it has.
+Statistics (RMSE, σ̂, outlier scale) count only real readings: an error is the RMS over a row's
+markers of the 3-D distance. `jaxcal evaluate` of such a result on a new file registers that
+file's frames and placements (any marker counts) with the robot fixed."""
 
 _ROBOT_FORMAT = """\
 robot: a preset name (hsr_jr680, puma560, ur5, abb_irb120) or a DH table file (CSV): optional
