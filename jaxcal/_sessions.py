@@ -693,8 +693,8 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
     how = ("re-registered on the new rows" if not kept else
            f"{len(new)} group(s) registered on the new rows, {len(kept)} taken from the result")
     msg = (f"session frames ({', '.join(m.frames)}) and marker placements ({', '.join(m.placements)}) of the new "
-           f"data: {how}, robot fixed (the nominal robot's all registered); closed form, then a Huber fit of the "
-           f"extras only{gaps}")
+           f"data: {how}, robot fixed (for the nominal robot every one is registered); closed form, then a Huber fit of "
+           f"the extras only{gaps}")
     return Evaluation(
         before=_metrics(eb), after=_metrics(ea), raw_nominal=_metrics(raw), before_errors=eb, after_errors=ea,
         q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
