@@ -13,6 +13,7 @@ error, 2 gross outliers) written as CSV files, then::
 
 from __future__ import annotations
 
+import os
 import pathlib
 import sys
 import tempfile
@@ -26,18 +27,22 @@ from jaxcal.cli import main  # noqa: E402
 
 
 def run() -> int:
-    out = pathlib.Path(__file__).parent / "results" / "report_messy.html"
+    out = pathlib.Path(__file__).resolve().parent / "results" / "report_messy.html"
     ex = jaxcal.simulate_messy(jax.random.key(0))
     print(ex.describe())
+    cwd = os.getcwd()
     with tempfile.TemporaryDirectory() as tmp:
-        t = pathlib.Path(tmp)
-        ex.train.to_csv(t / "train.csv")
-        ex.test.to_csv(t / "test.csv")
-        guess = ",".join(f"{float(v):.3f}" for v in ex.measurement.anchor)
-        rc = main(["calibrate", str(t / "train.csv"), "--robot", "hsr_jr680", "--anchor", guess, "--estimate",
-                   "anchor,offset", "--test", str(t / "test.csv"), "--keep-extras", "--out", str(t / "result.json")])
-        print(f"calibrate: exit status {rc}")
-        return main(["report", str(t / "result.json"), "--html", str(out)]) or rc
+        os.chdir(tmp)  # the page names the data files as given: train.csv, not a temporary directory
+        try:
+            ex.train.to_csv("train.csv")
+            ex.test.to_csv("test.csv")
+            guess = ",".join(f"{float(v):.3f}" for v in ex.measurement.anchor)
+            rc = main(["calibrate", "train.csv", "--robot", "hsr_jr680", "--anchor", guess, "--estimate",
+                       "anchor,offset", "--test", "test.csv", "--keep-extras", "--out", "result.json"])
+            print(f"calibrate: exit status {rc}")
+            return main(["report", "result.json", "--html", str(out)]) or rc
+        finally:
+            os.chdir(cwd)
 
 
 if __name__ == "__main__":

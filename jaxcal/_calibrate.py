@@ -39,7 +39,7 @@ from ._metrics import Metrics, compute_metrics
 from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from ._precision import cast_floating, dtype_scope, to_device, warn_if_float32
-from ._problem import Problem, residual_blocks_numpy, signed_residuals
+from ._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
 from ._result import CalibrationResult, Status, budget_status, iterations_to_converge
 from ._robot import DHRobot
 from ._xla import compile_lowered
@@ -573,10 +573,10 @@ def _calibration_steps(
         start, extras_msg = est.deviations, est.message
     selecting = _default_selection(space)
     space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior)
-    n_res = q.shape[0] * measurement.size
+    problem = Problem(robot, measurement, q, y, space, start)
+    n_res = problem.n_observed_residuals  # real readings (a missing marker is masked)
     _check_enough_residuals(q.shape[0], n_res, space, report, prior)
     key = _default_key() if key is None else key
-    problem = Problem(robot, measurement, q, y, space, start)
     x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
     if resid_start is None:  # else from the identifiability program
         resid_start = signed_residuals(problem, x)
@@ -598,7 +598,7 @@ def _calibration_steps(
                 new_noise = new_scale = None
             else:
                 resid = resid_start if rounds == first else signed_residuals(problem, space.to_vector(cur))
-                s_hat = robust_scale(resid)
+                s_hat = robust_scale(observed_entries(problem, resid))  # masked readings left out
                 s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
                 new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
                 new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None

@@ -78,7 +78,8 @@ class Dataset(eqx.Module):
             (mm) for ``"position"``, ``[n, 4, 4]`` poses for ``"pose"``, ``[n, N, 3]`` marker
             positions (mm, sensor frame) for ``"markers"``, ``[n, N, 2]`` image points (px) of
             ``N`` target points for ``"camera"`` (NaN: not detected, masked; see
-            :class:`jaxcal.Camera`); ``[n]`` label indices for ``"plane"`` / ``"point"`` (names in
+            :class:`jaxcal.Camera`; for ``"markers"`` NaN in x, y and z is a missing marker,
+            masked by :class:`jaxcal.SessionMarkers`); ``[n]`` label indices for ``"plane"`` / ``"point"`` (names in
             the ``plane_labels`` / ``point_labels`` metadata) and ``[n, dof + 1]`` (pose b in rad,
             bar length in mm) for ``"distance"`` (see :mod:`jaxcal._contact`).
         kind: ``"cable"``, ``"position"``, ``"pose"``, ``"markers"``, ``"camera"``, ``"plane"``,
@@ -195,6 +196,11 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
     elif kind == "markers":
         if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
             raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
+        if np.isnan(y).any():  # a missing marker (NaN x, y, z): masked by SessionMarkers, refused by Markers
+            from ._sessions import marker_gaps
+
+            marker_gaps(y)  # partial points, ±inf, rows without any marker: errors
+            y = np.where(np.isnan(y), 0.0, y)
     else:
         want = (n, *_SAMPLE_SHAPE[kind])
         if y.shape != want:
@@ -496,7 +502,9 @@ def load_csv(
         raise ValueError(f"{path}: no data rows")
     n_joints = len(qcols)
     if kind == "camera":  # empty cells (corners not detected) → NaN, masked by the camera model
-        table = np.concatenate([t.floats(qcols), _camera_cells(t, value_cols)], axis=1)
+        table = np.concatenate([t.floats(qcols), _gap_cells(t, value_cols, 2)], axis=1)
+    elif kind == "markers":  # empty cells (a marker the session does not have) → NaN, masked by SessionMarkers
+        table = np.concatenate([t.floats(qcols), _gap_cells(t, value_cols, 3)], axis=1)
     else:
         table = t.floats(used)
     q, mm = joint_values(path, table[:, :n_joints], qcols, unit)
@@ -539,10 +547,13 @@ def load_csv(
     return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), kind, meta, labels)
 
 
-def _camera_cells(t, columns) -> np.ndarray:
-    """``[n_rows, len(columns)]`` image coordinates (px) of a camera file: an empty cell is NaN
-    (a corner not detected); ``u`` and ``v`` of a point must be empty together; other text that
-    is not a number, NaN/inf text, is an error naming row, line and column."""
+def _gap_cells(t, columns, width: int) -> np.ndarray:
+    """``[n_rows, len(columns)]`` readings of a file whose points may be missing: an empty cell is
+    NaN; the ``width`` columns of one point (``u, v`` of a camera corner: a corner not detected;
+    ``x, y, z`` of a marker: a marker the session does not have, or not seen) must be empty
+    together; other text that is not a number, NaN/inf text, is an error naming row, line and
+    column."""
+    what = "corner was not detected" if width == 2 else "marker is missing"
     idx = [t.header.index(c) for c in columns]
     out = np.full((len(t.rows), len(idx)), np.nan)
     for r, row in enumerate(t.rows):
@@ -558,11 +569,13 @@ def _camera_cells(t, columns) -> np.ndarray:
                 raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r} is not a number") from None
             if not math.isfinite(v):
                 raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r}; leave the cell empty where a "
-                                 "corner was not detected")
+                                 f"{what}")
             out[r, k] = v
-        pair = np.isnan(out[r].reshape(-1, 2))
-        odd = np.flatnonzero(pair[:, 0] != pair[:, 1])
+        gap = np.isnan(out[r].reshape(-1, width))
+        odd = np.flatnonzero(gap.any(axis=1) & ~gap.all(axis=1))
         if odd.size:
-            raise ValueError(f"{t.path}: {t.where(r)}: point {odd[0] + 1} has only one of u_{odd[0] + 1}_px, "
-                             f"v_{odd[0] + 1}_px (leave both empty where a corner was not detected)")
+            cols = columns[odd[0] * width:(odd[0] + 1) * width]
+            name = "point" if width == 2 else "marker"
+            raise ValueError(f"{t.path}: {t.where(r)}: {name} {odd[0] + 1} has only some of {', '.join(cols)} "
+                             f"(leave {'both' if width == 2 else 'all three'} empty where a {what})")
     return out

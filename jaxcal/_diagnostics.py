@@ -146,7 +146,7 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
         gram = _gram(problem, to_device(x, problem.dtype), loss, to_device(loss_scale, problem.dtype))
     d, A, G, rss, r = gram
     d, A, G = (np.asarray(v, np.float64) for v in (d, A, G))
-    N, p = problem.n_residuals, A.shape[0]
+    N, p = problem.n_observed_residuals, A.shape[0]  # real readings (masked ones left out)
     rss = float(rss)
     lam = np.zeros(p) if prior_inv_std is None else np.asarray(prior_inv_std, np.float64) ** 2
     # a column the data cannot see can come out at round-off size (1e-12 where a difference of two
@@ -206,9 +206,16 @@ def outlier_rows(problem, x, k: float = 5.0, *, residuals=None) -> tuple[np.ndar
         entries (position part for poses).
     """
     r = signed_residuals(problem, x) if residuals is None else residuals
-    med = np.median(r)
-    s = robust_scale(r)
-    dev = np.abs(r - med)
+    obs = problem.observed()
+    if obs is None:
+        med = np.median(r)
+        s = robust_scale(r)
+        dev = np.abs(r - med)
+    else:  # masked readings (a missing marker) are left out of the scale and the scan
+        real = np.asarray(r)[obs[:, : np.shape(r)[1]]]
+        med = np.median(real)
+        s = robust_scale(real)
+        dev = np.where(obs[:, : np.shape(r)[1]], np.abs(r - med), 0.0)
     worst = dev.max(axis=1)
     rows = np.flatnonzero(~(worst <= k * s))  # NaN/inf count as outliers
     errors = (r - med)[rows, np.argmax(dev[rows], axis=1)] if rows.size else np.zeros(0)

@@ -305,9 +305,10 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     from ._dataset import Dataset
 
     robot, m = result.robot, result.measurement
-    if hasattr(m, "frame_index"):
-        raise ValueError("a session-marker result (SessionMarkers) is evaluated per session: use "
-                         "jaxcal.holdout_session / leave_one_session_out")
+    if hasattr(m, "frame_index"):  # SessionMarkers: the new data's sessions get their own model
+        from ._sessions import evaluate_sessions
+
+        return evaluate_sessions(result, data, extras=extras, objective=objective)
     if not isinstance(data, Dataset):
         q, y = _as_arrays(data, m, robot)
         data = Dataset(q, y, m.kind)

@@ -119,16 +119,26 @@ def _identifiability(ident: dict | None) -> str:
     if not ident:
         return "<p>No identifiability report in this file.</p>"
     deps = ident.get("dependencies", {})
-    rows = [[n, " ".join(f"{c:+.4g}·{m}" for c, m in deps.get(n, [])) or "no effect on the measurements"]
-            for n in ident.get("unidentifiable", [])]
+    covered = set(ident.get("prior_covered", []))
+
+    def rows(names):
+        return [[n, " ".join(f"{c:+.4g}·{m}" for c, m in deps.get(n, [])) or "no effect on the measurements"]
+                for n in names]
+
+    head = ["parameter", "a change δ acts like (coefficient · parameter · δ; angles in rad, lengths in mm)"]
     out = [f"<p>Identification Jacobian rank {ident.get('rank')} of {ident.get('n_free')} candidate parameters "
            f"(column-scaled, rtol {ident.get('rtol')}); condition number of the identifiable subset "
            f"{_num(ident.get('condition_number'), 3)}.</p>",
-           f"<p>Identifiable (calibrated): {_e(', '.join(ident.get('identifiable', [])))}</p>"]
-    if rows:
-        out.append("<p>Not identifiable (kept at their start value); a change acts like:</p>"
-                   + _table(["parameter", "a change δ acts like (coefficient · parameter · δ; angles in rad, lengths in mm)"],
-                            rows, left=2))
+           f"<p>Identifiable from the data (calibrated): {_e(', '.join(ident.get('identifiable', [])))}</p>"]
+    # as the text report: under a prior (MAP) the prior sets these directions; only the rest is held
+    by_prior = [n for n in ident.get("unidentifiable", []) if n in covered]
+    held = [n for n in ident.get("unidentifiable", []) if n not in covered]
+    if by_prior:
+        out.append("<p>Not identifiable from the data alone, estimated under the prior (maximum a posteriori: "
+                   "the prior sets these directions); a change acts like:</p>" + _table(head, rows(by_prior), left=2))
+    if held:
+        out.append("<p>Not identifiable" + (" and without a prior" if covered else "")
+                   + " (held at their start value); a change acts like:</p>" + _table(head, rows(held), left=2))
     return "".join(out)
 
 

@@ -242,7 +242,10 @@ def marker_errors(F, P, Y, fi, pi, R, t, M) -> np.ndarray:
     flange frames ``F [n, 3, 3]``, ``P [n, 3]`` and readings ``Y [n, N, 3]``."""
     pts = P[:, None, :] + np.einsum("nij,nkj->nki", F, M[pi])
     pred = np.einsum("nij,nkj->nki", R[fi], pts) + t[fi][:, None, :]
-    return np.sqrt(np.mean(np.sum((pred - Y) ** 2, axis=-1), axis=-1))
+    sq = np.sum((pred - Y) ** 2, axis=-1)
+    if np.isnan(sq).any():  # missing markers (NaN readings, SessionMarkers): the mean over the real ones
+        return np.sqrt(np.nanmean(sq, axis=-1))
+    return np.sqrt(np.mean(sq, axis=-1))
 
 
 def alternate_frames_and_markers(F, P, Y, fi, pi, R, t, M, est_f, est_p, *, iterations: int, trim: bool = True):
@@ -255,28 +258,45 @@ def alternate_frames_and_markers(F, P, Y, fi, pi, R, t, M, est_f, est_p, *, iter
     orthonormal) and each frame by Kabsch on all its marker points, until nothing moves; then
     once more without rows beyond 5 robust σ (``trim``; a frame keeps at least
     :data:`MIN_FRAME_ROWS` rows). Row ``i`` is seen in frame ``fi[i]`` with placement ``pi[i]``.
+    A missing marker (NaN in ``Y``) is left out of every mean and fit (centroids over each
+    row's real markers; a marker position from the rows that saw it).
     Returns ``(R, t, M, keep [n])`` (copies; ``keep``: rows used).
     """
     R, t, M = np.array(R, np.float64), np.array(t, np.float64), np.array(M, np.float64)
     keep = np.ones(Y.shape[0], bool)
+    seen = ~np.isnan(Y).any(axis=-1)  # [n, N]: False for a missing marker (SessionMarkers masks it)
+    gaps = not seen.all()
 
     def points(rows):  # marker points in the base frame [r, N, 3]
         return P[rows][:, None, :] + np.einsum("nij,nkj->nki", F[rows], M[pi[rows]])
 
+    def centroid(v, rows):  # [r, 3]: mean over each row's real markers
+        if not gaps:
+            return v.mean(axis=1)
+        w = seen[rows][..., None]
+        return np.where(w, v, 0.0).sum(axis=1) / w.sum(axis=1)
+
     for _ in range(2):
         for j in est_f:  # frames from the marker centroids first
             rows = np.flatnonzero((fi == j) & keep)
-            R[j], t[j] = kabsch(points(rows).mean(axis=1), Y[rows].mean(axis=1))
+            R[j], t[j] = kabsch(centroid(points(rows), rows), centroid(Y[rows], rows))
         for _ in range(iterations):
             old = (M.copy(), R.copy(), t.copy())
             for j in est_p:
                 rows = np.flatnonzero((pi == j) & keep)
                 if rows.size:
                     local = np.einsum("nji,nkj->nki", R[fi[rows]], Y[rows] - t[fi[rows]][:, None, :])
-                    M[j] = np.einsum("nji,nkj->nki", F[rows], local - P[rows][:, None, :]).mean(axis=0)
+                    m_rows = np.einsum("nji,nkj->nki", F[rows], local - P[rows][:, None, :])
+                    if not gaps:
+                        M[j] = m_rows.mean(axis=0)
+                    else:  # each marker from the rows that saw it; a marker no row saw keeps its value
+                        w = seen[rows][..., None]
+                        cnt = w.sum(axis=0)
+                        M[j] = np.where(cnt > 0, np.where(w, m_rows, 0.0).sum(axis=0) / np.maximum(cnt, 1), M[j])
             for j in est_f:
                 rows = np.flatnonzero((fi == j) & keep)
-                R[j], t[j] = kabsch(points(rows).reshape(-1, 3), Y[rows].reshape(-1, 3))
+                ok = seen[rows].reshape(-1)
+                R[j], t[j] = kabsch(points(rows).reshape(-1, 3)[ok], Y[rows].reshape(-1, 3)[ok])
             if (np.abs(M - old[0]).max() < 1e-9 and np.abs(R - old[1]).max() < 1e-12
                     and np.abs(t - old[2]).max() < 1e-9):
                 break

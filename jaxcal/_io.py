@@ -208,7 +208,10 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
     """``{"kind": "cable", "anchor_mm": [x, y, z]}``, ``{"kind": "position", "rotation": R,
     "translation_mm": t}``, ``{"kind": "pose", "orientation_scale": s, ...}`` or ``{"kind": "markers",
     "positions_mm": [[x, y, z], ...], "known": bool, ...}`` (``R`` the nominal
-    ``[3, 3]`` sensor-from-base rotation, ``t`` mm)."""
+    ``[3, 3]`` sensor-from-base rotation, ``t`` mm); a :class:`~jaxcal.SessionMarkers` adds
+    ``"sessions": {"frames", "placements", "markers", "frame_index", "placement_index"}`` (its
+    labels, each placement's marker numbers and the training rows' indices) and per-placement
+    ``positions_mm`` ``[P, N, 3]``."""
     if isinstance(m, CableLength):
         return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
     if getattr(m, "kind", None) == "camera":  # jaxcal._camera.Camera
@@ -222,6 +225,12 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
         from ._contact import contact_to_dict
 
         return contact_to_dict(m)
+    if hasattr(m, "frame_index"):  # jaxcal.SessionMarkers: labels, marker sets and the rows it was made for
+        return {"kind": "markers", "positions_mm": np.asarray(m.positions, np.float64).tolist(),
+                "sessions": {"frames": list(m.frames), "placements": list(m.placements),
+                             "markers": [list(k) for k in m.markers],
+                             "frame_index": np.asarray(m.frame_index).tolist(),
+                             "placement_index": np.asarray(m.placement_index).tolist()}}
     frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
              "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
     if isinstance(m, Pose):
@@ -256,6 +265,14 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
         return Position(**frame)
     if kind == "pose":
         return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame)
+    if kind == "markers" and "sessions" in d:
+        from ._sessions import SessionMarkers
+
+        se = d["sessions"]
+        fr, pl = se["frames"], se["placements"]
+        return SessionMarkers([fr[i] for i in se["frame_index"]], [pl[i] for i in se["placement_index"]],
+                              len(d["positions_mm"][0]), np.asarray(d["positions_mm"], np.float64),
+                              frame_labels=fr, placement_labels=pl, markers=se["markers"])
     if kind == "markers":
         return Markers(jnp.asarray(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
                        **frame)

@@ -55,6 +55,14 @@ class MeasurementModel(eqx.Module):
         identification Jacobian computed for other readings then serves these too."""
         return type(self).residual is MeasurementModel.residual
 
+    def observed(self, y) -> np.ndarray | None:
+        """``[n, m]`` bool on the host: the residual entries that are real readings, or ``None``
+        (every entry is). A model that masks missing readings (:class:`~jaxcal.SessionMarkers`:
+        a missing marker) says which here, so that every statistic (σ̂, the robust and outlier
+        scales, the residual count) counts only real ones."""
+        del y
+        return None
+
     def sample_error(self, residual: Float[Array, "n m"]) -> Float[Array, " n"]:
         """One signed (m = 1) or non-negative (m > 1, Euclidean norm) error per sample (mm)."""
         if self.size == 1:
@@ -286,6 +294,16 @@ class Markers(MarkerModel):
     @property
     def n_markers(self) -> int:
         return int(self.positions.shape[0])
+
+    def check_measurements(self, y, n: int) -> None:
+        """``[n, N, 3]`` and finite: a missing marker (NaN) is masked by
+        :class:`~jaxcal.SessionMarkers` (data with session labels), not by this model."""
+        if np.shape(y) == (n, *self.sample_shape) and np.isnan(np.asarray(y)).any():
+            rows = np.flatnonzero(np.isnan(np.asarray(y)).reshape(n, -1).any(axis=1))
+            raise ValueError(f"markers measurements have missing markers (NaN) at samples {rows[:10].tolist()}: "
+                             "Markers needs every marker in every row; SessionMarkers (data with a session/"
+                             "placement label) masks missing markers")
+        super().check_measurements(y, n)
 
     def extra_groups(self) -> tuple[Group, ...]:
         """``marker_1 … marker_N`` unless the positions are known."""

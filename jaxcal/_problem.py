@@ -16,6 +16,7 @@ from ._precision import to_device
 from ._robot import DHRobot
 
 __all__ = ["Problem", "value_and_jacfwd", "residual_blocks", "residual_blocks_numpy", "signed_residuals",
+           "observed_entries",
            "sample_errors_at", "predict_jit"]
 
 
@@ -91,6 +92,17 @@ class Problem(eqx.Module):
         """Real residual entries (``n_real · m``), what the means divide by."""
         return self.n_residuals if self.weight is None else self.n_real * self.measurement.size
 
+    def observed(self) -> np.ndarray | None:
+        """``[n, m]`` bool: the real residual entries (:meth:`MeasurementModel.observed`; ``None``:
+        every entry of the data is real)."""
+        return self.measurement.observed(self.y)
+
+    @property
+    def n_observed_residuals(self) -> int:
+        """Residual entries that are real readings (:attr:`n_residuals` less the masked ones)."""
+        obs = self.observed()
+        return self.n_residuals if obs is None else int(obs.sum())
+
     def mean_weights(self) -> Float[Array, " n"]:
         """``[n]`` weights of the per-sample mean: ``1/n`` each, or ``weight / n_real``."""
         if self.weight is None:
@@ -161,6 +173,13 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
         padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, problem.space, problem.base)
         return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, x))[:n])
     return residual_blocks_numpy(problem, residual_blocks(problem, x))
+
+
+def observed_entries(problem: Problem, r) -> np.ndarray:
+    """The residual entries of ``r`` (:func:`signed_residuals` blocks ``[n, m]``) that are real
+    readings (:meth:`Problem.observed`), flat; ``r`` itself when every entry is."""
+    obs = problem.observed()
+    return r if obs is None else np.asarray(r)[obs[:, : np.shape(r)[1]]]
 
 
 def residual_blocks_numpy(problem: Problem, r) -> np.ndarray:

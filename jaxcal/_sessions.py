@@ -18,8 +18,18 @@ from the CSV columns ``session``, ``frame`` and ``placement`` by :func:`~jaxcal.
 :func:`initial_sessions` starts every frame and placement in closed form (Kabsch per frame on
 the nominal robot's marker points, alternating with the per-placement marker positions, as
 :func:`jaxcal.initial_extras` does for one session); :func:`jaxcal.calibrate` calls it.
-:func:`holdout_session` calibrates on all sessions but one and evaluates the held-out one;
-:func:`leave_one_session_out` does it for each session.
+:func:`holdout_session` calibrates on all sessions but one (or on the sessions named in
+``train=``) and evaluates the held-out one; :func:`leave_one_session_out` does it for each
+session; :func:`evaluate_sessions` (``jaxcal.evaluate_result``, ``jaxcal evaluate``) checks a
+session calibration on new sessions, registering their frames and placements.
+
+Sessions may have **different marker counts** (a one-point session beside three-marker ones):
+each placement has its own marker set (``SessionMarkers(markers=...)``, read from the data by
+:meth:`SessionMarkers.from_dataset`) and groups only for those markers; rows carry NaN (empty CSV
+cells) in the columns of markers they lack. Such readings are masked (residual exactly 0), counted
+(:func:`masked_markers`, the closed-form start's message, the CLI's note) and never dropped
+silently, and every statistic counts only real readings (:meth:`SessionMarkers.observed`). A NaN
+in only some coordinates of a marker is an error (:func:`marker_gaps`).
 """
 
 from __future__ import annotations
@@ -48,7 +58,8 @@ from ._params import Deviations, Group, ParameterSpace, layout_for
 from ._precision import to_device
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "SessionHoldout",
-           "holdout_session", "leave_one_session_out", "session_labels"]
+           "holdout_session", "leave_one_session_out", "session_labels", "marker_gaps", "masked_markers",
+           "evaluate_sessions"]
 
 
 
@@ -59,11 +70,48 @@ def frame_groups(label: str) -> tuple[Group, Group]:
             Group.vector(f"base_translation@{label}", tuple(f"base_{c}@{label}" for c in "xyz"), "mm"))
 
 
-def placement_groups(label: str, n_markers: int) -> tuple[Group, ...]:
-    """``marker_k@label`` (``k`` = 1..n_markers, mm): the marker positions of one placement in
-    the flange frame (deviations from the nominal positions)."""
+def placement_groups(label: str, markers) -> tuple[Group, ...]:
+    """``marker_k@label`` (mm): the marker positions of one placement in the flange frame
+    (deviations from the nominal positions), for ``k`` in ``markers`` (1-based marker numbers;
+    an int ``N`` means ``1..N``)."""
+    ks = range(1, int(markers) + 1) if isinstance(markers, (int, np.integer)) else markers
     return tuple(Group.vector(f"marker_{k}@{label}", tuple(f"marker_{k}_{c}@{label}" for c in "xyz"), "mm")
-                 for k in range(1, n_markers + 1))
+                 for k in ks)
+
+
+def marker_gaps(y) -> np.ndarray:
+    """``[n, N]`` bool: the marker readings of ``y`` ``[n, N, 3]`` that are missing (NaN in all
+    three coordinates: a marker the session does not have, or one not seen in that row).
+
+    Raises:
+        ValueError: a reading with only some coordinates NaN (a partial point is a broken file,
+            not a missing marker), ±inf, or a row without any marker reading.
+    """
+    Y = np.asarray(y, np.float64)
+    if Y.ndim != 3 or Y.shape[2] != 3:
+        raise ValueError(f"marker readings must be [n, N, 3] (mm), got shape {list(Y.shape)}")
+    if np.isinf(Y).any():
+        raise ValueError("marker readings contain ±inf; a missing marker is NaN in x, y and z (empty CSV cells)")
+    nan = np.isnan(Y)
+    gap = nan.all(axis=-1)
+    part = nan.any(axis=-1) & ~gap
+    if part.any():
+        i, k = (int(v) for v in np.argwhere(part)[0])
+        raise ValueError(f"marker readings: {int(part.sum())} reading(s) have only some of x, y, z missing (first: "
+                         f"row {i}, marker {k + 1}); a missing marker is NaN in all three coordinates, a partial "
+                         "point is an error in the data")
+    empty = gap.all(axis=1)
+    if empty.any():
+        raise ValueError(f"marker readings: {int(empty.sum())} row(s) have no marker reading at all (rows "
+                         f"{np.flatnonzero(empty)[:10].tolist()}, 0-based); remove them")
+    return gap
+
+
+def masked_markers(y) -> tuple[int, int, int]:
+    """``(missing, total, rows_with_missing)`` marker readings of ``y`` ``[n, N, 3]`` (see
+    :func:`marker_gaps`): what :class:`SessionMarkers` masks."""
+    gap = marker_gaps(y)
+    return int(gap.sum()), int(gap.size), int(gap.any(axis=1).sum())
 
 
 def _check_label(label, what: str) -> str:
@@ -95,17 +143,29 @@ class SessionMarkers(MarkerModel):
     ``positions_mm[p] +`` the ``marker_k@p`` deviation) and ``(R_f, t_f) = T_sensor_base`` of
     frame ``f`` (identity ``+`` the ``base_rotation@f`` / ``base_translation@f`` deviations).
 
+    **Different marker counts.** Each placement has its own set of markers (``markers``: a
+    one-point session beside three-marker ones): rows carry ``NaN`` (empty CSV cells) in the
+    columns of markers their placement does not have. A missing reading (NaN in x, y and z; also
+    a marker of the placement that one row did not see) is **masked**: its residual is exactly 0
+    (zero weight), it is counted (:func:`masked_markers`, the closed-form start's message) and
+    never dropped silently; a reading with only some coordinates NaN is an error. A placement
+    has ``marker_k@K`` groups only for the markers it has, and every statistic counts only the
+    real readings (:meth:`observed`): the per-row error, σ̂, the robust/outlier scale, the
+    residual count of the uncertainty and the floor (:func:`jaxcal.statistical_floor` with
+    ``n_train`` = real readings, ``size = 3``).
+
     The model carries one frame and one placement index per row, so it belongs to the rows it was
     made for: :meth:`take` gives the model of a subset of rows with the same labels and groups
     (a held-out split keeps the parameter layout). Every extra group is free by default;
     :func:`jaxcal.calibrate` starts them in closed form (:func:`initial_sessions`). The
-    ``sample_error`` is the RMS over the row's markers of the 3-D distance error (mm), as
-    :class:`~jaxcal.Markers`.
+    ``sample_error`` is the RMS over the row's real markers of the 3-D distance error (mm), as
+    :class:`~jaxcal.Markers` (and :class:`~jaxcal.Camera` for undetected corners).
 
     Attributes:
         positions: ``[n_placements, N, 3]`` nominal marker positions per placement (mm).
         frame_index, placement_index: ``[n]`` int, per row.
         frames, placements: the label of every index (static, in order).
+        markers: per placement, its 1-based marker numbers (static; default all ``1..N``).
     """
 
     positions: Float[Array, "P N 3"]
@@ -113,11 +173,13 @@ class SessionMarkers(MarkerModel):
     placement_index: Int[Array, " n"]
     frames: tuple[str, ...] = eqx.field(static=True)
     placements: tuple[str, ...] = eqx.field(static=True)
+    markers: tuple[tuple[int, ...], ...] = eqx.field(static=True)
     kind: ClassVar[str] = "markers"
     known: ClassVar[bool] = False
 
     def __init__(self, frames: Sequence[str], placements: Sequence[str], n_markers: int = 1, positions_mm=None,
-                 *, frame_labels: Sequence[str] | None = None, placement_labels: Sequence[str] | None = None):
+                 *, frame_labels: Sequence[str] | None = None, placement_labels: Sequence[str] | None = None,
+                 markers=None):
         """Args:
             frames, placements: ``[n]`` per-row frame and placement labels (strings).
             n_markers: markers per row (``N``).
@@ -127,6 +189,9 @@ class SessionMarkers(MarkerModel):
             frame_labels, placement_labels: every label of the parameter layout, in order
                 (default: the labels of these rows in order of appearance); labels without rows
                 here keep their groups, so a model of a held-out subset has the same layout.
+            markers: the markers each placement has: ``{label: [k, ...]}`` or one sequence per
+                placement label in order (1-based marker numbers ``<= N``; default every
+                placement has all ``N``). :meth:`from_dataset` reads them from the data.
         """
         frames = [_check_label(f, "frame") for f in frames]
         placements = [_check_label(p, "placement") for p in placements]
@@ -154,23 +219,35 @@ class SessionMarkers(MarkerModel):
                              f"got shape {list(pos.shape)}")
         self.positions = to_device(pos)
         self.frames, self.placements = fl, pl
+        self.markers = _placement_markers(markers, pl, n_markers)
         self.frame_index = to_device(np.asarray([fl.index(f) for f in frames], np.int32).reshape(-1))
         self.placement_index = to_device(np.asarray([pl.index(p) for p in placements], np.int32).reshape(-1))
 
     # -- construction -------------------------------------------------------------------
     @classmethod
     def from_dataset(cls, data, n_markers: int | None = None, positions_mm=None, **kw) -> SessionMarkers:
-        """The model of a labelled marker :class:`~jaxcal.Dataset` (``data.labels``)."""
+        """The model of a labelled marker :class:`~jaxcal.Dataset` (``data.labels``).
+
+        Unless ``markers=`` is given, each placement has the markers with at least one reading
+        in its rows (:func:`marker_gaps`): a one-point session in a three-marker file (NaN in
+        marker 2's and 3's columns) gets ``marker_1@K`` only."""
         labels = session_labels(data)
         n_markers = int(np.shape(data.y)[1]) if n_markers is None else n_markers
-        return cls([f for _, f, _ in labels], [p for _, _, p in labels], n_markers, positions_mm, **kw)
+        fr, pl = [f for _, f, _ in labels], [p for _, _, p in labels]
+        if kw.get("markers") is None and np.shape(data.y)[1] == n_markers:
+            seen = ~marker_gaps(data.y)
+            order = _ordered(pl) if kw.get("placement_labels") is None else kw["placement_labels"]
+            kw["markers"] = {p: [k + 1 for k in range(n_markers) if seen[[x == p for x in pl]][:, k].any()]
+                             for p in order if p in pl}
+        return cls(fr, pl, n_markers, positions_mm, **kw)
 
     def take(self, rows) -> SessionMarkers:
         """The model of rows ``rows`` (an index array, boolean mask or slice), same labels and layout."""
         fi = np.asarray(self.frame_index)[rows]
         pi = np.asarray(self.placement_index)[rows]
         return SessionMarkers([self.frames[i] for i in fi], [self.placements[i] for i in pi], self.n_markers,
-                              np.asarray(self.positions), frame_labels=self.frames, placement_labels=self.placements)
+                              np.asarray(self.positions), frame_labels=self.frames, placement_labels=self.placements,
+                              markers=self.markers)
 
     def pad_rows(self, n: int, n_to: int) -> SessionMarkers:
         """The model of the rows padded to ``n_to`` by repeating row 0 (:mod:`jaxcal._buckets`)."""
@@ -190,7 +267,7 @@ class SessionMarkers(MarkerModel):
     def extra_groups(self) -> tuple[Group, ...]:
         """``base_rotation@F, base_translation@F`` per frame label, then ``marker_k@K`` per placement."""
         return (tuple(g for f in self.frames for g in frame_groups(f))
-                + tuple(g for p in self.placements for g in placement_groups(p, self.n_markers)))
+                + tuple(g for p, ks in zip(self.placements, self.markers) for g in placement_groups(p, ks)))
 
     def groups_of(self, *, frame: str | None = None, placement: str | None = None) -> tuple[str, ...]:
         """Group names of a frame label and/or a placement label."""
@@ -202,14 +279,41 @@ class SessionMarkers(MarkerModel):
         if placement is not None:
             if placement not in self.placements:
                 raise ValueError(f"unknown placement label {placement!r}; labels: {list(self.placements)}")
-            out += [g.name for g in placement_groups(placement, self.n_markers)]
+            out += [g.name for g in placement_groups(placement, self.markers[self.placements.index(placement)])]
         return tuple(out)
 
     def check_measurements(self, y, n: int) -> None:
-        super().check_measurements(y, n)
+        """``[n, N, 3]`` for the rows the model was made for; a missing marker is NaN in x, y and z
+        (masked, :func:`marker_gaps`); a reading of a marker the row's placement does not have is
+        an error (build the model with :meth:`from_dataset`, or name the markers)."""
+        shape = tuple(np.shape(y))
+        if shape != (n, *self.sample_shape):
+            raise ValueError(f"markers measurements must have shape {[n, *self.sample_shape]} for {n} samples, "
+                             f"got {list(shape)}")
         if n != self.n_rows:
             raise ValueError(f"SessionMarkers was made for {self.n_rows} rows but the data have {n}: build it from "
                              "the same rows (SessionMarkers.from_dataset, or .take(rows) for a subset)")
+        seen = ~marker_gaps(y)
+        extra = seen & ~self._has()[np.asarray(self.placement_index)]
+        if extra.any():
+            i, k = (int(v) for v in np.argwhere(extra)[0])
+            p = self.placements[int(self.placement_index[i])]
+            raise ValueError(f"row {i} (placement {p!r}) has a reading of marker {k + 1}, which placement {p!r} does "
+                             f"not have (its markers: {list(self.markers[self.placements.index(p)])}); build the "
+                             "model with SessionMarkers.from_dataset or name the markers (markers=)")
+
+    def _has(self) -> np.ndarray:
+        """``[n_placements, N]`` bool: the markers each placement has."""
+        out = np.zeros((len(self.placements), self.n_markers), bool)
+        for j, ks in enumerate(self.markers):
+            out[j, np.asarray(ks, int) - 1] = True
+        return out
+
+    def observed(self, y) -> np.ndarray | None:
+        """``[n, 3N]`` bool: the residual entries that are real readings (not a missing marker);
+        ``None`` when every marker of every row is there."""
+        seen = ~np.isnan(np.asarray(y, np.float64)).all(axis=-1)
+        return None if seen.all() else np.repeat(seen, 3, axis=1)
 
     # -- model ----------------------------------------------------------------------------
     def frame_arrays(self, deviations: Deviations | None, dtype=None):
@@ -229,8 +333,9 @@ class SessionMarkers(MarkerModel):
         if deviations is None:
             return m
         vals = deviations.values
-        dev = jnp.stack([jnp.stack([jnp.asarray(vals[f"marker_{k + 1}@{p}"]).astype(m.dtype)
-                                    for k in range(self.n_markers)]) for p in self.placements])
+        zero = jnp.zeros(3, m.dtype)
+        dev = jnp.stack([jnp.stack([jnp.asarray(vals[f"marker_{k + 1}@{p}"]).astype(m.dtype) if k + 1 in ks else zero
+                                    for k in range(self.n_markers)]) for p, ks in zip(self.placements, self.markers)])
         return m + dev
 
     def predict(self, robot, deviations, q) -> Float[Array, "n N 3"]:
@@ -248,6 +353,44 @@ class SessionMarkers(MarkerModel):
             out.append(jnp.stack([R[:, r, 0] * p[0] + R[:, r, 1] * p[1] + R[:, r, 2] * p[2] + t[:, r]
                                   for r in range(3)], -1))
         return jnp.stack(out, axis=1)
+
+    def residual(self, robot, deviations, q, y) -> Float[Array, "n 3N"]:
+        """``predicted − measured`` (mm) ``[n, 3N]``; exactly 0 where a marker is missing (NaN)."""
+        y = jnp.asarray(y)
+        ok = ~jnp.isnan(y)
+        r = self.predict(robot, deviations, q) - jnp.where(ok, y, 0.0)
+        return jnp.where(ok, r, 0.0).reshape(q.shape[0], self.size)
+
+    def sample_error(self, residual) -> Float[Array, " n"]:
+        """RMS over the row's real markers of the 3-D distance error (mm). A missing marker has an
+        exactly zero residual and is left out of the mean (as :meth:`jaxcal.Camera.sample_error`:
+        a real reading whose residual is exactly 0.0 would be too, a measure-zero event with
+        noisy data); with every marker present this is :class:`~jaxcal.Markers`' error."""
+        r = residual.reshape(residual.shape[0], self.n_markers, 3)
+        sq = jnp.sum(r * r, axis=-1)
+        count = jnp.sum(sq > 0, axis=-1).astype(sq.dtype)
+        return jnp.sqrt(jnp.mean(sq, axis=-1) * (self.n_markers / jnp.maximum(count, 1.0)))
+
+
+def _placement_markers(markers, placements: tuple[str, ...], n_markers: int) -> tuple[tuple[int, ...], ...]:
+    """``SessionMarkers(markers=...)`` as one sorted tuple of 1-based marker numbers per placement."""
+    if markers is None:
+        return tuple(tuple(range(1, n_markers + 1)) for _ in placements)
+    if isinstance(markers, dict):
+        unknown = sorted(set(markers) - set(placements))
+        if unknown:
+            raise ValueError(f"markers= names unknown placement label(s) {unknown}; labels: {list(placements)}")
+        markers = [markers.get(p, range(1, n_markers + 1)) for p in placements]
+    markers = list(markers)
+    if len(markers) != len(placements):
+        raise ValueError(f"markers= gives {len(markers)} marker sets for {len(placements)} placements")
+    out = []
+    for p, ks in zip(placements, markers):
+        ks = tuple(sorted({int(k) for k in ks}))
+        if not ks or ks[0] < 1 or ks[-1] > n_markers:
+            raise ValueError(f"placement {p!r}: markers must be a non-empty set of numbers 1..{n_markers}, got {list(ks)}")
+        out.append(ks)
+    return tuple(out)
 
 
 # -- closed-form start --------------------------------------------------------------------------
@@ -318,14 +461,17 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
         vals[f"base_translation@{f}"] = to_device(t_all[j], dtype)
     M0 = np.asarray(m.positions, np.float64)
     for j in pidx:
-        for k in range(m.n_markers):
-            vals[f"marker_{k + 1}@{m.placements[j]}"] = to_device(M[j, k] - M0[j, k], dtype)
+        for k in m.markers[j]:
+            vals[f"marker_{k}@{m.placements[j]}"] = to_device(M[j, k - 1] - M0[j, k - 1], dtype)
     dev = start.replace(**vals)
     after = float(np.sqrt(np.mean(marker_errors(F, P, Y, fi, pi, R_all, t_all, M) ** 2)))
     n_trim = int((~keep).sum())
+    n_miss, n_all, n_rows = masked_markers(Y)
     msg = (f"extras from the data: {len(fidx)} session frame(s) ({', '.join(est_f) or '-'}) and {len(pidx)} marker "
            f"placement(s) ({', '.join(est_p) or '-'}) in closed form (RMS residual of the robot {before:.2f} → "
-           f"{after:.2f} mm" + (f", {n_trim} row(s) left out as gross outliers)" if n_trim else ")"))
+           f"{after:.2f} mm" + (f", {n_trim} row(s) left out as gross outliers)" if n_trim else ")")
+           + (f"; {n_miss} of {n_all} marker readings missing (NaN: markers a placement does not have, or not seen) "
+              f"in {n_rows} row(s): masked (zero weight), not dropped" if n_miss else ""))
     return ExtrasEstimate(dev, before, after, n_trim, msg)
 
 
@@ -375,7 +521,7 @@ def _errors(robot, m, dev, q, y) -> np.ndarray:
     return np.asarray(_sample_error(m, _residual(m, robot, dev, jnp.asarray(q), jnp.asarray(y))), np.float64)
 
 
-def _register(robot, m, q, y, dev, groups, frames, placements):
+def _register(robot, m, q, y, dev, groups, frames, placements, loss: str = "linear"):
     """Closed form, then LM on ``groups`` only (robot and other extras fixed at ``dev``)."""
     from ._calibrate import calibrate
 
@@ -387,7 +533,8 @@ def _register(robot, m, q, y, dev, groups, frames, placements):
     space = ParameterSpace.from_names(layout, names)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none")
+        res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none",
+                        loss=loss)
     return res.deviations
 
 
@@ -478,3 +625,78 @@ def leave_one_session_out(robot, data, **kw) -> tuple[list[SessionHoldout], floa
     before = _rms(np.concatenate([h.before_errors for h in out]))
     after = _rms(np.concatenate([h.after_errors for h in out]))
     return out, before, after
+
+
+# -- a session calibration on new data ------------------------------------------------------------
+def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | None = None):
+    """:func:`jaxcal.evaluate_result` for a :class:`SessionMarkers` calibration: the calibrated
+    robot on new marker ``data`` (a :class:`~jaxcal.Dataset`; with session labels, or without:
+    then one new session labelled ``"new"``), whose sessions may have other frames, placements
+    and marker counts (a one-point session: NaN in the other markers' columns).
+
+    The new data get their own :class:`SessionMarkers` (:meth:`SessionMarkers.from_dataset`); the
+    robot's deviations are the result's. Every frame and placement of the new data is
+    **registered** on its rows with the robot fixed (closed form, then a Huber fit of those
+    groups only), for the nominal and the calibrated robot alike — ``extras="register"``, and
+    ``"auto"`` when there are more residuals than twice the extras' parameters; with
+    ``"result"`` the calibrated robot keeps the result's values of the labels it was trained on
+    (same label, same marker) and only labels the result has not seen are registered.
+
+    Returns:
+        :class:`jaxcal.Evaluation` (``registered`` names every group fitted on the new rows).
+    """
+    from ._dataset import Dataset
+    from ._evaluate import Evaluation, _metrics, _outliers, joints_to_file_units
+
+    robot = result.robot
+    if extras not in ("auto", "register", "result"):
+        raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")
+    if not isinstance(data, Dataset) or data.kind != "markers":
+        raise ValueError("a session-marker result is evaluated on marker data: give a jaxcal.Dataset of kind "
+                         "'markers' (load_csv of a marker file)")
+    if not data.labels:
+        data = Dataset(data.q, data.y, "markers", data.metadata, labels=[("new", "new", "new")] * data.n)
+    m = SessionMarkers.from_dataset(data)
+    m.check_measurements(data.y, data.n)
+    q, y = np.asarray(data.q), np.asarray(data.y)
+    layout = layout_for(robot, m)
+    dtype = q.dtype
+    zero = Deviations.zeros(layout, dtype)
+    # the robot's groups (every group without a session label) from the result
+    robot_groups = [g for g in layout.group_names if "@" not in g and g in result.deviations.values]
+    calibrated = zero.replace(**{g: jnp.asarray(result.deviations.values[g]).astype(dtype) for g in robot_groups})
+    every = tuple(g for f in m.frames for g in m.groups_of(frame=f)) + tuple(
+        g for p in m.placements for g in m.groups_of(placement=p))
+    n_par = sum(len(layout.group(g).names) for g in every)
+    obs = m.observed(y)
+    enough = int(y.size if obs is None else obs.sum()) > 2 * n_par
+    mode = extras if extras != "auto" else ("register" if enough else "result")
+    known = set(result.deviations.values) if mode == "result" else set()
+    kept = tuple(g for g in every if g in known)
+    if kept:
+        calibrated = calibrated.replace(**{g: jnp.asarray(result.deviations.values[g]).astype(dtype) for g in kept})
+    new = tuple(g for g in every if g not in kept)
+    if not enough and new:
+        raise ValueError(f"{data.n} rows are too few to register {', '.join(new)} ({n_par} parameters) on the new "
+                         "data; give more rows")
+    new_f = [f for f in m.frames if any(g in new for g in m.groups_of(frame=f))]
+    new_p = [p for p in m.placements if any(g in new for g in m.groups_of(placement=p))]
+    dev_b = _register(robot, m, q, y, zero, every, list(m.frames), list(m.placements), loss="huber")
+    dev_a = _register(robot, m, q, y, calibrated, new, new_f, new_p, loss="huber")
+    eb, ea = _errors(robot, m, dev_b, q, y), _errors(robot, m, dev_a, q, y)
+    raw = _errors(robot, m, zero, q, y)
+    rows, scale = _outliers(robot, m, dev_a, data)
+    n_miss, n_all, n_rows = masked_markers(y)
+    gaps = (f"; {n_miss} of {n_all} marker readings missing (NaN) in {n_rows} row(s): masked (zero weight)"
+            if n_miss else "")
+    source = "registered" if new else "result"
+    how = ("re-registered on the new rows" if not kept else
+           f"{len(new)} group(s) registered on the new rows, {len(kept)} taken from the result")
+    msg = (f"session frames ({', '.join(m.frames)}) and marker placements ({', '.join(m.placements)}) of the new "
+           f"data: {how}, robot fixed (for the nominal robot every one is registered); closed form, then a Huber fit of "
+           f"the extras only{gaps}")
+    return Evaluation(
+        before=_metrics(eb), after=_metrics(ea), raw_nominal=_metrics(raw), before_errors=eb, after_errors=ea,
+        q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
+        outlier_scale_mm=scale if np.isfinite(scale) else float("nan"), deviations_before=dev_b,
+        deviations_after=dev_a, objective=objective, q_file=joints_to_file_units(robot, q))

@@ -44,7 +44,7 @@ in the robot base frame, --measurement position). Contact data without a tracker
 point the tool tip was put on (--measurement point); no value columns. A distance bar
 (--measurement distance): q1a_deg … qNa_deg, q1b_deg … qNb_deg (two poses per row) and
 distance_mm (the bar's length between their tool points). Rows with empty/NaN values are
-rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
+rejected, not dropped (except a missing marker or camera corner, below). `jaxcal simulate --out data.csv` writes an example (it also records the anchor
 as '# anchor_mm: x,y,z', which calibrate uses when --anchor is not given).
 
 camera data (--measurement camera): one row per image, q1_deg … qN_deg then u_1_px,v_1_px,
@@ -55,7 +55,20 @@ detected: it is masked (zero weight), counted and reported, not dropped. The tar
 and the calibrated camera (--camera fx,fy,cx,cy,k1,k2,p1,p2,k3, OpenCV's intrinsics, px) may
 instead come from the data file's '# target: …', '# camera_intrinsics: …', '# mount: …' lines
 (`jaxcal simulate --measurement camera` writes them). Errors are reported in px: RMS over an
-image's detected corners of the 2-D reprojection distance."""
+image's detected corners of the 2-D reprojection distance.
+
+marker data (--measurement markers): q1_deg … qN_deg then marker_1_x_mm, marker_1_y_mm,
+marker_1_z_mm, marker_2_x_mm, … the positions of N markers on the end effector in the
+motion-capture frame (mm); the frame and the markers' positions on the flange are estimated.
+Several recording sessions in one file: text columns `session` and/or `frame`, `placement`;
+sessions with the same frame label share one sensor frame, with the same placement label one
+set of marker positions; the robot's errors are shared by all. A session with fewer markers (a
+one-point session beside three-marker ones) leaves the other markers' cells empty (x, y and z
+together; one coordinate alone is an error): those readings are masked (zero weight), counted
+and reported, not dropped, and its placement has positions only for the markers it has.
+Statistics (RMSE, σ̂, outlier scale) count only real readings: an error is the RMS over a row's
+markers of the 3-D distance. `jaxcal evaluate` of such a result on a new file registers that
+file's frames and placements (any marker counts) with the robot fixed."""
 
 _ROBOT_FORMAT = """\
 robot: a preset name (hsr_jr680, puma560, ur5, abb_irb120) or a DH table file (CSV): optional
@@ -436,10 +449,9 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         raise _Usage(str(e)) from None
     if data.dof != robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
-    if data.labels:
-        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions); the command line "
-                     "calibrates one session: use the Python API (jaxcal.SessionMarkers.from_dataset, "
-                     "jaxcal.calibrate, jaxcal.leave_one_session_out) or drop those columns")
+    if data.labels and args.test:
+        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
+                     "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
     notes = []
@@ -481,7 +493,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
                          "from the data (multilateration on the nominal robot, then the joint fit)")
     if args.measurement == "markers":
-        if "base" not in estimate:
+        if "base" not in estimate and not data.labels:  # sessions: every session frame is always estimated
             estimate.add("base")
             notes.append("marker data: the motion-capture frame (base extras) and the marker positions on the flange "
                          "are estimated (closed-form Kabsch start from the data, then the joint fit)")
@@ -496,6 +508,16 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
                      f"Park–Martin hand-eye, then the joint fit){'; intrinsics estimated' if measurement.calibrate_intrinsics else ''}; "
                      f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "
                      "(zero weight), not dropped")
+    elif data.labels:  # marker data of several sessions: SessionMarkers (one frame / placement per label)
+        from ._sessions import SessionMarkers, masked_markers
+
+        measurement = SessionMarkers.from_dataset(data)
+        n_miss, n_all, n_rows = masked_markers(data.y)
+        places = ", ".join(f"{p} ({len(k)})" for p, k in zip(measurement.placements, measurement.markers))
+        notes.append(f"{len(dict.fromkeys(s for s, _, _ in data.labels))} recording sessions: frames "
+                     f"{', '.join(measurement.frames)}; placements (markers) {places}; shared robot errors"
+                     + (f"; {n_miss} of {n_all} marker readings missing (empty cells) in {n_rows} row(s): masked "
+                        "(zero weight), not dropped" if n_miss else ""))
     else:
         measurement = _measurement(args.measurement, anchor, robot,
                                    data.y.shape[1] if data.kind == "markers" else None, data=data)
@@ -674,6 +696,15 @@ def _cmd_calibrate(args) -> int:
     if test_file is not None:  # a separate test file: every row trains, in file order
         train_idx = np.arange(data.n)
     train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
+    full = None
+    if hasattr(measurement, "frame_index"):  # SessionMarkers: a model per row set (train, test)
+        full = measurement.take(kept_rows)
+        lonely = sorted({lab for i in test_idx for lab in data.labels[i][1:]}
+                        - {lab for i in train_idx for lab in data.labels[i][1:]})
+        if lonely:
+            raise _Usage(f"frame/placement label(s) {lonely} have no training rows after the random split; give "
+                         "them more rows, --test-fraction 0, or hold the session out in Python (jaxcal.holdout_session)")
+        measurement = full.take(train_idx)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
     extras = sorted({"offset": "cable_offset"}.get(e, e) for e in estimate)
@@ -709,6 +740,8 @@ def _cmd_calibrate(args) -> int:
         keep = np.setdiff1d(np.arange(train.n), np.asarray(res.diagnostics.outliers_after))
         train_idx = train_idx[keep]
         train = data.subset(train_idx)
+        if full is not None:
+            measurement = full.take(train_idx)
         res = run(train)
     if res.identifiability is not None:
         print(res.identifiability)
@@ -723,14 +756,15 @@ def _cmd_calibrate(args) -> int:
     estimated = any(group_kind(n) == "extra" for n in res.space.free_names)
     per_row = {}
 
-    def part(name, ds, rows_1based, ev=None):
-        eb = ev.before_errors if ev is not None else sample_errors(robot, measurement, dev_before, ds)
-        ea = ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64)
+    def part(name, ds, rows_1based, ev=None, m=measurement):
+        eb = ev.before_errors if ev is not None else sample_errors(robot, m, dev_before, ds)
+        ea = (ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64) if m is measurement
+              else sample_errors(robot, m, res.deviations, ds))
         per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
         if estimated:
-            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, measurement, zero, ds))))
+            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, m, zero, ds))))
         return out + [(f"{name}, before", metrics_numpy(eb)),
                       (f"{name}, after", metrics_numpy(ea))]
 
@@ -740,7 +774,8 @@ def _cmd_calibrate(args) -> int:
         evaluation = evaluate_result(res, test_file, extras="result" if args.keep_extras else "auto")
         rows += part("test", test_file, list(range(1, test_file.n + 1)), evaluation)
     elif test.n:
-        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx])
+        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx],
+                     m=measurement if full is None else full.take(test_idx))
     print()
     unit = getattr(measurement, "unit", "mm")  # px for camera data
     print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
@@ -866,11 +901,13 @@ def _cmd_evaluate(args) -> int:
     raw = load_result_dict(src)
     res = load_result(src)
     m = res.measurement
-    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" else None)
+    sessions = hasattr(m, "frame_index")  # a SessionMarkers result: the file's own sessions and marker count
+    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" and not sessions
+                    else None)
     if data.dof != res.robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but the calibrated robot {res.robot.name!r} has "
                      f"{res.robot.dof} joints")
-    if data.labels:
+    if data.labels and not sessions:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
     if data.kind in ("plane", "point"):
         from ._contact import relabel
