@@ -65,7 +65,8 @@ from ._params import Deviations, Group, layout_for
 
 __all__ = ["Camera", "MOUNTS", "INTRINSIC_NAMES", "project_points", "undistort_points", "solve_pnp",
            "hand_eye_park", "initial_camera_extras", "simulate_camera", "checkerboard", "load_target",
-           "camera_floor", "camera_columns", "masked_corners"]
+           "camera_floor", "camera_columns", "masked_corners", "default_camera", "planning_camera",
+           "target_in_view"]
 
 #: the two set-ups
 MOUNTS = ("eye_in_hand", "eye_to_hand")
@@ -629,6 +630,65 @@ def _look_at(view_dir_cam_z, up=(0.0, 0.0, 1.0)):
     return np.c_[x, np.cross(z, x), z]
 
 
+def default_camera(mount: str = "eye_in_hand") -> Camera:
+    """The simulation's camera (``jaxcal simulate --measurement camera``): a 9×6 checkerboard of
+    20 mm squares, 1280×1024 px, f = 1000 px, mild distortion, identity nominal frames."""
+    return Camera(checkerboard(9, 6, 20.0), [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0],
+                  mount, image_size=(1280, 1024))
+
+
+def _setup_frames(robot, camera: Camera, deviations, home, distance_mm: float):
+    """``(X, B)`` ``[4, 4]`` of :func:`simulate_camera`'s set-up for the robot at ``deviations`` and
+    the joint angles ``home`` (rad): the target ``distance_mm`` in front of the camera."""
+    dtype = jnp.result_type(float)
+    Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), deviations, tool=False), np.float64)[0]
+    pts = np.asarray(camera.points, np.float64)
+    centre = pts.mean(axis=0)
+    if camera.mount == "eye_in_hand":
+        X = _T(_rotvec([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
+        Ch = _T(_rotvec([0.05, 0.04, 0.1]), -_rotvec([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
+        B = Fh @ X @ Ch  # T_base_target
+    else:
+        B = _T(_rotvec([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
+        tgt_world = Fh @ B
+        c_world = tgt_world[:3, :3] @ centre + tgt_world[:3, 3]
+        n_world = tgt_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        cam_pos = c_world - distance_mm * n_world  # looking along the target normal (+z into the board)
+        X = _T(_look_at(n_world), cam_pos)  # T_base_camera
+    return X, B
+
+
+def planning_camera(robot, camera: Camera | None = None, *, mount: str = "eye_in_hand", home=None,
+                    distance_mm: float = 450.0) -> Camera:
+    """A camera model with :func:`simulate_camera`'s set-up as its *nominal* frames, for planning
+    before any image exists (``jaxcal plan --measurement camera``): ``camera`` (default
+    :func:`default_camera` with ``mount``) with the hand-eye and target frames of the nominal
+    robot at ``home`` (default the middle of the joint ranges), the target ``distance_mm`` in
+    front of the camera. With a real set-up, build the :class:`Camera` with its nominal frames
+    (e.g. from a CAD model or an earlier calibration) instead."""
+    camera = default_camera(mount) if camera is None else camera
+    lo, hi = np.asarray(robot.q_min, np.float64), np.asarray(robot.q_max, np.float64)
+    home = (lo + hi) / 2 if home is None else np.asarray(home, np.float64)
+    X, B = _setup_frames(robot, camera, None, home, distance_mm)
+    return Camera(camera.points, camera.intrinsics, camera.mount, handeye_rotation=X[:3, :3],
+                  handeye_translation=X[:3, 3], target_rotation=B[:3, :3], target_translation=B[:3, 3],
+                  image_size=camera.image_size, calibrate_intrinsics=camera.calibrate_intrinsics)
+
+
+def target_in_view(robot, camera: Camera, q, deviations: Deviations | None = None, *,
+                   min_depth_mm: float = 1.0) -> np.ndarray:
+    """``[n, N]`` bool: target point ``k`` lies in front of the camera (depth > ``min_depth_mm``)
+    and projects inside the image (``0 ≤ u ≤ width``, ``0 ≤ v ≤ height``) at joint angles
+    ``q`` ``[n, dof]`` (rad), robot and frames at ``deviations`` (nominal by default). Needs
+    the camera's ``image_size``."""
+    if camera.image_size is None:
+        raise ValueError("the camera model has no image_size (width, height px): cannot tell what is in view")
+    q = jnp.asarray(q, jnp.result_type(float))
+    uv, pz = (np.asarray(a, np.float64) for a in _predict_jit(camera, robot, deviations, q))
+    w, h = camera.image_size
+    return (pz > min_depth_mm) & (uv[..., 0] >= 0) & (uv[..., 0] <= w) & (uv[..., 1] >= 0) & (uv[..., 1] <= h)
+
+
 def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 30, noise_px: float = 0.3,
                     true_deviations: Deviations | None = None, missing: float = 0.0, distance_mm: float = 450.0,
                     joint_spread_deg=(8.0, 8.0, 8.0, 25.0, 25.0, 25.0), home=None, oversample: int = 40):
@@ -658,9 +718,7 @@ def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 
     from ._simulate import draw_deviations
 
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().tolist())
-    if camera is None:
-        camera = Camera(checkerboard(9, 6, 20.0), [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0],
-                        "eye_in_hand", image_size=(1280, 1024))
+    camera = default_camera("eye_in_hand") if camera is None else camera
     if camera.image_size is None:
         raise ValueError("simulate_camera needs the camera's image_size to keep the target in view")
     dtype = jnp.result_type(float)
@@ -671,20 +729,7 @@ def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 
     truth = Deviations(base, layout, dtype=dtype)
     lo, hi = np.asarray(robot.q_min, np.float64), np.asarray(robot.q_max, np.float64)
     home = (lo + hi) / 2 if home is None else np.asarray(home, np.float64)
-    Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), truth, tool=False), np.float64)[0]
-    pts = np.asarray(camera.points, np.float64)
-    centre = pts.mean(axis=0)
-    if camera.mount == "eye_in_hand":
-        X = _T(_rotvec([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
-        Ch = _T(_rotvec([0.05, 0.04, 0.1]), -_rotvec([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
-        B = Fh @ X @ Ch  # T_base_target
-    else:
-        B = _T(_rotvec([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
-        tgt_world = Fh @ B
-        c_world = tgt_world[:3, :3] @ centre + tgt_world[:3, 3]
-        n_world = tgt_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        cam_pos = c_world - distance_mm * n_world  # looking along the target normal (+z into the board)
-        X = _T(_look_at(n_world), cam_pos)  # T_base_camera
+    X, B = _setup_frames(robot, camera, truth, home, distance_mm)
     truth = truth.replace(
         handeye_rotation=_log(X[:3, :3] @ np.asarray(camera.handeye_rotation, np.float64).T),
         handeye_translation=X[:3, 3] - np.asarray(camera.handeye_translation, np.float64),
