@@ -780,6 +780,10 @@ def save_simulated_contact(args, robot, measurement) -> None:
                               noise_std=args.noise_std, test_fraction=0.0)
         meta[label_metadata_key(measurement.kind)] = ",".join(measurement.labels)
         what = f"{len(measurement.labels)} {measurement.kind}s: {', '.join(measurement.labels)}"
+        if getattr(measurement, "sphere", False):
+            r = np.asarray(measurement.radii, np.float64)
+            meta["radius_mm"] = ",".join(f"{v:g}" for v in r) if np.ptp(r) > 0 else f"{r[0]:g}"
+            what = f"{len(measurement.labels)} spheres of radius {meta['radius_mm']} mm: {', '.join(measurement.labels)}"
     Dataset(ex.train.q, ex.train.y, measurement.kind, meta).to_csv(args.out)
     print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
           f"seed {args.seed}, {what}) to {args.out}")

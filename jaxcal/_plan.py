@@ -715,7 +715,7 @@ class PredictedAccuracy:
     """Result of :func:`predicted_accuracy` (before any measurement).
 
     Attributes:
-        test_rmse: expected RMSE (mm) of the calibrated model on fresh workspace poses,
+        test_rmse: expected RMSE (``unit``) of the calibrated model on fresh workspace poses,
             ``sqrt(mean_t E‖e_t‖²)`` with the metric's per-sample error.
         train_rmse: expected training RMSE (mm) of the fit on the planned poses (least squares,
             no prior: ``σ·sqrt(m·(1 − p/N))``).
@@ -724,6 +724,8 @@ class PredictedAccuracy:
         param_std: ``[p]`` predicted standard deviations of the estimates (rad / mm).
         covariance: ``[p, p]`` the covariance ``Σ``.
         n_poses: number of planned poses.
+        unit: of the readings, ``test_rmse``, ``train_rmse`` and ``noise_std`` (``"px"`` for a
+            camera, else ``"mm"``).
     """
 
     test_rmse: float
@@ -734,9 +736,11 @@ class PredictedAccuracy:
     param_std: np.ndarray
     covariance: np.ndarray
     n_poses: int
+    unit: str = "mm"
 
     def table(self) -> str:
-        rows = [f"predicted test RMSE {self.test_rmse:.4f} mm (σ = {self.noise_std:g} mm, {self.n_poses} poses, "
+        u = self.unit
+        rows = [f"predicted test RMSE {self.test_rmse:.4f} {u} (σ = {self.noise_std:g} {u}, {self.n_poses} poses, "
                 f"{len(self.names)} parameters); per-parameter σ:"]
         for name, unit, sd in zip(self.names, self.units, self.param_std):
             rows.append(f"  {name:<14} {math.degrees(sd):.4g}°" if unit == "rad" else f"  {name:<14} {sd:.4g} mm")
@@ -803,7 +807,7 @@ def predicted_accuracy(
     train = noise_std * math.sqrt(max(measurement.size * (1.0 - p_eff / N), 0.0) / pts) \
         if m_e == measurement.size else float("nan")
     return PredictedAccuracy(test, train, float(noise_std), space.free_names, space.free_units,
-                             np.sqrt(np.diag(cov)), cov, int(q.shape[0]))
+                             np.sqrt(np.diag(cov)), cov, int(q.shape[0]), getattr(measurement, "unit", "mm"))
 
 
 def simulate_readings(key, robot: DHRobot, measurement: MeasurementModel, q, noise_std: float, true_deviations=None):
