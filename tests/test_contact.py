@@ -28,16 +28,18 @@ def robot():
     return jaxcal.robots.hsr_jr680()
 
 
-def _cli_at_floor(robot, kind, tmp_path, seed=3):
+def _cli_at_floor(robot, kind, tmp_path, seed=3, radius_mm=None, calibrate_args=()):
     """`jaxcal simulate` + `jaxcal calibrate` (defaults: prior, Huber, extras from the data) → the
-    test RMSE on 3000 fresh poses of the same true robot over the floor."""
+    test RMSE on 3000 fresh poses of the same true robot over the floor. ``radius_mm``: point data
+    as spheres of that radius (``--radius-mm``)."""
     path, out = tmp_path / f"{kind}.csv", tmp_path / f"{kind}.json"
+    sphere = [] if radius_mm is None else ["--radius-mm", str(radius_mm)]
     assert jaxcal.cli.main(["simulate", "--measurement", kind, "--samples", "300", "--noise-std", str(SIGMA),
-                            "--seed", str(seed), "--out", str(path)]) == 0
+                            "--seed", str(seed), "--out", str(path), *sphere]) == 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rc = jaxcal.cli.main(["calibrate", str(path), "--robot", "hsr_jr680", "--measurement", kind,
-                              "--test-fraction", "0", "--out", str(out)])
+                              "--test-fraction", "0", "--out", str(out), *calibrate_args])
     assert rc == 0
     res = jaxcal.load_result(out)
     if kind == "distance":
@@ -46,6 +48,8 @@ def _cli_at_floor(robot, kind, tmp_path, seed=3):
                                 true_deviations=truth, test_fraction=0.0).train
     else:
         m = default_setup(kind, robot)
+        if radius_mm is not None:
+            m = FixedPoint(m.labels, np.asarray(m.centres), radii_mm=radius_mm)
         truth = simulate_contact(jax.random.key(seed), robot, m, n_samples=300, noise_std=SIGMA).true_deviations
         big = simulate_contact(jax.random.key(1000 + seed), robot, m, n_samples=3000, noise_std=SIGMA,
                                true_deviations=truth, test_fraction=0.0).train
@@ -68,6 +72,26 @@ def test_plane_cli_three_planes_at_floor(robot, tmp_path):
 def test_point_cli_pivot_at_floor(robot, tmp_path):
     res, ratio, _ = _cli_at_floor(robot, "point", tmp_path)
     print("point: test RMSE / floor", ratio)
+    assert abs(ratio - 1) < 0.03, ratio
+
+
+@pytest.mark.parametrize("estimate", [pytest.param(False, marks=pytest.mark.slow), True])
+def test_sphere_cli_at_floor(robot, tmp_path, estimate):
+    """A ball on the flange touching two fixed spheres, via the CLI: the radius from the file's
+    '# radius_mm:' line (known), or unknown (--estimate radius with a nominal of 0 mm: started by a
+    sphere fit to the data)."""
+    res, ratio, _ = _cli_at_floor(robot, "point", tmp_path, radius_mm=30.0,
+                                  calibrate_args=["--estimate", "radius", "--radius-mm", "0"] if estimate else [])
+    print("sphere: test RMSE / floor", ratio, "radius estimated" if estimate else "")
+    assert res.measurement.sphere and res.measurement.size == 1
+    assert res.measurement.estimate_radius == estimate
+    if estimate:
+        assert {"radius@p1", "radius@p2"} <= set(res.space.free_names)
+        c, r = res.measurement.points(res.deviations)
+        assert np.allclose(np.asarray(res.measurement.radii), 0.0)
+        assert np.allclose(np.asarray(r), 30.0, atol=0.5)  # nominal 0: found by the data
+    else:
+        assert np.allclose(np.asarray(res.measurement.radii), 30.0)
     assert abs(ratio - 1) < 0.03, ratio
 
 
