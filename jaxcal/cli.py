@@ -45,7 +45,7 @@ flange touching a fixed sphere; residual: distance to the centre minus the radiu
 with --radius-mm R (the sphere's plus the ball's radius, mm; or a '# radius_mm: R' line in the
 file, which `jaxcal simulate --measurement point --radius-mm R` writes); with
 --estimate radius the radius is unknown (estimated per point, started by a sphere fit to the
-data; R, if given, is only recorded). A distance bar
+data; R, if given, is the nominal value the estimate starts from). A distance bar
 (--measurement distance): q1a_deg … qNa_deg, q1b_deg … qNb_deg (two poses per row) and
 distance_mm (the bar's length between their tool points). Rows with empty/NaN values are
 rejected, not dropped. `jaxcal simulate --out data.csv` writes an example (it also records the anchor
