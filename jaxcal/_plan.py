@@ -557,6 +557,14 @@ def _prior_info(space, prior, noise_std, scale, n_rows):
 
 
 def _setup(robot, measurement, candidates, space, prior, noise_std):
+    """``(q, space, scale, Jc, Λ, W)`` of the candidates (see :func:`_setup_rows`)."""
+    return _setup_rows(robot, measurement, candidates, space, prior, noise_std)[:6]
+
+
+def _setup_rows(robot, measurement, candidates, space, prior, noise_std):
+    """``(q, space, scale, Jc, Λ, W, J)``: candidate poses, identifiable space, column scales, the
+    scaled candidate Jacobians (compressed for a camera, :func:`_compress`), the prior
+    information, the workspace weight of "I", and the unscaled ``[N, m, p]`` Jacobians."""
     q, y = candidate_rows(robot, measurement, candidates)
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     # the identifiable subset is structural: judge it on at most 4 096 candidates spread over the
@@ -570,14 +578,16 @@ def _setup(robot, measurement, candidates, space, prior, noise_std):
     Jc = J / scale
     lam = _prior_info(space, prior, noise_std, scale, rows)
     W = np.einsum("kap,kaq->pq", Jc, Jc) / J.shape[0]  # mean per pose: the workspace weight of "I"
-    return q, space, scale, _compress(Jc), lam, W, J
+    return q, space, scale, _compress(Jc) if measurement.kind == "camera" else Jc, lam, W, J
 
 
 def _compress(Jc: np.ndarray) -> np.ndarray:
     """``[N, m, p]`` → ``[N, min(m, p), p]`` with the same information ``J_kᵀJ_k`` per candidate
     (the ``R`` of ``J_k = Q_k R_k``): every criterion and update of the selection depends on a
     candidate only through ``J_kᵀJ_k``, and a camera image has ``m = 2N`` (108 for a 9×6 board)
-    rows against ``p`` ≈ 30 parameters, so the rank-``m`` updates shrink to rank ``p``."""
+    rows against ``p`` ≈ 30 parameters, so the rank-``m`` updates shrink to rank ``p``. Used for
+    the camera only: the other models have ``m ≤ 6`` rows, and the round-off of the factor would
+    change which of equally good poses they pick."""
     N, m, p = Jc.shape
     if m <= p:
         return Jc
@@ -621,7 +631,7 @@ def select_poses(
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
     t0 = time.perf_counter()
-    q, space, scale, Jc, lam, W, J = _setup(robot, measurement, candidates, space, prior, noise_std)
+    q, space, scale, Jc, lam, W, J = _setup_rows(robot, measurement, candidates, space, prior, noise_std)
     N = q.shape[0]
     if not (1 <= n <= N):
         raise ValueError(f"cannot select {n} of {N} candidate poses")
@@ -690,7 +700,7 @@ def relaxed_design(
         ``(selection, weights [N], efficiency_bound)``.
     """
     t0 = time.perf_counter()
-    q, space, scale, Jc, lam, W, J = _setup(robot, measurement, candidates, space, None, 0.5)
+    q, space, scale, Jc, lam, W, J = _setup_rows(robot, measurement, candidates, space, None, 0.5)
     w, dmax = _multiplicative(jnp.asarray(Jc), 1e-10, iters)
     w = np.asarray(w)
     p = Jc.shape[2]
