@@ -43,6 +43,18 @@ planes with independent normals see every rigid motion of the robot relative to 
 with one horizontal plane) or dependencies between ``d_1`` and a plane offset. A fixed point
 sees all three translations of the tool point, so pivot data with one point identify what
 position data in the base frame identify, less the base translation (absorbed by the centre).
+
+Nor can plane or point data see the robot's **length scale**: multiplying every length of the
+set-up by the same factor — the DH lengths ``a_i``, ``d_i``, the tool point, the plane offsets
+``d_k`` (or the point centres, and unknown sphere radii) — keeps every contact a contact, so that
+direction is in the null space of the identification Jacobian whatever the poses
+(``tests/test_contact.py::test_contact_data_cannot_see_the_length_scale``). The report shows it
+as one more rank deficiency (a length parameter such as ``d_2`` or ``a_2`` left out, or
+depending on the others). Something must fix it: the prior toward the nominal DH lengths
+(``jaxcal calibrate``'s default ``--prior``), a length held at nominal (``--fix``), a known
+sphere radius (``--radius-mm``: a length reference), or distance-bar rows (:class:`DistanceBar`,
+whose ``L`` is a calibrated length). With one or two planes, or points only, the base-frame
+directions above are also unseen; the prior then keeps them at the nominal values.
 """
 
 from __future__ import annotations

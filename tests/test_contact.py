@@ -18,7 +18,7 @@ from jaxcal._contact import (
     unobservable_directions,
 )
 from jaxcal._io import load_result_dict
-from jaxcal._params import ParameterSpace
+from jaxcal._params import Deviations, ParameterSpace, layout_for
 
 SIGMA = 0.05
 
@@ -110,6 +110,36 @@ def test_one_plane_report_names_what_it_cannot_see(robot):
     assert len(words) == 2 and "translation along the plane" in words[0] and "rotation about the plane normal" in words[1]
     assert "intersection line" in unobservable_directions([[0, 0, 1], [1, 0, 0]])[0]
     assert unobservable_directions(np.asarray(m0.normals)) == []
+
+
+@pytest.mark.parametrize("kind", ["plane", "point", "sphere-unknown", "sphere-known"])
+def test_contact_data_cannot_see_the_length_scale(robot, kind):
+    """Scaling every length of the set-up (DH a_i, d_i, tool, plane offsets / point centres / unknown
+    radii) by the same factor keeps every contact: that direction is in the Jacobian's null space.
+    A known sphere radius is a length reference and sees it."""
+    p = default_setup("point", robot)
+    m = {"plane": default_setup("plane", robot), "point": p,
+         "sphere-unknown": FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0, estimate_radius=True),
+         "sphere-known": FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0)}[kind]
+    ex = simulate_contact(jax.random.key(0), robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
+                          true_deviations=Deviations.zeros(layout_for(robot, m)))
+    space = ParameterSpace.for_robot(robot, measurement=m, tool=True)
+    pr = jaxcal.Problem(robot, m, ex.train.q, ex.train.y, space)
+    J = np.asarray(pr.jacobian(pr.x0()))
+    nominal = {**{f"a_{i + 1}": v for i, v in enumerate(np.asarray(robot.a))},
+               **{f"d_{i + 1}": v for i, v in enumerate(np.asarray(robot.d))},
+               **{f"tool_{c}": v for c, v in zip("xyz", np.asarray(robot.tool))}}
+    if kind == "plane":
+        nominal.update({f"plane_d@{s}": v for s, v in zip(m.labels, np.asarray(m.offsets))})
+    else:
+        nominal.update({f"point_{c}@{s}": v for s, row in zip(m.labels, np.asarray(m.centres)) for c, v in zip("xyz", row)})
+        nominal.update({f"radius@{s}": v for s, v in zip(m.labels, np.asarray(m.radii))})
+    v = np.array([nominal.get(n, 0.0) for n in space.free_names])  # d(scale): every length × (1 + ε)
+    rel = np.linalg.norm(J @ v) / (np.linalg.norm(J, axis=0) @ np.abs(v))
+    if kind == "sphere-known":
+        assert rel > 1e-3, rel
+    else:
+        assert rel < 1e-12, rel
 
 
 def test_closed_form_starts_recover_planes_points_and_tool(robot):
