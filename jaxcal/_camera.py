@@ -65,7 +65,8 @@ from ._params import Deviations, Group, layout_for
 
 __all__ = ["Camera", "MOUNTS", "INTRINSIC_NAMES", "project_points", "undistort_points", "solve_pnp",
            "hand_eye_park", "initial_camera_extras", "simulate_camera", "checkerboard", "load_target",
-           "camera_floor", "camera_columns", "masked_corners"]
+           "camera_floor", "camera_columns", "masked_corners", "default_camera", "planning_camera",
+           "target_in_view"]
 
 #: the two set-ups
 MOUNTS = ("eye_in_hand", "eye_to_hand")
@@ -195,33 +196,45 @@ class Camera(MeasurementModel):
                 k = k + vals["intrinsics"].astype(dtype)
         return RX, tX, RB, tB, k
 
-    def camera_points(self, robot, deviations, q) -> tuple[Array, Array, Array]:
-        """The target points in the camera frame: three ``[n, N]`` arrays (mm), structure of
-        arrays over the flange frames of :func:`~jaxcal._kinematics._chain`."""
+    def camera_map(self, robot, deviations, q):
+        """The camera-frame points as one affine map per image of fixed points:
+        ``p_ik = A_i·w_k + a_i`` (mm), returned as ``(Aa [12, n], w [N, 3], k [9])``: the rows of
+        ``A_i`` (row-major, 9) and ``a_i`` (3) as structure-of-arrays ``[n]`` rows, the target
+        points ``w`` in the frame the robot does not move (eye-in-hand: ``T_base_target·b``, base
+        frame; eye-to-hand: ``T_flange_target·b``, flange frame) and the intrinsics.
+
+        Eye-in-hand ``p = R_Xᵀ(Fᵀ(w − P) − t_X)``: ``A = R_XᵀRᵀ``, ``a = −R_Xᵀ(RᵀP + t_X)``;
+        eye-to-hand ``p = R_Xᵀ(P + R·w − t_X)``: ``A = R_XᵀR``, ``a = R_Xᵀ(P − t_X)``, with
+        ``F = (R, P)`` the flange frame. Every parameter of the robot and the hand-eye transform
+        acts on the image only through ``(A, a)`` (12 numbers per image), and the target pose only
+        through ``w``: :func:`_affine_project` uses this structure for its derivative."""
         q = check_joint_angles(robot, q)
         # the flange frames computed once and stored: XLA:CPU would otherwise fuse the whole
         # kinematic chain into every [n, N] consumer and recompute it per target point (and per
         # Jacobian column): 0.8 s instead of ~10 ms for a 2160 × 36 Jacobian (see materialised)
         F = materialised(jnp.stack([c for v in _chain(robot, deviations, q) for c in v]))  # [12, n]
-        X, Y, Z, P = (tuple(F[3 * i + r] for r in range(3)) for i in range(4))
-        RX, tX, RB, tB, _ = self.frames(deviations, q.dtype)
-        b = self.points.astype(q.dtype)
-        if self.mount == "eye_in_hand":  # p = R_Xᵀ(Fᵀ(w − P) − t_X), w = R_B b + t_B (base frame)
-            w = b @ RB.T + tB  # [N, 3]
-            d = [w[None, :, r] - P[r][:, None] for r in range(3)]  # [n, N]
-            A = [sum(C[r][:, None] * d[r] for r in range(3)) - tX[c] for c, C in enumerate((X, Y, Z))]
-        else:  # p = R_Xᵀ(P + F m − t_X), m = R_B b + t_B (flange frame)
-            m = b @ RB.T + tB
-            A = [P[r][:, None] + X[r][:, None] * m[None, :, 0] + Y[r][:, None] * m[None, :, 1]
-                 + Z[r][:, None] * m[None, :, 2] - tX[r] for r in range(3)]
-        return tuple(sum(RX[c, j] * A[c] for c in range(3)) for j in range(3))
+        cols = tuple(tuple(F[3 * i + r] for r in range(3)) for i in range(3))  # R's columns
+        P = tuple(F[9 + r] for r in range(3))
+        RX, tX, RB, tB, k = self.frames(deviations, q.dtype)
+        w = self.points.astype(q.dtype) @ RB.T + tB  # [N, 3]
+        if self.mount == "eye_in_hand":
+            A = [[sum(RX[c, i] * cols[c][j] for c in range(3)) for j in range(3)] for i in range(3)]
+            RtP = [sum(cols[c][r] * P[r] for r in range(3)) for c in range(3)]
+            a = [-sum(RX[c, i] * (RtP[c] + tX[c]) for c in range(3)) for i in range(3)]
+        else:
+            A = [[sum(RX[r, i] * cols[j][r] for r in range(3)) for j in range(3)] for i in range(3)]
+            a = [sum(RX[r, i] * (P[r] - tX[r]) for r in range(3)) for i in range(3)]
+        # stored once (see materialised): read per target point, it would be recomputed per point
+        return materialised(jnp.stack([A[i][j] for i in range(3) for j in range(3)] + a)), w, k
+
+    def camera_points(self, robot, deviations, q) -> tuple[Array, Array, Array]:
+        """The target points in the camera frame: three ``[n, N]`` arrays (mm)."""
+        Aa, w, _ = self.camera_map(robot, deviations, q)
+        return _apply_affine(Aa, w)
 
     def predict(self, robot, deviations, q) -> Float[Array, "n N 2"]:
         """Image coordinates ``[n, N, 2]`` (px) of every target point (none masked)."""
-        px, py, pz = self.camera_points(robot, deviations, q)
-        k = self.frames(deviations, px.dtype)[4]
-        u, v = _distort_project(px / pz, py / pz, k)
-        return jnp.stack([u, v], axis=-1)
+        return _affine_project(*self.camera_map(robot, deviations, q))
 
     def residual(self, robot, deviations, q, y) -> Float[Array, "n 2N"]:
         """``predicted − measured`` (px) ``[n, 2N]``; 0 where ``y`` is NaN (not detected)."""
@@ -258,6 +271,68 @@ def _distort_project(x, y, k):
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
     return fx * xd + cx, fy * yd + cy
+
+
+def _apply_affine(Aa, w):
+    """``p_ik = A_i·w_k + a_i``: three ``[n, N]`` arrays from ``Aa`` ``[12, n]`` and ``w`` ``[N, 3]``."""
+    return tuple(sum(Aa[3 * i + j][:, None] * w[None, :, j] for j in range(3)) + Aa[9 + i][:, None] for i in range(3))
+
+
+@jax.custom_jvp
+def _affine_project(Aa, w, k):
+    """Image coordinates ``[n, N, 2]`` (px) of the points ``p_ik = A_i·w_k + a_i``
+    (:meth:`Camera.camera_map`), with a derivative rule that follows the structure.
+
+    ``jax.jacfwd`` pushes one tangent per parameter through the whole per-point computation
+    (``[n, N]`` arrays: the affine map, the division, the distortion polynomial), ~100 flops per
+    point and parameter. Here the chain rule is taken once per point: with ``L_ik = ∂(u, v)/∂p``
+    ``[2, 3]`` (closed form), ``d(u, v)_ik = L_ik·(dA_i·w_k + da_i) + (L_ik·A_i)·dw_k`` is the
+    contraction of ``[n, N, 2, 12]`` per-point coefficients with the ``[12, n]`` tangent of
+    ``(A, a)``, plus ``[n, N, 2, 3]`` with the ``[N, 3]`` tangent of ``w`` — dot products that
+    XLA batches over the parameters. Intrinsics (with ``calibrate_intrinsics``) are
+    differentiated by ``jax.jacfwd`` of the projection; tangents that are known zeros are
+    skipped (``symbolic_zeros``). Exact: the Jacobian agrees with plain ``jax.jacfwd`` to
+    round-off (``tests/test_camera.py``)."""
+    px, py, pz = _apply_affine(Aa, w)
+    u, v = _distort_project(px / pz, py / pz, k)
+    return jnp.stack([u, v], -1)
+
+
+def _affine_project_jvp(primals, tangents):
+    from jax.custom_derivatives import SymbolicZero
+
+    Aa, w, k = primals
+    dAa, dw, dk = tangents
+    px, py, pz = _apply_affine(Aa, w)
+    iz = 1.0 / pz
+    x, y = px * iz, py * iz
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (k[i] for i in range(9))
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    uv = jnp.stack([fx * xd + cx, fy * yd + cy], -1)
+    drad = k1 + r2 * (2 * k2 + 3 * k3 * r2)  # d radial / d r²
+    dxx = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x  # ∂xd/∂x
+    dxy = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y  # ∂xd/∂y = ∂yd/∂x
+    dyy = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x  # ∂yd/∂y
+    # L = diag(fx, fy)·∂(xd, yd)/∂(x, y)·∂(x, y)/∂p,  ∂(x, y)/∂p = [[1, 0, −x], [0, 1, −y]]/p_z
+    L = jnp.stack([jnp.stack([fx * dxx * iz, fx * dxy * iz, -fx * (dxx * x + dxy * y) * iz], -1),
+                   jnp.stack([fy * dxy * iz, fy * dyy * iz, -fy * (dxy * x + dyy * y) * iz], -1)], -2)  # [n, N, 2, 3]
+    out = jnp.zeros_like(uv)
+    if not isinstance(dAa, SymbolicZero):
+        c = jnp.concatenate([(L[..., :, None] * w[None, :, None, None, :]).reshape(*L.shape[:3], 9), L], -1)
+        out = out + jnp.einsum("nkaj,jn->nka", c, dAa)
+    if not isinstance(dw, SymbolicZero):
+        A = Aa[:9].T.reshape(-1, 3, 3)  # [n, 3, 3]
+        out = out + jnp.einsum("nkaj,kj->nka", jnp.einsum("nkai,nij->nkaj", L, A), dw)
+    if not isinstance(dk, SymbolicZero):
+        Lk = jax.jacfwd(lambda kk: jnp.stack(_distort_project(x, y, kk), -1), argnums=0)(k)  # [n, N, 2, 9]
+        out = out + jnp.einsum("nkaj,j->nka", Lk, dk)
+    return uv, out
+
+
+_affine_project.defjvp(_affine_project_jvp, symbolic_zeros=True)
 
 
 # -- NumPy geometry ------------------------------------------------------------------------------
@@ -629,6 +704,65 @@ def _look_at(view_dir_cam_z, up=(0.0, 0.0, 1.0)):
     return np.c_[x, np.cross(z, x), z]
 
 
+def default_camera(mount: str = "eye_in_hand") -> Camera:
+    """The simulation's camera (``jaxcal simulate --measurement camera``): a 9×6 checkerboard of
+    20 mm squares, 1280×1024 px, f = 1000 px, mild distortion, identity nominal frames."""
+    return Camera(checkerboard(9, 6, 20.0), [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0],
+                  mount, image_size=(1280, 1024))
+
+
+def _setup_frames(robot, camera: Camera, deviations, home, distance_mm: float):
+    """``(X, B)`` ``[4, 4]`` of :func:`simulate_camera`'s set-up for the robot at ``deviations`` and
+    the joint angles ``home`` (rad): the target ``distance_mm`` in front of the camera."""
+    dtype = jnp.result_type(float)
+    Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), deviations, tool=False), np.float64)[0]
+    pts = np.asarray(camera.points, np.float64)
+    centre = pts.mean(axis=0)
+    if camera.mount == "eye_in_hand":
+        X = _T(_rotvec([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
+        Ch = _T(_rotvec([0.05, 0.04, 0.1]), -_rotvec([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
+        B = Fh @ X @ Ch  # T_base_target
+    else:
+        B = _T(_rotvec([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
+        tgt_world = Fh @ B
+        c_world = tgt_world[:3, :3] @ centre + tgt_world[:3, 3]
+        n_world = tgt_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        cam_pos = c_world - distance_mm * n_world  # looking along the target normal (+z into the board)
+        X = _T(_look_at(n_world), cam_pos)  # T_base_camera
+    return X, B
+
+
+def planning_camera(robot, camera: Camera | None = None, *, mount: str = "eye_in_hand", home=None,
+                    distance_mm: float = 450.0) -> Camera:
+    """A camera model with :func:`simulate_camera`'s set-up as its *nominal* frames, for planning
+    before any image exists (``jaxcal plan --measurement camera``): ``camera`` (default
+    :func:`default_camera` with ``mount``) with the hand-eye and target frames of the nominal
+    robot at ``home`` (default the middle of the joint ranges), the target ``distance_mm`` in
+    front of the camera. With a real set-up, build the :class:`Camera` with its nominal frames
+    (e.g. from a CAD model or an earlier calibration) instead."""
+    camera = default_camera(mount) if camera is None else camera
+    lo, hi = np.asarray(robot.q_min, np.float64), np.asarray(robot.q_max, np.float64)
+    home = (lo + hi) / 2 if home is None else np.asarray(home, np.float64)
+    X, B = _setup_frames(robot, camera, None, home, distance_mm)
+    return Camera(camera.points, camera.intrinsics, camera.mount, handeye_rotation=X[:3, :3],
+                  handeye_translation=X[:3, 3], target_rotation=B[:3, :3], target_translation=B[:3, 3],
+                  image_size=camera.image_size, calibrate_intrinsics=camera.calibrate_intrinsics)
+
+
+def target_in_view(robot, camera: Camera, q, deviations: Deviations | None = None, *,
+                   min_depth_mm: float = 1.0) -> np.ndarray:
+    """``[n, N]`` bool: target point ``k`` lies in front of the camera (depth > ``min_depth_mm``)
+    and projects inside the image (``0 ≤ u ≤ width``, ``0 ≤ v ≤ height``) at joint angles
+    ``q`` ``[n, dof]`` (rad), robot and frames at ``deviations`` (nominal by default). Needs
+    the camera's ``image_size``."""
+    if camera.image_size is None:
+        raise ValueError("the camera model has no image_size (width, height px): cannot tell what is in view")
+    q = jnp.asarray(q, jnp.result_type(float))
+    uv, pz = (np.asarray(a, np.float64) for a in _predict_jit(camera, robot, deviations, q))
+    w, h = camera.image_size
+    return (pz > min_depth_mm) & (uv[..., 0] >= 0) & (uv[..., 0] <= w) & (uv[..., 1] >= 0) & (uv[..., 1] <= h)
+
+
 def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 30, noise_px: float = 0.3,
                     true_deviations: Deviations | None = None, missing: float = 0.0, distance_mm: float = 450.0,
                     joint_spread_deg=(8.0, 8.0, 8.0, 25.0, 25.0, 25.0), home=None, oversample: int = 40):
@@ -658,9 +792,7 @@ def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 
     from ._simulate import draw_deviations
 
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().tolist())
-    if camera is None:
-        camera = Camera(checkerboard(9, 6, 20.0), [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0],
-                        "eye_in_hand", image_size=(1280, 1024))
+    camera = default_camera("eye_in_hand") if camera is None else camera
     if camera.image_size is None:
         raise ValueError("simulate_camera needs the camera's image_size to keep the target in view")
     dtype = jnp.result_type(float)
@@ -671,20 +803,7 @@ def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 
     truth = Deviations(base, layout, dtype=dtype)
     lo, hi = np.asarray(robot.q_min, np.float64), np.asarray(robot.q_max, np.float64)
     home = (lo + hi) / 2 if home is None else np.asarray(home, np.float64)
-    Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), truth, tool=False), np.float64)[0]
-    pts = np.asarray(camera.points, np.float64)
-    centre = pts.mean(axis=0)
-    if camera.mount == "eye_in_hand":
-        X = _T(_rotvec([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
-        Ch = _T(_rotvec([0.05, 0.04, 0.1]), -_rotvec([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
-        B = Fh @ X @ Ch  # T_base_target
-    else:
-        B = _T(_rotvec([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
-        tgt_world = Fh @ B
-        c_world = tgt_world[:3, :3] @ centre + tgt_world[:3, 3]
-        n_world = tgt_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        cam_pos = c_world - distance_mm * n_world  # looking along the target normal (+z into the board)
-        X = _T(_look_at(n_world), cam_pos)  # T_base_camera
+    X, B = _setup_frames(robot, camera, truth, home, distance_mm)
     truth = truth.replace(
         handeye_rotation=_log(X[:3, :3] @ np.asarray(camera.handeye_rotation, np.float64).T),
         handeye_translation=X[:3, 3] - np.asarray(camera.handeye_translation, np.float64),

@@ -43,6 +43,18 @@ planes with independent normals see every rigid motion of the robot relative to 
 with one horizontal plane) or dependencies between ``d_1`` and a plane offset. A fixed point
 sees all three translations of the tool point, so pivot data with one point identify what
 position data in the base frame identify, less the base translation (absorbed by the centre).
+
+Nor can plane or point data see the robot's **length scale**: multiplying every length of the
+set-up by the same factor — the DH lengths ``a_i``, ``d_i``, the tool point, the plane offsets
+``d_k`` (or the point centres, and unknown sphere radii) — keeps every contact a contact, so that
+direction is in the null space of the identification Jacobian whatever the poses
+(``tests/test_contact.py::test_contact_data_cannot_see_the_length_scale``). The report shows it
+as one more rank deficiency (a length parameter such as ``d_2`` or ``a_2`` left out, or
+depending on the others). Something must fix it: the prior toward the nominal DH lengths
+(``jaxcal calibrate``'s default ``--prior``), a length held at nominal (``--fix``), a known
+sphere radius (``--radius-mm``: a length reference), or distance-bar rows (:class:`DistanceBar`,
+whose ``L`` is a calibrated length). With one or two planes, or points only, the base-frame
+directions above are also unseen; the prior then keeps them at the nominal values.
 """
 
 from __future__ import annotations
@@ -624,7 +636,7 @@ def _newton_step(robot, dev, m, q, k, target):
 def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, noise_std: float = 0.05,
                      test_fraction: float = 0.2, true_deviations: Deviations | None = None,
                      angle_std_deg: float | None = None, length_std_mm: float | None = None,
-                     tool_std_mm: float = 2.0, oversample: int = 6, iterations: int = 30):
+                     tool_std_mm: float = 2.0, oversample: int = 6, iterations: int = 30, tries: int = 2):
     """A simulated contact experiment (:class:`jaxcal.Experiment`).
 
     The true robot is the nominal one with random DH deviations (:func:`jaxcal.draw_deviations`)
@@ -634,7 +646,8 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     steps on the true robot, to a constraint value drawn from the noise (plane: a signed distance
     ``~ N(0, σ²)``; point: ``p − c ~ N(0, σ²I₃)``; sphere: ``‖p − c‖ − r ~ N(0, σ²)``), so the
     statistical floor is :func:`jaxcal.statistical_floor` with ``size`` = the model's residual
-    size. Rows that leave the joint limits or do not converge are not used.
+    size. Rows that leave the joint limits or do not converge are not used; ``tries`` rows per
+    wanted row are moved (raise it where many fail).
 
     Returns:
         :class:`jaxcal.Experiment` with ``train`` / ``test`` datasets (``y``: label indices;
@@ -663,7 +676,7 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     picks = []
     for k in range(K):  # per label the candidates nearest to it
         rows = np.flatnonzero(lab_np == k)
-        picks.append(rows[np.argsort(score[rows])][: 2 * (n_samples // K + 1)])
+        picks.append(rows[np.argsort(score[rows])][: tries * (n_samples // K + 1)])
     order = np.stack(picks, 1).reshape(-1)  # labels in turn
     q = cand[order]
     k = lab_all[order]
@@ -680,7 +693,7 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     idx = np.flatnonzero(ok)[:n_samples]
     if idx.size < n_samples:
         raise ValueError(f"simulate_contact: only {idx.size} of {n_samples} rows reached their contact inside the "
-                         "joint limits; raise oversample")
+                         "joint limits; raise tries")
     meta = {"source": "simulate_contact", "robot": robot.name, label_metadata_key(m.kind): ",".join(m.labels),
             "noise_std_mm": str(noise_std), **mm_joints_metadata(robot)}
     data = Dataset(jnp.asarray(qn[idx], dtype), jnp.asarray(np.asarray(k)[idx], dtype), m.kind, meta)
@@ -779,6 +792,10 @@ def save_simulated_contact(args, robot, measurement) -> None:
                               noise_std=args.noise_std, test_fraction=0.0)
         meta[label_metadata_key(measurement.kind)] = ",".join(measurement.labels)
         what = f"{len(measurement.labels)} {measurement.kind}s: {', '.join(measurement.labels)}"
+        if getattr(measurement, "sphere", False):
+            r = np.asarray(measurement.radii, np.float64)
+            meta["radius_mm"] = ",".join(f"{v:g}" for v in r) if np.ptp(r) > 0 else f"{r[0]:g}"
+            what = f"{len(measurement.labels)} spheres of radius {meta['radius_mm']} mm: {', '.join(measurement.labels)}"
     Dataset(ex.train.q, ex.train.y, measurement.kind, meta).to_csv(args.out)
     print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
           f"seed {args.seed}, {what}) to {args.out}")
@@ -868,14 +885,15 @@ def _pair_step(robot, dev, qa, qb, target):
 def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.05, lengths_mm=(150.0, 300.0),
                       test_fraction: float = 0.2, true_deviations: Deviations | None = None,
                       angle_std_deg: float | None = None, length_std_mm: float | None = None,
-                      tool_std_mm: float = 2.0, iterations: int = 30):
+                      tool_std_mm: float = 2.0, iterations: int = 30, tries: int = 2):
     """A simulated distance-bar experiment (:class:`jaxcal.Experiment`, model :class:`DistanceBar`).
 
     Pose *a* random within the joint limits (tool point above the base plane); pose *b* the random
     pose whose tool point is nearest to a bar length from *a*'s (lengths ``lengths_mm`` in turn),
     then moved by minimum-norm Newton steps on the true robot until the distance is ``L + ε``,
     ``ε ~ N(0, σ²)``; the reading holds ``L`` (the noise is in the bar's reading). Rows that
-    leave the joint limits or do not converge are not used."""
+    leave the joint limits or do not converge are not used (``tries`` pairs are tried per wanted
+    row)."""
     from ._dataset import Dataset, mm_joints_metadata
     from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, Experiment, draw_deviations
 
@@ -889,7 +907,7 @@ def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.
                              tool_std_mm=tool_std_mm, dtype=dtype)
         true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
     true_deviations = true_deviations.astype(dtype)
-    n_try = 2 * n_samples
+    n_try = tries * n_samples
     qa = _sample_q(k_a, robot, n_try)
     pool = _sample_q(k_b, robot, min(8 * n_try, 8192))
     pa = np.asarray(jnp.stack(tool_point_soa(robot, true_deviations, qa), -1))

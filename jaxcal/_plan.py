@@ -150,23 +150,65 @@ def _jac(problem: Problem):
     return problem.jacobian(problem.x0())
 
 
-def planning_jacobian(robot: DHRobot, measurement: MeasurementModel, q, space: ParameterSpace) -> np.ndarray:
-    """The identification Jacobian at the nominal robot, ``[n, m, p]`` (mm per rad / mm per mm),
-    for joint angles ``q`` ``[n, dof]`` (rad) and the free parameters of ``space``. The readings
-    are the nominal predictions (only a pose's orientation residual depends on them)."""
-    q = jnp.asarray(q, jnp.result_type(float))
-    y = measurement.predict(robot, None, q).reshape(q.shape[0], *measurement.sample_shape)
+def candidate_rows(robot: DHRobot, measurement: MeasurementModel, candidates, y=None):
+    """``(q [N, dof] rad, y | None)``: the poses and (where they carry information the Jacobian
+    needs) the readings of planning candidates.
+
+    ``candidates`` is ``[N, dof]`` joint angles, or a :class:`~jaxcal.Dataset` whose readings say
+    which contact a pose makes (plane / point labels: :func:`candidate_poses` for those models
+    returns one), or for a :class:`~jaxcal.DistanceBar` ``[N, 2·dof]`` pose pairs ``(q_a, q_b)``
+    (rad; the bar length is then the nominal distance of the pair, which the Jacobian does not
+    depend on) or a distance Dataset. ``y`` given explicitly wins. Without readings a model's
+    nominal prediction is used (the nearest plane / point for contact models)."""
+    from ._contact import DistanceBar
+
+    if isinstance(candidates, Dataset):
+        q = np.asarray(candidates.q, np.float64)
+        y = np.asarray(candidates.y, np.float64) if y is None else y
+    else:
+        q = np.asarray(candidates, np.float64)
+    if isinstance(measurement, DistanceBar) and y is None:
+        dof = measurement.dof
+        if q.ndim != 2 or q.shape[1] != 2 * dof:
+            raise ValueError(f"distance-bar candidates are pose pairs: [N, {2 * dof}] joint angles (q_a, q_b; rad) or "
+                             f"a distance Dataset, got shape {q.shape}")
+        qa, qb = q[:, :dof], q[:, dof:]
+        pa, pb = (np.asarray(fk_position(robot, jnp.asarray(x)), np.float64) for x in (qa, qb))
+        return qa, np.concatenate([qb, np.linalg.norm(pa - pb, axis=1)[:, None]], axis=1)
+    if q.ndim != 2 or q.shape[1] != robot.dof:
+        raise ValueError(f"candidates must be [N, {robot.dof}] joint angles (rad), got shape {q.shape}")
+    return q, (None if y is None else np.asarray(y, np.float64))
+
+
+def planning_jacobian(robot: DHRobot, measurement: MeasurementModel, q, space: ParameterSpace, y=None) -> np.ndarray:
+    """The identification Jacobian at the nominal robot, ``[n, m, p]`` (mm per rad / mm per mm;
+    px per rad / px per mm for a camera), for joint angles ``q`` ``[n, dof]`` (rad; or
+    candidates as :func:`candidate_rows` reads them) and the free parameters of ``space``. The
+    readings are ``y`` or the candidates' own where given (contact labels, the bar's second
+    pose), else the nominal predictions (only a pose's orientation residual depends on them)."""
+    q, y = candidate_rows(robot, measurement, q, y)
+    dtype = jnp.result_type(float)
+    q = jnp.asarray(q, dtype)
+    y = measurement.predict(robot, None, q) if y is None else jnp.asarray(y, dtype)
+    y = y.reshape(q.shape[0], *measurement.sample_shape)
     J = _jac(Problem(robot, measurement, q, y, space))
     return np.asarray(J, np.float64).reshape(q.shape[0], measurement.size, space.n_free)
 
 
-def _identifiable_space(robot, measurement, space, q, prior=None) -> ParameterSpace:
-    """The free set :func:`jaxcal.calibrate` would choose on these poses: the identifiable subset
-    of ``space``, or under a ``prior`` every parameter it covers and the data-identifiable rest
-    (maximum a posteriori, :func:`~jaxcal._identifiability.select_free`)."""
-    from ._identifiability import identifiability
+def _identifiable_space(robot, measurement, space, q, prior=None, y=None) -> ParameterSpace:
+    """The free set :func:`jaxcal.calibrate` would choose on these poses (readings ``y``, or the
+    nominal predictions): the identifiable subset of ``space``, or under a ``prior`` every
+    parameter it covers and the data-identifiable rest (maximum a posteriori,
+    :func:`~jaxcal._identifiability.select_free`)."""
+    from ._identifiability import identifiability, identify_with_residuals
+    from ._objective import resolve_prior
 
-    return identifiability(robot, measurement, q, space, prior=prior).space
+    if y is None:
+        return identifiability(robot, measurement, q, space, prior=prior).space
+    prior = resolve_prior(prior)
+    dtype = jnp.result_type(float)
+    return identify_with_residuals(robot, measurement, jnp.asarray(q, dtype), space, y=jnp.asarray(y, dtype),
+                                   prior_std=None if prior is None else prior.std(space))[0].space
 
 
 def _generic_space(robot, measurement, space=None) -> ParameterSpace:
@@ -210,9 +252,36 @@ def candidate_poses(
     tracker_axis=(0.0, 0.0, 1.0),
     cone_half_angle_deg: float = 60.0,
     oversample: int = 8,
+    bar_lengths_mm=(150.0, 300.0),
+    min_visible: float = 1.0,
+    around=None,
+    spread_deg=(8.0, 8.0, 8.0, 25.0, 25.0, 25.0),
 ):
     """``[n, dof]`` candidate joint angles (rad), uniform over the joint limits (the central
     ``coverage`` fraction), kept where the nominal tool point is reachable by the sensor.
+
+    Sensors without a tracker (issue 23) constrain the pose itself, so their candidates are made
+    to satisfy the constraint on the nominal robot (IK-free: random joint configurations, the
+    ones nearest to the constraint moved onto it by minimum-norm Newton steps, as the
+    simulations do; rows that leave the joint limits or do not converge are dropped):
+
+    * :class:`~jaxcal.PlaneContact` / :class:`~jaxcal.FixedPoint`: a :class:`~jaxcal.Dataset`
+      of ``n`` poses whose tool point lies on the model's nominal planes / at its points (on its
+      spheres), labels in turn (:func:`jaxcal.simulate_contact` on the nominal robot without
+      noise); its readings are the labels. ``min_height_mm``/``box_mm`` do not apply (the
+      planes and points fix where the tool is).
+    * :class:`~jaxcal.DistanceBar`: a distance :class:`~jaxcal.Dataset` of ``n`` pose *pairs*
+      whose tool points are a bar length apart on the nominal robot, lengths ``bar_lengths_mm``
+      in turn (:func:`~jaxcal._contact.simulate_distance` without noise; pose *a*'s tool point
+      above the base plane).
+    * :class:`~jaxcal.Camera`: ``[n, dof]`` joint angles at which at least the fraction
+      ``min_visible`` of the target points (default 1: the whole target) lies in front of the
+      camera and projects inside the image (:func:`~jaxcal._camera.target_in_view`; the model
+      needs ``image_size`` and its nominal hand-eye/target frames, e.g.
+      :func:`~jaxcal._camera.planning_camera`). Draws are uniform over the limits and around
+      ``around`` (``[k, dof]`` rad; default the middle of the joint ranges) spread uniformly by
+      ``±spread_deg`` per joint (the last value repeats); then, while too few see the target,
+      around poses that do.
 
     Filters (nominal robot, tool point in the base frame, mm):
 
@@ -229,6 +298,11 @@ def candidate_poses(
     """
     from ._simulate import sample_joint_angles
 
+    kind = getattr(measurement, "kind", None)
+    if kind in ("plane", "point", "distance"):
+        return _contact_candidates(key, robot, measurement, n, bar_lengths_mm)
+    if kind == "camera":
+        return _camera_candidates(key, robot, measurement, n, coverage, oversample, min_visible, around, spread_deg)
     dtype = jnp.result_type(float)
     reach = robot.reach_mm()
     total = 0
@@ -261,6 +335,64 @@ def candidate_poses(
         raise ValueError(f"candidate_poses: only {q.shape[0]} of {4 * n * oversample} random joint configurations pass "
                          "the workspace/sensor filters; relax them or raise `oversample`")
     return jnp.asarray(q[:n], dtype)
+
+
+def _contact_candidates(key, robot, measurement, n: int, bar_lengths_mm):
+    """:func:`candidate_poses` for the contact models and the distance bar: a noise-free
+    simulation on the nominal robot (its readings are the labels / the second pose)."""
+    from ._contact import simulate_contact, simulate_distance
+    from ._params import Deviations, layout_for
+
+    zero = Deviations.zeros(layout_for(robot, measurement), jnp.result_type(float))
+    if measurement.kind == "distance":
+        ex = simulate_distance(key, robot, n_samples=n, noise_std=0.0, lengths_mm=bar_lengths_mm,
+                               test_fraction=0.0, true_deviations=zero, tries=8)
+    else:
+        ex = simulate_contact(key, robot, measurement, n_samples=n, noise_std=0.0, test_fraction=0.0,
+                              true_deviations=zero, tries=4)
+    return ex.train
+
+
+def _camera_candidates(key, robot, camera, n: int, coverage, oversample, min_visible, around, spread_deg):
+    """:func:`candidate_poses` for a camera: poses that see at least ``min_visible`` of the target."""
+    from ._camera import target_in_view
+    from ._simulate import sample_joint_angles
+
+    if not 0.0 < min_visible <= 1.0:
+        raise ValueError(f"min_visible must be in (0, 1], got {min_visible}")
+    dtype = jnp.result_type(float)
+    lo, hi = np.asarray(robot.q_min, np.float64), np.asarray(robot.q_max, np.float64)
+    centres = ((lo + hi) / 2)[None] if around is None else np.asarray(around, np.float64).reshape(-1, robot.dof)
+    spread = np.deg2rad(np.resize(np.asarray(spread_deg, np.float64), robot.dof))
+    need = math.ceil(min_visible * camera.n_points)
+    m = max(n * oversample, 256)
+
+    def near(k, c):
+        u = np.asarray(jax.random.uniform(k, (m, robot.dof), dtype, -1.0, 1.0), np.float64)
+        return np.clip(c[np.arange(m) % len(c)] + u * spread, lo, hi)
+
+    kept = []
+    total = 0
+    for attempt in range(6):
+        k1, k2 = jax.random.split(jax.random.fold_in(key, attempt))
+        if attempt == 0:
+            q = np.concatenate([np.asarray(sample_joint_angles(k1, robot, m, coverage=coverage, dtype=dtype)),
+                                near(k2, centres)])
+        else:  # around poses that see the target
+            q = near(k2, np.concatenate(kept) if total else centres)
+        ok = target_in_view(robot, camera, q).sum(axis=1) >= need
+        kept.append(q[ok])
+        total += int(ok.sum())
+        if total >= n:
+            break
+    q = np.concatenate(kept)
+    if q.shape[0] < n:
+        raise ValueError(f"candidate_poses: only {q.shape[0]} joint configurations see at least {need} of the "
+                         f"{camera.n_points} target points (in front of the camera, inside the {camera.image_size} px "
+                         "image); check the camera's nominal hand-eye/target frames, pass `around` poses that see "
+                         "the target, or lower min_visible")
+    perm = np.asarray(jax.random.permutation(jax.random.fold_in(key, 99), q.shape[0]))
+    return jnp.asarray(q[np.sort(perm[:n])], dtype)
 
 
 # -- selection --------------------------------------------------------------------------------------
@@ -377,6 +509,8 @@ class PoseSelection:
         scale: ``[p]`` the column scales (RMS sensitivity per residual row over the candidates).
         n_exchanges: exchange iterations run (0 without exchange).
         seconds: wall time of the selection (Jacobians, identifiability, greedy, exchange).
+        data: the selected rows of a candidate :class:`~jaxcal.Dataset` (their readings: which
+            plane / point each pose touches, a bar's second pose and length), else ``None``.
     """
 
     q: np.ndarray
@@ -388,6 +522,7 @@ class PoseSelection:
     scale: np.ndarray
     n_exchanges: int
     seconds: float
+    data: Dataset | None = None
 
     @property
     def n(self) -> int:
@@ -422,21 +557,41 @@ def _prior_info(space, prior, noise_std, scale, n_rows):
 
 
 def _setup(robot, measurement, candidates, space, prior, noise_std):
-    q = np.asarray(candidates, np.float64)
-    if q.ndim != 2 or q.shape[1] != robot.dof:
-        raise ValueError(f"candidates must be [N, {robot.dof}] joint angles (rad), got shape {q.shape}")
+    """``(q, space, scale, Jc, Λ, W)`` of the candidates (see :func:`_setup_rows`)."""
+    return _setup_rows(robot, measurement, candidates, space, prior, noise_std)[:6]
+
+
+def _setup_rows(robot, measurement, candidates, space, prior, noise_std):
+    """``(q, space, scale, Jc, Λ, W, J)``: candidate poses, identifiable space, column scales, the
+    scaled candidate Jacobians (compressed for a camera, :func:`_compress`), the prior
+    information, the workspace weight of "I", and the unscaled ``[N, m, p]`` Jacobians."""
+    q, y = candidate_rows(robot, measurement, candidates)
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     # the identifiable subset is structural: judge it on at most 4 096 candidates spread over the
     # set (every k-th), which is 5x faster than the pivoted QR of all 20 000 on 2 cores
-    space = _identifiable_space(robot, measurement, base, q[:: max(1, -(-q.shape[0] // 4096))], prior)
-    J = planning_jacobian(robot, measurement, q, space)
+    every = max(1, -(-q.shape[0] // 4096))
+    space = _identifiable_space(robot, measurement, base, q[::every], prior, None if y is None else y[::every])
+    J = planning_jacobian(robot, measurement, q, space, y)
     rows = J.shape[0] * J.shape[1]
     norms = np.linalg.norm(J.reshape(rows, -1), axis=0) / math.sqrt(rows)
     scale = np.where(norms > 0, norms, 1.0)
     Jc = J / scale
     lam = _prior_info(space, prior, noise_std, scale, rows)
     W = np.einsum("kap,kaq->pq", Jc, Jc) / J.shape[0]  # mean per pose: the workspace weight of "I"
-    return q, space, scale, Jc, lam, W
+    return q, space, scale, _compress(Jc) if measurement.kind == "camera" else Jc, lam, W, J
+
+
+def _compress(Jc: np.ndarray) -> np.ndarray:
+    """``[N, m, p]`` → ``[N, min(m, p), p]`` with the same information ``J_kᵀJ_k`` per candidate
+    (the ``R`` of ``J_k = Q_k R_k``): every criterion and update of the selection depends on a
+    candidate only through ``J_kᵀJ_k``, and a camera image has ``m = 2N`` (108 for a 9×6 board)
+    rows against ``p`` ≈ 30 parameters, so the rank-``m`` updates shrink to rank ``p``. Used for
+    the camera only: the other models have ``m ≤ 6`` rows, and the round-off of the factor would
+    change which of equally good poses they pick."""
+    N, m, p = Jc.shape
+    if m <= p:
+        return Jc
+    return np.linalg.qr(Jc, mode="r")
 
 
 def select_poses(
@@ -476,7 +631,7 @@ def select_poses(
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
     t0 = time.perf_counter()
-    q, space, scale, Jc, lam, W = _setup(robot, measurement, candidates, space, prior, noise_std)
+    q, space, scale, Jc, lam, W, J = _setup_rows(robot, measurement, candidates, space, prior, noise_std)
     N = q.shape[0]
     if not (1 <= n <= N):
         raise ValueError(f"cannot select {n} of {N} candidate poses")
@@ -495,8 +650,16 @@ def select_poses(
         method += "+exchange"
     sel = np.asarray(sel)
     seconds = time.perf_counter() - t0
-    return PoseSelection(q[sel], sel, criterion, method, indices_from_jacobian(Jc[sel] * scale, scale), space,
-                         scale, n_ex, seconds)
+    return PoseSelection(q[sel], sel, criterion, method, indices_from_jacobian(J[sel], scale), space,
+                         scale, n_ex, seconds, _selected_data(candidates, sel))
+
+
+def _selected_data(candidates, sel):
+    """The selected rows of a candidate :class:`Dataset` (their readings: labels, the bar's second
+    pose), or of ``[N, 2·dof]`` bar pose pairs; ``None`` for plain joint angles."""
+    if isinstance(candidates, Dataset):
+        return candidates.subset(jnp.asarray(sel))
+    return None
 
 
 @functools.partial(jax.jit, static_argnames=("iters",))
@@ -537,7 +700,7 @@ def relaxed_design(
         ``(selection, weights [N], efficiency_bound)``.
     """
     t0 = time.perf_counter()
-    q, space, scale, Jc, lam, W = _setup(robot, measurement, candidates, space, None, 0.5)
+    q, space, scale, Jc, lam, W, J = _setup_rows(robot, measurement, candidates, space, None, 0.5)
     w, dmax = _multiplicative(jnp.asarray(Jc), 1e-10, iters)
     w = np.asarray(w)
     p = Jc.shape[2]
@@ -549,8 +712,8 @@ def relaxed_design(
         s, _, it = _exchange(jnp.asarray(Jc), jnp.diag(jnp.asarray(lam)), jnp.asarray(W), jnp.asarray(sel), "D", 10 * n)
         sel, n_ex, method = np.asarray(s), int(it), "relaxation+exchange"
     seconds = time.perf_counter() - t0
-    sel_obj = PoseSelection(q[sel], sel, "D", method, indices_from_jacobian(Jc[sel] * scale, scale), space,
-                            scale, n_ex, seconds)
+    sel_obj = PoseSelection(q[sel], sel, "D", method, indices_from_jacobian(J[sel], scale), space,
+                            scale, n_ex, seconds, _selected_data(candidates, sel))
     return sel_obj, w, bound
 
 
@@ -562,7 +725,7 @@ class PredictedAccuracy:
     """Result of :func:`predicted_accuracy` (before any measurement).
 
     Attributes:
-        test_rmse: expected RMSE (mm) of the calibrated model on fresh workspace poses,
+        test_rmse: expected RMSE (``unit``) of the calibrated model on fresh workspace poses,
             ``sqrt(mean_t E‖e_t‖²)`` with the metric's per-sample error.
         train_rmse: expected training RMSE (mm) of the fit on the planned poses (least squares,
             no prior: ``σ·sqrt(m·(1 − p/N))``).
@@ -571,6 +734,8 @@ class PredictedAccuracy:
         param_std: ``[p]`` predicted standard deviations of the estimates (rad / mm).
         covariance: ``[p, p]`` the covariance ``Σ``.
         n_poses: number of planned poses.
+        unit: of the readings, ``test_rmse``, ``train_rmse`` and ``noise_std`` (``"px"`` for a
+            camera, else ``"mm"``).
     """
 
     test_rmse: float
@@ -581,9 +746,11 @@ class PredictedAccuracy:
     param_std: np.ndarray
     covariance: np.ndarray
     n_poses: int
+    unit: str = "mm"
 
     def table(self) -> str:
-        rows = [f"predicted test RMSE {self.test_rmse:.4f} mm (σ = {self.noise_std:g} mm, {self.n_poses} poses, "
+        u = self.unit
+        rows = [f"predicted test RMSE {self.test_rmse:.4f} {u} (σ = {self.noise_std:g} {u}, {self.n_poses} poses, "
                 f"{len(self.names)} parameters); per-parameter σ:"]
         for name, unit, sd in zip(self.names, self.units, self.param_std):
             rows.append(f"  {name:<14} {math.degrees(sd):.4g}°" if unit == "rad" else f"  {name:<14} {sd:.4g} mm")
@@ -596,6 +763,12 @@ class PredictedAccuracy:
 def _error_rows(measurement) -> slice:
     """Which residual rows enter the per-sample error of the metrics (a pose: position only)."""
     return slice(0, 3) if isinstance(measurement, Pose) else slice(0, measurement.size)
+
+
+def _error_points(measurement) -> int:
+    """The per-sample error is ``sqrt(Σ rows² / this)``: a camera image's error is the RMS over its
+    target points (:meth:`jaxcal.Camera.sample_error`), every other model's the norm of its rows."""
+    return int(getattr(measurement, "n_points", 1)) if measurement.kind == "camera" else 1
 
 
 def predicted_accuracy(
@@ -618,29 +791,33 @@ def predicted_accuracy(
     :class:`jaxcal.Prior`; default none, as :func:`jaxcal.calibrate`), and the expected test RMSE over the workspace
     ``sqrt(m_e·σ² + mean_t tr(J_t Σ J_tᵀ))`` over the held-out poses ``q_test`` (default
     ``n_test`` candidate poses from ``key``, :func:`candidate_poses` with its default filters),
-    ``m_e`` the residual entries of the per-sample error (1 for a wire length, 3 for a
-    position; the position part of a pose). Linearised at the nominal robot: it assumes
+    ``m_e`` the residual entries of the per-sample error (1 for a wire length, a plane
+    distance, a sphere or a bar; 3 for a position or a pivot point; the position part of a
+    pose; a camera image's ``2N`` rows divided by ``N``: the RMS reprojection error per target
+    point, px, with ``noise_std`` in px). ``q`` and ``q_test`` may be candidates with readings
+    (:func:`candidate_rows`: contact labels, bar pose pairs). Linearised at the nominal robot: it assumes
     Gaussian noise of σ on every residual entry, an unbiased model and small deviations
     (checked against simulated calibrations in ``tests/test_plan.py`` and
     ``benchmarks/bench_plan.py``).
     """
-    q = np.asarray(q, np.float64)
+    q, y = candidate_rows(robot, measurement, q)
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
-    space = _identifiable_space(robot, measurement, base, q, prior)
-    J = planning_jacobian(robot, measurement, q, space).reshape(-1, space.n_free)
+    space = _identifiable_space(robot, measurement, base, q, prior, y)
+    J = planning_jacobian(robot, measurement, q, space, y).reshape(-1, space.n_free)
     cov = _covariance(J, noise_std, _prior_precision(space, prior))
     if q_test is None:
         q_test = candidate_poses(jax.random.key(1) if key is None else key, robot, measurement, n_test)
     Jt = planning_jacobian(robot, measurement, q_test, space)[:, _error_rows(measurement), :]
     m_e = Jt.shape[1]
+    pts = _error_points(measurement)
     var = np.einsum("tap,pq,taq->t", Jt, cov, Jt)
-    test = math.sqrt(m_e * noise_std**2 + float(np.mean(var)))
+    test = math.sqrt((m_e * noise_std**2 + float(np.mean(var))) / pts)
     N = J.shape[0]
     p_eff = float(np.trace(J.T @ J @ cov)) / noise_std**2  # = p without a prior
-    train = noise_std * math.sqrt(max(measurement.size * (1.0 - p_eff / N), 0.0)) if m_e == measurement.size \
-        else float("nan")
+    train = noise_std * math.sqrt(max(measurement.size * (1.0 - p_eff / N), 0.0) / pts) \
+        if m_e == measurement.size else float("nan")
     return PredictedAccuracy(test, train, float(noise_std), space.free_names, space.free_units,
-                             np.sqrt(np.diag(cov)), cov, int(q.shape[0]))
+                             np.sqrt(np.diag(cov)), cov, int(q.shape[0]), getattr(measurement, "unit", "mm"))
 
 
 def simulate_readings(key, robot: DHRobot, measurement: MeasurementModel, q, noise_std: float, true_deviations=None):
@@ -759,14 +936,16 @@ def accuracy_curve(
     ns = np.asarray(sorted(int(n) for n in ns))
     sel = select_poses(robot, measurement, candidates, int(ns[-1]), criterion=criterion, exchange=False,
                        space=space, prior=prior, noise_std=noise_std)
-    order = np.asarray(jax.random.permutation(jax.random.key(0) if key is None else key, len(candidates)))
+    n_cand = candidate_rows(robot, measurement, candidates)[0].shape[0]
+    order = np.asarray(jax.random.permutation(jax.random.key(0) if key is None else key, n_cand))
     if q_test is None:
         q_test = candidate_poses(jax.random.key(1), robot, measurement, 2000)
     # one Jacobian of all candidates (on the candidates' identifiable subset), rows taken per set
     J = planning_jacobian(robot, measurement, candidates, sel.space)
     Jt = planning_jacobian(robot, measurement, q_test, sel.space)[:, _error_rows(measurement), :]
     info0 = _prior_precision(sel.space, prior)
-    f = lambda idx: _test_rmse(J[idx].reshape(-1, J.shape[2]), Jt, noise_std, info0)  # noqa: E731
+    pts = _error_points(measurement)
+    f = lambda idx: _test_rmse(J[idx].reshape(-1, J.shape[2]), Jt, noise_std, info0, pts)  # noqa: E731
     return AccuracyCurve(ns, np.asarray([f(sel.index[:n]) for n in ns]), np.asarray([f(order[:n]) for n in ns]),
                          criterion, float(noise_std))
 
@@ -791,10 +970,10 @@ def _covariance(J, noise_std, prior_precision) -> np.ndarray:
     return 0.5 * (cov + cov.T)
 
 
-def _test_rmse(J, Jt, noise_std, prior_precision) -> float:
+def _test_rmse(J, Jt, noise_std, prior_precision, points: int = 1) -> float:
     cov = _covariance(J, noise_std, prior_precision)
     var = np.einsum("tap,pq,taq->t", Jt, cov, Jt)
-    return math.sqrt(Jt.shape[1] * noise_std**2 + float(np.mean(var)))
+    return math.sqrt((Jt.shape[1] * noise_std**2 + float(np.mean(var))) / points)
 
 
 # -- files ------------------------------------------------------------------------------------------

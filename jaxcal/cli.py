@@ -41,7 +41,12 @@ sample. Columns: q1_deg … qN_deg joint angles in degrees (or q1_rad … in rad
 measurement: length_mm (draw-wire length, --measurement cable) or x_mm,y_mm,z_mm (tool point
 in the robot base frame, --measurement position). Contact data without a tracker: a text column
 `plane` naming the plane the probe touched (--measurement plane), or `point` naming the fixed
-point the tool tip was put on (--measurement point); no value columns. A distance bar
+point the tool tip was put on (--measurement point); no value columns. Spheres (a ball on the
+flange touching a fixed sphere; residual: distance to the centre minus the radius): point data
+with --radius-mm R (the sphere's plus the ball's radius, mm; or a '# radius_mm: R' line in the
+file, which `jaxcal simulate --measurement point --radius-mm R` writes); with
+--estimate radius the radius is unknown (estimated per point, started by a sphere fit to the
+data; R, if given, is the nominal value the estimate starts from). A distance bar
 (--measurement distance): q1a_deg … qNa_deg, q1b_deg … qNb_deg (two poses per row) and
 distance_mm (the bar's length between their tool points). Rows with empty/NaN values are
 rejected, not dropped (except a missing marker or camera corner, below). `jaxcal simulate --out data.csv` writes an example (it also records the anchor
@@ -210,7 +215,29 @@ def _robot_and_sensor(args):
     (``jaxcal simulate`` and ``jaxcal plan``)."""
     robot = _robot(args.robot, args.base, args.tip)
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    return robot, _measurement(args.measurement, anchor, robot)
+    if args.measurement == "camera":  # jaxcal plan: the simulation's set-up as the nominal frames
+        if anchor is not None:
+            raise _Usage("--anchor applies to --measurement cable only")
+        from ._camera import planning_camera
+
+        return robot, planning_camera(robot, mount=args.mount.replace("-", "_"))
+    measurement = _measurement(args.measurement, anchor, robot)
+    radius = getattr(args, "radius_mm", None)
+    if radius is not None:
+        measurement = _sphere_model(args.measurement, measurement, radius, False)
+    return robot, measurement
+
+
+def _sphere_model(kind: str, measurement, radius_mm, estimate: bool):
+    """``--radius-mm`` / ``--estimate radius``: the point model as spheres (jaxcal.FixedPoint with radii)."""
+    if kind != "point":
+        raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
+    r = 0.0 if radius_mm is None else float(radius_mm)
+    if not (math.isfinite(r) and r >= 0):
+        raise _Usage(f"--radius-mm must be a finite number >= 0 (mm), got {radius_mm}")
+    from ._contact import FixedPoint
+
+    return FixedPoint(measurement.labels, measurement.centres, radii_mm=r, estimate_radius=estimate)
 
 
 def _cmd_simulate(args) -> int:
@@ -468,6 +495,19 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             notes.append("distance data: the tool point is estimated (from its nominal value); distances never see "
                          "the robot's base frame (d_1, theta_1 and the base's position and orientation stay at "
                          "nominal or are set by the prior)")
+    sphere = args.measurement == "point" and (args.radius_mm is not None or "radius" in estimate
+                                              or "radius_mm" in data.meta)
+    radius_mm = args.radius_mm
+    if sphere and radius_mm is None and "radius_mm" in data.meta:
+        radius_mm = _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0]
+    estimate_radius = "radius" in estimate
+    estimate.discard("radius")
+    if (args.radius_mm is not None or estimate_radius) and args.measurement != "point":
+        raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
+    if sphere:
+        notes.append("point data as spheres: residual = distance to the centre minus the radius, "
+                     + ("radius unknown: estimated per point (sphere fit to the data, then the joint fit)"
+                        if estimate_radius else f"radius {radius_mm:g} mm (known)"))
     if args.measurement in ("plane", "point"):
         if "base" in estimate:
             raise _Usage(f"--estimate base does not apply to {args.measurement} data: the {args.measurement}s are "
@@ -521,6 +561,8 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     else:
         measurement = _measurement(args.measurement, anchor, robot,
                                    data.y.shape[1] if data.kind == "markers" else None, data=data)
+        if sphere:
+            measurement = _sphere_model("point", measurement, radius_mm, estimate_radius)
     if args.test and args.test_fraction is not None:
         raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
     test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
@@ -1138,46 +1180,71 @@ def _cmd_plan(args) -> int:
         filters["tracker_mm"] = _floats(args.tracker, 3, "--tracker")
         filters["tracker_axis"] = _floats(args.tracker_axis, 3, "--tracker-axis")
         filters["cone_half_angle_deg"] = args.cone_deg
-    spec = args.candidates
+    sensor = args.measurement in ("plane", "point", "distance", "camera")
+    unit = "px" if args.measurement == "camera" else "mm"
+    if sensor and filters:
+        raise _Usage(f"--wire-range/--box/--tracker do not apply to --measurement {args.measurement}: its candidates "
+                     "are poses that touch the planes/points, bar pose pairs, or poses that see the target")
+    spec = args.candidates or ("2000" if sensor else "20000")
     if spec.isdigit():
-        cand = np.asarray(_plan.candidate_poses(k_cand, robot, measurement, int(spec), **filters))
+        cand = _plan.candidate_poses(k_cand, robot, measurement, int(spec), **filters)
+        if not sensor:
+            cand = np.asarray(cand)
         source = f"{int(spec)} random candidates within the joint limits and the sensor's range (seed {args.seed})"
     else:
         if not pathlib.Path(spec).exists():
             raise _Usage(f"--candidates: {spec!r} is neither a number nor an existing file")
-        cand = _plan.load_joint_angles(spec, robot.dof)
-        source = f"{cand.shape[0]} candidates from {spec}"
-    if args.poses > cand.shape[0]:
-        raise _Usage(f"--poses {args.poses} is more than the {cand.shape[0]} candidates")
+        if args.measurement in ("plane", "point", "distance"):
+            from ._dataset import load_csv
+
+            cand = load_csv(spec, kind=args.measurement)  # labels / the bar's second pose are part of a candidate
+            if args.measurement != "distance":
+                from ._contact import contact_model, relabel
+
+                measurement = contact_model(args.measurement, robot, cand) if args.radius_mm is None else \
+                    _sphere_model("point", contact_model("point", robot, cand), args.radius_mm, False)
+                cand = relabel(cand, measurement.labels)
+        else:
+            cand = _plan.load_joint_angles(spec, robot.dof)
+        source = f"{len(cand.q) if hasattr(cand, 'q') else cand.shape[0]} candidates from {spec}"
+    n_cand = len(cand.q) if hasattr(cand, "q") else cand.shape[0]
+    if args.poses > n_cand:
+        raise _Usage(f"--poses {args.poses} is more than the {n_cand} candidates")
     sel = _plan.select_poses(robot, measurement, cand, args.poses, criterion=args.criterion,
                              exchange=not args.no_exchange, noise_std=args.noise_std)
-    q_test = _plan.candidate_poses(k_test, robot, measurement, 2000, **filters)
-    pred = _plan.predicted_accuracy(robot, measurement, sel.q, args.noise_std, q_test=q_test)
-    rnd_idx = np.asarray(jax.random.permutation(k_perm, cand.shape[0]))[: args.poses]
-    rnd = _plan.predicted_accuracy(robot, measurement, cand[rnd_idx], args.noise_std, q_test=q_test)
+    q_test = _plan.candidate_poses(k_test, robot, measurement, 2000 if not sensor else 500, **filters)
+    pred = _plan.predicted_accuracy(robot, measurement, sel.data if sel.data is not None else sel.q, args.noise_std,
+                                    q_test=q_test)
+    rnd_idx = np.asarray(jax.random.permutation(k_perm, n_cand))[: args.poses]
+    rnd_cand = cand.subset(rnd_idx) if hasattr(cand, "q") else cand[rnd_idx]
+    rnd = _plan.predicted_accuracy(robot, measurement, rnd_cand, args.noise_std, q_test=q_test)
     rnd_ind = _plan.indices_from_jacobian(
-        _plan.planning_jacobian(robot, measurement, cand[rnd_idx], sel.space), sel.scale)
+        _plan.planning_jacobian(robot, measurement, rnd_cand, sel.space), sel.scale)
     meta = [("source", "jaxcal plan"), ("robot", robot.name), ("planned_poses", args.poses),
             ("criterion", f"{args.criterion}-optimal ({sel.method})"), ("seed", args.seed),
-            ("predicted_test_rmse_mm", f"{pred.test_rmse:.4f}"), ("noise_std_mm", args.noise_std)]
+            (f"predicted_test_rmse_{unit}", f"{pred.test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
     if args.measurement == "cable":
         meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
     meta += list(mm_joints_metadata(robot).items())
-    _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    if sensor:
+        _save_sensor_plan(args.out, robot, measurement, sel, meta)
+    else:
+        _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
     print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
           f"for {len(sel.space.free_names)} identifiable parameters")
     rows = [["selected", *[f"{v:.4g}" for v in (sel.indices.o1, sel.indices.o2, sel.indices.o3, sel.indices.o4,
                                                  sel.indices.o5)], f"{pred.test_rmse:.4f}"],
             ["random", *[f"{v:.4g}" for v in (rnd_ind.o1, rnd_ind.o2, rnd_ind.o3, rnd_ind.o4, rnd_ind.o5)],
              f"{rnd.test_rmse:.4f}"]]
-    print("\n| poses | O1 (D) | O2 (1/cond) | O3 (σ_min) | O4 (noise ampl.) | O5 | predicted test RMSE / mm |")
+    print(f"\n| poses | O1 (D) | O2 (1/cond) | O3 (σ_min) | O4 (noise ampl.) | O5 | predicted test RMSE / {unit} |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
         print("| " + " | ".join(r) + " |")
-    print(f"\n(indices of the column-scaled Jacobian; {args.poses} random poses for comparison; test RMSE over 2000 "
-          f"random workspace poses, σ = {args.noise_std:g} mm)\n")
+    print(f"\n(indices of the column-scaled Jacobian; {args.poses} random candidates for comparison; test RMSE over "
+          f"{len(q_test.q) if hasattr(q_test, 'q') else q_test.shape[0]} random "
+          f"{'candidate' if sensor else 'workspace'} poses, σ = {args.noise_std:g} {unit})\n")
     print(pred.table())
-    print(f"\nwrote {sel.n} poses to {args.out}: fill in the {measurement.kind} readings, then "
+    print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
           f"`jaxcal calibrate {args.out} --robot {args.robot} --measurement {args.measurement}`")
     if args.plot:
         top = min(cand.shape[0], max(4 * args.poses, 100))
@@ -1188,6 +1255,42 @@ def _cmd_plan(args) -> int:
         fig.savefig(args.plot, dpi=120)
         print(f"wrote the predicted RMSE-vs-poses curve to {args.plot}")
     return 0
+
+
+_PLAN_NEXT = {
+    "plane": "touch the plane each row names and record the joint angles there (the planned ones are the nominal "
+             "robot's)",
+    "point": "put the tool tip on the point each row names (or the ball on the sphere) and record the joint angles "
+             "there",
+    "distance": "place the bar between each row's two poses (bar length: distance_mm) and record both poses' joint "
+                "angles",
+    "camera": "take an image at each pose and fill in the detected target points' u_k_px, v_k_px (empty where not "
+              "detected)",
+}
+
+
+def _save_sensor_plan(path, robot, measurement, sel, meta) -> None:
+    """The selected poses of a plane/point/distance/camera plan as a data file of its kind: contact
+    rows with their label, bar rows with both poses and the bar length, camera rows with empty
+    pixel columns and the set-up lines (target: the default 9×6 board of
+    :func:`jaxcal._camera.planning_camera`, intrinsics, mount, image size)."""
+    import numpy as np
+
+    from ._dataset import Dataset
+
+    meta = dict(meta)
+    if measurement.kind == "camera":
+        meta.update({"target": "checkerboard:9x6:20", "camera_intrinsics": ",".join(repr(float(v)) for v in measurement.intrinsics),
+                     "mount": measurement.mount, "image_size_px": ",".join(str(v) for v in measurement.image_size)})
+        y = np.full((sel.n, measurement.n_points, 2), np.nan)
+        Dataset(sel.q, y, "camera", meta).to_csv(path)
+        return
+    data = sel.data
+    if measurement.kind != "distance":
+        meta[f"{measurement.kind}_labels"] = ",".join(measurement.labels)
+        if getattr(measurement, "sphere", False):
+            meta["radius_mm"] = f"{float(np.asarray(measurement.radii)[0]):g}"
+    Dataset(data.q, data.y, measurement.kind, meta).to_csv(path)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -1276,6 +1379,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand", "eye_in_hand", "eye_to_hand"),
                    help="camera: on the flange with the target fixed (eye-in-hand, default) or fixed with the target "
                         "on the flange (eye-to-hand); default: the file's '# mount:' line")
+    c.add_argument("--radius-mm", type=float, metavar="R",
+                   help="point data: a ball on the flange touches fixed spheres; R = sphere radius + ball radius "
+                        "(mm, known; with --estimate radius only the start). Default: the file's '# radius_mm:' "
+                        "line; without either, points (pivoting)")
     c.add_argument("--markers", type=int, metavar="N",
                    help="number of markers per sample (--measurement markers; default: as many as the file has)")
     c.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor in the base frame, mm (cable only)")
@@ -1283,7 +1390,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also estimate extras: comma list of anchor (wire exit point), offset (cable zero offset), "
                         "tool (tool point in the flange frame), base (position sensor's frame relative to the robot "
                         "base, 6 parameters), intrinsics (camera: fx, fy, cx, cy, k1, k2, p1, p2, k3; off by "
-                        "default). Anchor, offset and base start from the data in closed form, so a "
+                        "default), radius (point data as spheres: the radius, per point). Anchor, offset and base "
+                        "start from the data in closed form, so a "
                         "rough --anchor guess is fine. Without --anchor (and no anchor_mm line in the file) the "
                         "anchor and offset are estimated.")
     c.add_argument("--free", metavar="LIST",
@@ -1370,6 +1478,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "nests)")
     s.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand"), default="eye-in-hand",
                    help="camera: on the flange (eye-in-hand, default) or fixed, the target on the flange")
+    s.add_argument("--radius-mm", type=float, metavar="R",
+                   help="point: a ball touching two fixed spheres instead of a pivoting tip, R = sphere + ball radius "
+                        "(mm; written as '# radius_mm: R')")
     s.add_argument("--missing-corners", type=float, default=0.0, metavar="FRACTION",
                    help="camera: fraction of corners left undetected at random (empty cells; default 0)")
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
@@ -1445,18 +1556,30 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     pl.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     pl.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
-    pl.add_argument("--measurement", choices=("cable", "position", "pose"), default="cable",
-                    help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable)")
+    pl.add_argument("--measurement", choices=("cable", "position", "pose", "plane", "point", "distance", "camera"),
+                    default="cable",
+                    help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable); "
+                         "without a tracker (the set-ups of `jaxcal simulate`): plane (three planes; candidates "
+                         "touch them), point (two pivot points, or spheres with --radius-mm; candidates touch them), "
+                         "distance (a bar of 150 and 300 mm; candidates are pose pairs that far apart), camera "
+                         "(eye-in-hand or --mount eye-to-hand, a 9×6 checkerboard, 1280×1024 px; candidates see the "
+                         "whole target; --noise-std in px). Candidates are made on the nominal robot by random joint "
+                         "angles moved onto the contact by minimum-norm Newton steps (no inverse kinematics)")
+    pl.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand"), default="eye-in-hand",
+                    help="camera: on the flange (default) or fixed, the target on the flange")
+    pl.add_argument("--radius-mm", type=float, metavar="R", help="point: spheres of radius R (sphere + ball, mm)")
     pl.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
     pl.add_argument("--poses", type=int, required=True, help="number of poses to select")
-    pl.add_argument("--candidates", default="20000", metavar="FILE|N",
-                    help="number of random candidate poses (default 20000) or a CSV file with q1_deg…qN_deg columns")
+    pl.add_argument("--candidates", metavar="FILE|N",
+                    help="number of random candidate poses (default 20000; 2000 for plane/point/distance/camera) or "
+                         "a CSV file with q1_deg…qN_deg columns (plane/point: a data file with its label column; "
+                         "distance: q1a_deg…, q1b_deg…, distance_mm)")
     pl.add_argument("--criterion", choices=("D", "A", "E", "I"), default="D",
                     help="D: max det (default); A: min trace of the covariance (scaled units); E: max smallest "
                          "eigenvalue (greedy to first order); I: min the average prediction variance over the "
                          "candidate workspace (the predicted test error)")
     pl.add_argument("--no-exchange", action="store_true", help="greedy selection only (no DETMAX exchange)")
-    pl.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
+    pl.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm, px for a camera (default 0.5)")
     pl.add_argument("--wire-range", metavar="LO,HI", help="draw-wire length window, mm (default 0.05–1.2 × reach)")
     pl.add_argument("--box", metavar="X0,Y0,Z0,X1,Y1,Z1", help="workspace box for the tool point, mm (base frame)")
     pl.add_argument("--tracker", metavar="X,Y,Z", help="tracker position, mm: keep poses inside its line-of-sight cone")

@@ -34,6 +34,36 @@ def test_projection_matches_opencv():
 
 
 @pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
+def test_jacobian_of_the_structured_projection(mount):
+    """The projection's derivative rule (jaxcal._camera._affine_project) against central finite
+    differences and against plain jax.jacfwd/jacrev through the projection formula, with the
+    intrinsics free (every tangent path of the rule) away from the nominal point."""
+    from jaxcal._camera import _distort_project
+
+    robot = robots.hsr_jr680()
+    cam = Camera(checkerboard(9, 6, 20.0), INTR, mount, image_size=(1280, 1024), calibrate_intrinsics=True)
+    q, y, cam, _ = simulate_camera(jax.random.key(4), robot, cam, n_views=5, noise_px=0.3)
+    pr = jaxcal.Problem(robot, cam, q, y, jaxcal.ParameterSpace.for_robot(robot, measurement=cam))
+    x = pr.x0() + 1e-3 * jax.random.normal(jax.random.key(5), pr.x0().shape)
+
+    def plain(xx):
+        dev = pr.deviations(xx)
+        px, py, pz = cam.camera_points(robot, dev, q)
+        u, v = _distort_project(px / pz, py / pz, cam.frames(dev, q.dtype)[4])
+        return (jnp.stack([u, v], -1) - y).reshape(-1)
+
+    J = np.asarray(pr.jacobian(x))
+    np.testing.assert_allclose(pr.residual(x), plain(x), atol=1e-9)
+    np.testing.assert_allclose(J, jax.jacfwd(plain)(x), rtol=0, atol=1e-9 * np.abs(J).max())
+    np.testing.assert_allclose(J, jax.jacrev(pr.residual)(x), rtol=0, atol=1e-9 * np.abs(J).max())
+    h = 1e-6
+    E = np.eye(x.shape[0])
+    fd = np.stack([(np.asarray(pr.residual(x + h * E[j])) - np.asarray(pr.residual(x - h * E[j]))) / (2 * h)
+                   for j in range(x.shape[0])], axis=1)
+    np.testing.assert_allclose(J, fd, rtol=0, atol=1e-5 * np.abs(J).max())
+
+
+@pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
 def test_hand_eye_start_matches_opencv(mount):
     """Park–Martin on the same simulated poses as cv2.calibrateHandEye(CALIB_HAND_EYE_PARK): the same
     pairs and formulas in float64, so the two agree to round-off (~1e-15 relative measured; asserted

@@ -18,7 +18,7 @@ from jaxcal._contact import (
     unobservable_directions,
 )
 from jaxcal._io import load_result_dict
-from jaxcal._params import ParameterSpace
+from jaxcal._params import Deviations, ParameterSpace, layout_for
 
 SIGMA = 0.05
 
@@ -28,16 +28,18 @@ def robot():
     return jaxcal.robots.hsr_jr680()
 
 
-def _cli_at_floor(robot, kind, tmp_path, seed=3):
+def _cli_at_floor(robot, kind, tmp_path, seed=3, radius_mm=None, calibrate_args=()):
     """`jaxcal simulate` + `jaxcal calibrate` (defaults: prior, Huber, extras from the data) → the
-    test RMSE on 3000 fresh poses of the same true robot over the floor."""
+    test RMSE on 3000 fresh poses of the same true robot over the floor. ``radius_mm``: point data
+    as spheres of that radius (``--radius-mm``)."""
     path, out = tmp_path / f"{kind}.csv", tmp_path / f"{kind}.json"
+    sphere = [] if radius_mm is None else ["--radius-mm", str(radius_mm)]
     assert jaxcal.cli.main(["simulate", "--measurement", kind, "--samples", "300", "--noise-std", str(SIGMA),
-                            "--seed", str(seed), "--out", str(path)]) == 0
+                            "--seed", str(seed), "--out", str(path), *sphere]) == 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rc = jaxcal.cli.main(["calibrate", str(path), "--robot", "hsr_jr680", "--measurement", kind,
-                              "--test-fraction", "0", "--out", str(out)])
+                              "--test-fraction", "0", "--out", str(out), *calibrate_args])
     assert rc == 0
     res = jaxcal.load_result(out)
     if kind == "distance":
@@ -46,6 +48,8 @@ def _cli_at_floor(robot, kind, tmp_path, seed=3):
                                 true_deviations=truth, test_fraction=0.0).train
     else:
         m = default_setup(kind, robot)
+        if radius_mm is not None:
+            m = FixedPoint(m.labels, np.asarray(m.centres), radii_mm=radius_mm)
         truth = simulate_contact(jax.random.key(seed), robot, m, n_samples=300, noise_std=SIGMA).true_deviations
         big = simulate_contact(jax.random.key(1000 + seed), robot, m, n_samples=3000, noise_std=SIGMA,
                                true_deviations=truth, test_fraction=0.0).train
@@ -71,6 +75,26 @@ def test_point_cli_pivot_at_floor(robot, tmp_path):
     assert abs(ratio - 1) < 0.03, ratio
 
 
+@pytest.mark.parametrize("estimate", [pytest.param(False, marks=pytest.mark.slow), True])
+def test_sphere_cli_at_floor(robot, tmp_path, estimate):
+    """A ball on the flange touching two fixed spheres, via the CLI: the radius from the file's
+    '# radius_mm:' line (known), or unknown (--estimate radius with a nominal of 0 mm: started by a
+    sphere fit to the data)."""
+    res, ratio, _ = _cli_at_floor(robot, "point", tmp_path, radius_mm=30.0,
+                                  calibrate_args=["--estimate", "radius", "--radius-mm", "0"] if estimate else [])
+    print("sphere: test RMSE / floor", ratio, "radius estimated" if estimate else "")
+    assert res.measurement.sphere and res.measurement.size == 1
+    assert res.measurement.estimate_radius == estimate
+    if estimate:
+        assert {"radius@p1", "radius@p2"} <= set(res.space.free_names)
+        c, r = res.measurement.points(res.deviations)
+        assert np.allclose(np.asarray(res.measurement.radii), 0.0)
+        assert np.allclose(np.asarray(r), 30.0, atol=0.5)  # nominal 0: found by the data
+    else:
+        assert np.allclose(np.asarray(res.measurement.radii), 30.0)
+    assert abs(ratio - 1) < 0.03, ratio
+
+
 def test_one_plane_report_names_what_it_cannot_see(robot):
     """One horizontal plane: rotation about its normal (θ_1) is invisible and d_1 is the plane's
     offset; the words name the in-plane translations and the turn about the normal. Three planes with
@@ -86,6 +110,36 @@ def test_one_plane_report_names_what_it_cannot_see(robot):
     assert len(words) == 2 and "translation along the plane" in words[0] and "rotation about the plane normal" in words[1]
     assert "intersection line" in unobservable_directions([[0, 0, 1], [1, 0, 0]])[0]
     assert unobservable_directions(np.asarray(m0.normals)) == []
+
+
+@pytest.mark.parametrize("kind", ["plane", "point", "sphere-unknown", "sphere-known"])
+def test_contact_data_cannot_see_the_length_scale(robot, kind):
+    """Scaling every length of the set-up (DH a_i, d_i, tool, plane offsets / point centres / unknown
+    radii) by the same factor keeps every contact: that direction is in the Jacobian's null space.
+    A known sphere radius is a length reference and sees it."""
+    p = default_setup("point", robot)
+    m = {"plane": default_setup("plane", robot), "point": p,
+         "sphere-unknown": FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0, estimate_radius=True),
+         "sphere-known": FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0)}[kind]
+    ex = simulate_contact(jax.random.key(0), robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
+                          true_deviations=Deviations.zeros(layout_for(robot, m)))
+    space = ParameterSpace.for_robot(robot, measurement=m, tool=True)
+    pr = jaxcal.Problem(robot, m, ex.train.q, ex.train.y, space)
+    J = np.asarray(pr.jacobian(pr.x0()))
+    nominal = {**{f"a_{i + 1}": v for i, v in enumerate(np.asarray(robot.a))},
+               **{f"d_{i + 1}": v for i, v in enumerate(np.asarray(robot.d))},
+               **{f"tool_{c}": v for c, v in zip("xyz", np.asarray(robot.tool))}}
+    if kind == "plane":
+        nominal.update({f"plane_d@{s}": v for s, v in zip(m.labels, np.asarray(m.offsets))})
+    else:
+        nominal.update({f"point_{c}@{s}": v for s, row in zip(m.labels, np.asarray(m.centres)) for c, v in zip("xyz", row)})
+        nominal.update({f"radius@{s}": v for s, v in zip(m.labels, np.asarray(m.radii))})
+    v = np.array([nominal.get(n, 0.0) for n in space.free_names])  # d(scale): every length × (1 + ε)
+    rel = np.linalg.norm(J @ v) / (np.linalg.norm(J, axis=0) @ np.abs(v))
+    if kind == "sphere-known":
+        assert rel > 1e-3, rel
+    else:
+        assert rel < 1e-12, rel
 
 
 def test_closed_form_starts_recover_planes_points_and_tool(robot):
