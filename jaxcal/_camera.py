@@ -252,6 +252,13 @@ class Camera(MeasurementModel):
         count = jnp.sum(sq > 0, axis=-1).astype(sq.dtype)
         return jnp.sqrt(jnp.sum(sq, axis=-1) / jnp.maximum(count, 1.0))
 
+    def observed(self, y) -> np.ndarray | None:
+        """``[n, 2N]`` bool: the residual entries of detected corners (NaN = not detected), or
+        ``None`` when every corner of every image was detected; so σ̂, the robust and outlier
+        scales and the residual count leave the masked corners out."""
+        seen = np.isfinite(np.asarray(y, np.float64)).reshape(np.shape(y)[0], -1)
+        return None if seen.all() else seen
+
     def check_measurements(self, y, n: int) -> None:
         """``[n, N, 2]``, finite or NaN (not detected); ±inf is an error."""
         shape = tuple(np.shape(y))
