@@ -22,9 +22,9 @@ while not (PKG / "__init__.py").exists():  # tests moved into a subfolder: look 
 #: the floors below, never a higher one. Keyed by the first name below ``jaxcal``: a private
 #: subpackage (``_fit``) or a public module/package (``methods``, ``report``...).
 FLOORS = {
-    "_core": 0, "optim": 0,  # precision, parameter groups, metrics, xla, json, buckets, csv, trig
+    "_core": 0, "optim": 0,  # precision, parameter groups, metrics, xla, json, buckets, joint trigonometry
     "_models": 1, "robots": 1,  # DH robot, non-geometric errors, kinematics, chains, URDF
-    "_datasets": 2,  # Dataset and the CSV format of every sensor
+    "_datasets": 2,  # Dataset, the CSV reader, the CSV format of every sensor
     "_sensors": 3,  # measurement models and the closed-form starts of their extras
     "_simulation": 4,  # simulated experiments and sensor data
     "_fit": 5,  # objective, problem, identifiability, diagnostics, result
