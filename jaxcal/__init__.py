@@ -180,7 +180,7 @@ _LAZY = {
     'leave_one_session_out': ('_sessions', 'leave_one_session_out'),
     'load_csv': ('_dataset', 'load_csv'),
     'load_result': ('_io', 'load_result'),
-    'load_sweep': ('_io', 'load_sweep'),
+    'load_sweep': ('_sweep', 'load_sweep'),
     'load_urdf': ('_urdf', 'load_urdf'),
     'methods': ('methods', None),
     'observability_indices': ('_plan', 'observability_indices'),
@@ -210,7 +210,7 @@ _LAZY = {
     'DistanceBar': ('_contact', 'DistanceBar'),
     'PlaneContact': ('_contact', 'PlaneContact'),
     'simulate_contact': ('_contact', 'simulate_contact'),
-    'MEASURED_DEFAULTS': ('_evaluate', 'MEASURED_DEFAULTS'),
+    'MEASURED_DEFAULTS': ('_objective', 'MEASURED_DEFAULTS'),
     'Evaluation': ('_evaluate', 'Evaluation'),
     'evaluate_result': ('_evaluate', 'evaluate_result'),
 }

@@ -30,13 +30,12 @@ from ._diagnostics import (
     prior_directions,
     weak_parameters,
 )
-from ._evaluate import resolve_objective
 from ._identifiability import identify_with_residuals
 from ._initialise import INITIALISABLE, initial_extras
 from ._kinematics import shared_joint_trig
 from ._measurement import MeasurementModel
 from ._metrics import Metrics, compute_metrics
-from ._objective import LOSSES, Objective, Prior, resolve_prior, robust_scale
+from ._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from ._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from ._precision import cast_floating, dtype_scope, to_device, warn_if_float32
 from ._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals

@@ -12,17 +12,8 @@ says which extras were registered or taken from the result.
 the nominal robot with the extras estimated from the data; the raw nominal model (the guessed
 anchor / frame, as written in the measurement model) is only shown as its own line.
 
-:data:`MEASURED_DEFAULTS` is the objective for measured data: the default prior toward the
-nominal robot plus the Huber loss (``calibrate(..., objective="measured")``, the CLI,
-:func:`jaxcal.holdout_session`, :func:`jaxcal.leave_one_session_out`). Measured on messy
-simulated data (``benchmarks/bench_measured_defaults.py``, ``benchmarks/results/
-measured_defaults_cpu.md``, 3 seeds, draw-wire and tracker data): without a gross outlier the
-four objectives reach the same held-out RMSE (within 1.5 %); with one gross row, least squares
-with the prior ended 2.77× (draw-wire; up to 5.4×) and 1.28× (tracker) above its fit without
-that row, the prior + Huber fit within 0.34 % of it (mean 0.05 %); without the prior the
-Huber fit also shrugged the row off, but its error over the unmeasured workspace was 9–12 mm
-against 1.6–1.8 mm with the prior, and its parameters implausible. ``calibrate()``'s bare
-default stays plain least squares: it is the paper's experiment.
+:data:`MEASURED_DEFAULTS` (the objective for measured data) and the named objectives live in
+:mod:`jaxcal._objective`; they are re-exported here.
 """
 
 from __future__ import annotations
@@ -35,47 +26,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._metrics import Metrics, compute_metrics, format_table
+from ._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
 from ._params import Deviations, ParameterSpace, group_kind, layout_for
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
            "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors"]
 
-#: The objective for measured data (issue 24; evidence in ``benchmarks/results/measured_defaults_cpu.md``):
-#: the default Gaussian prior toward the nominal robot (0.5° on angles, 2 mm on DH lengths, none
-#: on the sensor extras) and the Huber loss (scale 1.345 robust σ, re-estimated from the fit).
-MEASURED_DEFAULTS = {"prior": "default", "loss": "huber"}
-#: Named objectives of :func:`jaxcal.calibrate` (``objective=``): ``"measured"`` the defaults for
-#: measured data, ``"least_squares"`` plain least squares (the paper's experiment; the bare default).
-OBJECTIVES = {"measured": MEASURED_DEFAULTS, "least_squares": {"prior": None, "loss": "linear"}}
-
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
                 "base_translation": "base", "marker": "markers",
                 "plane": "plane", "point": "point", "radius": "point"}  # contact set-ups (jaxcal._contact)
-
-
-def resolve_objective(objective, prior, loss):
-    """``(prior, loss)`` of a :func:`jaxcal.calibrate` call: ``objective`` (``None``, ``"measured"``,
-    ``"least_squares"``) fills in what is not given (``prior=None``, ``loss=None``); explicit values win
-    (``prior="none"`` for no prior). Without an objective: ``prior`` as given, ``loss`` ``"linear"``."""
-    if objective is None:
-        return prior, "linear" if loss is None else loss
-    if objective not in OBJECTIVES:
-        raise ValueError(f"unknown objective {objective!r}; choose one of {list(OBJECTIVES)} (or None)")
-    preset = OBJECTIVES[objective]
-    return (preset["prior"] if prior is None else prior), (preset["loss"] if loss is None else loss)
-
-
-def describe_objective(prior, loss: str) -> str:
-    """One line naming the objective, and whether it is :data:`MEASURED_DEFAULTS`."""
-    from ._objective import Prior, resolve_prior
-
-    p = resolve_prior(prior)
-    what = "least squares" if loss == "linear" else f"{loss} loss"
-    text = f"{what}; " + (p.describe() if p is not None else "no prior")
-    if p == Prior() and loss == MEASURED_DEFAULTS["loss"]:
-        return "measured-data defaults (default prior + Huber loss, jaxcal.MEASURED_DEFAULTS): " + text
-    return "objective: " + text + " (not the measured-data defaults: default prior + Huber loss)"
 
 
 # -- extras --------------------------------------------------------------------------------------------

@@ -58,7 +58,7 @@ import numpy as np
 from ._dataset import _matrix_to_rotvec
 from ._kinematics import fk_pose_jit, fk_position_jit
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
-from ._objective import robust_scale
+from ._metrics import robust_scale
 from ._params import Deviations, layout_for
 from ._robot import DHRobot
 

@@ -7,8 +7,8 @@ table (degrees, mm), the history, the status, metrics and the identifiability re
 :func:`load_result` turns it back into a :class:`~jaxcal.CalibrationResult` whose ``predict``,
 ``evaluate`` and ``dh_table`` work as on the original (the RBF network of ``"rbfnn"`` included).
 
-Sweeps write their chunks as they finish (:func:`jaxcal._sweep.sweep` with ``out_dir=``);
-:func:`load_sweep` rebuilds the :class:`~jaxcal._sweep.SweepResult` from that directory.
+A sweep's output directory is read back by :func:`jaxcal._sweep.load_sweep` (next to the code
+that writes it).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 from ._csvfile import read_table
 from ._json import to_jsonable
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
-from ._metrics import Metrics, statistical_floor
+from ._metrics import Metrics
 from ._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from ._params import Deviations, ParameterSpace, layout_for
 from ._result import CalibrationResult, Status
@@ -40,7 +40,6 @@ __all__ = [
     "save_result",
     "load_result",
     "load_result_dict",
-    "load_sweep",
     "load_robot_csv",
     "save_robot_csv",
 ]
@@ -397,98 +396,3 @@ def load_result(path) -> CalibrationResult:
     )
     object.__setattr__(result, "identifiability", d.get("identifiability"))
     return result
-
-
-# -- sweeps -----------------------------------------------------------------------------------
-
-
-def load_sweep(out_dir, *, partial: bool = False):
-    """Rebuild a :class:`~jaxcal._sweep.SweepResult` from a sweep's ``out_dir``.
-
-    Args:
-        out_dir: the directory passed to ``sweep(..., out_dir=)``.
-        partial: load only the trials finished by every run of an interrupted sweep (default:
-            raise if any chunk is missing; rerun ``sweep`` with the same settings to resume).
-    """
-    from ._sweep import _TRIAL_LIKE, SweepResult, SweepRun, _DataOut, _Split, _stage_ends, _Store, _unflatten
-
-    root = pathlib.Path(out_dir)
-    meta_path = root / "sweep.json"
-    if not meta_path.exists():
-        raise FileNotFoundError(f"{root} holds no sweep (no sweep.json)")
-    st = json.loads(meta_path.read_text())
-    robot = robot_from_dict(st["robot_dict"])
-    measurement = measurement_from_dict(st["measurement_dict"])
-    n, csize = int(st["n_seeds"]), int(st["chunk_size"])
-    store = _Store(root)
-
-    def chunks(unit):
-        out = []
-        for a in range(0, n, csize):
-            b = min(a + csize, n)
-            p = store.path(unit, a, b)
-            if not p.exists():
-                break
-            with np.load(p, allow_pickle=False) as f:
-                meta = json.loads(str(f["__meta__"]))
-                out.append(({k: np.array(f[k]) for k in f.files if k != "__meta__"}, meta, b - a))
-        return out
-
-    units = {"_data": chunks("_data")}
-    for r in st["runs"]:
-        units[r["unit"]] = chunks(r["unit"])
-    done = min(sum(c[2] for c in ch) for ch in units.values())
-    if done < n and not partial:
-        raise ValueError(f"{root}: the sweep is incomplete ({done} of {n} trials in every run); rerun the sweep "
-                         "with the same settings to resume it, or pass partial=True")
-    if done == 0:
-        raise ValueError(f"{root}: no finished trials")
-
-    def merge(unit, axis):
-        ch = units[unit]
-        merged, times, k = {}, [], 0
-        for arrays, meta, m in ch:
-            if k >= done:
-                break
-            take = min(m, done - k)
-            for key, v in arrays.items():
-                merged.setdefault(key, []).append(v[:, :take] if axis == 1 else v[:take])
-            times.append(np.full(take, meta["time_per_trial_s"]))
-            k += take
-        return ({key: np.concatenate(v, axis=axis) for key, v in merged.items()}, np.concatenate(times),
-                float(ch[0][1].get("compile_time_s", 0.0)))
-
-    dtype = np.float64 if st["dtype"] == "float64" else np.float32
-    layout = layout_for(robot, measurement)
-    has_truth = st["source"]["kind"] in ("simulated", "experiment")
-    met = Metrics(0.0, 0.0, 0.0)
-    dlike = _DataOut(met, met, Deviations.zeros(layout) if has_truth else None, 0.0,
-                     _Split(0.0, 0.0, 0.0, 0.0, None), 0)
-    dmerged, _, _ = merge("_data", 0)
-    dout = _unflatten(dlike, dmerged)
-    runs = {}
-    for r in st["runs"]:
-        axis = 1 if r["grid_index"] is not None else 0
-        merged, times, ct = merge(r["unit"], axis)
-        if axis == 1:
-            merged = {k: v[r["grid_index"]] for k, v in merged.items()}
-        out = _unflatten(_TRIAL_LIKE, merged)
-        runs[r["label"]] = SweepRun(
-            label=r["label"], method=r["method"], hyperparameters=r["hyperparameters"], grid_point=r["grid_point"],
-            test=Metrics(*out.test), train=Metrics(*out.train), n_iterations=out.n_iterations,
-            iterations_to_converge=out.iterations_to_converge, status=out.status, time_per_trial_s=times,
-            compile_time_s=ct, x=out.x, history=out.history, test_errors=out.test_errors,
-            stage_ends=_stage_ends(merged),
-        )
-    space = ParameterSpace.from_names(layout, st["space"])
-    start = Deviations.unravel(jnp.asarray(np.asarray(st["start_values"], dtype)), layout)
-    noise = st["noise_std"]
-    floor = None if noise is None else statistical_floor(float(noise), space.n_free, int(st["n_train"]),
-                                                         measurement.size)
-    settings = dict(st)
-    settings["n_seeds"] = done
-    return SweepResult(
-        runs=runs, n_seeds=done, before=Metrics(*dout.before), oracle=Metrics(*dout.oracle), floor=floor,
-        before_errors=dout.before_errors, space=space, robot=robot, measurement=measurement, start=start,
-        true_deviations=dout.truth, settings=settings,
-    )

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -445,128 +446,229 @@ def simulate_messy(
 
     robot = hsr_jr680() if robot is None else robot
     dtype = jnp.result_type(float)
-    if measurement not in ("cable", "position"):
-        raise ValueError(f"measurement must be 'cable' or 'position', got {measurement!r}")
-    check_simulation_settings(n_samples, test_fraction, noise_std, _OVERSAMPLE)
-    angle_std_deg = _nonneg("angle_std_deg", angle_std_deg)
-    length_std_mm = _nonneg("length_std_mm", length_std_mm)
-    quantization_deg = _nonneg("quantization_deg", quantization_deg)
-    anchor_guess_error_mm = _nonneg("anchor_guess_error_mm", anchor_guess_error_mm)
-    base_guess_error_mm = _nonneg("base_guess_error_mm", base_guess_error_mm)
-    base_guess_error_deg = _nonneg("base_guess_error_deg", base_guess_error_deg)
-    if base_guess_error_deg > 180:
-        raise ValueError(f"base_guess_error_deg must be at most 180, got {base_guess_error_deg}")
-    gear_error_deg = _nonneg("gear_error_deg", gear_error_deg)
-    tool_offset = np.asarray(tool_offset_mm, np.float64)
+    opt = _checked_options(
+        robot, dtype, measurement=measurement, n_samples=n_samples, noise_std=noise_std, test_fraction=test_fraction,
+        angle_std_deg=angle_std_deg, length_std_mm=length_std_mm, joint_ranges_deg=joint_ranges_deg,
+        quantization_deg=quantization_deg, anchor_guess_error_mm=anchor_guess_error_mm,
+        base_guess_error_mm=base_guess_error_mm, base_guess_error_deg=base_guess_error_deg,
+        cable_offset_mm=cable_offset_mm, tool_offset_mm=tool_offset_mm, compliance_deg_per_knm=compliance_deg_per_knm,
+        gear_error_deg=gear_error_deg, n_outliers=n_outliers, outlier_mm=outlier_mm, far_samples=far_samples)
+    if not isinstance(key, jax.core.Tracer):
+        warn_if_float32(dtype, "simulate_messy")
+    keys = _Keys(*jax.random.split(key, 11))
+    truth = _truth_and_guess(keys, robot, opt, dtype)  # 1–2
+    sensor = _Sensor.build(keys, robot, truth, opt, dtype)
+    rad = np.deg2rad(np.asarray(opt.ranges))
+    q, y = sensor.measure(keys.q, keys.noise, opt.n_samples, (rad[:, 0], rad[:, 1]), "joint_ranges_deg")  # 3–4
+    train, test, rows = _split_with_outliers(keys, q, y, truth.model.kind, opt, robot, dtype)  # 5
+    far = _far_set(keys, sensor, opt, robot, dtype)
+    return MessyExperiment(
+        robot=robot, measurement=truth.model, true_deviations=truth.dev, train=train, test=test, far=far,
+        outlier_rows=tuple(int(r) for r in rows), noise_std=sensor.sigma,
+        settings=_settings_record(opt, truth.dev, sensor.phase),
+    )
+
+
+class _Options(NamedTuple):
+    """:func:`simulate_messy`'s settings, checked and normalised (floats, the joint ranges in
+    degrees, the compliance ``[dof]`` in °/(kN·m), the train/test sizes)."""
+
+    measurement: str
+    n_samples: int
+    noise_std: float
+    test_fraction: float
+    angle_std_deg: float
+    length_std_mm: float
+    ranges: tuple
+    quantization_deg: float
+    anchor_guess_error_mm: float
+    base_guess_error_mm: float
+    base_guess_error_deg: float
+    cable_offset_mm: float | None
+    tool_offset: np.ndarray
+    compliance: np.ndarray
+    gear_error_deg: float
+    n_train: int
+    n_test: int
+    n_outliers: int
+    outlier_mm: tuple[float, float]
+    far_samples: int
+
+
+def _checked_options(robot: DHRobot, dtype, **o) -> _Options:
+    """The settings of :func:`simulate_messy`, each checked (a ``ValueError`` naming the option)."""
+    if o["measurement"] not in ("cable", "position"):
+        raise ValueError(f"measurement must be 'cable' or 'position', got {o['measurement']!r}")
+    check_simulation_settings(o["n_samples"], o["test_fraction"], o["noise_std"], _OVERSAMPLE)
+    nonneg = {k: _nonneg(k, o[k]) for k in ("angle_std_deg", "length_std_mm", "quantization_deg",
+                                            "anchor_guess_error_mm", "base_guess_error_mm", "base_guess_error_deg")}
+    if nonneg["base_guess_error_deg"] > 180:
+        raise ValueError(f"base_guess_error_deg must be at most 180, got {nonneg['base_guess_error_deg']}")
+    gear_error_deg = _nonneg("gear_error_deg", o["gear_error_deg"])
+    tool_offset = np.asarray(o["tool_offset_mm"], np.float64)
     if tool_offset.shape != (3,) or not np.all(np.isfinite(tool_offset)):
-        raise ValueError(f"tool_offset_mm must be 3 finite numbers (mm, flange frame), got {tool_offset_mm!r}")
+        raise ValueError(f"tool_offset_mm must be 3 finite numbers (mm, flange frame), got {o['tool_offset_mm']!r}")
+    cable_offset_mm = o["cable_offset_mm"]
     if cable_offset_mm is not None and not math.isfinite(float(cable_offset_mm)):
         raise ValueError(f"cable_offset_mm must be a finite number (mm) or None, got {cable_offset_mm!r}")
+    joint_ranges_deg = o["joint_ranges_deg"]
     ranges = default_joint_ranges_deg(robot) if joint_ranges_deg is None else _check_ranges(robot, joint_ranges_deg)
-    compliance = _check_compliance(robot, compliance_deg_per_knm, dtype)
-    n_test = int(round(n_samples * test_fraction))
+    compliance = _check_compliance(robot, o["compliance_deg_per_knm"], dtype)
+    n_samples, n_outliers = o["n_samples"], o["n_outliers"]
+    n_test = int(round(n_samples * o["test_fraction"]))
     n_train = n_samples - n_test
     if int(n_outliers) != n_outliers or not (0 <= n_outliers <= n_train):
         raise ValueError(f"n_outliers must be an integer in [0, {n_train}] (the train size), got {n_outliers!r}")
-    n_outliers = int(n_outliers)
-    lo_out, hi_out = (float(v) for v in outlier_mm)
+    lo_out, hi_out = (float(v) for v in o["outlier_mm"])
     if not (math.isfinite(hi_out) and 0 <= lo_out <= hi_out):
-        raise ValueError(f"outlier_mm must be a (low, high) magnitude range with 0 <= low <= high (mm), got {outlier_mm!r}")
+        raise ValueError(f"outlier_mm must be a (low, high) magnitude range with 0 <= low <= high (mm), "
+                         f"got {o['outlier_mm']!r}")
+    far_samples = o["far_samples"]
     if int(far_samples) != far_samples or far_samples < 0:
         raise ValueError(f"far_samples must be a non-negative integer, got {far_samples!r}")
-    far_samples = int(far_samples)
-    if not isinstance(key, jax.core.Tracer):
-        warn_if_float32(dtype, "simulate_messy")
+    return _Options(
+        measurement=o["measurement"], n_samples=n_samples, noise_std=o["noise_std"], test_fraction=o["test_fraction"],
+        ranges=ranges, cable_offset_mm=cable_offset_mm, tool_offset=tool_offset, compliance=compliance,
+        gear_error_deg=gear_error_deg, n_train=n_train, n_test=n_test, n_outliers=int(n_outliers),
+        outlier_mm=(lo_out, hi_out), far_samples=int(far_samples), **nonneg)
 
-    (k_dev, k_sensor1, k_sensor2, k_offset, k_phase, k_q, k_noise,
-     k_split, k_out, k_far_q, k_far_noise) = jax.random.split(key, 11)
 
-    # 1–2. the truth, and the nominal model the user builds
-    dev = draw_deviations(k_dev, robot, angle_std_deg=angle_std_deg, length_std_mm=length_std_mm, dtype=dtype)
-    if np.any(tool_offset != 0):
-        dev = dev.replace(tool=jnp.asarray(tool_offset, dtype))
-    if measurement == "cable":
+class _Keys(NamedTuple):
+    """The eleven keys of one :func:`simulate_messy` call (``jax.random.split(key, 11)``, in order)."""
+
+    dev: Array
+    sensor1: Array
+    sensor2: Array
+    offset: Array
+    phase: Array
+    q: Array
+    noise: Array
+    split: Array
+    out: Array
+    far_q: Array
+    far_noise: Array
+
+
+class _Truth(NamedTuple):
+    """The true deviations, the user's nominal sensor model, and the workspace filter's anchor
+    (mm, cable only) and wire-length range (mm)."""
+
+    dev: Deviations
+    model: MeasurementModel
+    anchor_for_filter: Array | None
+    wire_range: tuple[float, float]
+
+
+def _truth_and_guess(keys: _Keys, robot: DHRobot, opt: _Options, dtype) -> _Truth:
+    """Steps 1–2: the true DH deviations (and tool offset), the true sensor set-up, and the
+    nominal model the user builds from a guess ``anchor_guess_error_mm`` (cable) or
+    ``base_guess_error_mm``/``_deg`` (position) away from it."""
+    dev = draw_deviations(keys.dev, robot, angle_std_deg=opt.angle_std_deg, length_std_mm=opt.length_std_mm,
+                          dtype=dtype)
+    if np.any(opt.tool_offset != 0):
+        dev = dev.replace(tool=jnp.asarray(opt.tool_offset, dtype))
+    if opt.measurement == "cable":
         true_anchor = default_anchor(robot).astype(dtype)
-        anchor_error = jnp.asarray(anchor_guess_error_mm, dtype) * _unit(k_sensor1, dtype)
-        model: MeasurementModel = CableLength(true_anchor - anchor_error)
-        if cable_offset_mm is None:
-            offset = jnp.asarray(CABLE_OFFSET_STD_MM, dtype) * jax.random.normal(k_offset, (), dtype)
+        anchor_error = jnp.asarray(opt.anchor_guess_error_mm, dtype) * _unit(keys.sensor1, dtype)
+        if opt.cable_offset_mm is None:
+            offset = jnp.asarray(CABLE_OFFSET_STD_MM, dtype) * jax.random.normal(keys.offset, (), dtype)
         else:
-            offset = jnp.asarray(cable_offset_mm, dtype)
+            offset = jnp.asarray(opt.cable_offset_mm, dtype)
         dev = eqx.tree_at(lambda d: (d.anchor, d.cable_offset), dev, (anchor_error, offset))
-        anchor_for_filter = true_anchor
         reach = robot.reach_mm()
-        wire_range = (0.05 * reach, 1.2 * reach)
-    else:
-        model = Position(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype))
-        rotvec = jnp.asarray(math.radians(base_guess_error_deg), dtype) * _unit(k_sensor1, dtype)
-        shift = jnp.asarray(base_guess_error_mm, dtype) * _unit(k_sensor2, dtype)
-        dev = eqx.tree_at(lambda d: (d.base_rotation, d.base_translation), dev, (rotvec, shift))
-        anchor_for_filter, wire_range = None, (0.0, math.inf)
-    phase = jax.random.uniform(k_phase, (robot.dof,), dtype, 0.0, 2 * math.pi)
-    sigma = jnp.asarray(noise_std, dtype)
-    errors = dict(gear_error_deg=gear_error_deg, gear_phase_rad=phase, compliance_deg_per_knm=compliance)
+        return _Truth(dev, CableLength(true_anchor - anchor_error), true_anchor, (0.05 * reach, 1.2 * reach))
+    model = Position(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype))
+    rotvec = jnp.asarray(math.radians(opt.base_guess_error_deg), dtype) * _unit(keys.sensor1, dtype)
+    shift = jnp.asarray(opt.base_guess_error_mm, dtype) * _unit(keys.sensor2, dtype)
+    dev = eqx.tree_at(lambda d: (d.base_rotation, d.base_translation), dev, (rotvec, shift))
+    return _Truth(dev, model, None, (0.0, math.inf))
 
-    # one candidate count for both sets: the same array shapes, so JAX compiles its few eager
-    # operations once
-    n_cand = _OVERSAMPLE * max(n_samples, far_samples)
 
-    def measure(k_q, k_noise, n, joint_ranges, what):
-        """``n`` kept poses: quantised readings ``q`` and noisy readings ``y`` of the truth."""
-        cand = sample_joint_angles(k_q, robot, n_cand, ranges=joint_ranges, dtype=dtype)
-        q_act = actual_joint_angles(robot, cand, **errors)
-        ok = np.asarray(workspace_mask(tool_point_soa(robot, dev, q_act), anchor_for_filter, wire_range))
+class _Sensor(NamedTuple):
+    """The true robot and sensor of a session, measuring poses (steps 3–4)."""
+
+    robot: DHRobot
+    truth: _Truth
+    phase: Array  # [dof] gear-error phase (rad)
+    sigma: Array  # noise σ (mm)
+    n_cand: int  # candidate poses drawn per set
+    quantization_deg: float
+    errors: dict
+    dtype: object
+
+    @classmethod
+    def build(cls, keys: _Keys, robot: DHRobot, truth: _Truth, opt: _Options, dtype) -> _Sensor:
+        phase = jax.random.uniform(keys.phase, (robot.dof,), dtype, 0.0, 2 * math.pi)
+        errors = dict(gear_error_deg=opt.gear_error_deg, gear_phase_rad=phase, compliance_deg_per_knm=opt.compliance)
+        # one candidate count for both sets: the same array shapes, so JAX compiles its few eager
+        # operations once
+        n_cand = _OVERSAMPLE * max(opt.n_samples, opt.far_samples)
+        return cls(robot, truth, phase, jnp.asarray(opt.noise_std, dtype), n_cand, opt.quantization_deg, errors, dtype)
+
+    def measure(self, k_q, k_noise, n: int, joint_ranges, what: str) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` kept poses: quantised readings ``q`` ``[n, dof]`` (rad) and noisy readings ``y``
+        (mm) of the truth at the actual joint angles."""
+        robot, t = self.robot, self.truth
+        cand = sample_joint_angles(k_q, robot, self.n_cand, ranges=joint_ranges, dtype=self.dtype)
+        q_act = actual_joint_angles(robot, cand, **self.errors)
+        ok = np.asarray(workspace_mask(tool_point_soa(robot, t.dev, q_act), t.anchor_for_filter, t.wire_range))
         idx = np.flatnonzero(ok)[:n]
         if idx.size < n:
             raise ValueError(
-                f"simulate_messy: only {idx.size} of {n_cand} candidate poses for {what} have the tool "
+                f"simulate_messy: only {idx.size} of {self.n_cand} candidate poses for {what} have the tool "
                 "above the base plane (and the wire in range); choose other joint_ranges_deg"
             )
-        y = np.asarray(model.predict(robot, dev, q_act))[idx]
-        noise = np.asarray(sigma * jax.random.normal(k_noise, (n_cand, *model.sample_shape), dtype))[:n]
-        return _quantize(np.asarray(cand)[idx], quantization_deg), y + noise
+        y = np.asarray(t.model.predict(robot, t.dev, q_act))[idx]
+        noise = np.asarray(self.sigma * jax.random.normal(k_noise, (self.n_cand, *t.model.sample_shape), self.dtype))[:n]
+        return _quantize(np.asarray(cand)[idx], self.quantization_deg), y + noise
 
-    # 3–4. the measured session
-    rad = np.deg2rad(np.asarray(ranges))
-    q, y = measure(k_q, k_noise, n_samples, (rad[:, 0], rad[:, 1]), "joint_ranges_deg")
-    # 5. the split, and gross outliers in train
-    k_rows, k_sign, k_mag, k_coord = jax.random.split(k_out, 4)
-    perm = np.asarray(jax.random.permutation(k_split, n_samples))
-    te, tr = perm[:n_test], perm[n_test:]
+
+def _split_with_outliers(keys: _Keys, q, y, kind: str, opt: _Options, robot: DHRobot, dtype):
+    """Step 5: a random train/test split, then ``n_outliers`` gross errors in train rows (cable:
+    on the length; position: on one random coordinate). Returns ``(train, test, rows)``."""
+    k_rows, k_sign, k_mag, k_coord = jax.random.split(keys.out, 4)
+    perm = np.asarray(jax.random.permutation(keys.split, opt.n_samples))
+    te, tr = perm[:opt.n_test], perm[opt.n_test:]
     q_tr, y_tr = q[tr], y[tr].copy()
-    rows = np.sort(np.asarray(jax.random.permutation(k_rows, n_train))[:n_outliers])
-    sign = np.where(np.asarray(jax.random.bernoulli(k_sign, 0.5, (n_train,)))[:n_outliers], 1.0, -1.0)
-    err = (sign * np.asarray(jax.random.uniform(k_mag, (n_train,), dtype, lo_out, hi_out))[:n_outliers]).astype(y.dtype)
-    if model.kind == "cable":
+    n_train, n_out = opt.n_train, opt.n_outliers
+    rows = np.sort(np.asarray(jax.random.permutation(k_rows, n_train))[:n_out])
+    sign = np.where(np.asarray(jax.random.bernoulli(k_sign, 0.5, (n_train,)))[:n_out], 1.0, -1.0)
+    err = (sign * np.asarray(jax.random.uniform(k_mag, (n_train,), dtype, *opt.outlier_mm))[:n_out]).astype(y.dtype)
+    if kind == "cable":
         y_tr[rows] += err
     else:
-        y_tr[rows, np.asarray(jax.random.randint(k_coord, (n_train,), 0, 3))[:n_outliers]] += err
-    meta = {"source": "simulate_messy", "robot": robot.name}
-    arr = lambda x: jnp.asarray(x, dtype)  # noqa: E731
-    train = Dataset(arr(q_tr), arr(y_tr), model.kind, {**meta, "split": "train"})
-    test = Dataset(arr(q[te]), arr(y[te]), model.kind, {**meta, "split": "test"})
-    # the unmeasured workspace
-    if far_samples:
-        q_far, y_far = measure(k_far_q, k_far_noise, far_samples, None, "far_samples")
-    else:
-        q_far, y_far = np.zeros((0, robot.dof)), np.zeros((0, *model.sample_shape))
-    far = Dataset(arr(q_far), arr(y_far), model.kind, {**meta, "split": "far"})
+        y_tr[rows, np.asarray(jax.random.randint(k_coord, (n_train,), 0, 3))[:n_out]] += err
+    return (_dataset(q_tr, y_tr, kind, robot, "train", dtype), _dataset(q[te], y[te], kind, robot, "test", dtype),
+            rows)
 
-    settings = _FrozenDict(
-        measurement=measurement, n_samples=n_samples, noise_std=float(noise_std),
-        test_fraction=float(test_fraction), angle_std_deg=angle_std_deg, length_std_mm=length_std_mm,
-        joint_ranges_deg=ranges, quantization_deg=quantization_deg,
-        anchor_guess_error_mm=anchor_guess_error_mm, base_guess_error_mm=base_guess_error_mm,
-        base_guess_error_deg=base_guess_error_deg,
-        cable_offset_mm=float(dev.cable_offset) if measurement == "cable" else None,
-        tool_offset_mm=tuple(float(v) for v in tool_offset),
-        compliance_deg_per_knm=tuple(float(c) for c in compliance), gear_error_deg=gear_error_deg,
-        gear_phase_rad=tuple(float(p) for p in np.asarray(phase)), n_outliers=n_outliers,
-        outlier_mm=(lo_out, hi_out), far_samples=far_samples,
-    )
-    return MessyExperiment(
-        robot=robot, measurement=model, true_deviations=dev, train=train, test=test, far=far,
-        outlier_rows=tuple(int(r) for r in rows), noise_std=sigma, settings=settings,
+
+def _dataset(q, y, kind: str, robot: DHRobot, split: str, dtype) -> Dataset:
+    meta = {"source": "simulate_messy", "robot": robot.name}
+    return Dataset(jnp.asarray(q, dtype), jnp.asarray(y, dtype), kind, {**meta, "split": split})
+
+
+def _far_set(keys: _Keys, sensor: _Sensor, opt: _Options, robot: DHRobot, dtype) -> Dataset:
+    """``far_samples`` poses over the whole joint limits: the unmeasured workspace."""
+    if opt.far_samples:
+        q_far, y_far = sensor.measure(keys.far_q, keys.far_noise, opt.far_samples, None, "far_samples")
+    else:
+        q_far, y_far = np.zeros((0, robot.dof)), np.zeros((0, *sensor.truth.model.sample_shape))
+    return _dataset(q_far, y_far, sensor.truth.model.kind, robot, "far", dtype)
+
+
+def _settings_record(opt: _Options, dev: Deviations, phase) -> _FrozenDict:
+    """:attr:`MessyExperiment.settings`: every setting as plain Python values."""
+    return _FrozenDict(
+        measurement=opt.measurement, n_samples=opt.n_samples, noise_std=float(opt.noise_std),
+        test_fraction=float(opt.test_fraction), angle_std_deg=opt.angle_std_deg, length_std_mm=opt.length_std_mm,
+        joint_ranges_deg=opt.ranges, quantization_deg=opt.quantization_deg,
+        anchor_guess_error_mm=opt.anchor_guess_error_mm, base_guess_error_mm=opt.base_guess_error_mm,
+        base_guess_error_deg=opt.base_guess_error_deg,
+        cable_offset_mm=float(dev.cable_offset) if opt.measurement == "cable" else None,
+        tool_offset_mm=tuple(float(v) for v in opt.tool_offset),
+        compliance_deg_per_knm=tuple(float(c) for c in opt.compliance), gear_error_deg=opt.gear_error_deg,
+        gear_phase_rad=tuple(float(p) for p in np.asarray(phase)), n_outliers=opt.n_outliers,
+        outlier_mm=opt.outlier_mm, far_samples=opt.far_samples,
     )
 
 

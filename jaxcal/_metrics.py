@@ -19,6 +19,7 @@ __all__ = [
     "metrics_numpy",
     "statistical_floor",
     "format_table",
+    "robust_scale",
 ]
 
 
@@ -139,3 +140,15 @@ def format_table(
         lines.append("  ".join("-" * w for w in widths))
         lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in cells]
     return "\n".join(lines)
+
+
+def robust_scale(errors) -> float:
+    """σ̂ = 1.4826·median(|e − median(e)|) of per-sample errors (mm): consistent for Gaussian
+    noise, unmoved by up to half the samples being outliers (for signed errors; non-negative
+    error norms of m-dimensional residuals use ``1.4826·median(e)/sqrt(m)``-like behaviour — the
+    caller passes signed entries where it can)."""
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    e = e[np.isfinite(e)]
+    if e.size == 0:
+        return math.nan
+    return float(1.4826 * np.median(np.abs(e - np.median(e))))

@@ -45,6 +45,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._params import Group
+from ._trig import dh_joint_terms
 
 __all__ = [
     "MassModel", "NonGeometric", "NonGeometricMixin", "gravity_torques", "nongeometric_groups",
@@ -198,9 +199,7 @@ def _rot(u, v, c, s):
 def _dh_link_frames(robot, q):
     """Nominal DH robot: per joint ``i`` the axis (origin ``o``, direction ``z``, three ``[n]``
     each) and the frame of link ``i`` (X, Y, Z, P); plus the flange frame."""
-    from ._kinematics import _joint_terms
-
-    ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, None, q)
+    ct, st, ca, sa, cb, sb, a, d = dh_joint_terms(robot, None, q)
     n = q.shape[0]
     one, zero = jnp.ones((n,), q.dtype), jnp.zeros((n,), q.dtype)
     X, Y, Z, P = (one, zero, zero), (zero, one, zero), (zero, zero, one), (zero, zero, zero)

@@ -43,7 +43,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._evaluate import MEASURED_DEFAULTS, describe_objective
 from ._initialise import (
     MIN_FRAME_ROWS,
     ExtrasEstimate,
@@ -54,6 +53,7 @@ from ._initialise import (
 )
 from ._kinematics import _chain, check_joint_angles, fk_pose_jit, rotvec_to_matrix
 from ._measurement import MarkerModel
+from ._objective import MEASURED_DEFAULTS, describe_objective
 from ._params import Deviations, Group, ParameterSpace, layout_for
 from ._precision import to_device
 

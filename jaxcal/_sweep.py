@@ -51,7 +51,7 @@ from jaxtyping import Array
 from . import _simulate as _simulate_mod
 from ._calibrate import Calibrator, resolve_space
 from ._dataset import Dataset
-from ._io import measurement_to_dict, robot_to_dict
+from ._io import measurement_from_dict, measurement_to_dict, robot_from_dict, robot_to_dict
 from ._json import to_jsonable
 from ._measurement import CableLength, MeasurementModel
 from ._metrics import Floor, Metrics, compute_metrics, statistical_floor
@@ -73,6 +73,7 @@ from .methods._stages import StageInfo
 
 __all__ = [
     "sweep",
+    "load_sweep",
     "SweepResult",
     "SweepRun",
     "PAPER_METHODS",
@@ -841,7 +842,7 @@ def sweep(
         out_dir: directory to write each finished chunk to (``chunks/<run>/trials_a-b.npz``)
             and the settings (``sweep.json``); a rerun with the same settings loads finished
             chunks instead of recomputing them (resume after an interruption);
-            :func:`jaxcal._io.load_sweep` reads the directory back.
+            :func:`load_sweep` reads the directory back.
         progress: one line per chunk on stderr.
         keep_errors: keep per-sample test errors (``[n, n_test]`` per run; Fig. 4).
         keep_history: keep per-iteration training RMSE (``[n, T+1]`` per run; Fig. 3).
@@ -853,9 +854,7 @@ def sweep(
     Returns:
         :class:`SweepResult`.
     """
-    if isinstance(n_seeds, bool) or not isinstance(n_seeds, (int, np.integer)) or n_seeds < 1:
-        raise ValueError(f"n_seeds must be a positive integer, got {n_seeds!r}")
-    n_seeds = int(n_seeds)
+    n_seeds = _check_n_seeds(n_seeds)
     base_key = _as_key(seed if key is None else key)
     dtype = jnp.result_type(float)
     warn_if_float32(dtype, "sweep")
@@ -863,25 +862,169 @@ def sweep(
     source, robot, measurement, source_settings = _make_source(
         robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype)
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
-    devs = _resolve_devices(devices)
-    mesh = Mesh(np.asarray(devs), ("trials",)) if len(devs) > 1 else None
-    if batching not in ("auto", "vmap", "map"):
-        raise ValueError(f"batching must be 'auto', 'vmap' or 'map', got {batching!r}")
-    if batching == "map" and mesh is not None:
-        raise ValueError("batching='map' runs on one device; use 'vmap' (or 'auto') with several devices")
-    sequential = batching == "map" or (batching == "auto" and mesh is None and devs[0].platform == "cpu")
-    per_device, csize = _chunking(n_seeds, chunk_size, len(devs), devs[0].platform)
-    n_chunks = math.ceil(n_seeds / csize)
-    store = _Store(out_dir)
-    settings = {
+    ex = _Execution.build(n_seeds, chunk_size, devices, batching, dtype, out_dir, progress)
+    prior = resolve_prior(prior)
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
+    settings = _settings(ex, base_key, noise_std, source_settings, robot, measurement, start, keep_errors, keep_history,
+                         {"prior": None if prior is None else repr(prior), "loss": loss, "loss_scale": loss_scale})
+    common = {k: settings[k] for k in _COMMON_SETTINGS}
+
+    # 1. data pass: every trial's data (simulated or split once, reused by every method), the
+    #    before-calibration and oracle metrics, the true deviations
+    dlike, dout, dchunks = _data_pass(ex, source, robot, measurement, start, keep_errors, base_key, common)
+    # 2. the free parameters: fixed for the whole sweep (static under jit), from trial 0's poses
+    space, floor, sizes = _free_parameters(robot, measurement, dout, space, start, prior, noise_std)
+    settings |= sizes
+    common["space"] = settings["space"]
+    # 3. the plan: compiled units (a method, or a group of grid points vmapped together)
+    objective = _trial_objective(space, prior, loss, loss_scale, noise_std, dtype)
+    mk = functools.partial(_MethodTrial, robot, measurement, start, keep_errors=keep_errors, keep_history=keep_history,
+                           objective=objective)
+    units = _plan_units(specs, mk, space, dtype, (dlike.split, dlike.k_method), common)
+    settings["runs"] = _run_entries(units)
+    if ex.store.root is not None and jax.process_index() == 0:
+        (ex.store.root / "sweep.json").write_text(json.dumps(settings, indent=1, default=repr))
+    _progress(progress, f"{len(settings['runs'])} run(s); p = {space.n_free} free parameters; "
+              f"{settings['n_train']} train / {settings['n_test']} test samples per trial")
+    method_inputs = functools.partial(_method_inputs, dlike, dchunks, ex.csize)
+    # 4. compile every unit that has chunks to compute: traced one after the other, XLA-compiled in
+    #    parallel threads (compilation dominates a cold sweep: ~5 s per method on an H100, ~10–20 s
+    #    on 2 CPU cores; XLA releases the GIL while it compiles)
+    runners = _compile_units(units, ex.new_runner, method_inputs(0, 0, min(ex.csize, n_seeds)),
+                             lambda u: ex.pending(u.name), progress)
+    # 5. every method (or grid group), chunk by chunk
+    runs = _run_units(ex, units, method_inputs, runners)
+    return SweepResult(
+        runs=runs,
+        n_seeds=n_seeds,
+        before=Metrics(*(np.asarray(v) for v in dout.before)),
+        oracle=Metrics(*(np.asarray(v) for v in dout.oracle)),
+        floor=floor,
+        before_errors=np.asarray(dout.before_errors),
+        space=space,
+        robot=robot,
+        measurement=measurement,
+        start=start,
+        true_deviations=None if dout.truth is None else jax.tree.map(np.asarray, dout.truth),
+        settings=settings,
+    )
+
+
+def _check_n_seeds(n_seeds) -> int:
+    if isinstance(n_seeds, bool) or not isinstance(n_seeds, (int, np.integer)) or n_seeds < 1:
+        raise ValueError(f"n_seeds must be a positive integer, got {n_seeds!r}")
+    return int(n_seeds)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Execution:
+    """How a sweep's trials run: chunks of ``csize`` trials (``per_device`` on each of ``devs``,
+    sharded over ``mesh`` when there are several), ``lax.map`` or ``vmap`` inside a chunk
+    (``sequential``), and the chunk store of ``out_dir``."""
+
+    n_seeds: int
+    per_device: int
+    csize: int
+    devs: list
+    mesh: Mesh | None
+    sequential: bool
+    dtype: Any
+    store: _Store
+    progress: bool
+
+    @classmethod
+    def build(cls, n_seeds, chunk_size, devices, batching, dtype, out_dir, progress) -> _Execution:
+        devs = _resolve_devices(devices)
+        mesh = Mesh(np.asarray(devs), ("trials",)) if len(devs) > 1 else None
+        if batching not in ("auto", "vmap", "map"):
+            raise ValueError(f"batching must be 'auto', 'vmap' or 'map', got {batching!r}")
+        if batching == "map" and mesh is not None:
+            raise ValueError("batching='map' runs on one device; use 'vmap' (or 'auto') with several devices")
+        sequential = batching == "map" or (batching == "auto" and mesh is None and devs[0].platform == "cpu")
+        per_device, csize = _chunking(n_seeds, chunk_size, len(devs), devs[0].platform)
+        return cls(n_seeds, per_device, csize, devs, mesh, sequential, dtype, _Store(out_dir), progress)
+
+    @property
+    def n_chunks(self) -> int:
+        return math.ceil(self.n_seeds / self.csize)
+
+    def bounds(self, c: int) -> tuple[int, int]:
+        """Trials ``a … b−1`` of chunk ``c``."""
+        return c * self.csize, min((c + 1) * self.csize, self.n_seeds)
+
+    def pending(self, unit: str) -> bool:
+        """Whether some chunk of ``unit`` is not in the store yet (it has to be computed)."""
+        return any(not self.store.exists(unit, *self.bounds(c)) for c in range(self.n_chunks))
+
+    def new_runner(self, trial, hyper) -> _Runner:
+        return _Runner(trial, self.mesh, self.dtype, hyper is not None, self.sequential,
+                       None if self.mesh is not None else self.devs[0])
+
+    def run_unit(self, unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of, runner=None):
+        """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
+        per trial ``[n]``, the compile time, the per-chunk arrays and the runner."""
+        runner = self.new_runner(trial, hyper) if runner is None else runner
+        chunks, walls = [], []
+        for c in range(self.n_chunks):
+            arrays, per = self._load_chunk(unit, c, fp, runner)
+            if arrays is None:
+                arrays, per = self._compute_chunk(unit, c, fp, runner, hyper, n_points, inputs_of)
+            chunks.append(arrays)
+            walls.append(per)
+        axis = 1 if hyper is not None else 0
+        merged = {k: np.concatenate([ch[k] for ch in chunks], axis=axis) for k in chunks[0]}
+        times = np.concatenate([np.full(b - a, w) for (a, b), w in zip(map(self.bounds, range(self.n_chunks)), walls)])
+        return merged, times, runner.compile_time_s, chunks, runner
+
+    def _load_chunk(self, unit: str, c: int, fp: str, runner):
+        """``(arrays, time per trial)`` of chunk ``c`` from the store, or ``(None, None)``."""
+        a, b = self.bounds(c)
+        loaded = self.store.load(unit, a, b, fp)
+        if loaded is None:
+            return None, None
+        arrays, meta = loaded
+        if c == 0:
+            runner.compile_time_s = meta.get("compile_time_s", 0.0)
+        _progress(self.progress, f"{_shown(unit)}: chunk {c + 1}/{self.n_chunks} (trials {a}–{b - 1}) loaded from "
+                  f"{self.store.root}")
+        return arrays, meta["time_per_trial_s"]
+
+    def _compute_chunk(self, unit: str, c: int, fp: str, runner, hyper, n_points, inputs_of):
+        """Compute chunk ``c`` (compiling the unit on first use) and save it to the store."""
+        a, b = self.bounds(c)
+        fresh = runner.compiled is None
+        out, wall = runner(inputs_of(c, a, b), hyper)
+        arrays = {k: (v[:, : b - a] if hyper is not None else v[: b - a]) for k, v in _flatten(out).items()}
+        per = wall / (self.csize * (n_points or 1))
+        self.store.save(unit, a, b, fp, arrays, {"time_per_trial_s": per, "compile_time_s": runner.compile_time_s})
+        comp = f", compiled in {runner.compile_time_s:.1f} s" if fresh else ""
+        _progress(self.progress, f"{_shown(unit)}: chunk {c + 1}/{self.n_chunks} (trials {a}–{b - 1}) {wall:.2f} s "
+                  f"({per * 1e3:.1f} ms/trial){comp}")
+        return arrays, per
+
+
+def _shown(unit: str) -> str:
+    return "data" if unit == "_data" else unit
+
+
+#: the settings every unit's fingerprint includes (a stored chunk is reused only if they match)
+_COMMON_SETTINGS = ("format_version", "key_data", "dtype", "chunk_size", "source", "robot", "measurement", "start",
+                    "keep_errors", "keep_history", "objective")
+
+
+def _settings(ex: _Execution, base_key, noise_std, source_settings, robot, measurement, start, keep_errors,
+              keep_history, objective: dict) -> dict:
+    """The sweep's settings as written to ``sweep.json`` (before the free parameters are known)."""
+    return {
         "format_version": _FORMAT_VERSION,
-        "n_seeds": n_seeds,
+        "n_seeds": ex.n_seeds,
         "key_data": np.asarray(jax.random.key_data(base_key)).tolist(),
-        "dtype": str(jnp.dtype(dtype)),
-        "chunk_size": csize,
-        "per_device_batch": per_device,
-        "n_devices": len(devs),
-        "batching": "map" if sequential else "vmap",
+        "dtype": str(jnp.dtype(ex.dtype)),
+        "chunk_size": ex.csize,
+        "per_device_batch": ex.per_device,
+        "n_devices": len(ex.devs),
+        "batching": "map" if ex.sequential else "vmap",
         "noise_std": None if noise_std is None else float(noise_std),
         "source": source_settings,
         "robot": _robot_fingerprint(robot),
@@ -892,63 +1035,27 @@ def sweep(
         "start_values": np.asarray(start.ravel(), np.float64).tolist(),
         "keep_errors": keep_errors,
         "keep_history": keep_history,
+        "objective": objective,
     }
-    prior = resolve_prior(prior)
-    if loss not in LOSSES:
-        raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
-    settings["objective"] = {"prior": None if prior is None else repr(prior), "loss": loss, "loss_scale": loss_scale}
-    common = {k: settings[k] for k in ("format_version", "key_data", "dtype", "chunk_size", "source", "robot",
-                                       "measurement", "start", "keep_errors", "keep_history", "objective")}
 
-    def new_runner(trial, hyper):
-        return _Runner(trial, mesh, dtype, hyper is not None, sequential, None if mesh is not None else devs[0])
 
-    def run_unit(unit: str, trial, hyper, fp: str, n_points: int | None, inputs_of, runner=None):
-        """Run (or load) every chunk of one compiled unit; returns the merged arrays, the time
-        per trial ``[n]``, the compile time and the per-chunk arrays."""
-        runner = new_runner(trial, hyper) if runner is None else runner
-        shown = "data" if unit == "_data" else unit
-        chunks, walls = [], []
-        for c in range(n_chunks):
-            a, b = c * csize, min((c + 1) * csize, n_seeds)
-            loaded = store.load(unit, a, b, fp)
-            if loaded is not None:
-                arrays, meta = loaded
-                chunks.append(arrays)
-                walls.append(meta["time_per_trial_s"])
-                if c == 0:
-                    runner.compile_time_s = meta.get("compile_time_s", 0.0)
-                _progress(progress, f"{shown}: chunk {c + 1}/{n_chunks} (trials {a}–{b - 1}) loaded from {store.root}")
-                continue
-            fresh = runner.compiled is None
-            out, wall = runner(inputs_of(c, a, b), hyper)
-            arrays = {k: (v[:, : b - a] if hyper is not None else v[: b - a]) for k, v in _flatten(out).items()}
-            per = wall / (csize * (n_points or 1))
-            store.save(unit, a, b, fp, arrays, {"time_per_trial_s": per, "compile_time_s": runner.compile_time_s})
-            chunks.append(arrays)
-            walls.append(per)
-            comp = f", compiled in {runner.compile_time_s:.1f} s" if fresh else ""
-            _progress(progress, f"{shown}: chunk {c + 1}/{n_chunks} (trials {a}–{b - 1}) {wall:.2f} s "
-                      f"({per * 1e3:.1f} ms/trial){comp}")
-        axis = 1 if hyper is not None else 0
-        merged = {k: np.concatenate([ch[k] for ch in chunks], axis=axis) for k in chunks[0]}
-        times = np.concatenate([np.full(min((c + 1) * csize, n_seeds) - c * csize, w) for c, w in enumerate(walls)])
-        units_run[unit] = runner
-        return merged, times, runner.compile_time_s, chunks
+def _data_pass(ex: _Execution, source, robot, measurement, start, keep_errors, base_key, common):
+    """Step 1: every trial's data and the before/oracle metrics. Returns the shapes of one
+    trial's output (``dlike``), the merged output, and the per-chunk arrays."""
+    _progress(ex.progress, f"{ex.n_seeds} trial(s) in chunks of {ex.csize} = {len(ex.devs)} device(s) × "
+              f"{ex.per_device} ({'lax.map' if ex.sequential else 'vmap'})")
+    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot, measurement=measurement),
+                        keep_errors)
+    dmerged, _, _, dchunks, runner = ex.run_unit("_data", dtrial, None, _fingerprint(common | {"unit": "data"}), None,
+                                                 lambda c, a, b: (trial_keys(base_key, a, a + ex.csize),))
+    dlike = _one_trial_like(runner, lambda: eqx.filter_eval_shape(
+        lambda t, k: t(k), dtrial, trial_keys(base_key, 0, 1)[0]), ex.dtype)
+    return dlike, _unflatten(dlike, dmerged), dchunks
 
-    # 1. data pass: every trial's data (simulated or split once, reused by every method), the
-    #    before-calibration and oracle metrics, the true deviations
-    _progress(progress, f"{n_seeds} trial(s) in chunks of {csize} = {len(devs)} device(s) × {per_device} "
-              f"({'lax.map' if sequential else 'vmap'})")
-    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot, measurement=measurement), keep_errors)
-    units_run: dict[str, _Runner] = {}
-    dmerged, _, _, dchunks = run_unit("_data", dtrial, None, _fingerprint(common | {"unit": "data"}), None,
-                                      lambda c, a, b: (trial_keys(base_key, a, a + csize),))
-    dlike = _one_trial_like(units_run["_data"], lambda: eqx.filter_eval_shape(
-        lambda t, k: t(k), dtrial, trial_keys(base_key, 0, 1)[0]), dtype)
-    dout = _unflatten(dlike, dmerged)
 
-    # 2. the free parameters: fixed for the whole sweep (static under jit), from trial 0's poses
+def _free_parameters(robot, measurement, dout, space, start, prior, noise_std):
+    """Step 2: the free parameters chosen at trial 0's training poses, the statistical floor
+    (or ``None``), and the settings entries they add."""
     q0 = jnp.asarray(dout.split.q_train[0])
     space, report = resolve_space(robot, measurement, q0, space, start, prior=prior)
     n_train, n_test = int(q0.shape[0]), int(dout.split.q_test.shape[1])
@@ -960,22 +1067,25 @@ def sweep(
     # p of the floor: what the data identify (under a prior the free set also holds what only the prior sets)
     p_floor = space.n_free if report is None else report.rank
     floor = None if noise_std is None else statistical_floor(float(noise_std), p_floor, n_train, measurement.size)
-    settings |= {"n_train": n_train, "n_test": n_test, "space": list(space.free_names),
-                 "identifiability": None if report is None else report.to_dict()}
-    common["space"] = settings["space"]
+    return space, floor, {"n_train": n_train, "n_test": n_test, "space": list(space.free_names),
+                          "identifiability": None if report is None else report.to_dict()}
 
-    # 3. the plan: compiled units (a method, or a group of grid points vmapped together)
-    objective = None
-    if prior is not None or loss != "linear":
-        sigma = prior.noise_std if prior is not None and prior.noise_std is not None else noise_std
-        if sigma is None:
-            raise ValueError("a prior or robust loss in a sweep of given data needs noise_std (mm) or Prior.noise_std")
-        scale = loss_scale if loss_scale is not None else (LOSSES[loss] * sigma if loss != "linear" else None)
-        objective = Objective.build(space, prior, sigma, loss, scale, dtype)
-        objective = None if objective.plain_least_squares else objective
-    mk = functools.partial(_MethodTrial, robot, measurement, start, keep_errors=keep_errors, keep_history=keep_history,
-                           objective=objective)
-    trial_args = (dlike.split, dlike.k_method)  # shapes of one trial's method inputs
+
+def _trial_objective(space, prior, loss, loss_scale, noise_std, dtype) -> Objective | None:
+    """The objective every trial minimises (``None``: plain least squares), with fixed scales."""
+    if prior is None and loss == "linear":
+        return None
+    sigma = prior.noise_std if prior is not None and prior.noise_std is not None else noise_std
+    if sigma is None:
+        raise ValueError("a prior or robust loss in a sweep of given data needs noise_std (mm) or Prior.noise_std")
+    scale = loss_scale if loss_scale is not None else (LOSSES[loss] * sigma if loss != "linear" else None)
+    objective = Objective.build(space, prior, sigma, loss, scale, dtype)
+    return None if objective.plain_least_squares else objective
+
+
+def _plan_units(specs, mk, space, dtype, trial_args, common) -> list[_Unit]:
+    """Step 3: the compiled units: one per plain method, one per group of grid points that can be
+    vmapped together, one per point of a grid the method needs concrete values for."""
     units: list[_Unit] = []
     for s in specs:
         fp = _fingerprint(common | {"unit": s.name, "labels": s.labels, "hyper": to_jsonable(s.hyper_reports),
@@ -992,54 +1102,39 @@ def sweep(
         else:
             unit = s.labels[0] if len(s.labels) == 1 else f"{s.name}-grid-{fp[:8]}"
             units.append(_Unit(unit, fp, trial, hyper, s, list(range(len(s.points)))))
-    settings["runs"] = [
+    return units
+
+
+def _run_entries(units) -> list[dict]:
+    """``sweep.json``'s ``runs``: one entry per run (label, method, unit, grid point)."""
+    return [
         {"label": lab, "method": u.spec.name, "unit": u.name, "grid_index": g,
          "hyperparameters": to_jsonable(u.spec.hyper_reports[i]),
          "grid_point": None if u.spec.points is None else to_jsonable(u.spec.points[i])}
         for u in units for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index))
     ]
-    if store.root is not None and jax.process_index() == 0:
-        (store.root / "sweep.json").write_text(json.dumps(settings, indent=1, default=repr))
-    _progress(progress, f"{len(settings['runs'])} run(s); p = {space.n_free} free parameters; "
-              f"{n_train} train / {n_test} test samples per trial")
 
-    def method_inputs(c, a, b):
-        d = _unflatten(dlike, dchunks[c])
-        pad = lambda x: np.concatenate([x, np.repeat(x[-1:], a + csize - b, axis=0)]) if b - a < csize else x  # noqa: E731
-        return jax.tree.map(pad, (d.split, d.k_method))
 
-    # 4. compile every unit that has chunks to compute: traced one after the other, XLA-compiled in
-    #    parallel threads (compilation dominates a cold sweep: ~5 s per method on an H100, ~10–20 s
-    #    on 2 CPU cores; XLA releases the GIL while it compiles)
-    runners = _compile_units(units, new_runner, method_inputs(0, 0, min(csize, n_seeds)),
-                             lambda u: any(not store.exists(u.name, c * csize, min((c + 1) * csize, n_seeds))
-                                           for c in range(n_chunks)), progress)
+def _method_inputs(dlike, dchunks, csize: int, c: int, a: int, b: int):
+    """A method unit's inputs for chunk ``c`` (trials ``a … b−1``): the data pass's splits and
+    method keys, the last chunk padded to ``csize`` by repeating its last trial."""
+    d = _unflatten(dlike, dchunks[c])
+    pad = lambda x: np.concatenate([x, np.repeat(x[-1:], a + csize - b, axis=0)]) if b - a < csize else x  # noqa: E731
+    return jax.tree.map(pad, (d.split, d.k_method))
 
-    # 5. every method (or grid group), chunk by chunk
+
+def _run_units(ex: _Execution, units, method_inputs, runners) -> dict[str, SweepRun]:
+    """Step 5: every unit chunk by chunk, split into its runs (one per grid point)."""
     runs: dict[str, SweepRun] = {}
     for u in units:
-        merged, times, ct, _ = run_unit(u.name, u.trial, u.hyper, u.fingerprint,
-                                        None if u.hyper is None else len(u.grid_index), method_inputs,
-                                        runners.get(u.name))
+        merged, times, ct, _, _ = ex.run_unit(u.name, u.trial, u.hyper, u.fingerprint,
+                                              None if u.hyper is None else len(u.grid_index), method_inputs,
+                                              runners.get(u.name))
         for i, (lab, g) in enumerate(zip(u.spec.labels, u.grid_index)):
             part = merged if g is None else {k: v[g] for k, v in merged.items()}
             pt = None if u.spec.points is None else u.spec.points[i]
             runs[lab] = _make_run(lab, u.spec.name, u.spec.hyper_reports[i], pt, part, times, ct)
-
-    return SweepResult(
-        runs=runs,
-        n_seeds=n_seeds,
-        before=Metrics(*(np.asarray(v) for v in dout.before)),
-        oracle=Metrics(*(np.asarray(v) for v in dout.oracle)),
-        floor=floor,
-        before_errors=np.asarray(dout.before_errors),
-        space=space,
-        robot=robot,
-        measurement=measurement,
-        start=start,
-        true_deviations=None if dout.truth is None else jax.tree.map(np.asarray, dout.truth),
-        settings=settings,
-    )
+    return runs
 
 
 def _compile_units(units, new_runner, inputs, needed, progress: bool) -> dict:
@@ -1185,3 +1280,91 @@ def _check_kind(data: Dataset, measurement: MeasurementModel) -> None:
         raise ValueError(f"data are {data.kind!r} measurements but the measurement model is {measurement.kind!r}")
 
 
+def load_sweep(out_dir, *, partial: bool = False):
+    """Rebuild a :class:`SweepResult` from a sweep's ``out_dir``.
+
+    Args:
+        out_dir: the directory passed to ``sweep(..., out_dir=)``.
+        partial: load only the trials finished by every run of an interrupted sweep (default:
+            raise if any chunk is missing; rerun ``sweep`` with the same settings to resume).
+    """
+    root = pathlib.Path(out_dir)
+    meta_path = root / "sweep.json"
+    if not meta_path.exists():
+        raise FileNotFoundError(f"{root} holds no sweep (no sweep.json)")
+    st = json.loads(meta_path.read_text())
+    robot = robot_from_dict(st["robot_dict"])
+    measurement = measurement_from_dict(st["measurement_dict"])
+    n, csize = int(st["n_seeds"]), int(st["chunk_size"])
+    store = _Store(root)
+
+    def chunks(unit):
+        out = []
+        for a in range(0, n, csize):
+            b = min(a + csize, n)
+            p = store.path(unit, a, b)
+            if not p.exists():
+                break
+            with np.load(p, allow_pickle=False) as f:
+                meta = json.loads(str(f["__meta__"]))
+                out.append(({k: np.array(f[k]) for k in f.files if k != "__meta__"}, meta, b - a))
+        return out
+
+    units = {"_data": chunks("_data")}
+    for r in st["runs"]:
+        units[r["unit"]] = chunks(r["unit"])
+    done = min(sum(c[2] for c in ch) for ch in units.values())
+    if done < n and not partial:
+        raise ValueError(f"{root}: the sweep is incomplete ({done} of {n} trials in every run); rerun the sweep "
+                         "with the same settings to resume it, or pass partial=True")
+    if done == 0:
+        raise ValueError(f"{root}: no finished trials")
+
+    def merge(unit, axis):
+        ch = units[unit]
+        merged, times, k = {}, [], 0
+        for arrays, meta, m in ch:
+            if k >= done:
+                break
+            take = min(m, done - k)
+            for key, v in arrays.items():
+                merged.setdefault(key, []).append(v[:, :take] if axis == 1 else v[:take])
+            times.append(np.full(take, meta["time_per_trial_s"]))
+            k += take
+        return ({key: np.concatenate(v, axis=axis) for key, v in merged.items()}, np.concatenate(times),
+                float(ch[0][1].get("compile_time_s", 0.0)))
+
+    dtype = np.float64 if st["dtype"] == "float64" else np.float32
+    layout = layout_for(robot, measurement)
+    has_truth = st["source"]["kind"] in ("simulated", "experiment")
+    met = Metrics(0.0, 0.0, 0.0)
+    dlike = _DataOut(met, met, Deviations.zeros(layout) if has_truth else None, 0.0,
+                     _Split(0.0, 0.0, 0.0, 0.0, None), 0)
+    dmerged, _, _ = merge("_data", 0)
+    dout = _unflatten(dlike, dmerged)
+    runs = {}
+    for r in st["runs"]:
+        axis = 1 if r["grid_index"] is not None else 0
+        merged, times, ct = merge(r["unit"], axis)
+        if axis == 1:
+            merged = {k: v[r["grid_index"]] for k, v in merged.items()}
+        out = _unflatten(_TRIAL_LIKE, merged)
+        runs[r["label"]] = SweepRun(
+            label=r["label"], method=r["method"], hyperparameters=r["hyperparameters"], grid_point=r["grid_point"],
+            test=Metrics(*out.test), train=Metrics(*out.train), n_iterations=out.n_iterations,
+            iterations_to_converge=out.iterations_to_converge, status=out.status, time_per_trial_s=times,
+            compile_time_s=ct, x=out.x, history=out.history, test_errors=out.test_errors,
+            stage_ends=_stage_ends(merged),
+        )
+    space = ParameterSpace.from_names(layout, st["space"])
+    start = Deviations.unravel(jnp.asarray(np.asarray(st["start_values"], dtype)), layout)
+    noise = st["noise_std"]
+    floor = None if noise is None else statistical_floor(float(noise), space.n_free, int(st["n_train"]),
+                                                         measurement.size)
+    settings = dict(st)
+    settings["n_seeds"] = done
+    return SweepResult(
+        runs=runs, n_seeds=done, before=Metrics(*dout.before), oracle=Metrics(*dout.oracle), floor=floor,
+        before_errors=dout.before_errors, space=space, robot=robot, measurement=measurement, start=start,
+        true_deviations=dout.truth, settings=settings,
+    )

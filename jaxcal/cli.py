@@ -1120,7 +1120,7 @@ def _print_tables(res) -> None:
 
 
 def _cmd_report(args) -> int:
-    from ._io import load_sweep
+    from ._sweep import load_sweep
 
     src = pathlib.Path(args.sweep_dir)
     if src.suffix.lower() == ".json" or args.html:

@@ -10,8 +10,7 @@ import pytest
 
 import jaxcal
 from jaxcal import Problem, calibrate, load_urdf, simulate_experiment
-from jaxcal._io import load_sweep
-from jaxcal._sweep import sweep, trial_keys
+from jaxcal._sweep import load_sweep, sweep, trial_keys
 from jaxcal.report import dh_rows, dh_table, write_report
 
 DATA = pathlib.Path(__file__).parent / "data" / "urdf"

@@ -13,8 +13,7 @@ import pytest
 
 import jaxcal
 from jaxcal import Dataset, Problem, calibrate, simulate_experiment, statistical_floor
-from jaxcal._io import load_sweep
-from jaxcal._sweep import PAPER_METHODS, _chunking, sweep, trial_keys
+from jaxcal._sweep import PAPER_METHODS, _chunking, load_sweep, sweep, trial_keys
 from jaxcal.methods import METHODS
 from jaxcal.report import (
     accuracy_rows,

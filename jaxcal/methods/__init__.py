@@ -9,10 +9,10 @@ from ._base import Method as Method
 from ._base import RawRun as RawRun
 from ._base import ScaledProblem as ScaledProblem
 from ._base import default_half_width as default_half_width
-from ._base import make_method as make_method
 from ._base import method_settings as method_settings
 from ._base import register_builtin as _register_builtin
 from ._base import register_method as register_method
+from ._make import make_method as make_method
 
 #: the built-in methods, registered by name and imported on first use (a command that runs
 #: ``lm`` does not import optax or the population methods): ``name: module``
@@ -38,7 +38,7 @@ _LAZY = {
     "RBFNetworkMethod": ("_rbfnn", "RBFNetworkMethod"),
     "Staged": ("_stages", "Staged"),
     "StageInfo": ("_stages", "StageInfo"),
-    "stages": ("_stages", "stages"),
+    "stages": ("_make", "stages"),
 }
 
 

@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._buckets import BoundedCache
 from .._kinematics import shared_joint_trig
 from .._objective import Objective, robust_factor
 from .._problem import Problem, value_and_jacfwd
@@ -25,7 +24,6 @@ __all__ = [
     "Method",
     "register_method",
     "METHODS",
-    "make_method",
     "method_settings",
     "default_half_width",
     "finish_history",
@@ -357,63 +355,6 @@ def register_method(name: str):
         return factory
 
     return deco
-
-
-def make_method(method, **hyperparameters) -> Method:
-    """A :class:`Method` from a registry name, stages of registry names joined by ``>``
-    (``"ga>lm"``, settings as ``"lm.max_steps"``; :func:`~jaxcal.methods.stages`), a Method
-    instance, or an ``optax.GradientTransformation`` (run as a full-batch gradient method)."""
-    import sys
-
-    if isinstance(method, Method):
-        if hyperparameters:
-            raise ValueError("pass hyperparameters to the method's constructor, not with a Method instance")
-        return method
-    optax = sys.modules.get("optax")  # an optax transformation implies optax is imported
-    if optax is not None and isinstance(method, optax.GradientTransformation):
-        from ._gradient import OptaxMethod
-
-        return OptaxMethod.from_transformation(method, **hyperparameters)
-    if not isinstance(method, str):
-        raise TypeError(f"method must be a name, a jaxcal Method or an optax.GradientTransformation, got {type(method)}")
-    key = method.lower()
-    if ">" in key:  # stages, e.g. "ga>lm" (see ._stages)
-        from ._stages import check_method_name
-
-        key = check_method_name(key)
-    elif key not in METHODS:
-        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
-    try:
-        cache_key = (key, tuple(sorted(hyperparameters.items())))
-        hash(cache_key)
-    except TypeError:  # unhashable settings (e.g. arrays): build afresh
-        cache_key = None
-    if cache_key is not None and cache_key in _METHOD_CACHE:
-        return _METHOD_CACHE[cache_key]
-    valid = method_settings(key)
-    unknown = sorted(set(hyperparameters) - set(valid)) if valid is not None else []
-    if unknown:
-        raise TypeError(f"unknown setting(s) {unknown} for method {method!r}; its settings: {', '.join(valid)}")
-    try:
-        if ">" in key:
-            from ._stages import stages
-
-            built = stages(key, **hyperparameters)
-        else:
-            built = METHODS[key](**hyperparameters)
-    except TypeError as e:
-        if ">" in key:
-            raise
-        raise TypeError(f"bad hyperparameters for method {method!r}: {e}") from None
-    if cache_key is not None:
-        # the same name and settings give the same object, so jit caches hit (an optax
-        # transformation is a static field, compared by identity)
-        _METHOD_CACHE[cache_key] = built
-    return built
-
-
-#: built methods by (name, settings), least recently used first out beyond 256 entries
-_METHOD_CACHE = BoundedCache(256)
 
 
 def method_settings(name: str) -> list[str] | None:

@@ -4,7 +4,7 @@
 transformations) one after the other inside one pure, jittable, vmappable ``run``: each stage
 starts where the last one ended. Names join stages with ``>``: ``calibrate(..., method="ga>lm")``,
 ``sweep(["adamodw>lm"], ...)``, ``jaxcal fit --method ga>lm``, or
-:func:`stages` (``stages("bso", "lm", **{"lm.max_steps": 50})``).
+:func:`~jaxcal.methods.stages` (``stages("bso", "lm", **{"lm.max_steps": 50})``).
 
 **Hand-over.** Stage ``k + 1`` runs on the problem *re-centred* at stage ``k``'s result:
 ``ScaledProblem.build(problem.problem, x_start=x_k, objective=problem.objective)`` — ``z = 0`` is
@@ -48,7 +48,7 @@ from jaxtyping import Array, Int
 from .._result import Status, budget_status
 from ._base import METHODS, Method, RawRun, ScaledProblem, finish_history
 
-__all__ = ["Staged", "StageInfo", "stages", "is_staged_name", "check_method_name", "SEPARATOR"]
+__all__ = ["Staged", "StageInfo", "is_staged_name", "check_method_name", "SEPARATOR"]
 
 #: joins stage names: ``"ga>lm"``.
 SEPARATOR = ">"
@@ -169,65 +169,3 @@ def check_method_name(name: str) -> str:
         raise ValueError(f"unknown {what}; available: {', '.join(sorted(METHODS))} "
                          f"(stages join with '{SEPARATOR}', e.g. 'ga{SEPARATOR}lm')")
     return SEPARATOR.join(parts)
-
-
-def _prefixes(names: list[str]) -> list[str]:
-    """Registry name where it is unique among the stages, else the 1-based position."""
-    return [n if n and names.count(n) == 1 else str(i + 1) for i, n in enumerate(names)]
-
-
-def stages(*methods, **settings) -> Staged:
-    """Compose methods into stages, each starting where the last ended.
-
-    Args:
-        *methods: registry names, :class:`Method` instances or optax transformations (at least
-            two), or one string joined by ``>`` (``stages("ga>lm")``).
-        **settings: ``"stage.setting": value`` where ``stage`` is a stage's registry name (when
-            unique) or its 1-based position: ``stages("ga", "lm", **{"ga.generations": 100,
-            "2.max_steps": 50})``. Method instances take no settings (configure them directly).
-
-    Example: ``calibrate(robot, m, data, method=stages("adamodw", "lm", **{"adamodw.steps": 200}))``.
-    """
-    from ._base import make_method
-
-    if len(methods) == 1 and is_staged_name(methods[0]):
-        methods = tuple(methods[0].split(SEPARATOR))
-    if len(methods) < 2:
-        raise ValueError(f"stages needs at least two methods, got {len(methods)}")
-    names = []
-    for m in methods:
-        if isinstance(m, str):
-            names.append(check_method_name(m.strip()))
-        elif isinstance(m, Method):
-            names.append(type(m).name if type(m).name in METHODS else "")
-        else:
-            names.append("")  # an optax transformation: by position only
-    prefixes = _prefixes(names)
-    valid = sorted(set(prefixes) | {str(i + 1) for i in range(len(methods))}, key=lambda s: (s.isdigit(), s))
-    per_stage: list[dict] = [{} for _ in methods]
-    for k, v in settings.items():
-        stage, dot, setting = str(k).partition(".")
-        if not dot or not setting:
-            raise ValueError(f"setting {k!r} of staged method {SEPARATOR.join(n or '?' for n in names)!r} must name "
-                             f"its stage, as STAGE.SETTING with STAGE one of {valid} (e.g. {valid[0]}.{k})")
-        stage = stage.strip().lower()
-        if stage.isdigit() and 1 <= int(stage) <= len(methods):
-            i = int(stage) - 1
-        elif stage in names and names.count(stage) == 1:
-            i = names.index(stage)
-        else:
-            hint = " (the name occurs more than once: use its position)" if names.count(stage) > 1 else ""
-            raise ValueError(f"unknown stage {stage!r} in setting {k!r}{hint}; stages: {valid}")
-        per_stage[i][setting.strip()] = v
-    built = []
-    for i, (m, hyper) in enumerate(zip(methods, per_stage)):
-        if isinstance(m, str):
-            try:
-                built.append(make_method(names[i], **hyper))
-            except TypeError as e:
-                valid_settings = sorted(make_method(names[i]).hyperparameters())
-                raise TypeError(f"bad setting for stage {i + 1} ({names[i]!r}): {e}; its settings include "
-                                f"{valid_settings}") from None
-        else:
-            built.append(make_method(m, **hyper))
-    return Staged(tuple(built), tuple(prefixes))
