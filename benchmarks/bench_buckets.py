@@ -2,7 +2,7 @@
 
 A notebook user calling ``jaxcal.calibrate`` on subsets of different sizes (a learning curve)
 paid a full compilation per new sample count and ~28 MB of memory per count that was never
-freed. With shape buckets (:mod:`jaxcal._buckets`) every count of a bucket runs one compiled
+freed. With shape buckets (:mod:`jaxcal._core._buckets`) every count of a bucket runs one compiled
 program. This script runs ``--calls`` calibrations (``"lm"``, the default experiment's robot and
 draw-wire model) on as many different sample counts spread evenly over ``--min..--max``, each in
 a random order, and reports per bucket: the count of XLA compilations (all of them, JAX's
@@ -56,7 +56,7 @@ def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
     import numpy as np
 
     import jaxcal
-    from jaxcal._buckets import bucket_size, buckets_enabled
+    from jaxcal._core._buckets import bucket_size, buckets_enabled
 
     jaxcal.enable_x64()
     events = count_compilations()
@@ -126,7 +126,7 @@ def run_sweep(counts: list[int], n_seeds: int) -> dict:
     data inside its compiled trial, so the sample count is part of the program's shapes."""
 
     import jaxcal
-    from jaxcal._buckets import bucket_size, buckets_enabled
+    from jaxcal._core._buckets import bucket_size, buckets_enabled
 
     jaxcal.enable_x64()
     events = count_compilations()

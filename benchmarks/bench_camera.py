@@ -23,7 +23,7 @@ jax.config.update("jax_enable_x64", True)
 from _common import machine, median_time  # noqa: E402
 
 from jaxcal import Camera, ParameterSpace, Position, checkerboard, robots  # noqa: E402
-from jaxcal._params import Deviations, layout_for  # noqa: E402
+from jaxcal._core._params import Deviations, layout_for  # noqa: E402
 
 INTR = [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0]
 
@@ -80,7 +80,7 @@ def main():
         "|---|---|---|---|---|---|---|",
         *rows,
         "",
-        "Before the flange frames were materialised (`jaxcal._kinematics.materialised`) XLA:CPU fused the",
+        "Before the flange frames were materialised (`jaxcal._models._kinematics.materialised`) XLA:CPU fused the",
         "kinematic chain into every [n, N] consumer and recomputed it per target point and Jacobian column:",
         "0.80 s for the 20-image, 2160 × 36 Jacobian (vs 1.3 ms after, same session and load).",
     ])

@@ -51,7 +51,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from _common import machine  # noqa: E402
 
 import jaxcal  # noqa: E402
-from jaxcal._initialise import initial_extras  # noqa: E402
+from jaxcal._sensors._initial_extras import initial_extras  # noqa: E402
 
 HERE = pathlib.Path(__file__).parent
 DATA = HERE.parent / "tests" / "data" / "figaroh_tiago" / "qualysis_base_hand_calibration.csv"
@@ -241,7 +241,8 @@ def _session_rows(data, sessions):
 
 def _session_rms(robot, data, dev):
     """Per-session RMSE (mm) of ``dev`` on the labelled ``data``."""
-    from jaxcal._sessions import _errors, _rms
+    from jaxcal._calibration._evaluate import _errors
+    from jaxcal._experiments._holdout import _rms
 
     m = jaxcal.SessionMarkers.from_dataset(data)
     e = _errors(robot, m, dev, data.q, data.y)
@@ -260,7 +261,7 @@ def _fit_sessions(robot, data, prior, loss="huber", **kw):
 def _free_compiled() -> None:
     """Drop compiled programs between stages: a long run of differently shaped fits otherwise exhausts
     LLVM's mapped code memory ("LLVM ERROR: Unable to allocate section memory" seen on the 2-core CPU)."""
-    from jaxcal import _calibrate
+    from jaxcal._calibration import _calibrate
 
     _calibrate._COMPILED.clear()
     jax.clear_caches()
@@ -277,7 +278,8 @@ def _largest(res, k=8):
 def posture_blocks(robot, data, prior, folds=3):
     """Hold out contiguous blocks of postures from EVERY session at once (the frames and placements stay
     trained): the honest generalisation test of data whose sessions share their postures."""
-    from jaxcal._sessions import _errors, _rms
+    from jaxcal._calibration._evaluate import _errors
+    from jaxcal._experiments._holdout import _rms
 
     sess = list(dict.fromkeys(lab[0] for lab in data.labels))
     per = data.n // len(sess)
@@ -300,7 +302,7 @@ def posture_blocks(robot, data, prior, folds=3):
 
 
 def vicon_section(text, prior, prior_name) -> list[str]:
-    from jaxcal._sessions import _rms
+    from jaxcal._experiments._holdout import _rms
 
     t0 = time.perf_counter()
     chain = jaxcal.load_urdf(text, base=BASE, tip=VICON_TIP, name="TIAGo (tiago_no_hand.urdf)")

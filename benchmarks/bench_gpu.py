@@ -7,7 +7,7 @@ What is measured (float64, one process, no persistent compilation cache unless s
    compilation included) and the median of 3 later calls (*warm*).
 2. The same trials as one bare compiled function, ``jax.jit(jax.vmap(trial))`` over the N
    trials' data (simulated beforehand), compiled with jaxcal's XLA options
-   (``jaxcal._xla.compiler_options``: ``xla_gpu_autotune_level=0`` unless ``JAXCAL_XLA_OPTIONS``
+   (``jaxcal._core._xla.compiler_options``: ``xla_gpu_autotune_level=0`` unless ``JAXCAL_XLA_OPTIONS``
    says otherwise): compile time, and the median of 5 calls after compilation.
 3. ``jaxcal reproduce`` at paper scale (8 methods × 20 seeds × 2 000 samples, ``--no-figures
    --quiet``) in a fresh process: once with an empty persistent compilation cache (*cold*), once
@@ -42,7 +42,7 @@ def _machine() -> list[str]:
              f"{os.cpu_count()} CPU cores",
              f"- JAX {jax.__version__} (jaxlib {getattr(jax.lib, '__version__', '?')}), Python {sys.version.split()[0]}, "
              "float64"]
-    from jaxcal._xla import ENV_VAR, compiler_options
+    from jaxcal._core._xla import ENV_VAR, compiler_options
 
     lines.append(f"- jaxcal's XLA options here: {compiler_options(dev.platform)} (${ENV_VAR}="
                  f"{os.environ.get(ENV_VAR)!r}; XLA_FLAGS={os.environ.get('XLA_FLAGS')!r})")
@@ -55,8 +55,8 @@ def _compiled_trials(n: int, n_samples: int):
     from bench_sweep import simulate  # the same simulated trials as the CPU sweep benchmark
 
     from jaxcal import Deviations
-    from jaxcal._sweep import _MethodTrial, _Split
-    from jaxcal._xla import compile_lowered
+    from jaxcal._core._xla import compile_lowered
+    from jaxcal._experiments._sweep import _MethodTrial, _Split
     from jaxcal.methods import make_method
 
     robot, m, space, split, k_method = simulate(n_samples, n)

@@ -46,7 +46,7 @@ def chain_rows():
     for kind, meas, ns in (("cable", CableLength(jnp.asarray([1600.0, 0.0, 0.0])), (2_000, 20_000)),
                            ("position", jaxcal.Position(), (2_000,))):
         for n in ns:
-            q = jaxcal._simulate.sample_joint_angles(jax.random.PRNGKey(0), robot, n)
+            q = jaxcal._models._robot.sample_joint_angles(jax.random.PRNGKey(0), robot, n)
             y = meas.predict(robot, None, q)
             s_dh = ParameterSpace.for_robot(robot, measurement=meas)
             s_36 = ParameterSpace.for_robot(chain, measurement=meas)
@@ -94,7 +94,7 @@ def main():
     res_fn = jax.jit(lambda p, x: p.residual(x))
     jac_fn = jax.jit(lambda p, x: p.jacobian(x))
     for n in (2_000, 20_000, 200_000):
-        q = jaxcal._simulate.sample_joint_angles(jax.random.PRNGKey(0), robot, n)
+        q = jaxcal._models._robot.sample_joint_angles(jax.random.PRNGKey(0), robot, n)
         for dtype in (jnp.float64, jnp.float32):
             qd = q.astype(dtype)
             y = meas.predict(robot, None, qd)

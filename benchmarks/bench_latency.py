@@ -47,7 +47,7 @@ jaxcal.enable_x64()
 t1 = time.perf_counter()
 data = jaxcal.load_csv({csv!r})
 robot = jaxcal.robots.hsr_jr680()
-m = jaxcal.CableLength(jaxcal._simulate.default_anchor(robot))
+m = jaxcal.CableLength(jaxcal._simulation._simulate.default_anchor(robot))
 t2 = time.perf_counter()
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")

@@ -35,9 +35,9 @@ import numpy as np
 from _common import machine
 
 import jaxcal
-from jaxcal._nongeometric import MassModel
-from jaxcal._params import layout_for
-from jaxcal._simulate import default_anchor, draw_deviations
+from jaxcal._core._params import layout_for
+from jaxcal._models._nongeometric import MassModel
+from jaxcal._simulation._simulate import default_anchor, draw_deviations
 
 COMPLIANCE = (0.5e-6, 0.8e-6, 2e-6, 2e-6)  # rad/(N·m) at joints 2..5
 HARMONIC_DEG = (0.01, 0.03)
@@ -88,7 +88,7 @@ def run(seeds, n_samples):
                     p = res.space.n_free
                     floor = jaxcal.statistical_floor(NOISE, p, n_train, meas.size).test
                     test = res.evaluate(ex.test).rmse
-                    nongeo = [n for n in res.space.free_names if jaxcal._params.group_kind(n) == "nongeometric"]
+                    nongeo = [n for n in res.space.free_names if jaxcal._core._params.group_kind(n) == "nongeometric"]
                     rows.append(dict(meas=meas_name, case=case, seed=seed, model=model_name, p=p, n_nongeo=len(nongeo),
                                      test=test, floor=floor, oracle=oracle, ratio=test / floor, wall=wall,
                                      status=res.status.name.lower()))

@@ -38,7 +38,7 @@ from _common import machine  # noqa: E402
 
 import jaxcal  # noqa: E402
 from jaxcal import _plan  # noqa: E402
-from jaxcal._simulate import default_anchor  # noqa: E402
+from jaxcal._simulation._simulate import default_anchor  # noqa: E402
 
 SIGMA = 0.5
 

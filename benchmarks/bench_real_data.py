@@ -31,7 +31,7 @@ jax.config.update("jax_enable_x64", True)
 from _common import machine  # noqa: E402
 
 import jaxcal  # noqa: E402
-from jaxcal._validation import _max_dev  # noqa: E402
+from jaxcal._experiments._validation import _max_dev  # noqa: E402
 
 
 def region_rmse(robot, measurement, data, **kw) -> float:

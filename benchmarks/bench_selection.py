@@ -39,8 +39,8 @@ jax.config.update("jax_enable_x64", True)
 from _common import machine  # noqa: E402
 
 import jaxcal  # noqa: E402
-from jaxcal._dataset import Dataset, save_csv  # noqa: E402
-from jaxcal._simulate import draw_deviations  # noqa: E402
+from jaxcal._datasets._dataset import Dataset, save_csv  # noqa: E402
+from jaxcal._simulation._simulate import draw_deviations  # noqa: E402
 from jaxcal.cli import main as cli  # noqa: E402
 
 

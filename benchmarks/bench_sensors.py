@@ -27,8 +27,8 @@ from _common import machine
 
 import jaxcal
 from jaxcal import FixedPoint, ParameterSpace, Position, Problem, simulate_contact
-from jaxcal._camera import simulate_camera
-from jaxcal._contact import DistanceBar, default_setup, simulate_distance
+from jaxcal._sensors._contact import DistanceBar, default_setup
+from jaxcal._simulation._simulate_sensors import simulate_camera, simulate_distance
 
 jaxcal.enable_x64()
 
@@ -49,7 +49,7 @@ def _data(robot, name, m, n):
         ex = simulate_distance(jax.random.key(0), robot, n_samples=n, noise_std=0.05, test_fraction=0.0)
         return ex.train.q, ex.train.y
     if name == "position":
-        q = jaxcal._simulate.sample_joint_angles(jax.random.key(0), robot, n)
+        q = jaxcal._models._robot.sample_joint_angles(jax.random.key(0), robot, n)
         return q, m.predict(robot, None, q)
     ex = simulate_contact(jax.random.key(0), robot, m, n_samples=n, noise_std=0.05, test_fraction=0.0)
     return ex.train.q, ex.train.y

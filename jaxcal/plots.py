@@ -9,7 +9,7 @@
 * :func:`grid_figure` — test RMSE over a two-axis hyperparameter grid (the ablation).
 * :func:`save_figures` — all of them as PNG and PDF.
 
-One calibration (the HTML page of ``jaxcal report RESULT.json --html``, :mod:`jaxcal._html`):
+One calibration (the HTML page of ``jaxcal report RESULT.json --html``, :mod:`jaxcal._experiments._html`):
 :func:`residual_histogram`, :func:`residuals_vs_joints`, :func:`workspace_errors`,
 :func:`correlation_heatmap`.
 
@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._sweep import PAPER_METHODS, SweepResult, SweepRun
+from ._experiments._sweep import PAPER_METHODS, SweepResult, SweepRun
 from .report import batching_label, paper_label
 
 __all__ = ["fig2_accuracy", "fig3_training", "fig4_positioning", "grid_figure", "save_figures", "method_color",

@@ -20,10 +20,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._json import to_jsonable
-from ._metrics import format_table
-from ._result import Status
-from ._sweep import PAPER_METHODS, SweepResult, _mean_std
+from ._core._json import to_jsonable
+from ._core._metrics import format_table
+from ._experiments._sweep import PAPER_METHODS, SweepResult, _mean_std
+from ._fit._result import Status
 
 __all__ = [
     "PAPER_TABLE_III",
@@ -314,7 +314,7 @@ def _chain_rows(robot, cal, true, free) -> list[dict]:
     (offset, dx, dy, dz, drx, dry; drz at prismatic joints) and the tip's (tip_dx … tip_drz) as a
     deviation from the URDF origin, so
     ``nominal`` is 0; angles in degrees, lengths (and prismatic offsets) in mm."""
-    from ._chain import correction_entries
+    from ._models._chain import correction_entries
 
     truth = {} if true is None else {n: v for n, v, _ in correction_entries(robot, true)}
     return [{"parameter": n, "unit": u, "nominal": 0.0, "true": truth.get(n, math.nan), "calibrated": v,
@@ -324,7 +324,7 @@ def _chain_rows(robot, cal, true, free) -> list[dict]:
 def _chain_table(result: SweepResult, label: str, trial: int, rows: list[dict], markdown: bool) -> str:
     """Table V for a generic chain: joint × calibrated corrections (a last row for the tip
     transform), then per-parameter details."""
-    from ._chain import GEOMETRIC_GROUPS, TIP_GROUPS
+    from ._models._chain import GEOMETRIC_GROUPS, TIP_GROUPS
 
     robot = result.robot
     by = {r["parameter"]: r for r in rows}

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from ._robot import DHRobot
+from ._models._robot import DHRobot
 
 __all__ = ["hsr_jr680", "puma560", "ur5", "abb_irb120", "PRESETS", "get_robot"]
 

@@ -12,7 +12,7 @@ import pytest
 
 import jaxcal
 from jaxcal import Status
-from jaxcal._result import DHTable, still_improving
+from jaxcal._fit._result import DHTable, still_improving
 from jaxcal.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -77,12 +77,12 @@ def test_cli_help_and_messages(capsys, monkeypatch, tmp_path):
     assert "%%" not in out and "80 %" in out
     assert main(["simulate", "--out", str(tmp_path / "p.csv"), "--measurement", "pose", "--samples", "20"]) == 0
     assert "pose samples" in capsys.readouterr().out
-    import jaxcal._sweep
+    import jaxcal._experiments._sweep
 
     def other_settings(*a, **k):
         raise ValueError("x.npz was written by a sweep with other settings (fingerprint a != b); use another out_dir")
 
-    monkeypatch.setattr(jaxcal._sweep, "sweep", other_settings)
+    monkeypatch.setattr(jaxcal._experiments._sweep, "sweep", other_settings)
     assert main(["--no-cache", "reproduce", "--quick", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert "--out" in err and "out_dir" not in err

@@ -6,7 +6,7 @@
 * A page may link to a mounted file by its path in the repository (``../../notebooks/x.ipynb``
   from ``docs/howto/``), so the link also works on GitHub; the link is rewritten to the mounted
   copy's place in the site.
-* ``reference/cli.md`` is generated from :func:`jaxcal.cli.build_parser`: the ``--help`` of the
+* ``reference/cli.md`` is generated from :func:`jaxcal.cli._parser.build_parser`: the ``--help`` of the
   command and of every sub-command, so the page cannot drift from the parser.
 """
 
@@ -50,7 +50,7 @@ def cli_reference() -> str:
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         parts = [
             "# Command-line reference\n",
-            "Generated at build time from `jaxcal.cli.build_parser()` (the text of `--help`); "
+            "Generated at build time from `jaxcal.cli._parser.build_parser()` (the text of `--help`); "
             "see the [how-to guides](../howto/index.md) for worked examples.\n",
             "## `jaxcal`\n",
             "```text\n" + parser.format_help().rstrip() + "\n```\n",

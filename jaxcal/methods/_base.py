@@ -14,9 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._kinematics import shared_joint_trig
-from .._objective import Objective, robust_factor
-from .._problem import Problem, value_and_jacfwd
+from .._fit._objective import Objective, robust_factor
+from .._fit._problem import Problem, value_and_jacfwd
+from .._models._kinematics import shared_joint_trig
 
 __all__ = [
     "ScaledProblem",
@@ -42,9 +42,9 @@ class ScaledProblem(eqx.Module):
     the parameter's unit (rad or mm). All methods work in ``z``; ``z = 0`` is the start
     (the nominal robot by default), so weight decay shrinks toward it.
 
-    The **objective** (:class:`~jaxcal._objective.Objective`) adds Gaussian priors (extra
+    The **objective** (:class:`~jaxcal._fit._objective.Objective`) adds Gaussian priors (extra
     residuals ``P·(x − m)``, mm) and a robust loss (each sample's residual block scaled by
-    :func:`~jaxcal._objective.robust_factor`) to plain least squares. ``residual`` and
+    :func:`~jaxcal._fit._objective.robust_factor`) to plain least squares. ``residual`` and
     ``residual_and_jacobian`` are always the plain data residuals; ``objective_residual``,
     ``objective_residual_and_jacobian``, ``loss``, ``loss_and_grad``, ``rmse`` and ``rmse_batch``
     are what the methods minimise and record: ``rmse`` is the objective as an RMS per sample,
@@ -286,7 +286,7 @@ class Method(eqx.Module):
 
     @property
     def paddable(self) -> bool:
-        """Whether a run on data padded with zero-weight rows (:mod:`jaxcal._buckets`) equals the
+        """Whether a run on data padded with zero-weight rows (:mod:`jaxcal._core._buckets`) equals the
         unpadded run to round-off. Methods whose result depends on the rows themselves (random
         mini-batches, RBF centres) say ``False``; :func:`jaxcal.calibrate` then does not pad."""
         return True

@@ -34,7 +34,7 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from .._result import Status
+from .._fit._result import Status
 from ._base import DIVERGENCE_FACTOR, RawRun, ScaledProblem, register_method
 from ._population import BoxSearch, check_positive, start_rmse
 

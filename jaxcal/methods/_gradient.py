@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import optax
 
 from .. import optim
-from .._measurement import Pose
-from .._result import Status
+from .._fit._result import Status
+from .._sensors._measurement import Pose
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, register_method
 
 __all__ = ["OptaxMethod", "DEFAULTS"]

@@ -28,8 +28,8 @@ import lineax as lx
 import optimistix as optx
 from optimistix._misc import cauchy_termination as optx_cauchy_termination
 
-from .._measurement import Pose
-from .._result import Status
+from .._fit._result import Status
+from .._sensors._measurement import Pose
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, finish_history, register_method
 
 __all__ = [
@@ -88,7 +88,7 @@ class RoundoffAwareTrustRegion(optx.ClassicalTrustRegion):
     solve.
 
     ``n_residuals``: the count ``N`` of real residuals when the residual vector carries padding
-    rows (:mod:`jaxcal._buckets`), so the threshold is the unpadded one; ``None``: its length.
+    rows (:mod:`jaxcal._core._buckets`), so the threshold is the unpadded one; ``None``: its length.
     """
 
     n_residuals: object = None

@@ -8,7 +8,7 @@ by name), so they live together here, above the registry (:mod:`._base`) and the
 
 from __future__ import annotations
 
-from .._buckets import BoundedCache
+from .._core._buckets import BoundedCache
 from ._base import METHODS, Method, method_settings
 from ._stages import SEPARATOR, Staged, check_method_name, is_staged_name
 

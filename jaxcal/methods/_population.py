@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._result import Status
+from .._fit._result import Status
 from ._base import Method, RawRun, ScaledProblem, default_half_width
 
 __all__ = [

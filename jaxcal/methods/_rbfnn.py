@@ -52,8 +52,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from .._measurement import CableLength, Position
-from .._result import Status
+from .._fit._result import Status
+from .._sensors._measurement import CableLength, Position
 from ._base import Method, RawRun, ScaledProblem, register_method
 from ._least_squares import LevenbergMarquardt, optimistix_run
 from ._population import check_positive, start_rmse

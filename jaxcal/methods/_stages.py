@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Int
 
-from .._result import Status, budget_status
+from .._fit._result import Status, budget_status
 from ._base import METHODS, Method, RawRun, ScaledProblem, finish_history
 
 __all__ = ["Staged", "StageInfo", "is_staged_name", "check_method_name", "SEPARATOR"]

@@ -1,0 +1,1 @@
+"""calibrate(), checking on new data, result files."""

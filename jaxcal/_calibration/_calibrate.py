@@ -1,0 +1,774 @@
+"""One entry point for every method: :func:`calibrate`, and its pure core :class:`Calibrator`."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+import warnings
+from collections.abc import Generator
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .._core._buckets import BoundedCache, LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows, release_memory
+from .._core._metrics import Metrics, compute_metrics
+from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
+from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
+from .._core._xla import compile_lowered
+from .._datasets._dataset import Dataset, mm_joints_metadata
+from .._fit._diagnostics import (
+    Checks,
+    Diagnostics,
+    coverage,
+    gram_at,
+    implausible_deviations,
+    joint_units,
+    narrow_joints,
+    outlier_rows,
+    parameter_uncertainty,
+    prior_directions,
+    weak_parameters,
+)
+from .._fit._identifiability import identify_with_residuals
+from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
+from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
+from .._fit._result import CalibrationResult, Status, budget_status, iterations_to_converge
+from .._models._kinematics import shared_joint_trig
+from .._models._robot import DHRobot
+from .._sensors._initial_extras import INITIALISABLE, initial_extras
+from .._sensors._measurement import MeasurementModel
+from ..methods import Method, ScaledProblem, make_method
+
+__all__ = ["calibrate", "Calibrator", "CalibrationOutput", "CalibrationWarning", "CalibrationError", "resolve_space",
+           "extras_flags"]
+
+
+class CalibrationWarning(RuntimeWarning):
+    """A calibration diverged or failed (the result's ``status`` says how)."""
+
+
+class CalibrationError(RuntimeError):
+    """Raised instead of :class:`CalibrationWarning` with ``calibrate(..., throw=True)``."""
+
+
+class CalibrationOutput(NamedTuple):
+    """Pure output of :class:`Calibrator` (a pytree; batched under ``vmap``)."""
+
+    x: Float[Array, " p"]
+    history: Float[Array, " T"]
+    n_iterations: Int[Array, ""]
+    iterations_to_converge: Int[Array, ""]
+    status: Int[Array, ""]
+    train_metrics: Metrics
+    extra: object = None
+    #: with ``Calibrator(report=True)``: :func:`~jaxcal._fit._diagnostics.gram_at` at ``x``, and the
+    #: full :class:`Deviations` at ``x`` (``start`` in the entries that are not free).
+    gram: object = None
+    deviations: object = None
+
+
+class Calibrator(eqx.Module):
+    """A calibration as a pure function ``(q, y, key) -> CalibrationOutput``.
+
+    ``jax.jit`` it, or ``jax.vmap`` it over keys and datasets for seed sweeps.
+
+    Attributes:
+        robot, measurement: nominal models.
+        method: a :class:`~jaxcal.methods.Method`.
+        start: deviations the run starts from (zeros = nominal); non-free entries stay fixed.
+        space: free parameters (static).
+        objective: prior and robust loss (:class:`~jaxcal._fit._objective.Objective`); ``None`` =
+            plain least squares.
+        report: also return what :func:`calibrate` reports besides ``x``, from the same compiled
+            program: the Jacobian products at the solution that
+            :func:`~jaxcal._fit._diagnostics.parameter_uncertainty` needs (``gram``) and the full
+            ``deviations`` (static; sweeps leave it off).
+        start_jacobian: ``∂residual/∂x`` ``[N, p]`` of the data at ``start`` for the free
+            parameters when the caller has it (``calibrate``: from the identifiability program,
+            for measurements whose Jacobian does not depend on the readings); computed in the
+            program otherwise. See :meth:`ScaledProblem.build`.
+    """
+
+    robot: DHRobot
+    measurement: MeasurementModel
+    method: Method
+    start: Deviations
+    space: ParameterSpace = eqx.field(static=True)
+    objective: Objective | None = None
+    report: bool = eqx.field(static=True, default=False)
+    start_jacobian: Array | None = None
+
+    def problem(self, q, y, weight=None) -> Problem:
+        return Problem(self.robot, self.measurement, q, y, self.space, self.start, weight)
+
+    def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array, weight: Array | None = None
+                 ) -> CalibrationOutput:
+        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._core._buckets`);
+        the output then equals the unpadded run's to round-off."""
+        problem = self.problem(q, y, weight)
+        with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
+            scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian)
+            raw = self.method.run(scaled, key)
+            x = scaled.x(raw.z)
+            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra), problem.weight)
+            gram = deviations = None
+            if self.report:
+                ob = self.objective
+                loss, scale = ("linear", 1.0) if ob is None else (ob.loss, ob.loss_scale)
+                gram = gram_at(problem, x, loss, jnp.asarray(scale, problem.dtype))
+                deviations = problem.deviations(x)
+        its = iterations_to_converge(raw.history, raw.n_iterations)
+        status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING
+        return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra, gram, deviations)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutput:
+    """The jitted core of :func:`calibrate` (module level, so compilations are cached)."""
+    return eqx.combine(dynamic, static)(q, y, key, weight)
+
+
+def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot, stacklevel: int = 3):
+    if isinstance(data, Dataset):
+        if data.kind != measurement.kind:
+            raise ValueError(f"data are {data.kind!r} measurements but the measurement model is {measurement.kind!r}")
+        q, y = data.q, data.y
+    elif isinstance(data, (tuple, list)) and len(data) == 2:
+        q, y = data
+        # host arrays by jax.device_put (jnp.asarray compiles a small program per shape)
+        q = q if isinstance(q, jax.Array) else to_device(np.asarray(q))
+        y = y if isinstance(y, jax.Array) and y.dtype == q.dtype else to_device(np.asarray(y), q.dtype)
+        Dataset(q, y, measurement.kind, mm_joints_metadata(robot))  # validates shapes, NaN/inf, degrees
+    else:
+        raise TypeError("data must be a jaxcal.Dataset or a (q, y) pair of arrays")
+    if q.shape[1] != robot.dof:
+        raise ValueError(f"data have {q.shape[1]} joint angles per sample but robot {robot.name!r} has {robot.dof} joints")
+    measurement.check_measurements(y, q.shape[0])
+    qn = np.asarray(q)
+    lo, hi = np.asarray(robot.q_min), np.asarray(robot.q_max)
+    outside = (qn < lo - 1e-6) | (qn > hi + 1e-6)
+    if outside.any():
+        joints = sorted({int(j) + 1 for j in np.nonzero(outside)[1]})
+        warnings.warn(
+            f"{int(outside.any(axis=1).sum())} sample(s) have joint angles outside robot {robot.name!r}'s limits "
+            f"(joints {joints}); check the units (radians expected) and the robot model",
+            UserWarning,
+            stacklevel=stacklevel,
+        )
+    return q, y
+
+
+#: ``extras=`` names accepted by :func:`calibrate` → :meth:`ParameterSpace.for_robot` flags.
+EXTRAS = {"anchor": "anchor", "tool": "tool", "cable_offset": "cable_offset", "offset": "cable_offset",
+          "base": "base"}
+
+
+def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
+    """``extras`` (names such as ``"anchor"``, ``"cable_offset"``, ``"tool"``, ``"base"``) as
+    keyword flags of :meth:`ParameterSpace.for_robot`, checked against the measurement kind."""
+    if isinstance(extras, str):
+        extras = [e for e in extras.split(",") if e.strip()]
+    flags = {}
+    for e in extras or ():
+        key = e.strip().lower()
+        if key not in EXTRAS:
+            raise ValueError(f"unknown extra {e!r}; choose from anchor, cable_offset (offset), tool, base")
+        flag = EXTRAS[key]
+        if flag == "base" and hasattr(measurement, "frame_index"):
+            continue  # SessionMarkers: every session frame is already free (base_rotation@F, ...)
+        if flag in ("anchor", "cable_offset") and measurement.kind != "cable":
+            raise ValueError(f"extra {e!r} applies to draw-wire (cable) data only, not {measurement.kind!r}")
+        if flag == "base" and measurement.kind == "cable":
+            raise ValueError("extra 'base' (sensor frame) applies to position/pose data; a draw-wire has an anchor")
+        if flag == "tool" and measurement.kind == "markers":
+            raise ValueError("extra 'tool' does not apply to marker data: the marker positions (marker_k groups) "
+                             "are the tool; Markers(known=False) calibrates them")
+        flags[flag] = True
+    return flags
+
+
+#: group names accepted by ``free=`` / ``fix=`` (besides single parameter names such as ``d_6``).
+SELECT_GROUPS = {
+    "dh": ("alpha", "a", "d", "theta"), "alpha": ("alpha",), "a": ("a",), "d": ("d",), "theta": ("theta",),
+    "beta": ("beta",), "anchor": ("anchor",), "tool": ("tool",), "cable_offset": ("cable_offset",),
+    "offset": ("cable_offset",), "base": ("base_rotation", "base_translation"),
+    "base_rotation": ("base_rotation",), "base_translation": ("base_translation",), "extras": EXTRA_GROUPS,
+    "tip": ("tip_translation", "tip_rotation"),  # a generic chain's tip transform errors
+}
+
+
+def _family(group: str) -> str:
+    """A group's family: its name before ``@`` (``base_rotation@F`` → ``base_rotation``)."""
+    return group.partition("@")[0]
+
+
+def _selection(items, layout) -> set[str]:
+    """Parameter names selected by ``items``: aliases of :data:`SELECT_GROUPS`, a kind
+    (``geometric``, ``nongeometric``, ``extras``), any group name of ``layout`` or parameter names."""
+    if isinstance(items, str):
+        items = [i for i in items.split(",") if i.strip()]
+    names, groups_of = layout.names, layout.entry_groups
+    out = set()
+    for it in items or ():
+        key = it.strip()
+        if key.lower() in SELECT_GROUPS:
+            # per-session groups (SessionMarkers: base_rotation@F, marker_k@K) count as their family:
+            # "base" selects every session frame; "extras" also every session group
+            groups = SELECT_GROUPS[key.lower()]
+            out |= {n for n, g in zip(names, groups_of)
+                    if _family(g) in groups or ("@" in g and key.lower() == "extras")}
+        elif key.lower() == "markers":
+            out |= {n for n, g in zip(names, groups_of) if g.startswith("marker_")}
+        elif key.lower() in ("geometric", "nongeometric"):
+            out |= {n for n, k in zip(names, layout.kinds) if k == key.lower()}
+        elif key in layout.group_names:
+            out |= {n for n, g in zip(names, groups_of) if g == key}
+        elif key in names:
+            out.add(key)
+        else:
+            raise ValueError(f"unknown parameter or group {key!r}; groups: "
+                             f"{', '.join(dict.fromkeys([*SELECT_GROUPS, 'geometric', 'nongeometric', *layout.group_names]))}; "
+                             f"or a parameter name such as {', '.join(names[:2])}, anchor_x, base_rz")
+    return out
+
+
+def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> ParameterSpace:
+    """The parameters a calibration may free, before the identifiability reduction: all DH (+β at
+    Hayati joints) — or instead the groups/names in ``free`` — plus the ``extras``, minus ``fix``."""
+    flags = extras_flags(extras, measurement)
+    base = ParameterSpace.for_robot(robot, measurement=measurement, **flags)
+    if free is None and not fix:
+        return base
+    layout = base.layout
+    names = layout.names
+    chosen = set(base.free_names)
+    if free is not None:  # free replaces the robot part; the requested extras stay
+        chosen = _selection(free, layout) | {n for n in chosen if group_kind(n) == "extra"}
+    chosen -= _selection(fix, layout)
+    wrong = sorted(n for n in chosen if group_of(n) in ("anchor", "cable_offset") and measurement.kind != "cable")
+    wrong += sorted(n for n in chosen if group_of(n).startswith("base") and measurement.kind == "cable")
+    if wrong:
+        raise ValueError(f"{', '.join(wrong)} do not apply to {measurement.kind} data")
+    if not chosen:
+        raise ValueError("no free parameters left after free=/fix=")
+    return ParameterSpace.from_names(layout, [n for n in names if n in chosen])
+
+
+def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=(), prior=None
+                  ) -> tuple[ParameterSpace, object]:
+    """The free parameters of a calibration: ``(space, report_or_None)``.
+
+    ``space=None`` or ``"identifiable"`` (the default of :func:`calibrate`, :func:`jaxcal.sweep`):
+    chosen from the candidates (:func:`candidate_space`: all DH (+β) deviations and the requested
+    ``extras``, or ``free`` minus ``fix``) by the identification Jacobian at ``start``
+    (:func:`jaxcal.identifiability`: QR with column pivoting, then :data:`KEEP_PREFERENCE`):
+
+    * without a ``prior``: the identifiable subset (plain least squares has no answer along the
+      directions the data cannot see; the other candidates are held at ``start``);
+    * with a ``prior`` (maximum a posteriori): every candidate the prior covers, plus the
+      data-identifiable subset of the others (:func:`~jaxcal._fit._identifiability.select_free`):
+      nothing the prior determines is frozen at a start value.
+
+    ``"all"``: every candidate; or a :class:`ParameterSpace` as given."""
+    cand = candidate_space(robot, measurement, extras, free, fix)
+    return _resolve_candidates(cand, robot, measurement, q, space, start, prior=resolve_prior(prior))[:2]
+
+
+def _default_selection(space) -> bool:
+    return space is None or (isinstance(space, str) and space == "identifiable")
+
+
+def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None):
+    """:func:`resolve_space` from the candidates ``cand``: ``(space, report_or_None, residuals,
+    jacobian)``, the last two the residual blocks (NumPy) and the identification Jacobian of the
+    chosen free parameters (device) at ``start`` when ``y`` is given and the identifiability
+    program computed them (see :func:`~jaxcal._fit._identifiability.identify_with_residuals`), else
+    ``None``."""
+    if _default_selection(space):
+        prior_std = None if prior is None else prior.std(cand)
+        report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y, prior_std=prior_std)
+        if J is not None:
+            kept = set(report.space.free_names)
+            J = _take_columns(J, np.asarray([i for i, n in enumerate(cand.free_names) if n in kept]))
+        return report.space, report, resid, J
+    if isinstance(space, str):
+        if space == "all":
+            return cand, None, None, None
+        raise ValueError(f"space must be None, 'identifiable', 'all' or a ParameterSpace, got {space!r}")
+    if not isinstance(space, ParameterSpace):
+        raise TypeError(f"space must be a ParameterSpace, got {type(space)}")
+    if space.layout != cand.layout:
+        raise ValueError(f"parameter space has groups {list(space.layout.group_names)} for {space.dof} joints, but "
+                         f"robot {robot.name!r} with this measurement has {list(cand.layout.group_names)} for "
+                         f"{robot.dof} joints")
+    return space, None, None, None
+
+
+#: how often :func:`calibrate` judges identifiability again with the extras where a fit put them
+#: and refits with the parameters that become identifiable (:func:`_extras_moved`)
+MAX_RESELECTIONS = 2
+
+
+def _extras_moved(start: Deviations, cur: Deviations) -> Deviations:
+    """``start`` with the extras (sensor/set-up groups) taken from ``cur``: where identifiability is
+    judged after a fit. The robot's own groups stay at the start (nominal): exact dependencies of
+    the nominal geometry (parallel axes) stay exact instead of turning into near-dependencies of
+    the deviations' size that no data determine, while extras that moved far (a tool point found
+    58 mm off the flange axis) reveal what they reveal (α5, a5 of a 6R arm)."""
+    extras = {g.name: cur.values[g.name] for g in start.layout.groups if g.kind == "extra"}
+    return start.replace(**extras) if extras else start
+
+
+def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace, report=None, prior=None) -> None:
+    """Raise unless the data have more residuals than the parameters they must determine: every
+    free one, or under a prior (MAP) the data-identifiable ones (``report.rank``) — the prior
+    determines the rest, but the noise σ the prior is weighed against needs ``N > rank``."""
+    need = space.n_free if prior is None or report is None else report.rank
+    if n_res <= need:
+        what = (f"{need} data-identifiable parameters (of {space.n_free} free under the prior)" if need != space.n_free
+                else f"{space.n_free} free parameters")
+        raise ValueError(
+            f"too few samples: {n} sample(s) give {n_res} residuals for {what}; need more residuals than that"
+        )
+
+
+#: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)
+_take_columns = LeanJit(lambda J, columns: jnp.take(J, columns, axis=1), maxsize=16)
+
+
+#: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
+#: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores). A
+#: least-recently-used cache of at most 16 programs (``$JAXCAL_CALIBRATE_CACHE``): with shape
+#: buckets (:mod:`jaxcal._core._buckets`) one model and method need one program per bucket, and memory
+#: stays flat however many sample counts a session calibrates.
+_COMPILED = BoundedCache(cache_size("calibrate", 16))
+
+
+def _signature(tree) -> tuple:
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return treedef, tuple((tuple(leaf.shape), str(leaf.dtype)) if hasattr(leaf, "shape") else ("py", type(leaf))
+                          for leaf in leaves)
+
+
+def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None):
+    """``(cal, q, y, weight)``: the data padded with zero-weight rows to their bucket size
+    (:func:`~jaxcal._core._buckets.bucket_size`) when the method allows it (:attr:`Method.paddable`;
+    weights all 1 at a bucket size exactly), the measurement model's per-row arrays
+    (:meth:`MeasurementModel.pad_rows`) and the start Jacobian (if any) padded to match;
+    unchanged with ``weight=None`` otherwise. ``n_to``: pad to this row count instead (a paddable
+    method; :func:`jaxcal.calibrate_many` pads every unit to one size)."""
+    n = int(q.shape[0])
+    pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
+    n_to = n if not pad else bucket_size(n) if n_to is None else n_to
+    w = None
+    if pad:
+        q, y, w = pad_rows(q, y, n_to)
+        if n_to != n:
+            cal = eqx.tree_at(lambda c: c.measurement, cal, cal.measurement.pad_rows(n, n_to))
+    J = cal.start_jacobian
+    m = cal.measurement.size
+    if J is not None and J.shape[0] != n_to * m:
+        # computed on the real rows, or on another padding (the identifiability program pads
+        # whatever the method): the real rows on the host, zero rows for this padding
+        Jn = np.asarray(J)[: n * m]
+        if n_to != n:
+            Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
+        cal = eqx.tree_at(lambda c: c.start_jacobian, cal, jax.device_put(Jn))
+    return cal, q, y, w
+
+
+def _launch(cal: Calibrator, q, y, key):
+    """Compile (cached) and start ``cal`` without waiting for it (JAX dispatches asynchronously):
+    ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``.
+    The data are padded to their shape bucket (:func:`_pad_to_bucket`); the output is the
+    unpadded run's, except ``gram``'s residual vector, which carries the padding rows (zeros) at
+    its end."""
+    with dtype_scope(q.dtype):
+        cal, q, y, w = _pad_to_bucket(cal, q, y)
+        dyn, stat = eqx.partition(cal, eqx.is_array)
+        dyn = cast_floating(dyn, q.dtype)
+        t0 = time.perf_counter()
+        try:
+            ck = (stat, _signature((dyn, q, y, key, w)), jax.default_backend(), jax.config.jax_enable_x64)
+            hash(ck)
+        except TypeError:  # unhashable static part: no cache
+            ck = None
+        compiled = _COMPILED.get(ck) if ck is not None else None
+        if compiled is None:
+            compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
+            if ck is not None:
+                _COMPILED.put(ck, compiled)
+                # the executable is all a later call needs: drop the trace (jaxpr, lowering) that
+                # jax.jit keeps per shape, tens of MB for a solve, never freed otherwise
+                _run_calibrator.clear_cache()
+            release_memory()
+        t1 = time.perf_counter()
+        out = compiled(dyn, q, y, key, w)
+    return out, t1 - t0, t1
+
+
+class _Launched:
+    """A solve started by a driver of :func:`_calibration_steps`: ``out`` (possibly still
+    computing), ``compile_s``; :meth:`wait` gives ``(output, run seconds)``. ``run_s`` given: the
+    output is ready (a share of a batched solve, :func:`jaxcal.calibrate_many`)."""
+
+    def __init__(self, out, compile_s: float, t_started: float, run_s: float | None = None):
+        self.out, self.compile_s, self.t_started, self.run_s = out, compile_s, t_started, run_s
+
+    def wait(self):
+        if self.run_s is not None:
+            return self.out, self.run_s
+        out = jax.block_until_ready(self.out)
+        return out, time.perf_counter() - self.t_started
+
+
+def calibrate(
+    robot: DHRobot,
+    measurement: MeasurementModel,
+    data,
+    method="lm",
+    *,
+    key: Array | None = None,
+    space: ParameterSpace | str | None = None,
+    start: Deviations | None = None,
+    extras=(),
+    free=None,
+    fix=(),
+    init: str = "auto",
+    prior: Prior | str | None = None,
+    loss: str | None = None,
+    objective: str | None = None,
+    loss_scale: float | None = None,
+    checks: Checks | None = None,
+    throw: bool = False,
+    **hyperparameters,
+) -> CalibrationResult:
+    """Calibrate ``robot`` from measured ``data`` with one of the registered methods.
+
+    Args:
+        robot: nominal robot model.
+        measurement: the measurement model the data come from (e.g. :class:`CableLength`); its
+            anchor / sensor frame is the nominal guess the extras correct.
+        data: training data, a :class:`Dataset` or a ``(q [n, dof] rad, y)`` pair.
+        method: a registry name (``"lm"``, ``"gn"``, ``"adam"``, ``"adamw"``, ``"adamod"``,
+            ``"adamodw"``, and the baselines), a :class:`~jaxcal.methods.Method`, or any
+            ``optax.GradientTransformation`` (run full batch; pass ``steps=``).
+        key: ``jax.random`` key for the method's randomness (default ``jax.random.key(0)``).
+        space: free parameters; default (see :func:`resolve_space`): without a prior the
+            identifiable subset of the DH deviations and the ``extras``; with a ``prior`` every
+            candidate it covers and the data-identifiable extras (maximum a posteriori); after
+            the fit, identifiability is judged again with the extras where it put them, and
+            parameters that became identifiable are freed and refit (``diagnostics.reselection``).
+        start: starting deviations (default: nominal, with the extras initialised from the
+            data, see ``init``); entries that are not free keep these.
+        extras: sensor/setup unknowns to estimate with the robot: ``"anchor"``,
+            ``"cable_offset"`` (draw-wire), ``"tool"`` (tool point), ``"base"`` (position/pose
+            sensor frame, 6 parameters), as a list or a comma-separated string.
+        free, fix: choose the candidate parameters by group (``"dh"``, ``"alpha"``, ``"a"``, ``"d"``,
+            ``"theta"``, ``"beta"``, ``"anchor"``, ``"cable_offset"``, ``"tool"``, ``"base"``,
+            ``"extras"``; a generic chain's ``"tip"`` = ``tip_translation`` + ``tip_rotation``, or
+            any group of its layout) or name (``"d_6"``, ``"tip_dx"``): ``free`` replaces the default DH candidates (all DH
+            deviations; the ``extras`` stay; extras named in ``free`` are estimated too, e.g.
+            ``free="anchor,cable_offset"`` fits the sensor with the DH table fixed), ``fix``
+            removes some. The identifiable
+            subset of the candidates is then freed (``space`` default).
+        init: ``"auto"`` (default): when anchor, cable offset, tool point or base frame are
+            estimated, start them from the data in closed form (:func:`jaxcal.initial_extras`:
+            multilateration, Kabsch, the tool point jointly with the frame or anchor, on the
+            nominal robot) — a guess far off is fine;
+            ``"none"``: start from ``start`` as given.
+        prior: Gaussian priors toward nominal (maximum a posteriori): ``None`` (default: none,
+            unless ``objective`` gives one), ``"none"``, ``"default"`` (0.5°, 2 mm on the DH deviations, none on extras), a
+            :class:`jaxcal.Prior`, or a ``"key=value,..."`` string. The prior's noise σ is
+            estimated from the fit unless given (see ``Prior.noise_std``).
+        loss: ``"linear"`` (least squares; the default unless ``objective`` gives another),
+            ``"huber"`` or ``"cauchy"`` (robust against gross outliers; see :mod:`jaxcal._fit._objective`).
+        objective: a named preset of ``prior`` and ``loss`` filling in those not given:
+            ``"measured"`` = :data:`jaxcal.MEASURED_DEFAULTS` (the default prior + the Huber
+            loss: the defaults for measured data, used by the CLI, :func:`jaxcal.holdout_session`
+            and :func:`jaxcal.leave_one_session_out`; evidence in
+            ``benchmarks/results/measured_defaults_cpu.md``), ``"least_squares"``. Without it
+            (``None``, the default) ``calibrate`` is plain least squares with no prior — the
+            paper's experiment, on purpose; pass ``objective="measured"`` for real data.
+        loss_scale: robust-loss scale ``c`` (mm); default ``k·σ̂`` re-estimated from the fit.
+        checks: thresholds of the plausibility / conditioning / coverage / outlier checks
+            (:class:`jaxcal.Checks`).
+        throw: raise :class:`CalibrationError` on divergence/failure instead of warning.
+        **hyperparameters: the method's settings (e.g. ``learning_rate=``, ``steps=``,
+            ``batch_size=``, ``max_steps=``).
+
+    Returns:
+        :class:`CalibrationResult` with calibrated deviations, the per-iteration training
+        objective history, iterations (and iterations to converge), status, run time excluding
+        compilation, ``uncertainty`` (posterior σ of each free parameter) and ``diagnostics``
+        (plausibility, conditioning, coverage, outliers; its warnings are also issued as
+        :class:`CalibrationWarning`).
+    """
+    steps = _calibration_steps(robot, measurement, data, method, key=key, space=space, start=start, extras=extras,
+                               free=free, fix=fix, init=init, prior=prior, loss=loss, objective=objective,
+                               loss_scale=loss_scale, checks=checks, throw=throw, **hyperparameters)
+    launched = None
+    while True:  # each request is one compiled solve (calibrate_many batches the requests of many units)
+        try:
+            cal, q, y, k = steps.send(launched)
+        except StopIteration as done:
+            return done.value
+        launched = _Launched(*_launch(cal, q, y, k))
+
+
+def _calibration_steps(
+    robot: DHRobot,
+    measurement: MeasurementModel,
+    data,
+    method="lm",
+    *,
+    key: Array | None = None,
+    space: ParameterSpace | str | None = None,
+    start: Deviations | None = None,
+    extras=(),
+    free=None,
+    fix=(),
+    init: str = "auto",
+    prior: Prior | str | None = None,
+    loss: str | None = None,
+    objective: str | None = None,
+    loss_scale: float | None = None,
+    checks: Checks | None = None,
+    throw: bool = False,
+    **hyperparameters,
+) -> Generator[tuple, _Launched, CalibrationResult]:
+    """:func:`calibrate` as a generator: it yields each solve it needs as ``(Calibrator, q, y, key)``
+    and is sent back a :class:`_Launched` (the solve started; ``wait()`` gives its output), so that
+    one driver runs one unit's solves one by one (:func:`calibrate`) and another runs the solves of
+    many units as one vmapped program (:func:`jaxcal.calibrate_many`). Its warnings name the frame
+    two levels above it (the caller of the driver)."""
+    meth = make_method(method, **hyperparameters)
+    prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
+    q, y = _as_arrays(data, measurement, robot, stacklevel=4)
+    warn_if_float32(q.dtype, "calibrate")
+    checks = Checks() if checks is None else checks
+    prior = resolve_prior(prior)
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
+    if init not in ("auto", "none"):
+        raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
+    cand = candidate_space(robot, measurement, extras, free, fix)
+    flags = {e: any(_family(group_of(n)) in SELECT_GROUPS[e] for n in cand.free_names)
+             for e in ("anchor", "cable_offset", "base", "tool")}
+    flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
+    for g in ("handeye", "target"):  # camera extras (jaxcal._sensors._camera)
+        flags[g] = any(group_of(n).startswith(g + "_") for n in cand.free_names)
+    flags.update({e: any(_family(group_of(n)) == e for n in cand.free_names) for e in ("plane", "point")})
+    start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
+    extras_msg = None
+    initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
+    if init == "auto" and initialisable:
+        est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
+        start, extras_msg = est.deviations, est.message
+    selecting = _default_selection(space)
+    space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior)
+    problem = Problem(robot, measurement, q, y, space, start)
+    n_res = problem.n_observed_residuals  # real readings (a missing marker is masked)
+    _check_enough_residuals(q.shape[0], n_res, space, report, prior)
+    key = _default_key() if key is None else key
+    x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
+    if resid_start is None:  # else from the identifiability program
+        resid_start = signed_residuals(problem, x)
+    else:
+        resid_start = residual_blocks_numpy(problem, resid_start)
+
+    # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
+    adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
+    plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
+    rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
+    noise = scale = None
+    histories = []
+    reselection = []
+    before_rows = cov = None
+    while True:  # re-selection: identifiability judged again at the solution (below)
+        first = rounds
+        while True:  # rounds of re-estimated scales
+            if plain:
+                new_noise = new_scale = None
+            else:
+                resid = resid_start if rounds == first else signed_residuals(problem, space.to_vector(cur))
+                s_hat = robust_scale(observed_entries(problem, resid))  # masked readings left out
+                s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
+                new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
+                new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
+            if rounds > first and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale))
+                                   or rounds - first >= 4):
+                break
+            noise, scale = new_noise, new_scale
+            objective = None if plain else Objective.build(space, prior, noise, loss, scale, q.dtype)
+            cal = Calibrator(robot, measurement, meth, cur, space,
+                             None if objective is None or objective.plain_least_squares else objective, report=True,
+                             # the identifiability program's Jacobian serves a one-round fit (several rounds
+                             # share one compiled program, which then computes it)
+                             start_jacobian=None if adaptive else start_jac)
+            launched = yield cal, q, y, key
+            out, c_s = launched.out, launched.compile_s
+            if before_rows is None:  # host work that does not need the fit, while the device runs it
+                before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
+                cov = coverage(robot, q)
+            out, r_s = launched.wait()
+            compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
+            cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
+            histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
+            if int(out.status) in (Status.DIVERGED, Status.FAILED) or not adaptive:
+                break
+        if not selecting or int(out.status) in (Status.DIVERGED, Status.FAILED) or len(reselection) >= MAX_RESELECTIONS:
+            break
+        # judge identifiability again where the fit put the extras: a start far from the truth
+        # (a tool point started on the flange axis) can hide parameters that the solution shows
+        if not report.held:
+            break
+        free_extras = any(group_kind(n) == "extra" for n in space.free_names)
+        if not free_extras:  # the robot's groups are judged at their start: nothing else moved
+            break
+        new = _resolve_candidates(cand, robot, measurement, q, None, _extras_moved(start, cur), None, prior)[1]
+        added = [n for n in new.space.free_names if n not in set(space.free_names)]
+        if not added:
+            break
+        space = ParameterSpace.from_names(space.layout, [*space.free_names, *added])
+        reselection.append(f"identifiability judged again with the extras where the fit put them: "
+                           f"{', '.join(added)} {'becomes' if len(added) == 1 else 'become'} identifiable "
+                           f"(not at the start) — freed and refit from the solution")
+        # the start's report with the freed names moved over (the solution's own rank counts the
+        # near-dependencies of real-size deviations, which stay held)
+        report = dataclasses.replace(
+            report, space=space, rank=report.rank + len(added), identifiable=(*report.identifiable, *added),
+            unidentifiable=tuple(n for n in report.unidentifiable if n not in added),
+            dependencies={k: v for k, v in report.dependencies.items() if k not in added})
+        start_jac = None
+        _check_enough_residuals(q.shape[0], n_res, space, report, prior)
+        problem = Problem(robot, measurement, q, y, space, cur)
+        resid_start = signed_residuals(problem, space.to_vector_numpy(cur))
+    status = Status(int(out.status))
+    label = meth.label() if hasattr(meth, "label") else type(meth).name
+    # one history across the rounds (each round restarts where the last ended; the objective's
+    # scales change between rounds, so the curve may step at the boundaries)
+    history = np.concatenate([histories[0]] + [h[1:] for h in histories[1:]])
+    n_it = history.shape[0] - 1
+    history = np.concatenate([history, np.full(meth.max_iterations * rounds - n_it, history[-1])])
+    result = CalibrationResult(
+        method=label,
+        deviations=cur,
+        x=np.asarray(out.x),
+        space=space,
+        robot=robot,
+        measurement=measurement,
+        history=history,
+        n_iterations=n_it,
+        iterations_to_converge=int(out.iterations_to_converge) if rounds == 1 else int(
+            _iterations_to_converge_jit(history, n_it)),
+        status=status,
+        train_metrics=Metrics(*(float(v) for v in out.train_metrics)),
+        wall_time_s=run_s,
+        compile_time_s=compile_s,
+        hyperparameters=meth.hyperparameters(),
+        extra=out.extra,
+        predictor=getattr(meth, "predictor", lambda: None)(),
+        identifiability=report,
+        prior=prior,
+        loss=loss,
+        loss_scale_mm=scale,
+        start=start,
+    )
+    if status in (Status.DIVERGED, Status.FAILED):
+        if throw:
+            raise CalibrationError(result.message)
+        warnings.warn(result.message, CalibrationWarning, stacklevel=3)
+    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection))
+    object.__setattr__(result, "diagnostics", diag)
+    object.__setattr__(result, "uncertainty", unc)
+    for w in diag.warnings:
+        warnings.warn(w, CalibrationWarning, stacklevel=3)
+    return result
+
+
+#: compiled once per history length (op by op it runs several small XLA programs per call)
+_iterations_to_converge_jit = jax.jit(iterations_to_converge)
+
+
+@functools.lru_cache(maxsize=1)
+def _default_key():
+    """``jax.random.key(0)``, made once (keys are immutable; making one runs a small program)."""
+    return jax.random.key(0)
+
+
+def _close(a, b, rtol: float = 0.05) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return abs(a - b) <= rtol * abs(b)
+
+
+def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
+              gram=None, cov=None, reselection=()):
+    """Uncertainty and the plausibility / conditioning / coverage / outlier findings (``gram``,
+    ``cov``: :func:`gram_at` and :func:`coverage` when the caller has them)."""
+    space = result.space
+    x = np.asarray(result.x, np.float64)
+    prior_std = result.prior.std(space) if result.prior is not None else None
+    inv = None if prior_std is None else np.where(np.isfinite(prior_std), 1.0 / prior_std, 0.0)
+    msgs = []
+    try:
+        unc, cond, resid = parameter_uncertainty(problem, x, prior_inv_std=inv, loss=result.loss,
+                                                 loss_scale=result.loss_scale_mm or 1.0, return_residuals=True,
+                                                 gram=gram)
+    except (np.linalg.LinAlgError, ValueError) as e:  # pragma: no cover - defensive
+        unc, cond, resid = None, float("inf"), None
+        msgs.append(f"uncertainty could not be computed: {e}")
+    if result.status == Status.MAX_STEPS:
+        msgs.append(f"{result.method}: step budget exhausted before the stopping tolerance was met — the fit may "
+                    "not be finished (raise max_steps, or check the start and the data)")
+    if result.status == Status.STILL_IMPROVING:
+        msgs.append(result.message)
+    flat = np.asarray(result.deviations._ravel_numpy(), np.float64)
+    bad = implausible_deviations(space.names, space.units, flat, checks)
+    if bad:
+        listed = ", ".join(f"Δ{n} = {v:+.4g} {'°' if u == 'deg' else 'mm'}" for n, v, u in bad[:8])
+        hint = "" if result.prior is not None else "; a prior toward nominal (prior='default') usually fixes this"
+        msgs.append(f"implausible parameters (beyond ±{checks.angle_deg:g}° / ±{checks.length_mm:g} mm): {listed}"
+                    f"{' …' if len(bad) > 8 else ''} — the model may fit the measured region and be wrong "
+                    f"elsewhere{hint}")
+    # under a prior the data Jacobian of the free set is rank deficient by design (the prior sets the
+    # directions the data cannot see); those directions are reported by name below instead
+    if cond > checks.condition_number and prior_std is None:
+        msgs.append(f"condition number {cond:.3g} of the identification Jacobian exceeds {checks.condition_number:.3g}: "
+                    "some parameter combinations are weakly determined by these poses")
+    cov = coverage(result.robot, problem.q) if cov is None else cov
+    narrow = narrow_joints(result.robot, cov, checks)
+    unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in joint_units(result.robot))))
+    weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()
+    n_dir, directions = (0, ()) if unc is None or prior_std is None else prior_directions(unc, prior_std, checks)
+    if prior_std is not None:
+        # under a prior, name the few combinations the data leave to it, not every parameter they touch
+        weak_text = (f"the prior, not the data, determines {n_dir} combination(s) of parameters ({len(weak)} "
+                     f"parameter(s) with posterior σ above {checks.weak_fraction:g}× the prior σ), e.g. "
+                     + "; ".join(directions) + (" …" if n_dir > len(directions) else "")) if n_dir else ""
+        weak_text = weak_text or (f"weakly determined by the data: {', '.join(weak)}" if weak else "")
+    else:
+        weak_text = f"weakly determined by the data: {', '.join(weak)}" if weak else ""
+    if narrow:
+        moved = ", ".join(f"q{j} {cov[j - 1, 0]:.1f}{unit[j]}" for j in narrow)
+        prismatic = any(unit[j] == " mm" for j in narrow)
+        msgs.append(f"narrow joint coverage: {moved} of motion (< {checks.narrow_joint_deg:g}°"
+                    + (f", or {checks.narrow_joint_deg / 360:.3g} of a prismatic joint's range)" if prismatic else ")")
+                    + (f"; {weak_text}" if weak_text else ""))
+    elif weak_text:
+        msgs.append(weak_text)
+    after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
+    if len(after_rows):
+        shown = ", ".join(str(int(r)) for r in after_rows[:12])
+        msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} mm robust σ) at "
+                    f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
+                    + ("" if result.loss != "linear" else "; consider loss='huber' or excluding them"))
+    diag = Diagnostics(tuple(msgs), bad, cond, cov, narrow, weak, tuple(int(r) for r in before_rows),
+                       tuple(int(r) for r in after_rows), s_after, extras_msg, rounds, tuple(reselection), directions)
+    return diag, unc

@@ -1,0 +1,419 @@
+"""Checking a calibration on new measurements, the honest "before", and the defaults for measured data.
+
+A calibration is believed once it predicts readings it has not seen. A new day's readings are
+usually taken with the sensor set up again: the draw-wire anchor, the tracker's frame, the marker
+plate are not where they were, so the robot is judged with those *extras* registered again on
+the new rows, the robot itself fixed (closed form, :func:`jaxcal.initial_extras`, then a fit of
+only the extras) — for the nominal robot ("before") and the calibrated one ("after") alike.
+:func:`evaluate_result` (``result.evaluate(data, extras=...)``, ``jaxcal evaluate``) does that and
+says which extras were registered or taken from the result.
+
+"Before" everywhere (``jaxcal calibrate``, ``jaxcal evaluate``, :func:`jaxcal.holdout_session`) is
+the nominal robot with the extras estimated from the data; the raw nominal model (the guessed
+anchor / frame, as written in the measurement model) is only shown as its own line.
+
+:data:`MEASURED_DEFAULTS` (the objective for measured data) and the named objectives live in
+:mod:`jaxcal._fit._objective`; they are re-exported here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._core._metrics import Metrics, compute_metrics, format_table
+from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
+from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
+from .._sensors._initialise import _residual, _sample_error
+from .._sensors._sessions import SessionMarkers, initial_sessions, masked_markers
+
+__all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
+    "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
+    "evaluate_sessions"]
+
+#: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
+_REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
+                "base_translation": "base", "marker": "markers",
+                "plane": "plane", "point": "point", "radius": "point"}  # contact set-ups (jaxcal._sensors._contact)
+
+
+# -- extras --------------------------------------------------------------------------------------------
+def _family(group: str) -> str:
+    g = group.partition("@")[0]
+    return "marker" if g.startswith("marker_") else g
+
+
+def registrable_extras(result) -> tuple[str, ...]:
+    """The groups of ``result``'s free extras a new sensor set-up changes (anchor, cable offset,
+    sensor frame, marker positions); a tool point counts as part of the robot and is kept."""
+    layout = result.space.layout
+    groups = dict.fromkeys(layout.group_of(n) for n in result.space.free_names if group_kind(n) == "extra")
+    return tuple(g for g in groups if _family(g) in _REGISTRABLE)
+
+
+def _extras_of(groups, source: Deviations, into: Deviations) -> Deviations:
+    return into.replace(**{g: source.values[g] for g in groups}) if groups else into
+
+
+def nominal_with_extras(result) -> Deviations:
+    """The nominal robot (zero robot deviations) with ``result``'s starting extras (the
+    closed-form estimate on the training data; zero where none ran) — the "before" of a random
+    split of the training session."""
+    layout = result.space.layout
+    start = result.start if result.start is not None else result.deviations
+    groups = [g for g in layout.group_names if all(group_kind(n) == "extra" for n in layout.group(g).names)]
+    zero = Deviations.zeros(layout, np.asarray(start._ravel_numpy()).dtype)
+    return _extras_of(groups, start, zero) if result.start is not None else zero
+
+
+def register_extras(robot, measurement, data, deviations: Deviations, groups, *, loss: str = "huber"):
+    """``deviations`` with the extra ``groups`` registered on ``data`` (robot and every other entry
+    fixed): closed form (:func:`jaxcal.initial_extras`), then LM on those groups only with the
+    ``loss`` (Huber by default: a gross row on the new day must not move the frame). Returns
+    ``(deviations, message)``."""
+    from .._sensors._initial_extras import initial_extras
+    from ._calibrate import calibrate
+
+    if not groups:
+        return deviations, ""
+    est = sorted({_REGISTRABLE[_family(g)] for g in groups})
+    start = initial_extras(robot, measurement, data, estimate=est, start=deviations)
+    layout = layout_for(robot, measurement)
+    names = [n for g in groups for n in layout.group(g).names]
+    space = ParameterSpace.from_names(layout, names)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(robot, measurement, data, "lm", space=space, start=start.deviations, init="none", loss=loss)
+    return res.deviations, start.message
+
+
+def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
+    """Per-row errors (mm) of ``robot + deviations`` on ``data`` (compiled once per shape)."""
+    from .._fit._problem import Problem, sample_errors_at
+
+    q = jnp.asarray(data.q)
+    space = ParameterSpace.from_names(layout_for(robot, measurement), [])
+    pr = Problem(robot, measurement, q, data.y, space, deviations.astype(q.dtype))
+    return np.asarray(sample_errors_at(pr, pr.x0()), np.float64)
+
+
+def joints_to_file_units(robot, q) -> np.ndarray:
+    """Joint readings ``[n, dof]`` (rad, mm at prismatic joints) in the files' units: degrees, mm."""
+    from .._fit._diagnostics import joint_units
+
+    rad = np.asarray([u == "rad" for u in joint_units(robot)])
+    q = np.asarray(q, np.float64)
+    return np.where(rad[None, :], np.rad2deg(q), q)
+
+
+def joints_from_file_units(robot, q) -> np.ndarray:
+    """Inverse of :func:`joints_to_file_units`."""
+    from .._fit._diagnostics import joint_units
+
+    rad = np.asarray([u == "rad" for u in joint_units(robot)])
+    q = np.asarray(q, np.float64)
+    return np.where(rad[None, :], np.deg2rad(q), q)
+
+
+def _metrics(e) -> Metrics:
+    return Metrics(*(float(v) for v in compute_metrics(jnp.asarray(e))))
+
+
+# -- evaluation ----------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, eq=False)
+class Evaluation:
+    """A calibration checked on new data (:func:`evaluate_result`).
+
+    Attributes:
+        before: RMSE/MEAN/MAX (mm) of the nominal robot with the extras estimated from the new
+            data (closed form + a fit of the extras only, robot fixed) — or, where the extras are
+            taken from the result, still estimated from the new data (the best case for nominal).
+        after: of the calibrated robot, its extras registered the same way or taken from the result.
+        raw_nominal: of the nominal robot with the measurement model's guessed extras (nothing
+            estimated): shown for reference only.
+        before_errors, after_errors: ``[n]`` per-row errors (mm).
+        q: ``[n, dof]`` the rows' joint angles (rad).
+        extras: ``"registered"`` (re-estimated on the new rows: a new day's frame/anchor),
+            ``"result"`` (taken from the calibration) or ``"none"`` (no extras were estimated).
+        registered: the groups re-registered (empty unless ``extras == "registered"``).
+        message: one line saying where the extras came from.
+        outlier_rows: rows (0-based) whose after-residual exceeds 5 robust σ; ``outlier_scale_mm``
+            that σ.
+        deviations_before, deviations_after: the deviations evaluated.
+        q_file: ``[n, dof]`` the joint readings in the files' units (degrees; mm at prismatic joints).
+        objective: the calibration's objective (one line), if known.
+
+    ``rmse``/``mean``/``max`` are the ``after`` numbers; ``worse`` says whether the calibrated robot
+    predicts the data worse than the nominal one.
+    """
+
+    before: Metrics
+    after: Metrics
+    raw_nominal: Metrics
+    before_errors: np.ndarray
+    after_errors: np.ndarray
+    q: np.ndarray
+    extras: str
+    registered: tuple[str, ...]
+    message: str
+    outlier_rows: tuple[int, ...]
+    outlier_scale_mm: float
+    deviations_before: Deviations
+    deviations_after: Deviations
+    objective: str | None = None
+    q_file: np.ndarray | None = None
+
+    @property
+    def rmse(self) -> float:
+        return self.after.rmse
+
+    @property
+    def mean(self) -> float:
+        return self.after.mean
+
+    @property
+    def max(self) -> float:
+        return self.after.max
+
+    @property
+    def n(self) -> int:
+        return int(self.after_errors.shape[0])
+
+    @property
+    def worse(self) -> bool:
+        """The calibrated robot predicts these data worse (higher RMSE) than the nominal one."""
+        return not (self.after.rmse <= self.before.rmse)
+
+    def rows(self) -> list[tuple[str, Metrics]]:
+        """``[(label, Metrics)]``: raw nominal (when extras were estimated), before, after."""
+        out = []
+        if self.extras != "none":
+            out.append(("raw nominal (guessed extras, nothing estimated)", self.raw_nominal))
+        lab = "extras from the data" if self.extras != "none" else "nothing estimated"
+        out.append((f"before: nominal robot, {lab}", self.before))
+        lab = {"registered": "extras re-registered", "result": "extras from the result",
+               "none": "no extras"}[self.extras]
+        out.append((f"after: calibrated robot, {lab}", self.after))
+        return out
+
+    def table(self) -> str:
+        rows = [[name, m.rmse, m.mean, m.max] for name, m in self.rows()]
+        return format_table(rows, ["data", "RMSE/mm", "MEAN/mm", "MAX/mm"],
+                            title=f"Accuracy on {self.n} new rows before/after calibration")
+
+    def __str__(self) -> str:
+        lines = [self.message, self.table()]
+        if self.outlier_rows:
+            lines.append(f"outlier rows (> 5 robust σ = {self.outlier_scale_mm:.3g} mm after calibration, 1-based): "
+                         + ", ".join(str(r + 1) for r in self.outlier_rows[:30])
+                         + (" …" if len(self.outlier_rows) > 30 else ""))
+        verdict = ("WORSE than the nominal robot" if self.worse else
+                   f"{100 * (1 - self.after.rmse / self.before.rmse):.1f} % lower RMSE than the nominal robot"
+                   if self.before.rmse > 0 else "")
+        lines.append(f"calibrated robot on these data: {verdict}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-friendly: ``metrics_mm`` (``before``, ``after``, ``raw_nominal``), extras, outliers,
+        per-row errors and joint angles (degrees)."""
+        return {
+            "metrics_mm": {"before": self.before._asdict(), "after": self.after._asdict(),
+                           "raw_nominal": self.raw_nominal._asdict()},
+            "worse": self.worse,
+            "extras": {"source": self.extras, "registered": list(self.registered), "message": self.message},
+            "objective": self.objective,
+            "outlier_rows": [r + 1 for r in self.outlier_rows],
+            "outlier_scale_mm": self.outlier_scale_mm,
+            "n_samples": self.n,
+            "rows": {"row": list(range(1, self.n + 1)), "q_deg": (np.rad2deg(self.q) if self.q_file is None else self.q_file).tolist(),
+                     "before_mm": self.before_errors.tolist(), "after_mm": self.after_errors.tolist()},
+            "deviations_before": self.deviations_before.named(),
+            "deviations_after": self.deviations_after.named(),
+        }
+
+
+def _outliers(robot, measurement, dev, data, k: float = 5.0):
+    from .._fit._diagnostics import outlier_rows
+    from .._fit._problem import Problem
+
+    q = jnp.asarray(data.q)
+    space = ParameterSpace.from_names(layout_for(robot, measurement), [])
+    pr = Problem(robot, measurement, q, data.y, space, dev.astype(q.dtype))
+    rows, _, s = outlier_rows(pr, pr.x0(), k)
+    return tuple(int(r) for r in rows), float(s)
+
+
+def evaluate_result(result, data, *, extras: str = "auto", objective: str | None = None) -> Evaluation:
+    """Check ``result`` (a :class:`~jaxcal.CalibrationResult`, e.g. from :func:`jaxcal.load_result`)
+    on new ``data`` (a :class:`~jaxcal.Dataset` of the same kind).
+
+    Args:
+        extras: ``"register"``: the result's sensor extras (anchor, cable offset, sensor frame,
+            marker positions) are registered again on ``data`` with the robot fixed, for the
+            nominal and the calibrated robot alike — a new day's set-up; ``"result"``: the
+            calibrated robot keeps the result's extras (the same set-up as the training data; the
+            nominal robot still gets extras estimated from ``data``); ``"auto"`` (default):
+            ``"register"`` when the result estimated such extras and ``data`` has enough rows
+            (more residuals than twice the extras' parameters), else ``"result"``.
+        objective: a line naming the calibration's objective, kept on the evaluation.
+
+    Returns:
+        :class:`Evaluation`.
+    """
+    from .._datasets._dataset import Dataset
+    from ._calibrate import _as_arrays
+
+    robot, m = result.robot, result.measurement
+    if hasattr(m, "frame_index"):  # SessionMarkers: the new data's sessions get their own model
+
+        return evaluate_sessions(result, data, extras=extras, objective=objective)
+    if not isinstance(data, Dataset):
+        q, y = _as_arrays(data, m, robot)
+        data = Dataset(q, y, m.kind)
+    _as_arrays(data, m, robot)  # kind, shapes, joint limits
+    if extras not in ("auto", "register", "result"):
+        raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")
+    groups = registrable_extras(result)
+    layout = result.space.layout
+    n_par = sum(len(layout.group(g).names) for g in groups)
+    enough = data.n * m.size > 2 * n_par and data.n >= 6
+    why = ""
+    if extras == "register" and groups and not enough:
+        raise ValueError(f"{data.n} rows are too few to register {', '.join(groups)} ({n_par} parameters) again; "
+                         "pass extras='result' to take them from the calibration")
+    mode = extras if extras != "auto" else ("register" if groups and enough else "result")
+    if extras == "auto" and groups and not enough:
+        why = f" ({data.n} rows are too few to register them again)"
+    dtype = np.asarray(data.q).dtype
+    zero = Deviations.zeros(layout, dtype)
+    raw = _metrics(sample_errors(robot, m, zero, data))
+    if not groups:
+        dev_b, dev_a = zero, result.deviations
+        other = [g for g in dict.fromkeys(layout.group_of(n) for n in result.space.free_names)
+                 if all(group_kind(n) == "extra" for n in layout.group(g).names)]
+        if other:  # e.g. a tool point: part of the robot here
+            dev_b = _extras_of(other, result.deviations, zero)
+        source, registered = "none", ()
+        msg = "no sensor extras were estimated in the calibration: the saved sensor model is used before and after"
+    else:
+        dev_b, msg_b = register_extras(robot, m, data, zero, groups)
+        if mode == "register":
+            keep = _extras_of(groups, zero, result.deviations)  # extras back to the guess, robot calibrated
+            dev_a, _ = register_extras(robot, m, data, keep, groups)
+            source, registered = "registered", groups
+            msg = (f"extras re-registered on the new data (a new set-up: {', '.join(groups)}), robot fixed, for the "
+                   "nominal and the calibrated robot alike (closed form, then a fit of the extras only)")
+        else:
+            dev_a = result.deviations
+            source, registered = "result", ()
+            msg = (f"extras taken from the calibration result ({', '.join(groups)}: the same set-up as the training "
+                   f"data{why}); the nominal robot's extras estimated from the new data")
+    eb = sample_errors(robot, m, dev_b, data)
+    ea = sample_errors(robot, m, dev_a, data)
+    rows, scale = _outliers(robot, m, dev_a, data)
+    return Evaluation(
+        before=_metrics(eb), after=_metrics(ea), raw_nominal=raw, before_errors=eb, after_errors=ea,
+        q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
+        outlier_rows=rows, outlier_scale_mm=scale if math.isfinite(scale) else float("nan"),
+        deviations_before=dev_b, deviations_after=dev_a, objective=objective,
+        q_file=joints_to_file_units(robot, data.q),
+    )
+
+
+def _errors(robot, m, dev, q, y) -> np.ndarray:
+    """Per-row marker errors (mm), compiled (the same jitted residual as the extras start)."""
+    return np.asarray(_sample_error(m, _residual(m, robot, dev, jnp.asarray(q), jnp.asarray(y))), np.float64)
+
+
+def _register(robot, m, q, y, dev, groups, frames, placements, loss: str = "linear"):
+    """Closed form, then LM on ``groups`` only (robot and other extras fixed at ``dev``)."""
+    from ._calibrate import calibrate
+
+    if not groups:
+        return dev
+    dev = initial_sessions(robot, m, (q, y), start=dev, frames=frames, placements=placements).deviations
+    layout = layout_for(robot, m)
+    names = [n for g in groups for n in layout.group(g).names]
+    space = ParameterSpace.from_names(layout, names)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(robot, m, (jnp.asarray(q), jnp.asarray(y)), "lm", space=space, start=dev, init="none",
+                        loss=loss)
+    return res.deviations
+
+
+def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | None = None):
+    """:func:`jaxcal.evaluate_result` for a :class:`SessionMarkers` calibration: the calibrated
+    robot on new marker ``data`` (a :class:`~jaxcal.Dataset`; with session labels, or without:
+    then one new session labelled ``"new"``), whose sessions may have other frames, placements
+    and marker counts (a one-point session: NaN in the other markers' columns).
+
+    The new data get their own :class:`SessionMarkers` (:meth:`SessionMarkers.from_dataset`); the
+    robot's deviations are the result's. Every frame and placement of the new data is
+    **registered** on its rows with the robot fixed (closed form, then a Huber fit of those
+    groups only), for the nominal and the calibrated robot alike — ``extras="register"``, and
+    ``"auto"`` when there are more residuals than twice the extras' parameters; with
+    ``"result"`` the calibrated robot keeps the result's values of the labels it was trained on
+    (same label, same marker) and only labels the result has not seen are registered.
+
+    Returns:
+        :class:`jaxcal.Evaluation` (``registered`` names every group fitted on the new rows).
+    """
+    from .._datasets._dataset import Dataset
+
+    robot = result.robot
+    if extras not in ("auto", "register", "result"):
+        raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")
+    if not isinstance(data, Dataset) or data.kind != "markers":
+        raise ValueError("a session-marker result is evaluated on marker data: give a jaxcal.Dataset of kind "
+                         "'markers' (load_csv of a marker file)")
+    if not data.labels:
+        data = Dataset(data.q, data.y, "markers", data.metadata, labels=[("new", "new", "new")] * data.n)
+    m = SessionMarkers.from_dataset(data)
+    m.check_measurements(data.y, data.n)
+    q, y = np.asarray(data.q), np.asarray(data.y)
+    layout = layout_for(robot, m)
+    dtype = q.dtype
+    zero = Deviations.zeros(layout, dtype)
+    # the robot's groups (every group without a session label) from the result
+    robot_groups = [g for g in layout.group_names if "@" not in g and g in result.deviations.values]
+    calibrated = zero.replace(**{g: jnp.asarray(result.deviations.values[g]).astype(dtype) for g in robot_groups})
+    every = tuple(g for f in m.frames for g in m.groups_of(frame=f)) + tuple(
+        g for p in m.placements for g in m.groups_of(placement=p))
+    n_par = sum(len(layout.group(g).names) for g in every)
+    obs = m.observed(y)
+    enough = int(y.size if obs is None else obs.sum()) > 2 * n_par
+    mode = extras if extras != "auto" else ("register" if enough else "result")
+    known = set(result.deviations.values) if mode == "result" else set()
+    kept = tuple(g for g in every if g in known)
+    if kept:
+        calibrated = calibrated.replace(**{g: jnp.asarray(result.deviations.values[g]).astype(dtype) for g in kept})
+    new = tuple(g for g in every if g not in kept)
+    if not enough and new:
+        raise ValueError(f"{data.n} rows are too few to register {', '.join(new)} ({n_par} parameters) on the new "
+                         "data; give more rows")
+    new_f = [f for f in m.frames if any(g in new for g in m.groups_of(frame=f))]
+    new_p = [p for p in m.placements if any(g in new for g in m.groups_of(placement=p))]
+    dev_b = _register(robot, m, q, y, zero, every, list(m.frames), list(m.placements), loss="huber")
+    dev_a = _register(robot, m, q, y, calibrated, new, new_f, new_p, loss="huber")
+    eb, ea = _errors(robot, m, dev_b, q, y), _errors(robot, m, dev_a, q, y)
+    raw = _errors(robot, m, zero, q, y)
+    rows, scale = _outliers(robot, m, dev_a, data)
+    n_miss, n_all, n_rows = masked_markers(y)
+    gaps = (f"; {n_miss} of {n_all} marker readings missing (NaN) in {n_rows} row(s): masked (zero weight)"
+            if n_miss else "")
+    source = "registered" if new else "result"
+    how = ("re-registered on the new rows" if not kept else
+           f"{len(new)} group(s) registered on the new rows, {len(kept)} taken from the result")
+    msg = (f"session frames ({', '.join(m.frames)}) and marker placements ({', '.join(m.placements)}) of the new "
+           f"data: {how}, robot fixed (for the nominal robot every one is registered); closed form, then a Huber fit of "
+           f"the extras only{gaps}")
+    return Evaluation(
+        before=_metrics(eb), after=_metrics(ea), raw_nominal=_metrics(raw), before_errors=eb, after_errors=ea,
+        q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
+        outlier_scale_mm=scale if np.isfinite(scale) else float("nan"), deviations_before=dev_b,
+        deviations_after=dev_a, objective=objective, q_file=joints_to_file_units(robot, q))

@@ -1,0 +1,398 @@
+"""Saving and loading results: calibration results as JSON, sweeps from their output directory.
+
+A calibration result file (``jaxcal calibrate --out result.json``, :func:`save_result`) is a
+JSON object holding everything needed to use the calibration again: the nominal robot, the
+measurement model, the free parameters, the calibrated deviations (rad, mm), the calibrated DH
+table (degrees, mm), the history, the status, metrics and the identifiability report.
+:func:`load_result` turns it back into a :class:`~jaxcal.CalibrationResult` whose ``predict``,
+``evaluate`` and ``dh_table`` work as on the original (the RBF network of ``"rbfnn"`` included).
+
+A sweep's output directory is read back by :func:`jaxcal._experiments._sweep.load_sweep` (next to the code
+that writes it).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._core._json import to_jsonable
+from .._core._metrics import Metrics
+from .._core._params import Deviations, ParameterSpace, layout_for
+from .._datasets._csvfile import read_table
+from .._fit._result import CalibrationResult, Status
+from .._models._nongeometric import nongeometric_from_dict, nongeometric_to_dict
+from .._models._robot import DHRobot
+from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
+
+__all__ = [
+    "RESULT_FORMAT",
+    "robot_to_dict",
+    "robot_from_dict",
+    "measurement_to_dict",
+    "measurement_from_dict",
+    "result_to_dict",
+    "save_result",
+    "load_result",
+    "load_result_dict",
+    "load_robot_csv",
+    "save_robot_csv",
+]
+
+#: ``"format"`` entry of calibration result files.
+RESULT_FORMAT = "jaxcal-calibration-result/1"
+
+
+# -- models -------------------------------------------------------------------------------------
+
+
+def robot_to_dict(robot: DHRobot) -> dict:
+    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm (a
+    :class:`~jaxcal.SerialChain`: its URDF text with base/tip links, see ``chain_to_dict``)."""
+    if not isinstance(robot, DHRobot):
+        from .._models._urdf import chain_to_dict
+
+        out = chain_to_dict(robot)
+        if (ng := nongeometric_to_dict(robot)) is not None:
+            out["nongeometric"] = ng
+        return out
+    deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
+    return {
+        "name": robot.name,
+        "convention": robot.convention,
+        "beta_joints": list(robot.beta_joints),
+        "alpha_deg": deg(robot.alpha),
+        "a_mm": np.asarray(robot.a, np.float64).tolist(),
+        "d_mm": np.asarray(robot.d, np.float64).tolist(),
+        "theta_deg": deg(robot.theta),
+        "beta_deg": deg(robot.beta),
+        "q_min_deg": deg(robot.q_min),
+        "q_max_deg": deg(robot.q_max),
+        "tool_mm": np.asarray(robot.tool, np.float64).tolist(),
+        **({"nongeometric": ng} if (ng := nongeometric_to_dict(robot)) is not None else {}),
+    }
+
+
+def robot_from_dict(d: dict) -> DHRobot:
+    """Inverse of :func:`robot_to_dict` (values within rounding of deg↔rad)."""
+    if d.get("type") == "serial_chain":
+        from .._models._urdf import chain_from_dict
+
+        return nongeometric_from_dict(chain_from_dict(d), d.get("nongeometric"))
+    robot = DHRobot.from_degrees(
+        alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
+        q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),
+        beta_deg=d.get("beta_deg"), convention=d.get("convention", "standard"),
+        beta_joints=d.get("beta_joints", ()), name=d.get("name", "robot"),
+    )
+    return nongeometric_from_dict(robot, d.get("nongeometric"))  # compliance / harmonic models
+
+
+_DH_COLUMNS = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
+#: accepted names of the joint-limit columns, before ``_deg``/``_rad``.
+_LIMIT_NAMES = {"q_min": ("q_min", "qmin", "min", "lower", "q_lower"),
+                "q_max": ("q_max", "qmax", "max", "upper", "q_upper")}
+#: every accepted DH-file column: name -> (quantity, unit).
+_DH_FILE_COLUMNS = {"a_mm": ("a", "mm"), "d_mm": ("d", "mm"), "joint": ("joint", "")} | {
+    f"{name}_{unit}": (quantity, unit)
+    for quantity, names in {"alpha": ("alpha",), "theta": ("theta",), "beta": ("beta",), **_LIMIT_NAMES}.items()
+    for name in names
+    for unit in ("deg", "rad")
+}
+_DH_ACCEPTED = (
+    "alpha_deg, a_mm, d_mm, theta_deg (or alpha_rad, theta_rad); optional: beta_deg (or beta_rad), "
+    "a joint-limit pair " + ", ".join(f"{lo}_deg/{hi}_deg" for lo, hi in zip(*_LIMIT_NAMES.values()))
+    + " (each also *_rad), joint (1..N)"
+)
+
+
+def _tool_mm(path, text: str) -> tuple[float, float, float]:
+    """``# tool_mm: x,y,z`` (or ``x;y;z``, where numbers may have decimal commas)."""
+    sep = ";" if ";" in text else ","
+    try:
+        parts = [float(p.replace(",", ".") if sep == ";" else p) for p in text.split(sep)]
+    except ValueError:
+        parts = []
+    if len(parts) != 3:
+        raise ValueError(f"{path}: '# tool_mm: {text}' needs 3 numbers separated by ',' (or ';' with decimal commas)")
+    return tuple(parts)
+
+
+def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
+    """A robot from a DH table file (standard DH; lengths in mm, angles in degrees or radians).
+
+    Layout: optional ``# name: NAME`` and ``# tool_mm: x,y,z`` comment lines (tool point in the
+    flange frame, mm; default the flange origin), a header row, then one row per joint::
+
+        # name: hsr_jr680
+        alpha_deg,a_mm,d_mm,theta_deg,q_min_deg,q_max_deg
+        -90,250,653.5,0,-170,170
+        ...
+
+    Columns, in any order, names stripped and case-insensitive:
+
+    * required: ``alpha_deg`` (or ``alpha_rad``), ``a_mm``, ``d_mm``, ``theta_deg`` (or
+      ``theta_rad``);
+    * joint limits, both or neither (default ±180°): ``q_min_deg/q_max_deg``, or the synonyms
+      ``qmin_deg/qmax_deg``, ``min_deg/max_deg``, ``lower_deg/upper_deg``,
+      ``q_lower_deg/q_upper_deg``, each also in radians (``q_min_rad``, ``lower_rad``, ...);
+    * ``beta_deg`` (or ``beta_rad``): nominal Hayati β; the joints where it is nonzero become
+      the robot's ``beta_joints`` (to estimate β at a joint whose nominal β is 0, use
+      ``robot.with_hayati(j)``);
+    * ``joint``: joint numbers, checked to be 1, 2, ..., N.
+
+    Any other column is an error (never dropped silently), as is a quantity given twice (e.g.
+    ``q_min_deg`` and ``lower_deg``). The file may have a UTF-8 byte-order mark and use ``,``,
+    ``;`` or tab as delimiter (recognised from the header, or ``delimiter=``); in ``;`` files
+    numbers may use decimal commas. Errors name the file, the joint row, its line and column.
+    """
+    t = read_table(path, delimiter=delimiter, what="DH table file", row_name="joint row")
+    path = t.path
+    meta = {k.lower(): v for k, v in t.meta.items()}
+    unknown = [h for h in t.header if h not in _DH_FILE_COLUMNS]
+    if unknown:
+        raise ValueError(f"{path}: unknown DH table column(s) {unknown}; accepted: {_DH_ACCEPTED}")
+    named: dict[str, list[str]] = {}
+    for h in t.header:
+        named.setdefault(_DH_FILE_COLUMNS[h][0], []).append(h)
+    twice = [cols for cols in named.values() if len(cols) > 1]
+    if twice:
+        raise ValueError(f"{path}: columns {twice[0]} give the same quantity; keep one")
+    missing = [c for c in _DH_COLUMNS if _DH_FILE_COLUMNS[c][0] not in named]
+    if missing:
+        raise ValueError(f"{path}: DH table lacks column(s) {missing}; header must include {','.join(_DH_COLUMNS)}"
+                         " (angles may be *_rad)")
+    if ("q_min" in named) != ("q_max" in named):
+        have, lack = ("q_min", "q_max") if "q_min" in named else ("q_max", "q_min")
+        raise ValueError(f"{path}: joint limit column {named[have][0]} needs its partner "
+                         f"({'/'.join(n + '_deg' for n in _LIMIT_NAMES[lack])} or *_rad)")
+    if not t.rows:
+        raise ValueError(f"{path}: DH table has no joint rows")
+    values = t.floats(t.header)
+    cols = {}
+    for k, h in enumerate(t.header):
+        quantity, unit = _DH_FILE_COLUMNS[h]
+        cols[quantity] = np.rad2deg(values[:, k]) if unit == "rad" else values[:, k]
+    if "joint" in cols and not np.array_equal(cols["joint"], np.arange(1, len(t.rows) + 1)):
+        raise ValueError(f"{path}: the joint column must number the rows 1..{len(t.rows)}, "
+                         f"got {cols['joint'].tolist()}")
+    beta = cols.get("beta")
+    return DHRobot.from_degrees(
+        alpha_deg=cols["alpha"], a_mm=cols["a"], d_mm=cols["d"], theta_deg=cols["theta"],
+        q_min_deg=cols.get("q_min"), q_max_deg=cols.get("q_max"), beta_deg=beta,
+        beta_joints=() if beta is None else (np.flatnonzero(beta) + 1).tolist(),
+        tool_mm=_tool_mm(path, meta["tool_mm"]) if "tool_mm" in meta else (0.0, 0.0, 0.0),
+        name=meta.get("name", pathlib.Path(path).stem),
+    )
+
+
+def save_robot_csv(robot: DHRobot, path) -> None:
+    """Write ``robot``'s nominal DH table in the layout of :func:`load_robot_csv` (standard DH)."""
+    if robot.convention != "standard" or robot.beta_joints:
+        raise ValueError("the DH table file format holds standard DH without Hayati beta only")
+    d = robot_to_dict(robot)
+    lines = [f"# name: {robot.name}", "# tool_mm: " + ",".join(repr(v) for v in d["tool_mm"]),
+             ",".join(_DH_COLUMNS + ("q_min_deg", "q_max_deg"))]
+    for j in range(robot.dof):
+        lines.append(",".join(repr(float(d[c][j])) for c in _DH_COLUMNS + ("q_min_deg", "q_max_deg")))
+    pathlib.Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def measurement_to_dict(m: MeasurementModel) -> dict:
+    """``{"kind": "cable", "anchor_mm": [x, y, z]}``, ``{"kind": "position", "rotation": R,
+    "translation_mm": t}``, ``{"kind": "pose", "orientation_scale": s, ...}`` or ``{"kind": "markers",
+    "positions_mm": [[x, y, z], ...], "known": bool, ...}`` (``R`` the nominal
+    ``[3, 3]`` sensor-from-base rotation, ``t`` mm); a :class:`~jaxcal.SessionMarkers` adds
+    ``"sessions": {"frames", "placements", "markers", "frame_index", "placement_index"}`` (its
+    labels, each placement's marker numbers and the training rows' indices) and per-placement
+    ``positions_mm`` ``[P, N, 3]``."""
+    if isinstance(m, CableLength):
+        return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
+    if getattr(m, "kind", None) == "camera":  # jaxcal._sensors._camera.Camera
+        f = lambda a: np.asarray(a, np.float64).tolist()  # noqa: E731
+        return {"kind": "camera", "points_mm": f(m.points), "intrinsics": f(m.intrinsics), "mount": m.mount,
+                "handeye_rotation": f(m.handeye_rotation), "handeye_translation_mm": f(m.handeye_translation),
+                "target_rotation": f(m.target_rotation), "target_translation_mm": f(m.target_translation),
+                "image_size": None if m.image_size is None else list(m.image_size),
+                "calibrate_intrinsics": bool(m.calibrate_intrinsics)}
+    if m.kind in ("plane", "point", "distance"):  # jaxcal._sensors._contact
+        from .._sensors._contact import contact_to_dict
+
+        return contact_to_dict(m)
+    if hasattr(m, "frame_index"):  # jaxcal.SessionMarkers: labels, marker sets and the rows it was made for
+        return {"kind": "markers", "positions_mm": np.asarray(m.positions, np.float64).tolist(),
+                "sessions": {"frames": list(m.frames), "placements": list(m.placements),
+                             "markers": [list(k) for k in m.markers],
+                             "frame_index": np.asarray(m.frame_index).tolist(),
+                             "placement_index": np.asarray(m.placement_index).tolist()}}
+    frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
+             "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
+    if isinstance(m, Pose):
+        return {"kind": "pose", "orientation_scale": float(m.orientation_scale)} | frame
+    if isinstance(m, Position):
+        return {"kind": "position"} | frame
+    if isinstance(m, Markers):
+        return {"kind": "markers", "positions_mm": np.asarray(m.positions, np.float64).tolist(),
+                "known": bool(m.known)} | frame
+    raise TypeError(f"cannot serialise measurement model {type(m).__name__}")
+
+
+def measurement_from_dict(d: dict) -> MeasurementModel:
+    """Inverse of :func:`measurement_to_dict`."""
+    kind = d.get("kind")
+    if kind == "camera":
+        from .._sensors._camera import Camera
+
+        return Camera(d["points_mm"], d["intrinsics"], d["mount"], handeye_rotation=d["handeye_rotation"],
+                      handeye_translation=d["handeye_translation_mm"], target_rotation=d["target_rotation"],
+                      target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
+                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
+    if kind == "cable":
+        return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
+    if kind in ("plane", "point", "distance"):  # jaxcal._sensors._contact
+        from .._sensors._contact import contact_from_dict
+
+        return contact_from_dict(d)
+    frame = {"rotation": jnp.asarray(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
+             "translation": jnp.asarray(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
+    if kind == "position":
+        return Position(**frame)
+    if kind == "pose":
+        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame)
+    if kind == "markers" and "sessions" in d:
+        from .._sensors._sessions import SessionMarkers
+
+        se = d["sessions"]
+        fr, pl = se["frames"], se["placements"]
+        return SessionMarkers([fr[i] for i in se["frame_index"]], [pl[i] for i in se["placement_index"]],
+                              len(d["positions_mm"][0]), np.asarray(d["positions_mm"], np.float64),
+                              frame_labels=fr, placement_labels=pl, markers=se["markers"])
+    if kind == "markers":
+        return Markers(jnp.asarray(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
+                       **frame)
+    raise ValueError(f"unknown measurement kind {kind!r}")
+
+
+def _extra_to_dict(extra) -> dict | None:
+    """Method state worth keeping (the RBF network); ``None`` otherwise."""
+    from ..methods import RBFNetwork
+
+    if isinstance(extra, RBFNetwork):
+        return {"type": "RBFNetwork", "fields": {f: np.asarray(getattr(extra, f)).tolist() for f in extra._fields}}
+    return None
+
+
+def _extra_from_dict(d: dict | None):
+    if not d:
+        return None, None
+    if d.get("type") == "RBFNetwork":
+        from ..methods import RBFNetwork, RBFNetworkMethod
+
+        net = RBFNetwork(**{f: jnp.asarray(np.asarray(v)) for f, v in d["fields"].items()})
+        return net, RBFNetworkMethod().predictor()
+    raise ValueError(f"unknown saved method state {d.get('type')!r}")
+
+
+# -- calibration results ----------------------------------------------------------------------
+
+
+def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
+    """Everything in ``result`` as JSON-friendly data, plus ``info`` entries (e.g.
+    ``test_metrics_mm=``, ``before_metrics_mm=``, ``settings=``) stored under their names.
+
+    Units: angles in the DH table in degrees, lengths in mm; ``deviations`` and
+    ``free_parameters`` in rad (angles) and mm (lengths), as :meth:`CalibrationResult.to_dict`.
+    """
+    out = {"format": RESULT_FORMAT}
+    out |= result.to_dict()
+    out["history_rmse_mm"] = [float(v) for v in np.asarray(result.history)]
+    out["robot"] = robot_to_dict(result.robot)
+    out["measurement"] = measurement_to_dict(result.measurement)
+    out["free_names"] = list(result.space.free_names)
+    if isinstance(result.robot, DHRobot):
+        out["calibrated_dh_table"] = {
+            "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
+            "rows": np.asarray(result.dh_table()).tolist(),
+        }
+    ident = getattr(result, "identifiability", None)
+    if ident is not None:
+        out["identifiability"] = ident.to_dict()
+    extra = _extra_to_dict(result.extra)
+    if extra is not None:
+        out["method_state"] = extra
+    for k, v in info.items():
+        out[k] = v._asdict() if isinstance(v, Metrics) else v
+    return to_jsonable(out)
+
+
+def save_result(result: CalibrationResult, path, **info: Any) -> None:
+    """Write ``result`` (and ``info``, see :func:`result_to_dict`) as JSON to ``path``."""
+    text = json.dumps(result_to_dict(result, **info), indent=1, allow_nan=False)
+    pathlib.Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+def load_result_dict(path) -> dict:
+    """The raw JSON object of a result file (checked to be a jaxcal result)."""
+    try:
+        d = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not a JSON file: {e}") from None
+    if not isinstance(d, dict) or not str(d.get("format", "")).startswith("jaxcal-calibration-result/"):
+        raise ValueError(f"{path} is not a jaxcal calibration result (no 'format': {RESULT_FORMAT!r} entry)")
+    return d
+
+
+def _num(v) -> float:
+    """A JSON number back to float: ``null`` → NaN, ``"inf"``/``"-inf"`` → ±inf."""
+    return math.nan if v is None else float(v)
+
+
+def load_result(path) -> CalibrationResult:
+    """Read a result file written by :func:`save_result` (or ``jaxcal calibrate --out``).
+
+    The returned :class:`~jaxcal.CalibrationResult` predicts and evaluates like the original;
+    ``compile_time_s``/``wall_time_s`` are the saved values. The identifiability report is kept
+    as its dict under ``result.identifiability`` (``None`` if absent); the saved diagnostics and
+    uncertainty stay in the file (``load_result_dict``), not on the result.
+    """
+    d = load_result_dict(path)
+    robot = robot_from_dict(d["robot"])
+    measurement = measurement_from_dict(d["measurement"])
+    layout = layout_for(robot, measurement)
+    names = layout.names
+    dev = dict(d["deviations"])
+    for n in names:  # files written before the sensor-frame extras / a chain's tip errors existed
+        if n.startswith(("base_", "tip_")) and n not in dev:
+            dev[n] = 0.0
+    missing = [n for n in names if n not in dev]
+    if missing:
+        raise ValueError(f"{path}: deviations lack {missing}")
+    deviations = Deviations.unravel(jnp.asarray(np.asarray([dev[n] for n in names], np.float64)), layout)
+    space = ParameterSpace.from_names(layout, d["free_names"])
+    extra, predictor = _extra_from_dict(d.get("method_state"))
+    tm = d.get("train_metrics_mm", {})
+    result = CalibrationResult(
+        method=d["method"],
+        deviations=deviations,
+        x=np.asarray([d["free_parameters"][n] for n in space.free_names], np.float64),
+        space=space,
+        robot=robot,
+        measurement=measurement,
+        history=np.asarray([_num(v) for v in d.get("history_rmse_mm", [])], np.float64),
+        n_iterations=int(d["n_iterations"]),
+        iterations_to_converge=int(d["iterations_to_converge"]),
+        status=Status[str(d["status"]).upper()],
+        train_metrics=Metrics(*(_num(tm.get(f)) for f in Metrics._fields)),
+        wall_time_s=_num(d.get("wall_time_s")),
+        compile_time_s=_num(d.get("compile_time_s")),
+        hyperparameters=dict(d.get("hyperparameters", {})),
+        extra=extra,
+        predictor=predictor,
+    )
+    object.__setattr__(result, "identifiability", d.get("identifiability"))
+    return result

@@ -1,0 +1,1 @@
+"""Data sets (joint readings + measurements) and the CSV format of every sensor."""

@@ -1,0 +1,1 @@
+"""Seed sweeps, measurement planning, validation, session hold-outs, HTML reports."""

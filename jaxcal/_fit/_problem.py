@@ -1,0 +1,203 @@
+"""A calibration problem: data + models + which parameters are free, as one pytree."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._core._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
+from .._core._params import Deviations, ParameterSpace, layout_for
+from .._core._precision import to_device
+from .._models._kinematics import shared_joint_trig
+from .._models._robot import DHRobot
+from .._sensors._measurement import MeasurementModel
+
+__all__ = ["Problem", "value_and_jacfwd", "residual_blocks", "residual_blocks_numpy", "signed_residuals",
+           "observed_entries",
+           "sample_errors_at", "predict_jit"]
+
+
+def value_and_jacfwd(f, x: Float[Array, " p"], q: Float[Array, "n dof"]):
+    """``(f(x), ∂f/∂x)`` from one ``jax.jacfwd`` pass (the value is its primal), for ``f`` a
+    residual of the kinematics at the joint angles ``q``: evaluated inside a
+    :func:`~jaxcal._models._kinematics.shared_joint_trig` block, so ``cos``/``sin`` of ``q`` are computed
+    once, not per Jacobian column."""
+    with shared_joint_trig(q):
+        J, r = jax.jacfwd(lambda x: (f(x),) * 2, has_aux=True)(x)
+    return r, J
+
+
+class Problem(eqx.Module):
+    """Everything a solver needs: ``residual(x)`` for the free-parameter vector ``x`` ``[p]``.
+
+    A pytree (arrays are leaves, the parameter space is static), so a problem can be passed
+    through ``jax.jit`` and ``jax.vmap`` (e.g. over datasets drawn from different keys).
+
+    Attributes:
+        robot: nominal robot.
+        measurement: measurement model.
+        q: ``[n, dof]`` joint angles (rad).
+        y: measurements, ``[n, *measurement.sample_shape]`` (mm).
+        space: free parameters (static).
+        base: values of the deviations that are not free (zeros = nominal).
+        weight: ``[n]`` row weights, 1 for a real sample and 0 for a padding row
+            (:mod:`jaxcal._core._buckets`), or ``None`` (every row real). Padding rows contribute
+            nothing: :meth:`residual` and :meth:`sample_errors` are 0 there, and every mean divides
+            by :attr:`n_real` (a traced count), so a padded problem gives the unpadded one's
+            values to round-off.
+    """
+
+    robot: DHRobot
+    measurement: MeasurementModel
+    q: Float[Array, "n dof"]
+    y: Array
+    base: Deviations
+    space: ParameterSpace = eqx.field(static=True)
+    weight: Array | None = None
+
+    def __init__(self, robot, measurement, q, y, space=None, base=None, weight=None):
+        self.robot = robot
+        self.measurement = measurement
+        self.q = jnp.asarray(q)
+        self.y = jnp.asarray(y, dtype=self.q.dtype)
+        self.space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
+        layout = layout_for(robot, measurement)
+        if self.space.layout != layout:
+            raise ValueError(f"parameter space has groups {list(self.space.layout.group_names)} for {self.space.dof} "
+                             f"joints, but robot {robot.name!r} with this measurement has {list(layout.group_names)} "
+                             f"for {robot.dof} joints")
+        self.base = Deviations.zeros(layout, self.q.dtype) if base is None else base.astype(self.q.dtype)
+        self.weight = None if weight is None else jnp.asarray(weight, self.q.dtype)
+
+    @property
+    def n_samples(self) -> int:
+        """Rows of the data (padding rows included)."""
+        return int(self.q.shape[0])
+
+    @property
+    def n_residuals(self) -> int:
+        """Residual entries of the data (padding rows included)."""
+        return self.n_samples * self.measurement.size
+
+    @property
+    def n_real(self):
+        """Real samples: ``n_samples`` (a Python int) without weights, else ``Σ weight`` (an array)."""
+        return self.n_samples if self.weight is None else jnp.sum(self.weight)
+
+    @property
+    def n_real_residuals(self):
+        """Real residual entries (``n_real · m``), what the means divide by."""
+        return self.n_residuals if self.weight is None else self.n_real * self.measurement.size
+
+    def observed(self) -> np.ndarray | None:
+        """``[n, m]`` bool: the real residual entries (:meth:`MeasurementModel.observed`; ``None``:
+        every entry of the data is real)."""
+        return self.measurement.observed(self.y)
+
+    @property
+    def n_observed_residuals(self) -> int:
+        """Residual entries that are real readings (:attr:`n_residuals` less the masked ones)."""
+        obs = self.observed()
+        return self.n_residuals if obs is None else int(obs.sum())
+
+    def mean_weights(self) -> Float[Array, " n"]:
+        """``[n]`` weights of the per-sample mean: ``1/n`` each, or ``weight / n_real``."""
+        if self.weight is None:
+            n = self.n_samples
+            return jnp.full((n,), 1.0 / n, self.dtype)
+        return self.weight / self.n_real
+
+    def weighted_blocks(self, r: Array) -> Array:
+        """Residual blocks ``[n, ...]`` with the padding rows zeroed (``r`` itself without weights)."""
+        if self.weight is None:
+            return r
+        return r * self.weight.reshape(-1, *([1] * (r.ndim - 1)))
+
+    @property
+    def dtype(self):
+        return self.q.dtype
+
+    def x0(self) -> Float[Array, " p"]:
+        """The free entries of ``base`` (zeros for the nominal start)."""
+        return self.space.to_vector(self.base)
+
+    def deviations(self, x: Float[Array, " p"]) -> Deviations:
+        """Full deviations for free-parameter vector ``x``."""
+        return self.space.from_vector(x, self.base)
+
+    def residual(self, x: Float[Array, " p"]) -> Float[Array, " n*m"]:
+        """``prediction − measured`` flattened to ``[n·m]`` (mm)."""
+        r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
+        return self.weighted_blocks(r).reshape(-1)
+
+    def sample_errors(self, x: Float[Array, " p"]) -> Float[Array, " n"]:
+        """Per-sample errors for the metrics (mm; 0 on padding rows)."""
+        r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
+        return self.weighted_blocks(self.measurement.sample_error(r))
+
+    def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
+        """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
+        return value_and_jacfwd(self.residual, x, self.q)[1]
+
+    def with_data(self, q, y, weight=None) -> Problem:
+        """Same models and parameters, other data (e.g. the test split)."""
+        return Problem(self.robot, self.measurement, q, y, self.space, self.base, weight)
+
+    def with_space(self, space: ParameterSpace) -> Problem:
+        return Problem(self.robot, self.measurement, self.q, self.y, space, self.base, self.weight)
+
+
+def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n m"]:
+    """``prediction − measured`` as ``[n, m]`` (mm) at free parameters ``x``, jitted (compiled once
+    per shape): the host-side checks, metrics and diagnostics call this instead of evaluating
+    the kinematics op by op."""
+    return problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
+
+
+residual_blocks = LeanJit(residual_blocks, maxsize=16)
+
+
+def signed_residuals(problem: Problem, x) -> np.ndarray:
+    """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
+    robust scales and outlier scans."""
+    x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else to_device(x, problem.dtype)
+    n = problem.n_samples
+    if problem.weight is None and buckets_enabled() and bucket_size(n) != n:
+        # evaluated on the rows padded to their shape bucket (one program per bucket), the
+        # padding cut off on the host
+        n_to = bucket_size(n)
+        q, y, _ = pad_rows(problem.q, problem.y, n_to)
+        padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, problem.space, problem.base)
+        return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, x))[:n])
+    return residual_blocks_numpy(problem, residual_blocks(problem, x))
+
+
+def observed_entries(problem: Problem, r) -> np.ndarray:
+    """The residual entries of ``r`` (:func:`signed_residuals` blocks ``[n, m]``) that are real
+    readings (:meth:`Problem.observed`), flat; ``r`` itself when every entry is."""
+    obs = problem.observed()
+    return r if obs is None else np.asarray(r)[obs[:, : np.shape(r)[1]]]
+
+
+def residual_blocks_numpy(problem: Problem, r) -> np.ndarray:
+    """Residual blocks ``[n, m]`` as the NumPy entries :func:`signed_residuals` returns (float64;
+    the position part ``[n, 3]`` of a pose)."""
+    r = np.asarray(r, np.float64)
+    return r[:, :3] if problem.measurement.kind == "pose" else r
+
+
+@jax.jit
+def sample_errors_at(problem: Problem, x: Float[Array, " p"]) -> Float[Array, " n"]:
+    """Per-sample errors (mm) at free parameters ``x``, jitted (see :func:`residual_blocks`)."""
+    return problem.sample_errors(x)
+
+
+@jax.jit
+def predict_jit(measurement, robot, deviations, q):
+    """``measurement.predict(robot, deviations, q)``, jitted for host-side callers (compiled once
+    per shape; executed op by op, the kinematics run as hundreds of small XLA programs, each
+    compiled once per process)."""
+    return measurement.predict(robot, deviations, q)

@@ -1,0 +1,1 @@
+"""Robot models: DH robots, non-geometric errors, batched kinematics, serial chains, URDF."""

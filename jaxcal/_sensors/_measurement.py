@@ -1,0 +1,350 @@
+"""Measurement models: what a sensor reads for given joint angles and parameters.
+
+Each model is a small pytree with ``predict`` (the sensor reading), ``residual``
+(``prediction − measured``, ``[n, m]``) and ``sample_error`` (one error per sample for the
+RMSE/MEAN/MAX metrics). :func:`residuals` flattens any of them to the ``[n·m]`` vector that
+least-squares solvers and gradient methods work on.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._core._params import Deviations, Group
+from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
+from .._models._robot import DHRobot
+
+__all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
+
+
+class MeasurementModel(eqx.Module):
+    """Abstract base of measurement models (an ``eqx.Module``: a pytree)."""
+
+    #: short name used in data files and on the command line.
+    kind: ClassVar[str]
+    #: residual entries per sample (``m``).
+    size: ClassVar[int]
+    #: measurement shape per sample (``()`` for a scalar).
+    sample_shape: ClassVar[tuple[int, ...]]
+
+    @abc.abstractmethod
+    def predict(self, robot: DHRobot, deviations: Deviations | None, q: Float[Array, "n dof"]):
+        """Predicted reading for joint angles ``q`` ``[n, dof]`` (rad)."""
+
+    def residual(self, robot, deviations, q, y) -> Float[Array, "n m"]:
+        """``prediction − measured`` as ``[n, m]`` (mm)."""
+        return (self.predict(robot, deviations, q) - y).reshape(q.shape[0], self.size)
+
+    def pad_rows(self, n: int, n_to: int) -> MeasurementModel:
+        """The model for data of ``n`` rows padded to ``n_to`` rows that repeat row 0
+        (:mod:`jaxcal._core._buckets`): itself, unless the model holds per-row arrays (e.g.
+        :class:`~jaxcal.SessionMarkers`' frame and placement of every row)."""
+        del n, n_to
+        return self
+
+    @property
+    def jacobian_free_of_data(self) -> bool:
+        """Whether ``∂residual/∂Δ`` does not depend on the measured ``y`` (the residual is
+        ``prediction − measured``, as here; a pose's orientation residual is not): an
+        identification Jacobian computed for other readings then serves these too."""
+        return type(self).residual is MeasurementModel.residual
+
+    def observed(self, y) -> np.ndarray | None:
+        """``[n, m]`` bool on the host: the residual entries that are real readings, or ``None``
+        (every entry is). A model that masks missing readings (:class:`~jaxcal.SessionMarkers`:
+        a missing marker) says which here, so that every statistic (σ̂, the robust and outlier
+        scales, the residual count) counts only real ones."""
+        del y
+        return None
+
+    def sample_error(self, residual: Float[Array, "n m"]) -> Float[Array, " n"]:
+        """One signed (m = 1) or non-negative (m > 1, Euclidean norm) error per sample (mm)."""
+        if self.size == 1:
+            return residual[:, 0]
+        return jnp.linalg.norm(residual, axis=-1)
+
+    def check_measurements(self, y, n: int) -> None:
+        """Raise ``ValueError`` unless ``y`` has shape ``[n, *sample_shape]`` and is finite."""
+        shape = tuple(np.shape(y))
+        want = (n, *self.sample_shape)
+        if shape != want:
+            raise ValueError(
+                f"{self.kind} measurements must have shape {list(want)} for {n} samples, got {list(shape)}"
+            )
+        if not np.all(np.isfinite(np.asarray(y))):
+            bad = np.flatnonzero(~np.isfinite(np.asarray(y)).reshape(n, -1).all(axis=1))
+            raise ValueError(f"{self.kind} measurements contain NaN/inf at samples {bad[:10].tolist()}")
+
+
+class CableLength(MeasurementModel):
+    """Draw-wire (cable-extension) sensor: length from a fixed anchor to the tool point.
+
+    ``L = ‖p_tool(q) − (anchor + Δanchor)‖ + cable_offset``: the paper's sensor. The anchor
+    (wire exit point, base frame), the tool point where the wire attaches (flange frame) and
+    the cable's zero offset can be estimated as extras through :class:`~jaxcal.Deviations`.
+
+    Attributes:
+        anchor: ``[3]`` nominal anchor position in the base frame (mm).
+    """
+
+    anchor: Float[Array, " 3"]
+    kind: ClassVar[str] = "cable"
+    size: ClassVar[int] = 1
+    sample_shape: ClassVar[tuple[int, ...]] = ()
+
+    def __init__(self, anchor):
+        anchor = jnp.asarray(anchor)
+        if anchor.shape != (3,):
+            raise ValueError(f"anchor must be a [3] position in mm, got shape {anchor.shape}")
+        self.anchor = anchor
+
+    def predict(self, robot, deviations, q) -> Float[Array, " n"]:
+        """Wire lengths ``[n]`` (mm)."""
+        q = check_joint_angles(robot, q)
+        p = tool_point_soa(robot, deviations, q, scalar_consumer=True)
+        anchor = self.anchor.astype(q.dtype)
+        offset = jnp.zeros((), q.dtype)
+        if deviations is not None:
+            anchor = anchor + deviations.anchor.astype(q.dtype)
+            offset = deviations.cable_offset.astype(q.dtype)
+        sq = sum((p[k] - anchor[k]) ** 2 for k in range(3))
+        return jnp.sqrt(sq) + offset
+
+
+def _sensor_frame(model, deviations, dtype):
+    """``(R [3,3], t [3])`` of ``T_sensor_base``: the nominal frame of ``model`` corrected by the
+    ``base_rotation`` / ``base_translation`` deviations (``R = exp(δr)·R₀``, ``t = t₀ + δt``)."""
+    R = jnp.asarray(model.rotation).astype(dtype)
+    t = jnp.asarray(model.translation).astype(dtype)
+    if deviations is not None:
+        R = rotvec_to_matrix(jnp.asarray(deviations.base_rotation).astype(dtype)) @ R
+        t = t + jnp.asarray(deviations.base_translation).astype(dtype)
+    return R, t
+
+
+def _check_frame(rotation, translation):
+    R = jnp.eye(3) if rotation is None else jnp.asarray(rotation)
+    t = jnp.zeros(3) if translation is None else jnp.asarray(translation)
+    if R.shape != (3, 3):
+        raise ValueError(f"rotation must be a [3, 3] rotation matrix (sensor <- base), got shape {R.shape}")
+    if t.shape != (3,):
+        raise ValueError(f"translation must be a [3] vector in mm, got shape {t.shape}")
+    Rn = np.asarray(R, dtype=np.float64)
+    if not (np.allclose(Rn.T @ Rn, np.eye(3), atol=1e-6) and np.linalg.det(Rn) > 0):
+        raise ValueError("rotation must be a proper rotation matrix (RᵀR = I, det R = +1)")
+    return R, t
+
+
+class Position(MeasurementModel):
+    """3-D position of the tool point measured in the sensor's frame (e.g. a laser tracker),
+    ``[n, 3]`` mm: ``y = R·p_base(q) + t`` with ``(R, t) = T_sensor_base``.
+
+    A tracker never measures in the robot's base frame: give the nominal sensor-to-base frame
+    here (default: identity, i.e. data already in the base frame) and estimate its correction
+    with the ``base`` extras (``base_rx…base_z``; :func:`jaxcal.initial_extras` finds a start
+    by Kabsch/Horn on nominal FK).
+
+    Attributes:
+        rotation: ``[3, 3]`` nominal ``R_sensor_base``.
+        translation: ``[3]`` nominal base origin in the sensor frame (mm).
+    """
+
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, " 3"]
+    kind: ClassVar[str] = "position"
+    size: ClassVar[int] = 3
+    sample_shape: ClassVar[tuple[int, ...]] = (3,)
+
+    def __init__(self, rotation=None, translation=None):
+        self.rotation, self.translation = _check_frame(rotation, translation)
+
+    def predict(self, robot, deviations, q) -> Float[Array, "n 3"]:
+        q = check_joint_angles(robot, q)
+        p = tool_point_soa(robot, deviations, q)
+        R, t = _sensor_frame(self, deviations, q.dtype)
+        return jnp.stack([R[k, 0] * p[0] + R[k, 1] * p[1] + R[k, 2] * p[2] + t[k] for k in range(3)], axis=-1)
+
+
+class Pose(MeasurementModel):
+    """Full pose ``T_sensor_tool = T_sensor_base·T_base_tool`` ``[n, 4, 4]`` (flange orientation,
+    origin at the tool point); ``T_sensor_base`` as in :class:`Position` (default identity).
+
+    The residual per sample is ``[Δp (mm, 3), orientation_scale · δθ (3)]`` with
+    ``δθ = ½ vee(R_mᵀR_p − R_pᵀR_m)`` the small-angle rotation error (rad): ``orientation_scale``
+    (mm/rad) sets how many mm of position error one radian of orientation error is worth.
+    ``sample_error`` is the position error norm (mm).
+    """
+
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, " 3"]
+    orientation_scale: float = eqx.field(static=True, default=1000.0)
+    kind: ClassVar[str] = "pose"
+    size: ClassVar[int] = 6
+    sample_shape: ClassVar[tuple[int, ...]] = (4, 4)
+
+    def __init__(self, orientation_scale: float = 1000.0, rotation=None, translation=None):
+        self.orientation_scale = float(orientation_scale)
+        self.rotation, self.translation = _check_frame(rotation, translation)
+
+    def predict(self, robot, deviations, q) -> Float[Array, "n 4 4"]:
+        from .._models._kinematics import fk_pose
+
+        q = check_joint_angles(robot, q)
+        T = fk_pose(robot, q, deviations, tool=True)
+        R, t = _sensor_frame(self, deviations, T.dtype)
+        top = jnp.concatenate([R @ T[..., :3, :3], (T[..., :3, 3] @ R.T + t)[..., None]], axis=-1)
+        return jnp.concatenate([top, T[..., 3:, :]], axis=-2)
+
+    def residual(self, robot, deviations, q, y) -> Float[Array, "n 6"]:
+        q = check_joint_angles(robot, q)
+        frame = _chain(robot, deviations, q)
+        p = jnp.stack(_tool_offset(robot, deviations, frame, q.dtype), axis=-1)
+        Rp = jnp.stack([jnp.stack(c, -1) for c in frame[:3]], axis=-1)  # [n,3,3]
+        R, t = _sensor_frame(self, deviations, q.dtype)
+        # residual in the sensor frame: position R·p + t − p_m; orientation of R·R_p vs R_m
+        p = p @ R.T + t
+        Rp = jnp.einsum("ij,njk->nik", R, Rp)
+        Rm, pm = y[:, :3, :3], y[:, :3, 3]
+        E = jnp.einsum("nji,njk->nik", Rm, Rp)  # R_mᵀ R_p
+        w = 0.5 * jnp.stack([E[:, 2, 1] - E[:, 1, 2], E[:, 0, 2] - E[:, 2, 0], E[:, 1, 0] - E[:, 0, 1]], -1)
+        return jnp.concatenate([p - pm, self.orientation_scale * w], axis=-1)
+
+    def sample_error(self, residual):
+        return jnp.linalg.norm(residual[:, :3], axis=-1)
+
+
+def marker_group(k: int) -> Group:
+    """The extra group ``marker_k`` (``k`` = 1..N): the deviation of marker ``k``'s position from
+    its nominal position in the flange frame, entries ``marker_k_x/y/z`` (mm)."""
+    return Group.vector(f"marker_{k}", (f"marker_{k}_x", f"marker_{k}_y", f"marker_{k}_z"), "mm")
+
+
+class MarkerModel(MeasurementModel):
+    """Shared by the marker models (:class:`Markers`, :class:`~jaxcal.SessionMarkers`): ``N``
+    markers per sample, readings ``[n, N, 3]`` mm, residual ``[n, 3N]``; the sample error is the
+    RMS over the sample's markers of the 3-D distance error (mm)."""
+
+    @property
+    @abc.abstractmethod
+    def n_markers(self) -> int:
+        """Markers per sample."""
+
+    @property
+    def size(self) -> int:  # type: ignore[override]
+        return 3 * self.n_markers
+
+    @property
+    def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
+        return (self.n_markers, 3)
+
+    def sample_error(self, residual) -> Float[Array, " n"]:
+        r = residual.reshape(residual.shape[0], self.n_markers, 3)
+        return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
+
+
+class Markers(MarkerModel):
+    """Positions of ``N`` markers fixed on the end effector, seen by a motion-capture system or a
+    laser tracker, ``[n, N, 3]`` mm in the sensor's frame:
+    ``y_ik = R·(P_i + F_i·m_k) + t`` with ``(P_i, F_i)`` the flange origin and orientation in the
+    base frame, ``m_k`` marker ``k``'s position in the flange frame and ``(R, t) = T_sensor_base``
+    (as in :class:`Position`; its correction is the ``base`` extras).
+
+    With ``known=False`` (default) every marker position is calibrated: the model adds the extra
+    groups ``marker_1 … marker_N`` (``marker_k_x/y/z``, mm, deviations from ``positions_mm``),
+    free by default; :func:`jaxcal.initial_extras` starts them (and the sensor frame) in closed
+    form. With ``known=True`` the layout is taken as exact and the model adds no groups. The
+    robot's tool point (``tool`` extras) is not used: the markers are the tool.
+
+    The residual per sample is ``[n, 3N]`` (marker 1's x, y, z, marker 2's ...) mm;
+    ``sample_error`` is the RMS over the sample's markers of the per-marker distance error,
+    ``sqrt(mean_k ‖ŷ_ik − y_ik‖²)`` (mm), so the RMSE over samples is the RMS distance error
+    over every marker reading.
+
+    Attributes:
+        positions: ``[N, 3]`` nominal marker positions in the flange (tool) frame (mm).
+        rotation: ``[3, 3]`` nominal ``R_sensor_base``; translation: ``[3]`` mm.
+        known: whether the marker positions are exact (static).
+    """
+
+    positions: Float[Array, "N 3"]
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, " 3"]
+    known: bool = eqx.field(static=True, default=False)
+    kind: ClassVar[str] = "markers"
+
+    def __init__(self, positions_mm, known: bool = False, rotation=None, translation=None):
+        pos = jnp.asarray(positions_mm)
+        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] < 1:
+            raise ValueError(f"positions_mm must be [N, 3] marker positions in the flange frame (mm), N >= 1; "
+                             f"got shape {tuple(pos.shape)}")
+        if not np.all(np.isfinite(np.asarray(pos))):
+            raise ValueError("positions_mm contain NaN/inf")
+        if not jnp.issubdtype(pos.dtype, jnp.floating):
+            pos = pos.astype(jnp.result_type(float))
+        self.positions = pos
+        self.known = bool(known)
+        self.rotation, self.translation = _check_frame(rotation, translation)
+
+    @property
+    def n_markers(self) -> int:
+        return int(self.positions.shape[0])
+
+    def check_measurements(self, y, n: int) -> None:
+        """``[n, N, 3]`` and finite: a missing marker (NaN) is masked by
+        :class:`~jaxcal.SessionMarkers` (data with session labels), not by this model."""
+        if np.shape(y) == (n, *self.sample_shape) and np.isnan(np.asarray(y)).any():
+            rows = np.flatnonzero(np.isnan(np.asarray(y)).reshape(n, -1).any(axis=1))
+            raise ValueError(f"markers measurements have missing markers (NaN) at samples {rows[:10].tolist()}: "
+                             "Markers needs every marker in every row; SessionMarkers (data with a session/"
+                             "placement label) masks missing markers")
+        super().check_measurements(y, n)
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``marker_1 … marker_N`` unless the positions are known."""
+        return () if self.known else tuple(marker_group(k + 1) for k in range(self.n_markers))
+
+    def marker_points(self, deviations: Deviations | None, dtype=None) -> Float[Array, "N 3"]:
+        """Marker positions in the flange frame, nominal + the ``marker_k`` deviations (mm)."""
+        m = self.positions if dtype is None else self.positions.astype(dtype)
+        if deviations is None or self.known:
+            return m
+        vals = deviations.values
+        rows = [m[k] + jnp.asarray(vals[f"marker_{k + 1}"]).astype(m.dtype) if f"marker_{k + 1}" in vals else m[k]
+                for k in range(self.n_markers)]
+        return jnp.stack(rows)
+
+    def predict(self, robot, deviations, q) -> Float[Array, "n N 3"]:
+        """Marker positions ``[n, N, 3]`` in the sensor frame (mm)."""
+        q = check_joint_angles(robot, q)
+        X, Y, Z, P = _chain(robot, deviations, q)
+        m = self.marker_points(deviations, q.dtype)
+        R, t = _sensor_frame(self, deviations, q.dtype)
+        base = [jnp.stack([P[c] + m[k, 0] * X[c] + m[k, 1] * Y[c] + m[k, 2] * Z[c] for c in range(3)], -1)
+                for k in range(self.n_markers)]  # N × [n, 3], base frame
+        return jnp.stack([p @ R.T + t for p in base], axis=1)
+
+
+def predict(measurement: MeasurementModel, robot: DHRobot, deviations: Deviations | None, q):
+    """The sensor reading ``measurement`` predicts (same as ``measurement.predict``)."""
+    return measurement.predict(robot, deviations, q)
+
+
+def residuals(
+    measurement: MeasurementModel,
+    robot: DHRobot,
+    deviations: Deviations | None,
+    q: Float[Array, "n dof"],
+    y,
+) -> Float[Array, " n*m"]:
+    """Flat residual vector ``prediction − measured``, ``[n·m]`` (mm).
+
+    Pure and jittable; ``jax.jacfwd`` of this w.r.t. the free parameters is the
+    identification Jacobian (the paper's ``U`` in eq. 5).
+    """
+    return measurement.residual(robot, deviations, q, y).reshape(-1)

@@ -1,0 +1,1 @@
+"""Simulated experiments: the paper's, messy real-like sessions, sensor data."""

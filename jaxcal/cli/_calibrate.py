@@ -1,0 +1,681 @@
+"""``jaxcal calibrate``.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import pathlib
+import sys
+import time
+import types
+import warnings
+
+from ._common import _EXIT_FAILED, _floats, _measurement, _robot, _sphere_model, _Usage
+
+__all__ = ["FLEET_KINDS"]
+
+
+_T0 = time.perf_counter()  # process start-up (as near as the CLI can tell)
+
+
+def _hyper(items: list[str] | None) -> dict:
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise _Usage(f"--set expects NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        try:
+            out[k.strip()] = ast.literal_eval(v.strip())
+        except (ValueError, SyntaxError):
+            out[k.strip()] = v.strip()
+    return out
+
+
+def _camera_measurement(args, data, path):
+    """The :class:`~jaxcal.Camera` of ``jaxcal calibrate --measurement camera`` from ``--target``,
+    ``--camera``, ``--mount`` (or the data file's ``# target:``, ``# camera_intrinsics:``,
+    ``# mount:`` lines), hand-eye and target pose unknown (started from the data)."""
+    from .._sensors._camera import Camera, load_target
+
+    meta = data.meta
+    target = args.target or meta.get("target")
+    if not target:
+        raise _Usage("--measurement camera needs the target layout: --target checkerboard:COLSxROWS:SQUARE_MM or "
+                     "--target FILE.csv (x_mm,y_mm,z_mm per point), or a '# target: …' line in the data file")
+    try:
+        points = load_target(target, base_dir=pathlib.Path(path).parent)
+    except (ValueError, OSError) as e:
+        raise _Usage(f"--target: {e}") from None
+    if points.shape[0] != data.y.shape[1]:
+        raise _Usage(f"the target has {points.shape[0]} points but {path} has image columns for {data.y.shape[1]} "
+                     "(u_k_px, v_k_px)")
+    spec = args.camera or meta.get("camera_intrinsics")
+    if not spec:
+        raise _Usage("--measurement camera needs the camera's intrinsics: --camera fx,fy,cx,cy[,k1,k2,p1,p2[,k3]] "
+                     "(px; OpenCV's camera matrix and distortion) or a '# camera_intrinsics: …' line")
+    parts = [p for p in spec.replace(";", ",").split(",") if p.strip()]
+    intr = _floats(spec, len(parts), "--camera") if len(parts) in (4, 8, 9) else None
+    if intr is None:
+        raise _Usage(f"--camera takes 4, 8 or 9 numbers fx,fy,cx,cy[,k1,k2,p1,p2[,k3]], got {spec!r}")
+    mount = (args.mount or meta.get("mount") or "eye_in_hand").replace("-", "_").lower()
+    size = meta.get("image_size_px")
+    size = tuple(int(v) for v in _floats(size, 2, "the file's image_size_px")) if size else None
+    try:
+        return Camera(points, intr, mount, image_size=size, calibrate_intrinsics="intrinsics" in
+                      {e.strip().lower() for e in (args.estimate or "").split(",")})
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+
+
+def _metrics_rows(pairs):
+    return [[name, m.rmse, m.mean, m.max] for name, m in pairs]
+
+
+def _seed_split(seed: int, n: int, test_fraction: float):
+    """``(k_method, train_idx, test_idx)``: ``k_split, k_method = jax.random.split(jax.random.key(seed))``
+    and the row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test
+    parts drawn with ``k_split``, as one compiled program (op by op it was five, each loaded from
+    the compilation cache at every start)."""
+    import numpy as np
+
+    k_method, perm = _seed_split_program()(seed, n)
+    perm = np.asarray(perm)
+    n_test = int(round(n * test_fraction))
+    return k_method, perm[n_test:], perm[:n_test]
+
+
+def _seed_split_program():
+    import functools
+
+    import jax
+
+    @functools.partial(jax.jit, static_argnums=1)
+    def program(seed, n):
+        k_split, k_method = jax.random.split(jax.random.key(seed))
+        return k_method, jax.random.permutation(k_split, n)
+
+    global _seed_split_program
+    _seed_split_program = lambda: program  # noqa: E731  (built once, on first use: jax imported lazily)
+    return program
+
+
+def _rows(text: str | None) -> list[int]:
+    if not text:
+        return []
+    out = []
+    for part in text.replace(";", ",").split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                a, b = (int(v) for v in part.split("-", 1))
+                out += list(range(a, b + 1))
+            else:
+                out.append(int(part))
+        except ValueError:
+            raise _Usage(f"--exclude-rows takes data row numbers (1-based) and ranges like 5-9, got {part!r}") from None
+    return out
+
+
+def _fmt_value(v: float, sd: float | None, unit: str) -> str:
+    if sd is None:
+        return f"{v:+.4f}"
+    return f"{v:+.4f} ± {sd:.2g}" if sd < float("inf") else f"{v:+.4f} ± ∞"
+
+
+def _print_dh_table(robot, res, sd) -> None:
+    from .._core._metrics import format_table
+    from .._fit._diagnostics import wrap_angle_deg
+
+    nominal = robot.dh_table_deg()
+    cal = res.dh_table()
+    by_prior = _set_by_prior(res)
+    trows = []
+    for j in range(robot.dof):
+        cells = [str(j + 1)]
+        for g, col in (("alpha", 0), ("a", 1), ("d", 2), ("theta", 3)):
+            name = f"{g}_{j + 1}"
+            delta = cal[j, col] - nominal[j, col]
+            if col in (0, 3):
+                delta = float(wrap_angle_deg(delta))
+            if name in sd:
+                mark = "†" if name in by_prior else ""
+                cells.append(f"{cal[j, col]:.4f}{mark} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
+            else:
+                cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
+        trows.append(cells)
+    print()
+    print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
+                       title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
+                             + _TABLE_MARKS))
+
+
+#: the legend of the parameter tables' marks
+_TABLE_MARKS = ("† set by the prior rather than the data (posterior σ above half the prior σ); "
+                "* not calibrated: held at its start value (not identifiable without a prior, or fixed)")
+
+
+def _set_by_prior(res) -> set:
+    """Free parameters whose posterior σ is above ``Checks.weak_fraction`` of their prior σ."""
+    if res.prior is None or res.diagnostics is None:
+        return set()
+    return set(res.diagnostics.weak_parameters)
+
+
+def _print_chain_table(robot, res, sd) -> None:
+    """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
+    (mm), drx, dry, drz (°), and a last row with the tip transform's tip_dx … tip_drz; ± one
+    posterior σ; * = not calibrated (not identifiable or fixed)."""
+    from .._core._metrics import format_table
+    from .._models._chain import GEOMETRIC_GROUPS, TIP_GROUPS, correction_entries
+
+    free = set(res.space.free_names)
+    value = {n: v for n, v, _ in correction_entries(robot, res.deviations)}
+
+    by_prior = _set_by_prior(res)
+
+    def cell(name):
+        if name not in value:  # drz at a revolute joint: the joint offset
+            return ""
+        if name not in free:
+            return f"{value[name]:+.4f}*"
+        return _fmt_value(value[name], sd.get(name, (None,))[0], "") + ("†" if name in by_prior else "")
+
+    rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
+            for j in range(robot.dof)]
+    rows.append([f"tip → {robot.tip}", ""] + [cell(n) for _, names, _ in TIP_GROUPS for n in names])
+    print()
+    print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
+                       title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "
+                             f"posterior standard deviation; {_TABLE_MARKS}; `jaxcal export` writes the corrected URDF)"))
+
+
+def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
+    """``robot`` with the non-geometric error models of ``--compliance`` / ``--harmonics``."""
+    try:
+        if compliance:
+            spec = compliance.strip()
+            if spec.lower() != "default" and not pathlib.Path(spec).exists():
+                raise _Usage(f"--compliance: mass model file {spec!r} not found (or 'default')")
+            robot = robot.with_compliance(None if spec.lower() == "default" else spec)
+        if harmonics:
+            spec, orders = harmonics.strip().lower(), (1, 2)
+            if ":" in spec:
+                spec, o = spec.split(":", 1)
+                orders = tuple(int(x) for x in o.split(",") if x.strip())
+            joints = None if spec in ("", "all") else [int(j) for j in spec.split(",") if j.strip()]
+            robot = robot.with_harmonics(joints, orders=orders)
+    except (ValueError, OSError) as e:
+        raise _Usage(f"--compliance/--harmonics: {e}") from None
+    return robot
+
+
+def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespace:
+    """What `jaxcal calibrate` builds from its arguments and one data file before fitting: the robot,
+    the loaded data, the measurement model, the extras to estimate, the objective, the checks and the
+    method's settings (raises :class:`_Usage` on bad input)."""
+    from .._calibration._evaluate import MEASURED_DEFAULTS
+    from .._datasets._dataset import load_csv
+    from .._fit._diagnostics import Checks
+    from .._fit._objective import LOSSES, Prior
+
+    robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
+    path = pathlib.Path(data_file)
+    if not path.exists():
+        raise _Usage(f"data file {data_file!r} not found")
+    if args.markers is not None and args.measurement != "markers":
+        raise _Usage("--markers applies to --measurement markers only")
+    if args.markers is not None and args.markers < 1:
+        raise _Usage(f"--markers must be at least 1, got {args.markers}")
+    try:
+        data = load_csv(path, kind=args.measurement, n_markers=args.markers)
+    except ValueError as e:
+        if args.measurement != "markers":
+            raise
+        raise _Usage(str(e)) from None
+    if data.dof != robot.dof:
+        raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+    if data.labels and args.test:
+        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
+                     "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
+    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
+    estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
+    notes = []
+    if args.measurement == "camera":
+        if estimate - {"intrinsics"}:
+            raise _Usage(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the target "
+                         f"pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
+        estimate = set()  # intrinsics: a group of the camera model (--estimate read again below)
+    if args.measurement == "distance":
+        if "base" in estimate:
+            raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append("distance data: the tool point is estimated (from its nominal value); distances never see "
+                         "the robot's base frame (d_1, theta_1 and the base's position and orientation stay at "
+                         "nominal or are set by the prior)")
+    sphere = args.measurement == "point" and (args.radius_mm is not None or "radius" in estimate
+                                              or "radius_mm" in data.meta)
+    radius_mm = args.radius_mm
+    if sphere and radius_mm is None and "radius_mm" in data.meta:
+        radius_mm = _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0]
+    estimate_radius = "radius" in estimate
+    estimate.discard("radius")
+    if (args.radius_mm is not None or estimate_radius) and args.measurement != "point":
+        raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
+    if sphere:
+        notes.append("point data as spheres: residual = distance to the centre minus the radius, "
+                     + ("radius unknown: estimated per point (sphere fit to the data, then the joint fit)"
+                        if estimate_radius else f"radius {radius_mm:g} mm (known)"))
+    if args.measurement in ("plane", "point"):
+        if "base" in estimate:
+            raise _Usage(f"--estimate base does not apply to {args.measurement} data: the {args.measurement}s are "
+                         "in the robot base frame and carry any base-frame error")
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append(f"{args.measurement} data: the {args.measurement}s and the tool point are estimated "
+                         "(closed-form start from the data, then the joint fit); contact data have no length "
+                         "reference, so the prior (or a --fix'ed length) sets the robot's scale")
+    bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
+    if bad:
+        raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
+    if args.measurement != "cable" and estimate & {"anchor", "offset", "cable_offset"}:
+        raise _Usage("--estimate anchor/offset apply to --measurement cable only")
+    if args.measurement == "cable" and "base" in estimate:
+        raise _Usage("--estimate base applies to --measurement position only")
+    if anchor is None and args.measurement == "cable":
+        if "anchor_mm" in data.meta:
+            anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
+        else:
+            # nothing known about the anchor: estimate it (and the cable offset) from the data
+            estimate |= {"anchor", "offset"}
+            notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
+                         "from the data (multilateration on the nominal robot, then the joint fit)")
+    if args.measurement == "markers":
+        if "base" not in estimate and not data.labels:  # sessions: every session frame is always estimated
+            estimate.add("base")
+            notes.append("marker data: the motion-capture frame (base extras) and the marker positions on the flange "
+                         "are estimated (closed-form Kabsch start from the data, then the joint fit)")
+        if "tool" in estimate:
+            raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
+    if args.measurement == "camera":
+        from .._sensors._camera import masked_corners
+
+        measurement = _camera_measurement(args, data, path)
+        n_mask, n_all, n_img = masked_corners(data.y)
+        notes.append(f"camera ({measurement.mount}): hand-eye transform and target pose estimated (per-image PnP, "
+                     f"Park–Martin hand-eye, then the joint fit){'; intrinsics estimated' if measurement.calibrate_intrinsics else ''}; "
+                     f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "
+                     "(zero weight), not dropped")
+    elif data.labels:  # marker data of several sessions: SessionMarkers (one frame / placement per label)
+        from .._sensors._sessions import SessionMarkers, masked_markers
+
+        measurement = SessionMarkers.from_dataset(data)
+        n_miss, n_all, n_rows = masked_markers(data.y)
+        places = ", ".join(f"{p} ({len(k)})" for p, k in zip(measurement.placements, measurement.markers))
+        notes.append(f"{len(dict.fromkeys(s for s, _, _ in data.labels))} recording sessions: frames "
+                     f"{', '.join(measurement.frames)}; placements (markers) {places}; shared robot errors"
+                     + (f"; {n_miss} of {n_all} marker readings missing (empty cells) in {n_rows} row(s): masked "
+                        "(zero weight), not dropped" if n_miss else ""))
+    else:
+        measurement = _measurement(args.measurement, anchor, robot,
+                                   data.y.shape[1] if data.kind == "markers" else None, data=data)
+        if sphere:
+            measurement = _sphere_model("point", measurement, radius_mm, estimate_radius)
+    if args.test and args.test_fraction is not None:
+        raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
+    test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
+    if args.test:
+        test_fraction = 0.0
+    if not (0.0 <= test_fraction < 1.0):
+        raise _Usage(f"--test-fraction must be in [0, 1), got {test_fraction}")
+    loss = MEASURED_DEFAULTS["loss"] if args.loss is None else args.loss
+    if loss not in LOSSES:
+        raise _Usage(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    test_file = None
+    if args.test:
+        tpath = pathlib.Path(args.test)
+        if not tpath.exists():
+            raise _Usage(f"test file {args.test!r} not found")
+        test_file = load_csv(tpath, kind=data.kind, n_markers=data.y.shape[1] if data.kind == "markers" else None)
+        if test_file.dof != robot.dof:
+            raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+        if test_file.labels:
+            raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
+        if test_file.kind in ("plane", "point"):
+            from .._datasets._dataset import relabel
+
+            test_file = relabel(test_file, measurement.labels)
+    try:
+        prior = Prior.parse(args.prior)
+    except ValueError as e:
+        raise _Usage(f"--prior: {e}") from None
+    checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm)
+    hyper = _hyper(args.set)
+    from ..methods import method_settings
+
+    valid = method_settings(method)
+    if valid is not None and set(hyper) - set(valid):
+        raise _Usage(f"--set: unknown setting(s) {sorted(set(hyper) - set(valid))} for method {method}; "
+                     f"its settings: {', '.join(valid)}")
+    return types.SimpleNamespace(robot=robot, path=path, data=data, estimate=estimate, notes=notes,
+                                 measurement=measurement, test_fraction=test_fraction, loss=loss,
+                                 test_file=test_file, prior=prior, checks=checks, hyper=hyper)
+
+
+def _same_tree(a, b) -> bool:
+    """Two pytrees (measurement models) with the same structure and equal array leaves."""
+    import jax
+    import numpy as np
+
+    (la, ta), (lb, tb) = jax.tree_util.tree_flatten(a), jax.tree_util.tree_flatten(b)
+    return ta == tb and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
+
+
+#: measurement kinds `jaxcal calibrate` takes several files of (one sensor set-up per fleet)
+FLEET_KINDS = ("cable", "position", "pose")
+
+
+def _cmd_calibrate_fleet(args, method: str) -> int:
+    """`jaxcal calibrate a.csv b.csv ... --out-dir DIR`: every file one unit of the same robot model,
+    calibrated by :func:`jaxcal.calibrate_many` (the solves as one compiled program); one result
+    JSON per unit and the summary table (``summary.md``, ``summary.csv``) in ``DIR``."""
+    import numpy as np
+
+    from .._calibration._calibrate import CalibrationWarning
+    from .._calibration._fleet import calibrate_many
+    from .._calibration._io import save_result
+    from .._core._metrics import metrics_numpy
+
+    for given, flag in ((args.out, "--out"), (args.test, "--test"), (args.exclude_rows, "--exclude-rows"),
+                        (args.exclude_outliers, "--exclude-outliers")):
+        if given:
+            raise _Usage(f"{flag} applies to one data file; several files write one result each to --out-dir DIR")
+    if not args.out_dir:
+        raise _Usage("several data files: give --out-dir DIR (one RESULT.json per file and the summary table)")
+    if args.measurement not in FLEET_KINDS:
+        raise _Usage(f"several data files take --measurement {', '.join(FLEET_KINDS)}; calibrate "
+                     f"{args.measurement} data one file at a time")
+    setups = [_calibration_setup(args, method, f) for f in args.data]
+    first = setups[0]
+    for s in setups[1:]:
+        if not _same_tree(s.measurement, first.measurement) or s.estimate != first.estimate:
+            raise _Usage(f"{s.path} and {first.path} imply different sensor set-ups (the files' anchor_mm or "
+                         "columns differ); give --anchor (or --estimate anchor,offset), or calibrate them separately")
+    names = [s.path.stem for s in setups]
+    if len(set(names)) != len(names):
+        names = [str(s.path) for s in setups]
+    trains, tests = [], []
+    k_method = None
+    for s in setups:
+        k, train_idx, test_idx = _seed_split(args.seed, s.data.n, first.test_fraction)
+        k_method = k if k_method is None else k_method  # one key for every unit (same seed)
+        trains.append(s.data.subset(train_idx))
+        tests.append(s.data.subset(test_idx))
+    extras = sorted({"offset": "cable_offset"}.get(e, e) for e in first.estimate)
+    robot, measurement = first.robot, first.measurement
+    print(f"fleet: {len(setups)} units of robot {robot.name}, {measurement.kind} data, method {method}; "
+          f"{first.test_fraction:g} of each file held out (seed {args.seed})")
+    for n in first.notes:
+        print(f"note: {n}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationWarning)
+        try:
+            fleet = calibrate_many(robot, measurement, trains, method, names=names, key=k_method, extras=extras,
+                                   prior=first.prior, loss=first.loss, checks=first.checks, free=args.free,
+                                   fix=args.fix or (), tolerance_mm=args.tolerance_mm, noise_std=args.noise_std,
+                                   **first.hyper)
+        except TypeError as e:
+            raise _Usage(str(e)) from None
+    for w in caught:
+        if issubclass(w.category, CalibrationWarning):
+            print(f"jaxcal: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    out = pathlib.Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for s, name, res, train, test in zip(setups, names, fleet.results, trains, tests):
+        if res is None:
+            continue
+        metrics = {"train, after": res.train_metrics._asdict()}
+        if test.n:
+            metrics["test, after"] = metrics_numpy(np.asarray(res.sample_errors(test), np.float64))._asdict()
+        settings = {"data": str(s.path), "n_samples": s.data.n, "n_train": train.n, "n_test": test.n,
+                    "seed": args.seed, "test_fraction": first.test_fraction, "method": method, "estimate": extras,
+                    "hyperparameters": first.hyper, "prior": args.prior, "loss": first.loss, "fleet": names}
+        save_result(res, out / f"{pathlib.Path(name).stem}.json", settings=settings, metrics_mm=metrics)
+    table = fleet.summary.table()
+    print()
+    print(table)
+    (out / "summary.md").write_text(fleet.summary.table(markdown=True) + "\n", encoding="utf-8")
+    fleet.summary.to_csv(out / "summary.csv")
+    print(f"\nwrote {sum(r is not None for r in fleet.results)} result(s), summary.md and summary.csv to {out} "
+          f"(compilation {fleet.compile_time_s:.1f} s, batched solves {fleet.solve_time_s:.2f} s)")
+    if fleet.summary.flagged:
+        print(f"jaxcal: {len(fleet.summary.flagged)} unit(s) failed or out of tolerance: "
+              f"{', '.join(fleet.summary.flagged)}", file=sys.stderr)
+        return _EXIT_FAILED
+    return 0
+
+
+def _cmd_calibrate(args) -> int:
+    t_start = time.perf_counter()
+    import numpy as np
+
+    from .._calibration._calibrate import CalibrationWarning, calibrate
+    from .._calibration._evaluate import (
+        describe_objective,
+        evaluate_result,
+        joints_to_file_units,
+        nominal_with_extras,
+        sample_errors,
+    )
+    from .._calibration._io import save_result
+    from .._core._metrics import format_table, metrics_numpy
+    from .._core._params import Deviations, group_kind
+    from ..methods._stages import check_method_name
+
+    try:
+        method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+    if len(args.data) > 1 or args.out_dir:
+        return _cmd_calibrate_fleet(args, method)
+    setup = _calibration_setup(args, method, args.data[0])
+    robot, path, data, estimate, notes, measurement = (
+        setup.robot, setup.path, setup.data, setup.estimate, setup.notes, setup.measurement)
+    test_fraction, loss, test_file, prior, checks, hyper = (
+        setup.test_fraction, setup.loss, setup.test_file, setup.prior, setup.checks, setup.hyper)
+    excluded = sorted(set(_rows(args.exclude_rows)))
+    if excluded and (excluded[0] < 1 or excluded[-1] > data.n):
+        raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
+    kept_rows = np.setdiff1d(np.arange(data.n), np.asarray(excluded, int) - 1)
+    if excluded:
+        notes.append(f"excluded data rows (your choice): {', '.join(map(str, excluded))}")
+    data = data.subset(kept_rows)
+    k_method, train_idx, test_idx = _seed_split(args.seed, data.n, test_fraction)
+    if test_file is not None:  # a separate test file: every row trains, in file order
+        train_idx = np.arange(data.n)
+    train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
+    full = None
+    if hasattr(measurement, "frame_index"):  # SessionMarkers: a model per row set (train, test)
+        full = measurement.take(kept_rows)
+        lonely = sorted({lab for i in test_idx for lab in data.labels[i][1:]}
+                        - {lab for i in train_idx for lab in data.labels[i][1:]})
+        if lonely:
+            raise _Usage(f"frame/placement label(s) {lonely} have no training rows after the random split; give "
+                         "them more rows, --test-fraction 0, or hold the session out in Python (jaxcal.holdout_session)")
+        measurement = full.take(train_idx)
+    if train.n < 2:
+        raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
+    extras = sorted({"offset": "cable_offset"}.get(e, e) for e in estimate)
+    file_row = lambda i: int(kept_rows[train_idx[i]]) + 1  # noqa: E731  (1-based data row of a training row)
+
+    split = (f"{train.n} train / {test.n} test (seed {args.seed})" if test_file is None else
+             f"all {train.n} for training; test: {test.n} samples from {args.test}")
+    print(f"data: {data.n} {measurement.kind} samples from {path} → {split}; robot {robot.name}; method {method}")
+    for n in notes:
+        print(f"note: {n}")
+    objective_line = describe_objective(prior, loss)
+    print(objective_line)
+
+    def run(train_set):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            try:
+                res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
+                                loss=loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
+            except TypeError as e:
+                raise _Usage(str(e)) from None
+        for w in caught:
+            if not issubclass(w.category, CalibrationWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return res
+
+    t_loaded = time.perf_counter()
+    res = run(train)
+    t_fit = time.perf_counter()
+    if args.exclude_outliers and res.diagnostics.outliers_after:
+        drop = [file_row(i) for i in res.diagnostics.outliers_after]
+        print(f"--exclude-outliers: refitting without data rows {', '.join(map(str, drop))}")
+        keep = np.setdiff1d(np.arange(train.n), np.asarray(res.diagnostics.outliers_after))
+        train_idx = train_idx[keep]
+        train = data.subset(train_idx)
+        if full is not None:
+            measurement = full.take(train_idx)
+        res = run(train)
+    if res.identifiability is not None:
+        print(res.identifiability)
+    for line in res.diagnostics.reselection:
+        print(line)
+    if res.diagnostics.extras:
+        print(res.diagnostics.extras)
+
+    # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start)
+    dev_before = nominal_with_extras(res)
+    zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
+    estimated = any(group_kind(n) == "extra" for n in res.space.free_names)
+    per_row = {}
+
+    def part(name, ds, rows_1based, ev=None, m=measurement):
+        eb = ev.before_errors if ev is not None else sample_errors(robot, m, dev_before, ds)
+        ea = (ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64) if m is measurement
+              else sample_errors(robot, m, res.deviations, ds))
+        per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
+                         "before_mm": eb.tolist(), "after_mm": ea.tolist()}
+        out = []
+        if estimated:
+            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, m, zero, ds))))
+        return out + [(f"{name}, before", metrics_numpy(eb)),
+                      (f"{name}, after", metrics_numpy(ea))]
+
+    rows = part("train", train, [file_row(i) for i in range(train.n)])
+    evaluation = None
+    if test_file is not None:
+        evaluation = evaluate_result(res, test_file, extras="result" if args.keep_extras else "auto")
+        rows += part("test", test_file, list(range(1, test_file.n + 1)), evaluation)
+    elif test.n:
+        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx],
+                     m=measurement if full is None else full.take(test_idx))
+    print()
+    unit = getattr(measurement, "unit", "mm")  # px for camera data
+    print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
+                       title=f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
+                             f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
+    print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
+          + ("; raw nominal = the guessed extras, nothing estimated" if estimated else "")
+          + ("" if evaluation is None else f"\ntest file: {evaluation.message}"))
+    sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
+    if hasattr(robot, "dh_table_deg"):
+        _print_dh_table(robot, res, sd)
+    else:
+        _print_chain_table(robot, res, sd)
+    from .._core._params import group_kind
+
+    # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions
+    extra_names = [n for n in res.space.free_names if group_kind(n) == "extra"]
+    # asked for but held (no prior, and the data cannot tell them from another extra): at their start
+    from .._calibration._calibrate import SELECT_GROUPS
+    from .._core._params import group_of
+
+    asked = {g for e in extras for g in SELECT_GROUPS.get(e, ())}
+    frozen = [n for n in res.space.names if group_kind(n) == "extra" and group_of(n) in asked
+              and n not in res.space.free_names]
+    if extra_names or frozen:
+        dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
+        units = dict(zip(res.space.names, res.space.units))
+        parts = []
+        for n in extra_names + frozen:
+            unit = "°" if units[n] == "rad" else units[n]
+            v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
+            s_ = sd.get(n, (None,))[0]
+            parts.append(f"{n} {_fmt_value(v, s_, unit)}{'*' if n in frozen else ''} {unit}")
+        print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ"
+              + ("; * held at its start value: without a prior the data cannot tell it from another extra"
+                 if frozen else "")
+              + "): " + ", ".join(parts))
+
+    ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
+    if ng_names:
+        dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+        units = dict(zip(res.space.names, res.space.units))
+        parts = []
+        for n in ng_names:
+            s_ = sd.get(n, (None,))[0]
+            if units[n] == "rad":
+                parts.append(f"{n} {_fmt_value(math.degrees(dev[n]), s_, '°')}°")
+            else:  # compliance: µrad/(N·m)
+                parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
+        print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
+    if res.uncertainty is not None:
+        print(f"residual σ̂ {res.uncertainty.noise_std:.4f} {unit}, effective parameters "
+              f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}"
+              + (" (data and prior together)" if res.prior is not None else ""))
+    diag = res.diagnostics
+    if diag.outliers_after:
+        listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
+        print(f"outliers after the fit (> {checks.outlier_k:g} robust σ = {diag.outlier_scale_mm:.3g} mm): data rows "
+              f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
+              + ("" if args.exclude_outliers else
+                 " (kept, down-weighted by the robust loss; --exclude-outliers drops them)" if args.loss != "linear" else
+                 " (kept; --exclude-outliers or --loss huber to guard against them)"))
+    for w in res.warnings:
+        if diag.outliers_after and "outlier sample(s)" in w:
+            w = (f"{len(diag.outliers_after)} outlier sample(s) at data rows "
+                 f"{', '.join(str(file_row(i)) for i in diag.outliers_after[:20])} (see above)")
+        print(f"jaxcal: warning: {w}", file=sys.stderr)
+    if args.out:
+        settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
+                    "seed": args.seed, "test_fraction": test_fraction, "test_file": args.test, "method": method,
+                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": loss,
+                    "objective": objective_line,
+                    "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
+                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
+        info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
+                                "message": evaluation.message}} if evaluation is not None else {}
+        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
+                    rows=per_row, **info)
+        print(f"\nwrote {args.out}")
+    if args.verbose:
+        t_end = time.perf_counter()
+        print(f"\ntimes: reading and checking the data {t_loaded - t_start:.2f} s, "
+              f"calibrate() {t_fit - t_loaded:.2f} s (compilation {res.compile_time_s:.2f} s, solve {res.wall_time_s:.3f} s, "
+              f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
+              f"total {t_end - _T0:.2f} s since jaxcal was imported (Python + JAX start-up come before: ~1 s)")
+    if not res.ok:
+        print(f"jaxcal: calibration failed: {res.message}", file=sys.stderr)
+        return _EXIT_FAILED
+    if not res.plausible and not args.accept_implausible:
+        hint = ""
+        if measurement.kind == "cable" and not {"anchor", "cable_offset"} <= set(extras):
+            hint = ("; the anchor and cable offset were taken as known — if they are not exact, estimate them "
+                    "(--estimate anchor,offset), or the robot's parameters absorb their error")
+        elif measurement.kind in ("position", "pose") and "base" not in extras:
+            hint = ("; the sensor frame was taken as known — if it is not exact, estimate it (--estimate base), "
+                    "or the robot's parameters absorb its error")
+        print("jaxcal: calibration implausible (see the warning above); exit status 1 — use "
+              f"--accept-implausible to accept it, or a stronger --prior{hint}", file=sys.stderr)
+        return _EXIT_FAILED
+    return 0

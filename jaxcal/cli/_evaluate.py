@@ -1,0 +1,65 @@
+"""``jaxcal evaluate``.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import sys
+
+from ._common import _EXIT_FAILED, _Usage
+
+__all__ = ["EVALUATION_FORMAT"]
+
+
+#: ``"format"`` of the files ``jaxcal evaluate --out`` writes.
+EVALUATION_FORMAT = "jaxcal-evaluation/1"
+
+
+def _cmd_evaluate(args) -> int:
+    """A saved calibration on new measurements: before/after, per-row errors, outliers (issue 24)."""
+    import json
+
+    from .._calibration._evaluate import evaluate_result
+    from .._calibration._io import load_result, load_result_dict, measurement_to_dict, robot_to_dict
+    from .._core._json import to_jsonable
+    from .._datasets._dataset import load_csv
+
+    src, path = pathlib.Path(args.result), pathlib.Path(args.data)
+    if not src.exists():
+        raise _Usage(f"result file {args.result!r} not found")
+    if not path.exists():
+        raise _Usage(f"data file {args.data!r} not found")
+    raw = load_result_dict(src)
+    res = load_result(src)
+    m = res.measurement
+    sessions = hasattr(m, "frame_index")  # a SessionMarkers result: the file's own sessions and marker count
+    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" and not sessions
+                    else None)
+    if data.dof != res.robot.dof:
+        raise _Usage(f"{path} has {data.dof} joint columns but the calibrated robot {res.robot.name!r} has "
+                     f"{res.robot.dof} joints")
+    if data.labels and not sessions:
+        raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
+    if data.kind in ("plane", "point"):
+        from .._datasets._dataset import relabel
+
+        data = relabel(data, m.labels)
+    objective = raw.get("settings", {}).get("objective") or (
+        f"objective: {raw.get('loss', 'linear')} loss; {raw.get('prior') or 'no prior'}")
+    ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective)
+    print(f"calibration: {src} ({res.robot.name}, {res.method}, {raw.get('status')}; {len(res.space.free_names)} "
+          f"free parameters); new data: {data.n} {m.kind} samples from {path}")
+    print(f"calibrated with the {objective}" if objective.startswith("measured") else f"calibrated with: {objective}")
+    print(ev)
+    if args.out:
+        out = {"format": EVALUATION_FORMAT, "result": str(src), "data": str(path), "method": res.method,
+               "status": raw.get("status"), "robot": robot_to_dict(res.robot), "measurement": measurement_to_dict(m),
+               **ev.to_dict()}
+        pathlib.Path(args.out).write_text(json.dumps(to_jsonable(out), indent=1, allow_nan=False) + "\n",
+                                          encoding="utf-8")
+        print(f"\nwrote {args.out}")
+    if ev.worse:
+        print(f"jaxcal: the calibrated robot predicts {path} worse than the nominal robot (RMSE {ev.after.rmse:.4g} "
+              f"vs {ev.before.rmse:.4g} mm); exit status 1", file=sys.stderr)
+        return _EXIT_FAILED
+    return 0

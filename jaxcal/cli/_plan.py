@@ -1,0 +1,148 @@
+"""``jaxcal plan``.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+from ._common import _floats, _robot_and_sensor, _sphere_model, _Usage
+
+
+def _cmd_plan(args) -> int:
+    """Which poses to measure: candidates, selection, indices, predicted accuracy (issue 12)."""
+    import jax
+    import numpy as np
+
+    from .._datasets._dataset import mm_joints_metadata
+    from .._experiments import _plan
+
+    robot, measurement = _robot_and_sensor(args)
+    if args.poses < 1:
+        raise _Usage(f"--poses must be at least 1, got {args.poses}")
+    if not (args.noise_std > 0 and math.isfinite(args.noise_std)):
+        raise _Usage(f"--noise-std must be a finite number > 0 (mm), got {args.noise_std}")
+    key = jax.random.key(args.seed)
+    k_cand, k_test, k_perm = jax.random.split(key, 3)
+    filters = {}
+    if args.wire_range:
+        filters["wire_range_mm"] = tuple(_floats(args.wire_range, 2, "--wire-range"))
+    if args.box:
+        b = _floats(args.box, 6, "--box")
+        filters["box_mm"] = (b[:3], b[3:])
+    if args.tracker:
+        filters["tracker_mm"] = _floats(args.tracker, 3, "--tracker")
+        filters["tracker_axis"] = _floats(args.tracker_axis, 3, "--tracker-axis")
+        filters["cone_half_angle_deg"] = args.cone_deg
+    sensor = args.measurement in ("plane", "point", "distance", "camera")
+    unit = "px" if args.measurement == "camera" else "mm"
+    if sensor and filters:
+        raise _Usage(f"--wire-range/--box/--tracker do not apply to --measurement {args.measurement}: its candidates "
+                     "are poses that touch the planes/points, bar pose pairs, or poses that see the target")
+    spec = args.candidates or ("2000" if sensor else "20000")
+    if spec.isdigit():
+        cand = _plan.candidate_poses(k_cand, robot, measurement, int(spec), **filters)
+        if not sensor:
+            cand = np.asarray(cand)
+        source = f"{int(spec)} random candidates within the joint limits and the sensor's range (seed {args.seed})"
+    else:
+        if not pathlib.Path(spec).exists():
+            raise _Usage(f"--candidates: {spec!r} is neither a number nor an existing file")
+        if args.measurement in ("plane", "point", "distance"):
+            from .._datasets._dataset import load_csv
+
+            cand = load_csv(spec, kind=args.measurement)  # labels / the bar's second pose are part of a candidate
+            if args.measurement != "distance":
+                from .._datasets._dataset import relabel
+                from .._sensors._contact import contact_model
+
+                measurement = contact_model(args.measurement, robot, cand) if args.radius_mm is None else \
+                    _sphere_model("point", contact_model("point", robot, cand), args.radius_mm, False)
+                cand = relabel(cand, measurement.labels)
+        else:
+            cand = _plan.load_joint_angles(spec, robot.dof)
+        source = f"{len(cand.q) if hasattr(cand, 'q') else cand.shape[0]} candidates from {spec}"
+    n_cand = len(cand.q) if hasattr(cand, "q") else cand.shape[0]
+    if args.poses > n_cand:
+        raise _Usage(f"--poses {args.poses} is more than the {n_cand} candidates")
+    sel = _plan.select_poses(robot, measurement, cand, args.poses, criterion=args.criterion,
+                             exchange=not args.no_exchange, noise_std=args.noise_std)
+    q_test = _plan.candidate_poses(k_test, robot, measurement, 2000 if not sensor else 500, **filters)
+    pred = _plan.predicted_accuracy(robot, measurement, sel.data if sel.data is not None else sel.q, args.noise_std,
+                                    q_test=q_test)
+    rnd_idx = np.asarray(jax.random.permutation(k_perm, n_cand))[: args.poses]
+    rnd_cand = cand.subset(rnd_idx) if hasattr(cand, "q") else cand[rnd_idx]
+    rnd = _plan.predicted_accuracy(robot, measurement, rnd_cand, args.noise_std, q_test=q_test)
+    rnd_ind = _plan.indices_from_jacobian(
+        _plan.planning_jacobian(robot, measurement, rnd_cand, sel.space), sel.scale)
+    meta = [("source", "jaxcal plan"), ("robot", robot.name), ("planned_poses", args.poses),
+            ("criterion", f"{args.criterion}-optimal ({sel.method})"), ("seed", args.seed),
+            (f"predicted_test_rmse_{unit}", f"{pred.test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
+    if args.measurement == "cable":
+        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
+    meta += list(mm_joints_metadata(robot).items())
+    if sensor:
+        _save_sensor_plan(args.out, robot, measurement, sel, meta)
+    else:
+        _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
+          f"for {len(sel.space.free_names)} identifiable parameters")
+    rows = [["selected", *[f"{v:.4g}" for v in (sel.indices.o1, sel.indices.o2, sel.indices.o3, sel.indices.o4,
+                                                 sel.indices.o5)], f"{pred.test_rmse:.4f}"],
+            ["random", *[f"{v:.4g}" for v in (rnd_ind.o1, rnd_ind.o2, rnd_ind.o3, rnd_ind.o4, rnd_ind.o5)],
+             f"{rnd.test_rmse:.4f}"]]
+    print(f"\n| poses | O1 (D) | O2 (1/cond) | O3 (σ_min) | O4 (noise ampl.) | O5 | predicted test RMSE / {unit} |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print("| " + " | ".join(r) + " |")
+    print(f"\n(indices of the column-scaled Jacobian; {args.poses} random candidates for comparison; test RMSE over "
+          f"{len(q_test.q) if hasattr(q_test, 'q') else q_test.shape[0]} random "
+          f"{'candidate' if sensor else 'workspace'} poses, σ = {args.noise_std:g} {unit})\n")
+    print(pred.table())
+    print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
+          f"`jaxcal calibrate {args.out} --robot {args.robot} --measurement {args.measurement}`")
+    if args.plot:
+        top = min(cand.shape[0], max(4 * args.poses, 100))
+        ns = sorted({int(round(v)) for v in np.geomspace(max(len(sel.space.free_names) + 2, 5), top, 12)})
+        curve = _plan.accuracy_curve(robot, measurement, cand, ns, args.noise_std, q_test=q_test,
+                                     criterion=args.criterion, key=k_perm)
+        fig = curve.plot()
+        fig.savefig(args.plot, dpi=120)
+        print(f"wrote the predicted RMSE-vs-poses curve to {args.plot}")
+    return 0
+
+
+_PLAN_NEXT = {
+    "plane": "touch the plane each row names and record the joint angles there (the planned ones are the nominal "
+             "robot's)",
+    "point": "put the tool tip on the point each row names (or the ball on the sphere) and record the joint angles "
+             "there",
+    "distance": "place the bar between each row's two poses (bar length: distance_mm) and record both poses' joint "
+                "angles",
+    "camera": "take an image at each pose and fill in the detected target points' u_k_px, v_k_px (empty where not "
+              "detected)",
+}
+
+
+def _save_sensor_plan(path, robot, measurement, sel, meta) -> None:
+    """The selected poses of a plane/point/distance/camera plan as a data file of its kind: contact
+    rows with their label, bar rows with both poses and the bar length, camera rows with empty
+    pixel columns and the set-up lines (target: the default 9×6 board of
+    :func:`jaxcal._sensors._camera.planning_camera`, intrinsics, mount, image size)."""
+    import numpy as np
+
+    from .._datasets._dataset import Dataset
+
+    meta = dict(meta)
+    if measurement.kind == "camera":
+        meta.update({"target": "checkerboard:9x6:20", "camera_intrinsics": ",".join(repr(float(v)) for v in measurement.intrinsics),
+                     "mount": measurement.mount, "image_size_px": ",".join(str(v) for v in measurement.image_size)})
+        y = np.full((sel.n, measurement.n_points, 2), np.nan)
+        Dataset(sel.q, y, "camera", meta).to_csv(path)
+        return
+    data = sel.data
+    if measurement.kind != "distance":
+        meta[f"{measurement.kind}_labels"] = ",".join(measurement.labels)
+        if getattr(measurement, "sphere", False):
+            meta["radius_mm"] = f"{float(np.asarray(measurement.radii)[0]):g}"
+    Dataset(data.q, data.y, measurement.kind, meta).to_csv(path)

@@ -1,0 +1,147 @@
+"""Checking a saved calibration on new data (issue 24): ``jaxcal evaluate``, ``calibrate --test``, the
+honest "before", the measured-data defaults, and the HTML report."""
+
+import html.parser
+import inspect
+import json
+import math
+import warnings
+import xml.etree.ElementTree as ET
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxcal
+from jaxcal import Dataset, Position, robots, statistical_floor
+from jaxcal._models._kinematics import rotvec_to_matrix
+from jaxcal._models._robot import sample_joint_angles
+from jaxcal._simulation._simulate import draw_deviations
+from jaxcal.cli import main
+
+SIGMA = 0.1
+
+
+def _session(key, robot, dev, n, rotvec, shift):
+    """``n`` tracker positions of the true robot ``dev`` seen in the frame ``(exp(rotvec), shift)``."""
+    kq, kn = jax.random.split(key)
+    q = sample_joint_angles(kq, robot, n)
+    m = Position(rotvec_to_matrix(jnp.asarray(rotvec)), jnp.asarray(shift))
+    y = m.predict(robot, dev, q) + SIGMA * jax.random.normal(kn, (n, 3))
+    return Dataset(q, y, "position", {"robot": robot.name}), m
+
+
+@pytest.fixture(scope="module")
+def two_days(tmp_path_factory):
+    """One robot, two sessions with different tracker frames; day 1 calibrated by the CLI."""
+    d = tmp_path_factory.mktemp("evaluate")
+    robot = robots.hsr_jr680()
+    dev = draw_deviations(jax.random.key(1), robot)
+    day1, _ = _session(jax.random.key(2), robot, dev, 500, [0.05, -0.1, 0.3], [400.0, -250.0, 80.0])
+    day2, m2 = _session(jax.random.key(3), robot, dev, 300, [-0.2, 0.05, -1.1], [-900.0, 600.0, -40.0])
+    day1.to_csv(d / "day1.csv")
+    day2.to_csv(d / "day2.csv")
+    oracle = float(jnp.sqrt(jnp.mean(m2.sample_error(m2.residual(robot, dev, day2.q, day2.y)) ** 2)))
+    assert main(["calibrate", str(d / "day1.csv"), "--robot", "hsr_jr680", "--measurement", "position",
+                 "--estimate", "base", "--out", str(d / "result.json")]) == 0
+    return d, oracle
+
+
+def test_evaluate_registers_a_new_frame_and_reaches_the_floor(two_days, capsys):
+    d, oracle = two_days
+    capsys.readouterr()
+    assert main(["evaluate", str(d / "result.json"), str(d / "day2.csv"), "--out", str(d / "eval.json")]) == 0
+    out = capsys.readouterr().out
+    assert "re-registered on the new data" in out and "base_rotation, base_translation" in out
+    ev = json.loads((d / "eval.json").read_text())
+    assert ev["format"] == "jaxcal-evaluation/1"
+    assert ev["extras"]["source"] == "registered" and "base_rotation" in ev["extras"]["registered"]
+    m = ev["metrics_mm"]
+    assert set(m["before"]) == set(m["after"]) == {"rmse", "mean", "max"}
+    res = jaxcal.load_result(d / "result.json")
+    floor = statistical_floor(SIGMA, res.space.n_free, 400, 3).test
+    assert m["after"]["rmse"] <= 1.05 * max(floor, oracle), (m["after"], floor, oracle)
+    assert m["before"]["rmse"] > 3 * m["after"]["rmse"]  # nominal robot, frame registered: far worse
+    assert m["raw_nominal"]["rmse"] > 100  # the guessed (identity) frame is ~1 m off
+    assert len(ev["rows"]["after_mm"]) == 300 and ev["worse"] is False
+    # the same through the Python API
+    day2 = jaxcal.load_csv(d / "day2.csv")
+    e = res.evaluate(day2, extras="auto")
+    assert e.extras == "registered" and math.isclose(e.rmse, m["after"]["rmse"], rel_tol=1e-6)
+
+
+def test_evaluate_with_the_old_frame_is_worse_and_exits_1(two_days, capsys):
+    d, _ = two_days
+    assert main(["evaluate", str(d / "result.json"), str(d / "day2.csv"), "--keep-extras"]) == 1
+    cap = capsys.readouterr()
+    assert "taken from the calibration result" in cap.out and "worse than the nominal robot" in cap.err
+
+
+def test_calibrate_with_a_test_file(two_days, capsys):
+    d, _ = two_days
+    capsys.readouterr()
+    assert main(["calibrate", str(d / "day1.csv"), "--robot", "hsr_jr680", "--measurement", "position",
+                 "--estimate", "base", "--test", str(d / "day2.csv"), "--out", str(d / "r2.json")]) == 0
+    out = capsys.readouterr().out
+    assert "all 500 for training; test: 300 samples" in out and "measured-data defaults" in out
+    assert "test, raw nominal" in out and "re-registered" in out
+    r = json.loads((d / "r2.json").read_text())
+    assert r["settings"]["n_test"] == 300 and r["test_extras"]["source"] == "registered"
+    assert r["metrics_mm"]["test, after"]["rmse"] < 0.5 * r["metrics_mm"]["test, before"]["rmse"]
+    assert set(r["rows"]) == {"train", "test"} and len(r["rows"]["test"]["before_mm"]) == 300
+    assert main(["calibrate", str(d / "day1.csv"), "--robot", "hsr_jr680", "--measurement", "position",
+                 "--test", str(d / "day2.csv"), "--test-fraction", "0.3"]) == 2
+
+
+def test_html_report_is_valid_and_self_contained(two_days, tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    d, _ = two_days
+    main(["evaluate", str(d / "result.json"), str(d / "day2.csv"), "--out", str(d / "eval.json")])
+    for src in ("result.json", "eval.json"):
+        page = tmp_path / f"{src}.html"
+        assert main(["report", str(d / src), "--html", str(page)]) == 0
+        text = page.read_text(encoding="utf-8")
+        ET.fromstring(text.split("\n", 1)[1])  # well-formed (after the doctype line)
+        html.parser.HTMLParser().feed(text)
+        assert text.startswith("<!DOCTYPE html>")
+        assert text.count("data:image/png;base64,") >= 4  # histogram, joints, workspace, correlations
+        assert "http://" not in text and "https://" not in text  # no network
+        assert "max-width: 60em" in text and "max-width: 100%" in text  # no sideways scrolling
+        for section in ("Summary", "Before / after", "Parameters", "Identifiability", "Outlier rows",
+                        "Error over the workspace"):
+            assert f"<h2>{section}</h2>" in text, section
+    assert main(["report", str(d / "day2.csv"), "--html", str(tmp_path / "x.html")]) == 2
+
+
+def test_objective_presets():
+    from jaxcal._calibration._evaluate import describe_objective, resolve_objective
+
+    assert resolve_objective(None, None, None) == (None, "linear")  # calibrate()'s bare default
+    assert resolve_objective("measured", None, None) == ("default", "huber")
+    assert resolve_objective("measured", "none", "linear") == ("none", "linear")  # explicit values win
+    assert jaxcal.MEASURED_DEFAULTS == {"prior": "default", "loss": "huber"}
+    with pytest.raises(ValueError, match="unknown objective"):
+        resolve_objective("robust", None, None)
+    sig = inspect.signature(jaxcal.holdout_session).parameters  # one set of defaults for measured data
+    assert (sig["prior"].default, sig["loss"].default) == ("default", "huber")
+    assert "measured-data defaults" in describe_objective("default", "huber")
+    assert "not the measured-data defaults" in describe_objective(None, "linear")
+
+
+def test_one_gross_outlier_under_the_measured_defaults():
+    """Acceptance (issue 24): one gross outlier in the training data moves the held-out RMSE by < 2 %."""
+    ex = jaxcal.simulate_messy(jax.random.key(4), n_samples=500, n_outliers=1, outlier_mm=(60.0, 200.0),
+                               far_samples=0)
+    keep = np.setdiff1d(np.arange(ex.train.n), ex.outlier_rows)
+    extras = ("anchor", "cable_offset")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, extras=extras, objective="measured")
+        clean = jaxcal.calibrate(ex.robot, ex.measurement, ex.train.subset(keep), extras=extras, objective="measured")
+        plain = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, extras=extras)
+    assert res.loss == "huber" and res.prior is not None and plain.loss == "linear" and plain.prior is None
+    a, b = res.evaluate(ex.test).rmse, clean.evaluate(ex.test).rmse
+    assert abs(a / b - 1) < 0.02, (a, b)
+    assert plain.evaluate(ex.test).rmse > 1.02 * b  # least squares does not shrug it off
+    assert list(res.diagnostics.outliers_after) == list(ex.outlier_rows)  # reported, and down-weighted

@@ -1,0 +1,145 @@
+"""Priors (MAP) and robust losses: independent checks against scipy and closed forms."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+import jaxcal
+from jaxcal import Prior
+from jaxcal._fit._objective import Objective, robust_factor
+from jaxcal._fit._problem import Problem
+
+
+@pytest.fixture(scope="module")
+def ex():
+    return jaxcal.simulate_experiment(jax.random.key(11), n_samples=300)
+
+
+def _scipy_fit(ex, space, augment, loss="linear", f_scale=1.0):
+    """scipy's least_squares on the residuals written out here (numpy callbacks, numeric Jacobian)."""
+    pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space)
+    res_fn = jax.jit(lambda x: pr.residual(x))
+
+    def fun(x):
+        r = np.asarray(res_fn(jnp.asarray(x)))
+        return np.concatenate([r, augment(x)])
+
+    sol = scipy.optimize.least_squares(fun, np.zeros(space.n_free), method="trf", loss=loss, f_scale=f_scale,
+                                       x_scale="jac", xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    return sol.x
+
+
+def test_lm_with_prior_is_the_map_estimate(ex):
+    """LM on the augmented residuals = scipy on [r; σ·(x − m)/s] written out independently."""
+    prior = Prior(angle_deg=0.05, length_mm=0.2, noise_std=0.5)  # strong enough to move every parameter
+    res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", prior=prior, rtol=1e-10, atol=1e-10)
+    s = np.where(np.asarray(res.space.free_units) == "rad", math.radians(0.05), 0.2)
+    x_ref = _scipy_fit(ex, res.space, lambda x: 0.5 * x / s)
+    plain = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    # under the prior every DH deviation is free (MAP, issue 22); plain least squares frees the
+    # identifiable subset: compare on that
+    idx = [res.space.free_names.index(n) for n in plain.space.free_names]
+    assert res.space.n_free == 24 and plain.space.n_free == 19
+    assert np.max(np.abs(plain.x - x_ref[idx]) / s[idx]) > 0.05  # the prior matters here
+    # equal to a thousandth of the parameters' posterior σ (scipy: numeric Jacobian, its own stopping)
+    assert np.max(np.abs(res.x - x_ref) / res.uncertainty.std) < 1e-3
+    assert res.diagnostics.rounds == 1  # noise σ given: one round
+    # the reported condition number is the posterior information's (the MAP fit inverts it; the
+    # data Jacobian of all 24 is singular): column-scaled J over σ̂ stacked on the prior rows, with J
+    # by central differences here
+    pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, res.space)
+    x0, h = np.asarray(res.x, np.float64), 1e-6
+    J = np.stack([(np.asarray(pr.residual(jnp.asarray(x0 + h * e))) - np.asarray(pr.residual(jnp.asarray(x0 - h * e))))
+                  / (2 * h) for e in np.eye(x0.size)], axis=1)
+    d = np.linalg.norm(J, axis=0)
+    blind = d < 1e-6 * d.max()  # columns the distance data cannot see at all (zero, unscaled)
+    J[:, blind], d[blind] = 0.0, 1.0
+    H = (J / d).T @ (J / d) / res.uncertainty.noise_std ** 2 + np.diag(1.0 / (s * d) ** 2)
+    ev = np.linalg.eigvalsh(H)
+    assert res.diagnostics.condition_number == pytest.approx(math.sqrt(ev[-1] / ev[0]), rel=1e-4)
+
+
+@pytest.mark.parametrize("method", ["adam", "ekf"])
+def test_other_methods_reach_the_map_estimate(ex, method):
+    prior = Prior(angle_deg=0.05, length_mm=0.2, noise_std=0.5)
+    ref = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", prior=prior)
+    hyper = {"steps": 1500} if method == "adam" else {"noise_std": 0.5, "passes": 4}
+    res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, method, prior=prior, **hyper)
+    s = np.asarray(res.uncertainty.std)
+    assert np.max(np.abs(res.x - ref.x) / s) < 0.05, method
+
+
+def test_prior_shrinks_toward_nominal_and_no_prior_is_unchanged(ex):
+    plain = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    none = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", prior="none")
+    np.testing.assert_array_equal(plain.x, none.x)  # bit for bit
+    strong = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", prior=Prior(0.01, 0.05, noise_std=0.5))
+    assert np.linalg.norm(strong.x) < 0.5 * np.linalg.norm(plain.x)
+    assert strong.train_metrics.rmse > plain.train_metrics.rmse
+
+
+def test_huber_matches_scipy_huber(ex):
+    """Huber with a fixed scale: the same minimiser as scipy's ``loss="huber", f_scale=c``."""
+    c = 0.6
+    res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", loss="huber", loss_scale=c,
+                           rtol=1e-10, atol=1e-10)
+    x_ref = _scipy_fit(ex, res.space, lambda x: np.zeros(0), loss="huber", f_scale=c)
+    assert np.max(np.abs(res.x - x_ref) / res.uncertainty.std) < 1e-3
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_robust_factor_closed_form(loss):
+    c = 2.0
+    e = np.array([0.0, 1e-6, 0.5, 1.9, 2.0, 2.1, 10.0, 1e6])
+    f = np.asarray(robust_factor(loss, jnp.asarray(e * e), jnp.asarray(c)))
+    u = e / c
+    rho = np.where(u <= 1, u**2 / 2, u - 0.5) if loss == "huber" else 0.5 * np.log1p(u**2)
+    np.testing.assert_allclose((f * e) ** 2, 2 * c**2 * rho, rtol=1e-7, atol=1e-18)
+    # smooth at zero: finite derivatives
+    g = jax.grad(lambda r: (robust_factor(loss, r * r, jnp.asarray(c)) * r))(0.0)
+    assert np.isfinite(g) and g == pytest.approx(1.0)
+
+
+def test_prior_parse_and_errors():
+    assert Prior.parse("none") is None and Prior.parse("default") == Prior()
+    p = Prior.parse("angle_deg=1,length_mm=3,d_1=10")
+    assert p.angle_deg == 1 and p.length_mm == 3 and p.overrides == (("d_1", 10.0),)
+    assert p.scaled(2).angle_deg == 0.5 and p.scaled(2).overrides == (("d_1", 5.0),)
+    with pytest.raises(ValueError, match="unknown parameter name 'wings'"):
+        Prior.parse("wings=3")
+    with pytest.raises(ValueError, match="angle_deg must be > 0"):
+        Prior(angle_deg=0)
+    with pytest.raises(ValueError, match="unknown loss"):
+        Objective.build(jaxcal.ParameterSpace.for_robot(jaxcal.robots.ur5()), None, 1.0, "l1")
+
+
+def test_unknown_loss_and_ekf_refuses_robust(ex):
+    with pytest.raises(ValueError, match="unknown loss 'l1'"):
+        jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", loss="l1")
+    with pytest.raises(ValueError, match="EKF .* no robust loss"):
+        jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "ekf", loss="huber")
+
+
+def test_uncertainty_without_prior_is_cramer_rao(ex):
+    """σ̂²(JᵀJ)⁻¹ with σ̂² = RSS/(N − p), computed here with numpy from a finite-difference Jacobian."""
+    res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, res.space)
+    f = lambda x: np.asarray(pr.residual(jnp.asarray(x)))  # noqa: E731
+    x = res.x
+    h = np.where(np.asarray(res.space.free_units) == "rad", 1e-7, 1e-5)
+    J = np.stack([(f(x + h[k] * np.eye(len(x))[k]) - f(x - h[k] * np.eye(len(x))[k])) / (2 * h[k])
+                  for k in range(len(x))], axis=1)
+    r = f(x)
+    s2 = r @ r / (len(r) - len(x))
+    C = s2 * np.linalg.inv(J.T @ J)
+    np.testing.assert_allclose(res.uncertainty.std, np.sqrt(np.diag(C)), rtol=1e-4)
+    assert res.uncertainty.effective_parameters == pytest.approx(len(x))
+    # predicted reading std at new poses: sqrt(diag(J C Jᵀ))
+    q_new = ex.test.q[:5]
+    pr_new = Problem(ex.robot, ex.measurement, q_new, ex.test.y[:5], res.space)
+    Jn = np.asarray(pr_new.jacobian(jnp.asarray(x)))
+    np.testing.assert_allclose(res.prediction_std(q_new), np.sqrt(np.einsum("np,pk,nk->n", Jn, C, Jn)), rtol=1e-3)
