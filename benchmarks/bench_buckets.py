@@ -200,7 +200,7 @@ def main() -> None:
               f"Machine: {machine()}. `python benchmarks/bench_buckets.py --both` "
               f"(`calibrate(..., 'lm')`, default experiment robot, counts {args.min}..{args.max} in random order; "
               "every XLA compilation of the process counted).", "",
-              f"## With shape buckets (default; load average {res['buckets']['load0'][0]:.2f} at the start)", ""]
+              f"## With shape buckets (`JAXCAL_BUCKETS=on`; off by default; load average {res['buckets']['load0'][0]:.2f} at the start)", ""]
         md += summarise(res["buckets"])
         md += ["", f"## `JAXCAL_BUCKETS=off` (one program per sample count, as before; load average "
                f"{res['off']['load0'][0]:.2f} at the start)", ""]

@@ -26,7 +26,7 @@ inside the program):
   with that status (flagged in the summary); the others go on either way.
 
 Each unit's result equals :func:`jaxcal.calibrate` on that unit alone to round-off (the
-padded, batched program sums in another order: tests/test_fleet.py; at most 1e-10 relative
+padded, batched program sums in another order: tests/calibration/test_fleet.py; at most 1e-10 relative
 over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``, 100 units ×
 1 000 samples on the busy 2-core CPU): with ``"map"`` the compiled solves take about as long as
 in a loop of warm ``calibrate`` calls, vectorised 3–5× longer (a vmapped Levenberg–Marquardt

@@ -797,7 +797,7 @@ def predicted_accuracy(
     point, px, with ``noise_std`` in px). ``q`` and ``q_test`` may be candidates with readings
     (:func:`candidate_rows`: contact labels, bar pose pairs). Linearised at the nominal robot: it assumes
     Gaussian noise of σ on every residual entry, an unbiased model and small deviations
-    (checked against simulated calibrations in ``tests/test_plan.py`` and
+    (checked against simulated calibrations in ``tests/experiments/test_plan.py`` and
     ``benchmarks/bench_plan.py``).
     """
     q, y = candidate_rows(robot, measurement, q)

@@ -293,7 +293,7 @@ def _affine_project(Aa, w, k):
     XLA batches over the parameters. Intrinsics (with ``calibrate_intrinsics``) are
     differentiated by ``jax.jacfwd`` of the projection; tangents that are known zeros are
     skipped (``symbolic_zeros``). Exact: the Jacobian agrees with plain ``jax.jacfwd`` to
-    round-off (``tests/test_camera.py``)."""
+    round-off (``tests/sensors/test_camera.py``)."""
     px, py, pz = _apply_affine(Aa, w)
     u, v = _distort_project(px / pz, py / pz, k)
     return jnp.stack([u, v], -1)

@@ -48,7 +48,7 @@ Nor can plane or point data see the robot's **length scale**: multiplying every 
 set-up by the same factor — the DH lengths ``a_i``, ``d_i``, the tool point, the plane offsets
 ``d_k`` (or the point centres, and unknown sphere radii) — keeps every contact a contact, so that
 direction is in the null space of the identification Jacobian whatever the poses
-(``tests/test_contact.py::test_contact_data_cannot_see_the_length_scale``). The report shows it
+(``tests/sensors/test_contact.py::test_contact_data_cannot_see_the_length_scale``). The report shows it
 as one more rank deficiency (a length parameter such as ``d_2`` or ``a_2`` left out, or
 depending on the others). Something must fix it: the prior toward the nominal DH lengths
 (``jaxcal calibrate``'s default ``--prior``), a length held at nominal (``--fix``), a known
