@@ -25,7 +25,7 @@ def setup(stdlib=(), third=(), first=()) -> str:
     return head + """
 
 QUICK = os.environ.get("JAXCAL_NB_QUICK", "0") == "1"  # small settings for the test suite
-jaxcal.enable_x64()  # calibration wants float64 (see jaxcal._precision)
+jaxcal.enable_x64()  # calibration wants float64 (see jaxcal._core._precision)
 
 
 def show(fig, dpi=80):
@@ -612,7 +612,7 @@ draw-wire set-up (σ = 0.5 mm):
 """),
         code(setup(stdlib=("import warnings",), third=("import jax", "import numpy as np",
                                                      "from IPython.display import Image, display"),
-                   first=("from jaxcal import _plan", "from jaxcal._simulate import default_anchor"))),
+                   first=("from jaxcal._experiments import _plan", "from jaxcal._simulation._simulate import default_anchor"))),
         md("## Candidates: random poses inside the joint limits and the wire's length window"),
         code("""
 robot = jaxcal.robots.hsr_jr680()
@@ -725,7 +725,7 @@ then calibrated with the robot (`jaxcal.PlaneContact`, README "Without a tracker
         code(setup(stdlib=("import tempfile", "import warnings"),
                    third=("import jax", "import matplotlib.pyplot as plt", "import numpy as np",
                           "from IPython.display import Image, display"),
-                   first=("from jaxcal._contact import default_setup, unobservable_directions",))),
+                   first=("from jaxcal._sensors._contact import default_setup, unobservable_directions",))),
         md("""
 ## Simulated probing
 

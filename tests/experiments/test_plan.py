@@ -257,6 +257,7 @@ def test_prior_information_tightens_the_prediction(hsr):
     assert len(set(sel.index.tolist())) == 20
 
 
+@pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
 def test_cli_plan_for_a_urdf_chain_with_a_prismatic_joint(tmp_path, capsys):
     """`jaxcal plan` on a URDF chain (Fetch: prismatic torso): base/tip links, the torso column in mm."""
     import pathlib

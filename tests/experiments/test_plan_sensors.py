@@ -142,7 +142,7 @@ def test_camera_candidates_fraction_and_errors(robot):
         _plan.candidate_poses(jax.random.key(2), robot, away, 10)
 
 
-@pytest.mark.parametrize("kind", ["camera", *(pytest.param(k, marks=pytest.mark.slow) for k in ("plane", "distance"))])
+@pytest.mark.parametrize("kind", ["plane", *(pytest.param(k, marks=pytest.mark.slow) for k in ("camera", "distance"))])
 def test_cli_plan_sensor_files_read_back(robot, kind, tmp_path, capsys):
     from jaxcal.cli import main
 

@@ -121,6 +121,7 @@ def test_failed_stage_is_the_status():
     assert np.all(np.isfinite(r.x)) and r.train_metrics.rmse < 0.5 * r.history[0]
 
 
+@pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
 def test_sweep_staged_under_vmap(tmp_path):
     """Two seeds vmapped in one sweep: labels, settings keyed by the staged name, stage ends kept
     (and saved/loaded), and Fig. 3 draws them."""

@@ -420,6 +420,7 @@ def _dh_experiment(n=300):
     return robot, meas, ex
 
 
+@pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
 def test_dh_chain_and_its_urdf_export_calibrate_identically(tmp_path):
     robot, meas, ex = _dh_experiment()
     chain = chain_from_dh(robot)
@@ -439,6 +440,7 @@ def test_dh_chain_and_its_urdf_export_calibrate_identically(tmp_path):
     assert r1.evaluate(ex.test).rmse < 1.1 * floor
 
 
+@pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
 def test_chain_result_json_cli_export_round_trip(tmp_path):
     """simulate (URDF, prismatic joint) → calibrate → JSON → export URDF → same predictions."""
     from jaxcal.cli import main

@@ -300,7 +300,7 @@ def _data(true, dev, meas, n, seed):
     return q, jnp.asarray(y)
 
 
-@pytest.mark.parametrize("meas", [jaxcal.Position(), jaxcal.Pose()], ids=["position", "pose"])
+@pytest.mark.parametrize("meas", [jaxcal.Position(), pytest.param(jaxcal.Pose(), marks=pytest.mark.slow)], ids=["position", "pose"])
 def test_lm_reaches_floor_with_a_deviated_tip(truth, meas, tmp_path):
     """``calibrate(..., "lm")`` with the defaults on the nominal chain reaches the floor (measured
     here: 0.993× position, 0.994× pose). Without the tip errors (the code before them) the same

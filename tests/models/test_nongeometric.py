@@ -242,6 +242,7 @@ def test_identifiability_keeps_extras_before_geometric_before_nongeometric():
     assert keys == sorted(keys)
 
 
+@pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
 def test_cli_calibrate_with_compliance_and_harmonics_and_result_roundtrip(tmp_path, capsys):
     from jaxcal.cli import main
 

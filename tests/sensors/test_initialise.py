@@ -183,6 +183,7 @@ def test_calibrate_with_the_tool_far_off_reaches_the_floor(robot, truth):
     assert "tool point" in res.diagnostics.extras
 
 
+@pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
 def test_cli_prints_the_tool_start(robot, truth, tmp_path, capsys):
     """`jaxcal calibrate --estimate base,tool`: the start line names the tool point, and the
     extras line lists the tool entries (free or kept at their start)."""
