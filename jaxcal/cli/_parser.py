@@ -78,6 +78,18 @@ def build_parser() -> argparse.ArgumentParser:
                         "~/.cache/jaxcal/jax; a second run skips most of the ~10-20 s compilation per method)")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
+    _add_reproduce(sub, fmt)
+    _add_calibrate(sub, fmt)
+    _add_simulate(sub, fmt)
+    _add_report(sub, fmt)
+    _add_evaluate(sub, fmt)
+    _add_export(sub, fmt)
+    _add_plan(sub, fmt)
+    return p
+
+
+def _add_reproduce(sub, fmt) -> None:
+    """The ``jaxcal reproduce`` sub-command's arguments."""
     r = sub.add_parser(
         "reproduce", formatter_class=fmt, help="reproduce the paper's Tables III–V and Figs. 2–4 (seed sweep)",
         description="Simulate the paper's experiment (HSR-JR680, draw-wire sensor, σ = --noise-std mm) once per seed, "
@@ -106,6 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     r.set_defaults(func=_cmd_reproduce)
 
+def _add_calibrate(sub, fmt) -> None:
+    """The ``jaxcal calibrate`` sub-command's arguments."""
     c = sub.add_parser(
         "calibrate", formatter_class=fmt, help="calibrate a robot from a CSV data file",
         description="Calibrate the robot's parameters from measured data (under the default prior: every DH "
@@ -228,6 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--verbose", action="store_true", help="print where the time went (imports, data, fit, output)")
     c.set_defaults(func=_cmd_calibrate)
 
+def _add_simulate(sub, fmt) -> None:
+    """The ``jaxcal simulate`` sub-command's arguments."""
     s = sub.add_parser(
         "simulate", formatter_class=fmt, help="write a simulated data set (CSV) to try `calibrate` on",
         description="Simulate the paper's experiment: a 'true' robot = nominal + random DH deviations (~0.2°, "
@@ -259,6 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
     s.set_defaults(func=_cmd_simulate)
 
+def _add_report(sub, fmt) -> None:
+    """The ``jaxcal report`` sub-command's arguments."""
     rp = sub.add_parser(
         "report", formatter_class=fmt, help="an HTML page for a calibration or evaluation; tables and figures of a sweep",
         description="jaxcal report RESULT.json --html PAGE.html (or EVAL.json from `jaxcal evaluate --out`): one "
@@ -278,6 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--no-figures", action="store_true", help="skip the figures")
     rp.set_defaults(func=_cmd_report)
 
+def _add_evaluate(sub, fmt) -> None:
+    """The ``jaxcal evaluate`` sub-command's arguments."""
     ev = sub.add_parser(
         "evaluate", formatter_class=fmt, help="check a saved calibration on new measurements (before/after)",
         description="Check a calibration (`jaxcal calibrate --out RESULT.json`) on new measurements DATA.csv (e.g. "
@@ -301,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "instead of registering them again")
     ev.set_defaults(func=_cmd_evaluate)
 
+def _add_export(sub, fmt) -> None:
+    """The ``jaxcal export`` sub-command's arguments."""
     e = sub.add_parser(
         "export", formatter_class=fmt, help="write a calibrated model (URDF, DH table) from a result file",
         description="Write the calibrated model of a `jaxcal calibrate --out RESULT.json` as URDF: for a robot "
@@ -314,6 +336,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", metavar="FILE.urdf", help="URDF file to write")
     e.add_argument("--dh-out", metavar="FILE.csv", help="calibrated DH table (DH robots only)")
     e.set_defaults(func=_cmd_export)
+
+def _add_plan(sub, fmt) -> None:
+    """The ``jaxcal plan`` sub-command's arguments."""
     pl = sub.add_parser(
         "plan", formatter_class=fmt, help="choose the poses to measure and predict the accuracy (before measuring)",
         description="Measurement planning: draw candidate poses within the joint limits and the sensor's range "
@@ -363,4 +388,3 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--out", required=True, metavar="POSES.csv", help="CSV file to write the selected poses to")
     pl.add_argument("--plot", metavar="FILE.png", help="also draw predicted test RMSE vs number of poses (selected vs random)")
     pl.set_defaults(func=_cmd_plan)
-    return p
