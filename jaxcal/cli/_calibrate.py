@@ -592,14 +592,42 @@ def _cmd_calibrate(args) -> int:
         _print_dh_table(robot, res, sd)
     else:
         _print_chain_table(robot, res, sd)
-    from .._core._params import group_kind
+    _print_estimates(res, sd, extras, unit)
+    _print_outliers_and_warnings(res, args, checks, file_row)
+    diag = res.diagnostics
+    if args.out:
+        settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
+                    "seed": args.seed, "test_fraction": test_fraction, "test_file": args.test, "method": method,
+                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": loss,
+                    "objective": objective_line,
+                    "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
+                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
+        info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
+                                "message": evaluation.message}} if evaluation is not None else {}
+        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
+                    rows=per_row, **info)
+        print(f"\nwrote {args.out}")
+    if args.verbose:
+        t_end = time.perf_counter()
+        print(f"\ntimes: reading and checking the data {t_loaded - t_start:.2f} s, "
+              f"calibrate() {t_fit - t_loaded:.2f} s (compilation {res.compile_time_s:.2f} s, solve {res.wall_time_s:.3f} s, "
+              f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
+              f"total {t_end - _T0:.2f} s since jaxcal was imported (Python + JAX start-up come before: ~1 s)")
+    return _exit_status(res, args, measurement, extras)
+
+
+def _print_estimates(res, sd: dict, extras, unit: str) -> None:
+    """The estimated extras (and those asked for but held), the non-geometric errors, σ̂ and the
+    condition number, each ± one posterior σ (``sd``: :meth:`Uncertainty.std_display`); ``unit``:
+    the readings' unit (mm, px)."""
+    import numpy as np
+
+    from .._calibration._calibrate import SELECT_GROUPS
+    from .._core._params import group_kind, group_of
 
     # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions
     extra_names = [n for n in res.space.free_names if group_kind(n) == "extra"]
     # asked for but held (no prior, and the data cannot tell them from another extra): at their start
-    from .._calibration._calibrate import SELECT_GROUPS
-    from .._core._params import group_of
-
     asked = {g for e in extras for g in SELECT_GROUPS.get(e, ())}
     frozen = [n for n in res.space.names if group_kind(n) == "extra" and group_of(n) in asked
               and n not in res.space.free_names]
@@ -608,10 +636,10 @@ def _cmd_calibrate(args) -> int:
         units = dict(zip(res.space.names, res.space.units))
         parts = []
         for n in extra_names + frozen:
-            unit = "°" if units[n] == "rad" else units[n]
+            u = "°" if units[n] == "rad" else units[n]
             v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
             s_ = sd.get(n, (None,))[0]
-            parts.append(f"{n} {_fmt_value(v, s_, unit)}{'*' if n in frozen else ''} {unit}")
+            parts.append(f"{n} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
         print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ"
               + ("; * held at its start value: without a prior the data cannot tell it from another extra"
                  if frozen else "")
@@ -633,6 +661,10 @@ def _cmd_calibrate(args) -> int:
         print(f"residual σ̂ {res.uncertainty.noise_std:.4f} {unit}, effective parameters "
               f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}"
               + (" (data and prior together)" if res.prior is not None else ""))
+
+
+def _print_outliers_and_warnings(res, args, checks, file_row) -> None:
+    """Outlier rows after the fit (as 1-based data rows, ``file_row``) and the result's warnings."""
     diag = res.diagnostics
     if diag.outliers_after:
         listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
@@ -646,24 +678,10 @@ def _cmd_calibrate(args) -> int:
             w = (f"{len(diag.outliers_after)} outlier sample(s) at data rows "
                  f"{', '.join(str(file_row(i)) for i in diag.outliers_after[:20])} (see above)")
         print(f"jaxcal: warning: {w}", file=sys.stderr)
-    if args.out:
-        settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
-                    "seed": args.seed, "test_fraction": test_fraction, "test_file": args.test, "method": method,
-                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": loss,
-                    "objective": objective_line,
-                    "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
-                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
-        info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
-                                "message": evaluation.message}} if evaluation is not None else {}
-        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
-                    rows=per_row, **info)
-        print(f"\nwrote {args.out}")
-    if args.verbose:
-        t_end = time.perf_counter()
-        print(f"\ntimes: reading and checking the data {t_loaded - t_start:.2f} s, "
-              f"calibrate() {t_fit - t_loaded:.2f} s (compilation {res.compile_time_s:.2f} s, solve {res.wall_time_s:.3f} s, "
-              f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
-              f"total {t_end - _T0:.2f} s since jaxcal was imported (Python + JAX start-up come before: ~1 s)")
+
+
+def _exit_status(res, args, measurement, extras) -> int:
+    """0, or ``_EXIT_FAILED`` (with the reason on stderr) for a failed or implausible calibration."""
     if not res.ok:
         print(f"jaxcal: calibration failed: {res.message}", file=sys.stderr)
         return _EXIT_FAILED
