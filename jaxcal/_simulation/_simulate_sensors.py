@@ -18,6 +18,19 @@ from .._sensors._contact import DistanceBar, _sample_q, default_setup
 __all__ = ["simulate_contact", "save_simulated_contact", "simulate_distance", "simulate_camera"]
 
 
+
+def _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, length_std_mm, tool_std_mm, dtype):
+    """The simulated robot's deviations: the given ones, or drawn (the experiment's defaults where a
+    std is ``None``) and restricted to the model's parameter groups."""
+    from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, draw_deviations
+
+    if true_deviations is None:
+        dh = draw_deviations(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
+                             length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
+                             tool_std_mm=tool_std_mm, dtype=dtype)
+        true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
+    return true_deviations.astype(dtype)
+
 def _row_constraint(robot, dev, m, qi, k):
     """The constraint of one row, ``[m]``: signed distance / ``p − c`` / sphere distance."""
     p = jnp.stack(tool_point_soa(robot, dev, qi[None]), -1)[0]
@@ -61,18 +74,14 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
         metadata ``plane_labels`` / ``point_labels``).
     """
     from .._datasets._dataset import Dataset, mm_joints_metadata
-    from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, Experiment, draw_deviations
+    from ._simulate import Experiment
 
     m = default_setup("plane", robot) if measurement is None else measurement
     dtype = jnp.result_type(float)
     k_dev, k_q, k_noise, k_split = jax.random.split(key, 4)
     layout = layout_for(robot, m)
-    if true_deviations is None:
-        dh = draw_deviations(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
-                             length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
-                             tool_std_mm=tool_std_mm, dtype=dtype)
-        true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
-    true_deviations = true_deviations.astype(dtype)
+    true_deviations = _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, length_std_mm,
+                                       tool_std_mm, dtype)
     K = len(m.labels)
     n_cand = n_samples * oversample
     cand = _sample_q(k_q, robot, n_cand * K)
@@ -162,18 +171,14 @@ def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.
     leave the joint limits or do not converge are not used (``tries`` pairs are tried per wanted
     row)."""
     from .._datasets._dataset import Dataset, mm_joints_metadata
-    from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, Experiment, draw_deviations
+    from ._simulate import Experiment
 
     m = DistanceBar(robot.dof)
     dtype = jnp.result_type(float)
     k_dev, k_a, k_b, k_noise, k_split = jax.random.split(key, 5)
     layout = layout_for(robot, m)
-    if true_deviations is None:
-        dh = draw_deviations(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
-                             length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
-                             tool_std_mm=tool_std_mm, dtype=dtype)
-        true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
-    true_deviations = true_deviations.astype(dtype)
+    true_deviations = _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, length_std_mm,
+                                       tool_std_mm, dtype)
     n_try = tries * n_samples
     qa = _sample_q(k_a, robot, n_try)
     pool = _sample_q(k_b, robot, min(8 * n_try, 8192))
