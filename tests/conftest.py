@@ -17,6 +17,12 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 # another process wrote it). Sharing within the run keeps the workers' compilations reusable.
 os.environ.setdefault("JAXCAL_TEST_CACHE_DIR", tempfile.mkdtemp(prefix="jaxcal-test-cache-"))
 os.environ["JAXCAL_CACHE_DIR"] = os.environ["JAXCAL_TEST_CACHE_DIR"]
+if os.environ.get("JAXCAL_TEST_EAGER_CACHE", "1") == "1":
+    # on from the start (not only after the first in-process CLI test): a program that another test
+    # or the other xdist worker compiled already (the same HLO from a new closure, e.g. a fresh
+    # Calibrator for the same problem shape) is loaded instead of compiled again
+    jax.config.update("jax_compilation_cache_dir", os.environ["JAXCAL_TEST_CACHE_DIR"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 from jaxcal import robots  # noqa: E402
 

@@ -33,7 +33,7 @@ def test_projection_matches_opencv():
     np.testing.assert_allclose(ours, ref[:, 0], atol=1e-9)
 
 
-@pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
+@pytest.mark.parametrize("mount", ["eye_in_hand", pytest.param("eye_to_hand", marks=pytest.mark.slow)])
 def test_jacobian_of_the_structured_projection(mount):
     """The projection's derivative rule (jaxcal._sensors._camera._affine_project) against central finite
     differences and against plain jax.jacfwd/jacrev through the projection formula, with the
