@@ -51,49 +51,92 @@ def count_compilations() -> collections.Counter:
     return events
 
 
+def sample_counts(calls: int, lo: int, hi: int, seed: int = 0):
+    """``calls`` different sample counts spread evenly over ``lo..hi``, in a random order."""
+    import numpy as np
+
+    counts = np.unique(np.linspace(lo, hi, calls).round().astype(int))
+    np.random.default_rng(seed).shuffle(counts)
+    return [int(n) for n in counts]
+
+
+def run_counts(call, counts, events, warm_repeats: int = 5) -> dict:
+    """``call(n)`` for every count (XLA compilations, time, result summary each), then the last
+    count of each bucket ``warm_repeats`` times more (a warm call of that bucket's program);
+    resident memory after the first and after the last count."""
+    import numpy as np
+
+    from jaxcal._core._buckets import bucket_size, buckets_enabled
+
+    rows = []
+    rss_start, rss0 = rss_mb(), None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for n in counts:
+            c0, s0 = events["n"], events["s"]
+            t = time.perf_counter()
+            info = call(n)
+            dt = time.perf_counter() - t
+            rows.append(dict(n=n, bucket=bucket_size(n), s=dt, compiles=events["n"] - c0,
+                             compile_s=events["s"] - s0, **info))
+            if rss0 is None:  # after the first call: the process's fixed set-up (imports, first programs)
+                rss0 = rss_mb()
+        rss1 = rss_mb()
+        # warm calls: the last count of each bucket again (its program is compiled; with buckets
+        # off only the last few counts' programs are still cached, see the LRU)
+        warm = {}
+        for r in rows[::-1]:
+            if r["bucket"] in warm or len(warm) >= 12:
+                continue
+            ts = []
+            for _ in range(warm_repeats):
+                t = time.perf_counter()
+                call(r["n"])
+                ts.append(time.perf_counter() - t)
+            warm[r["bucket"]] = float(np.median(ts))
+    return dict(rows=rows, rss_start=rss_start, rss0=rss0, rss1=rss1, warm=warm, buckets=buckets_enabled(),
+                load=os.getloadavg(), compiles_after=events["n"])
+
+
 def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
+    """``jaxcal.calibrate(..., "lm")`` on ``calls`` sample counts (issue 25's first acceptance row)."""
     import jax
     import numpy as np
 
     import jaxcal
-    from jaxcal._core._buckets import bucket_size, buckets_enabled
 
     jaxcal.enable_x64()
     events = count_compilations()
     ex = jaxcal.simulate_experiment(jax.random.key(0), n_samples=int(hi / 0.8) + 2)
     robot, meas = ex.robot, ex.measurement
     qn, yn = np.asarray(ex.train.q), np.asarray(ex.train.y)
-    counts = np.unique(np.linspace(lo, hi, calls).round().astype(int))
-    np.random.default_rng(seed).shuffle(counts)
-    rss0 = rss_mb()
-    rows = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for n in counts:
-            c0, s0 = events["n"], events["s"]
-            t = time.perf_counter()
-            res = jaxcal.calibrate(robot, meas, (qn[:n], yn[:n]), "lm")
-            dt = time.perf_counter() - t
-            rows.append(dict(n=int(n), bucket=bucket_size(int(n)), s=dt, compiles=events["n"] - c0,
-                             compile_s=events["s"] - s0, rmse=res.train_metrics.rmse, status=int(res.status)))
-        rss1 = rss_mb()
-        # warm calls: the last count of each bucket again, 5 times (its program is compiled;
-        # with buckets off only the last few counts' programs are still cached, see the LRU)
-        warm = {}
-        for r in rows[::-1]:
-            if r["bucket"] in warm or len(warm) >= 12:
-                continue
-            ts = []
-            for _ in range(5):
-                t = time.perf_counter()
-                jaxcal.calibrate(robot, meas, (qn[:r["n"]], yn[:r["n"]]), "lm")
-                ts.append(time.perf_counter() - t)
-            warm[r["bucket"]] = float(np.median(ts))
-    return dict(rows=rows, rss0=rss0, rss1=rss1, warm=warm, buckets=buckets_enabled(), load=os.getloadavg(),
-                compiles_after=events["n"])
+
+    def call(n):
+        res = jaxcal.calibrate(robot, meas, (qn[:n], yn[:n]), "lm")
+        return dict(rmse=res.train_metrics.rmse, status=int(res.status))
+
+    return run_counts(call, sample_counts(calls, lo, hi, seed), events)
 
 
-def summarise(out: dict) -> list[str]:
+def run_sweep(calls: int, lo: int, hi: int, n_seeds: int, seed: int = 0) -> dict:
+    """``jaxcal.sweep("lm", n_seeds, n_samples=n)`` on ``calls`` sample counts (issue 25's second
+    acceptance row). ``sweep`` simulates the data inside its compiled trial; with buckets it
+    simulates padded to the count's bucket, so one program per bucket serves every count."""
+    import numpy as np
+
+    import jaxcal
+
+    jaxcal.enable_x64()
+    events = count_compilations()
+
+    def call(n):
+        r = jaxcal.sweep("lm", n_seeds, n_samples=n, progress=False)
+        return dict(rmse=float(np.mean(r["lm"].test.rmse)), n_train=r.settings["n_train"])
+
+    return run_counts(call, sample_counts(calls, lo, hi, seed), events, warm_repeats=3)
+
+
+def summarise(out: dict, what: str = "calls") -> list[str]:
     import numpy as np
 
     rows = out["rows"]
@@ -113,46 +156,10 @@ def summarise(out: dict) -> list[str]:
                      f"{rs[0]['s']:.2f} | {1e3 * med:.1f} | {1e3 * w:.1f} | {med / w:.2f} |")
     total = sum(r["compiles"] for r in rows)
     lines += ["",
-              f"{len(rows)} calls on {len(rows)} sample counts, {len(by)} buckets: {total} XLA compilations "
+              f"{len(rows)} {what} on {len(rows)} sample counts, {len(by)} buckets: {total} XLA compilations "
               f"({sum(r['compile_s'] for r in rows):.1f} s of compiling); {out['compiles_after'] - total} more in the "
-              f"warm repeats; resident memory {out['rss0']:.0f} MB after setup, {out['rss1']:.0f} MB after the last "
-              f"call (+{out['rss1'] - out['rss0']:.0f} MB); load average {out['load'][0]:.2f} at the end."]
-    return lines
-
-
-def run_sweep(counts: list[int], n_seeds: int) -> dict:
-    """``jaxcal.sweep("lm", n_seeds, n_samples=n)`` for each ``n`` in ``counts`` (issue 25's second
-    acceptance row): XLA compilations, time and resident memory per call. ``sweep`` simulates the
-    data inside its compiled trial, so the sample count is part of the program's shapes."""
-
-    import jaxcal
-    from jaxcal._core._buckets import bucket_size, buckets_enabled
-
-    jaxcal.enable_x64()
-    events = count_compilations()
-    rss0 = rss_mb()
-    rows = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for n in counts:
-            c0, s0 = events["n"], events["s"]
-            t = time.perf_counter()
-            jaxcal.sweep("lm", n_seeds, n_samples=int(n), progress=False)
-            rows.append(dict(n=int(n), bucket=bucket_size(int(n)), s=time.perf_counter() - t,
-                             compiles=events["n"] - c0, compile_s=events["s"] - s0, rss=rss_mb()))
-    return dict(rows=rows, rss0=rss0, buckets=buckets_enabled(), load=os.getloadavg())
-
-
-def summarise_sweep(out: dict) -> list[str]:
-    lines = ["| n_samples | bucket | XLA compilations | compile (s) | call (s) | resident memory after (MB) |",
-             "|---|---|---|---|---|---|"]
-    for r in out["rows"]:
-        lines.append(f"| {r['n']} | {r['bucket']} | {r['compiles']} | {r['compile_s']:.1f} | {r['s']:.1f} | "
-                     f"{r['rss']:.0f} |")
-    rows = out["rows"]
-    lines += ["", f"{len(rows)} sweeps, {sum(r['compiles'] for r in rows)} XLA compilations; resident memory "
-              f"{out['rss0']:.0f} MB before, {rows[-1]['rss']:.0f} MB after (+{rows[-1]['rss'] - out['rss0']:.0f} MB); "
-              f"buckets {'on' if out['buckets'] else 'off'}; load average {out['load'][0]:.2f} at the end."]
+              f"warm repeats; resident memory {out['rss_start']:.0f} MB before the first call, {out['rss0']:.0f} MB after it, {out['rss1']:.0f} MB after "
+              f"the last (+{out['rss1'] - out['rss0']:.0f} MB); load average {out['load'][0]:.2f} at the end."]
     return lines
 
 
@@ -167,20 +174,22 @@ def main() -> None:
     ap.add_argument("--both", action="store_true", help="with and without buckets, fresh processes; writes the md")
     ap.add_argument("--sweep", type=int, metavar="K", default=0,
                     help="instead: jaxcal.sweep('lm') over K sample counts in --min..--max with buckets on "
-                         "(--sweep-seeds trials each); appends its table to results/buckets_cpu.md")
+                         "(--sweep-seeds trials each); writes results/buckets_sweep_cpu.md")
     ap.add_argument("--sweep-seeds", type=int, default=2)
     args = ap.parse_args()
     if args.sweep:
-        import numpy as np
         from _common import machine
 
         os.environ.setdefault("JAXCAL_BUCKETS", "on")
-        counts = [int(c) for c in np.linspace(args.min, args.max, args.sweep).round()]
-        out = run_sweep(counts, args.sweep_seeds)
-        md = ["", f"## `sweep` over different `n_samples` (`--sweep {args.sweep}`, {args.sweep_seeds} LM trials each, "
-              f"`JAXCAL_BUCKETS={os.environ['JAXCAL_BUCKETS']}`; {machine()})", "", *summarise_sweep(out)]
-        with open(HERE / "results" / "buckets_cpu.md", "a") as f:
-            f.write("\n".join(md) + "\n")
+        load0 = os.getloadavg()
+        out = run_sweep(args.sweep, args.min, args.max, args.sweep_seeds)
+        md = ["# Shape buckets: `sweep` over many sample counts in one session (issue 25)", "",
+              f"Machine: {machine()}. `python benchmarks/bench_buckets.py --sweep {args.sweep}` "
+              f"(`jaxcal.sweep('lm', {args.sweep_seeds}, n_samples=n)`, the default simulated experiment, counts "
+              f"{args.min}..{args.max} in random order, `JAXCAL_BUCKETS={os.environ['JAXCAL_BUCKETS']}`; every XLA "
+              f"compilation of the process counted; warm call: the bucket's last count 3 times more). Load average "
+              f"{load0[0]:.2f} at the start.", "", *summarise(out, "sweeps")]
+        (HERE / "results" / "buckets_sweep_cpu.md").write_text("\n".join(md) + "\n")
         print("\n".join(md))
         return
     if args.both:

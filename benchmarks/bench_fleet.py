@@ -93,6 +93,7 @@ def main() -> None:
     ap.add_argument("--units", type=int, default=None, help="one configuration, printed, nothing written")
     ap.add_argument("--samples", type=int, default=1000)
     ap.add_argument("--objective", default=None, help="e.g. measured (default: plain least squares)")
+    ap.add_argument("--out", default=str(HERE / "results" / "fleet_cpu.md"), help="the results file")
     args = ap.parse_args()
     if args.units is not None:
         rows = run(args.units, args.samples, args.objective)
@@ -102,8 +103,7 @@ def main() -> None:
 
     rows = [*run(100, args.samples, None), *run(100, args.samples, "measured")]
     md = ["# A fleet in one program: `calibrate_many` vs a loop of `calibrate` (issue 25)", "",
-          f"Machine: {machine()}; 2-core x86_64 CPU, JAX CPU build, float64, shared machine (load averages in "
-          "the table). `python benchmarks/bench_fleet.py`: simulated HSR-JR680 units (draw-wire, σ = 0.5 mm), each "
+          f"Machine: {machine()}; float64 (load averages in the table). `python benchmarks/bench_fleet.py`: simulated HSR-JR680 units (draw-wire, σ = 0.5 mm), each "
           "with its own random deviations and poses, `method='lm'`.", "", *HEADER, *map(row, rows), "",
           "batching: `map` (the default on a CPU) runs the units one after the other inside the one compiled "
           "program (`jax.lax.map`), `vmap` vectorises them (a vmapped LM batch iterates until its slowest unit "
@@ -112,7 +112,7 @@ def main() -> None:
           "re-estimation rounds reuse it); warm = the same call again. The loop's first call compiles the "
           "single-unit program; the loop itself is warm. Δx: the largest difference of any parameter of any unit "
           "between the fleet and that unit calibrated alone (rad/mm; relative to max(|x|, 1e-3))."]
-    (HERE / "results" / "fleet_cpu.md").write_text("\n".join(md) + "\n")
+    pathlib.Path(args.out).write_text("\n".join(md) + "\n")
     print("\n".join(md))
 
 

@@ -259,7 +259,7 @@ def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> Paramet
     return ParameterSpace.from_names(layout, [n for n in names if n in chosen])
 
 
-def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=(), prior=None
+def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None, fix=(), prior=None, n_to=None
                   ) -> tuple[ParameterSpace, object]:
     """The free parameters of a calibration: ``(space, report_or_None)``.
 
@@ -274,16 +274,17 @@ def resolve_space(robot, measurement, q, space, start=None, extras=(), free=None
       data-identifiable subset of the others (:func:`~jaxcal._fit._identifiability.select_free`):
       nothing the prior determines is frozen at a start value.
 
-    ``"all"``: every candidate; or a :class:`ParameterSpace` as given."""
+    ``"all"``: every candidate; or a :class:`ParameterSpace` as given. ``n_to``: the row count the
+    identifiability program pads to (default: the shape bucket of ``q``'s rows)."""
     cand = candidate_space(robot, measurement, extras, free, fix)
-    return _resolve_candidates(cand, robot, measurement, q, space, start, prior=resolve_prior(prior))[:2]
+    return _resolve_candidates(cand, robot, measurement, q, space, start, prior=resolve_prior(prior), n_to=n_to)[:2]
 
 
 def _default_selection(space) -> bool:
     return space is None or (isinstance(space, str) and space == "identifiable")
 
 
-def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None):
+def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None, n_to=None):
     """:func:`resolve_space` from the candidates ``cand``: ``(space, report_or_None, residuals,
     jacobian)``, the last two the residual blocks (NumPy) and the identification Jacobian of the
     chosen free parameters (device) at ``start`` when ``y`` is given and the identifiability
@@ -291,7 +292,8 @@ def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior
     ``None``."""
     if _default_selection(space):
         prior_std = None if prior is None else prior.std(cand)
-        report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y, prior_std=prior_std)
+        report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y, prior_std=prior_std,
+                                                   n_to=n_to)
         if J is not None:
             kept = set(report.space.free_names)
             J = _take_columns(J, np.asarray([i for i, n in enumerate(cand.free_names) if n in kept]))

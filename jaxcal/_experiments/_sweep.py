@@ -50,6 +50,7 @@ from jaxtyping import Array
 
 from .._calibration._calibrate import Calibrator, resolve_space
 from .._calibration._io import measurement_from_dict, measurement_to_dict, robot_from_dict, robot_to_dict
+from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory, signature
 from .._core._json import to_jsonable
 from .._core._metrics import Floor, Metrics, compute_metrics, statistical_floor
 from .._core._params import Deviations, ParameterSpace, layout_for
@@ -133,21 +134,35 @@ class _Split(NamedTuple):
     q_test: Array
     y_test: Array
     truth: Deviations | None
+    #: ``[n_train]``, ``[n_test]``: 1 for a real sample, 0 for a padding row (shape buckets), or None
+    w_train: Array | None = None
+    w_test: Array | None = None
 
 
 class _Simulated(eqx.Module):
-    """Simulate the paper's experiment from the data key (:func:`simulate_experiment`)."""
+    """Simulate the paper's experiment from the data key (:func:`simulate_experiment`).
+
+    With ``sizes`` (shape buckets: ``(n_samples, n_test, permutation rounds)`` as int arrays, so
+    traced) the options' ``n_samples`` is the bucket and the split arrives padded with zero-weight
+    rows (:func:`~jaxcal._simulation._simulate.simulate_padded`): its real rows are exactly the
+    unpadded simulation's, and one compiled program serves every sample count of the bucket."""
 
     robot: DHRobot
     measurement: MeasurementModel
     true_deviations: Deviations | None
     options: tuple = eqx.field(static=True)
+    sizes: Array | None = None
 
     def __call__(self, key) -> _Split:
         # simulate_experiment's core (the public wrapper reads the robot's dimensions with NumPy,
         # which a traced robot cannot provide); identical data for the same key and options.
         o = dict(self.options)
         cfg = _simulate_mod._Config(*(o[f] for f in _CONFIG_FIELDS))
+        if self.sizes is not None:
+            n, n_test, rounds = self.sizes
+            ps = _simulate_mod.simulate_padded(key, self.robot, self.measurement, self.true_deviations,
+                                               o["noise_std"], cfg, n, n_test, rounds)
+            return _Split(ps.q_train, ps.y_train, ps.q_test, ps.y_test, ps.true_deviations, ps.w_train, ps.w_test)
         ex = _simulate_mod._simulate(key, self.robot, self.measurement, self.true_deviations, o["noise_std"], cfg)
         return _Split(ex.train.q, ex.train.y, ex.test.q, ex.test.y, ex.true_deviations)
 
@@ -225,15 +240,16 @@ class _DataTrial(eqx.Module):
         del hyper
         k_data, k_method = jax.random.split(key)
         s = self.source(k_data)
-        test = Problem(self.robot, self.measurement, s.q_test, s.y_test, self.space, self.start)
+        test = Problem(self.robot, self.measurement, s.q_test, s.y_test, self.space, self.start, s.w_test)
         e0 = test.sample_errors(test.x0())
         if s.truth is None:
             nan = jnp.full((), jnp.nan, e0.dtype)
             oracle, truth = Metrics(nan, nan, nan), None
         else:
             r = self.measurement.residual(self.robot, s.truth, s.q_test, s.y_test)
-            oracle, truth = compute_metrics(self.measurement.sample_error(r)), s.truth
-        return _DataOut(compute_metrics(e0), oracle, truth, e0 if self.keep_errors else jnp.zeros((0,), e0.dtype),
+            oracle, truth = compute_metrics(self.measurement.sample_error(r), s.w_test), s.truth
+        return _DataOut(compute_metrics(e0, s.w_test), oracle, truth,
+                        e0 if self.keep_errors else jnp.zeros((0,), e0.dtype),
                         s._replace(truth=None), jax.random.key_data(k_method))
 
 
@@ -263,11 +279,11 @@ class _MethodTrial(eqx.Module):
                 warnings.filterwarnings("ignore", "A JAX array is being set as static")
                 method = make_method(self.method_name, **dict(self.static_hyper), **(hyper or {}))
         cal = Calibrator(self.robot, self.measurement, method, self.start, self.space, self.objective)
-        out = cal(split.q_train, split.y_train, jax.random.wrap_key_data(k_method))
-        e = method.sample_errors(cal.problem(split.q_test, split.y_test), out.x, out.extra)
+        out = cal(split.q_train, split.y_train, jax.random.wrap_key_data(k_method), split.w_train)
+        e = method.sample_errors(cal.problem(split.q_test, split.y_test, split.w_test), out.x, out.extra)
         hist = out.history if self.keep_history else out.history[-1:]
         return _TrialOut(
-            compute_metrics(e), out.train_metrics, out.n_iterations, out.iterations_to_converge,
+            compute_metrics(e, split.w_test), out.train_metrics, out.n_iterations, out.iterations_to_converge,
             out.status, out.x, hist, e if self.keep_errors else jnp.zeros((0,), e.dtype),
             out.extra.ends if isinstance(out.extra, StageInfo) else None,
         )
@@ -720,11 +736,28 @@ class _Runner:
             self.platform = jax.default_backend() if device is None else device.platform
         self.compiled = None
         self._lowered = None
+        self._key = None
         self.compile_time_s = 0.0
+        self.reused = False
+
+    def _cache_key(self, inputs, hyper):
+        """The key of this unit's compiled chunk function in :data:`_COMPILED_CHUNKS`: the static
+        part of the trial (a padded simulation's static part is its bucket, not its sample count),
+        the mesh or device and the shapes/dtypes of every argument; ``None`` if unhashable."""
+        try:
+            key = (self.static, self.mesh, None if self.device is None else self.device.id, self.platform,
+                   self.grid, self.sequential, str(jnp.dtype(self.dtype)), jax.config.jax_enable_x64,
+                   signature(self.dyn), signature(inputs), signature(hyper))
+            hash(key)
+        except TypeError:
+            return None
+        return key
 
     def _place(self, inputs, hyper):
         if self.mesh is None:
             if self.device is not None:
+                if any(isinstance(a, jax.ShapeDtypeStruct) for a in jax.tree.leaves(inputs)):  # lowering only
+                    return inputs, jax.device_put(hyper, self.device)
                 return jax.device_put((inputs, hyper), self.device)
             return inputs, hyper
         rep = NamedSharding(self.mesh, P())
@@ -732,30 +765,57 @@ class _Runner:
         return inputs, _put_global(hyper, rep)
 
     def lower(self, inputs, hyper):
-        """Trace and lower the chunk function for ``inputs`` (Python-bound: the main thread)."""
+        """Trace and lower the chunk function for ``inputs`` (Python-bound: the main thread), or
+        take the compiled function from :data:`_COMPILED_CHUNKS` (an earlier sweep of the same
+        unit and shapes in this process: nothing to trace or compile)."""
         t0 = time.perf_counter()
         with dtype_scope(self.dtype):
             inputs, hyper = self._place(inputs, hyper)
+            self._key = self._cache_key(inputs, hyper)
+            hit = None if self._key is None else _COMPILED_CHUNKS.get(self._key)
+            if hit is not None:
+                self.compiled, self.reused, self.compile_time_s = hit, True, 0.0
+                return
             self._lowered = _run_chunk.lower(self.static, self.mesh, self.grid, self.sequential, self.dyn, inputs, hyper)
         self.compile_time_s = time.perf_counter() - t0
 
     def compile(self):
         """XLA-compile what :meth:`lower` traced (releases the GIL: units compile in parallel threads)."""
+        if self.compiled is not None:  # reused from _COMPILED_CHUNKS
+            return
         t0 = time.perf_counter()
         self.compiled = compile_lowered(self._lowered, self.platform)
         self._lowered = None
         self.compile_time_s += time.perf_counter() - t0
+        if self._key is not None:
+            _COMPILED_CHUNKS.put(self._key, self.compiled)
 
     def __call__(self, inputs, hyper):
         if self.compiled is None:
             self.lower(inputs, hyper)
             self.compile()
+            _forget_traces()
         with dtype_scope(self.dtype):
             inputs, hyper = self._place(inputs, hyper)
             t0 = time.perf_counter()
             out = jax.block_until_ready(self.compiled(self.dyn, inputs, hyper))
             wall = time.perf_counter() - t0
         return _to_host(out), wall
+
+
+#: compiled chunk functions of this process, least recently used dropped first
+#: (``$JAXCAL_SWEEP_CACHE`` entries, default 32: the data unit and a method of 16 shape buckets;
+#: each holds an executable, ~14 MB resident on the 2-core CPU for the paper experiment's LM): a
+#: second sweep of the same units and shapes — a learning curve over sample counts of one shape
+#: bucket, a notebook re-running a cell — compiles nothing.
+_COMPILED_CHUNKS = BoundedCache(cache_size("sweep", 32))
+
+
+def _forget_traces() -> None:
+    """Drop ``_run_chunk``'s own trace and lowering caches (tens of MB per unit, never freed by
+    JAX; the compiled functions live in :data:`_COMPILED_CHUNKS`) and give freed heap pages back."""
+    _run_chunk.clear_cache()
+    release_memory()
 
 
 def sweep(
@@ -859,10 +919,14 @@ def sweep(
     dtype = jnp.result_type(float)
     warn_if_float32(dtype, "sweep")
     specs = _method_specs(methods, hyperparameters, grid)
+    pad = data is None and _paddable(specs)
     source, robot, measurement, source_settings = _make_source(
-        robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype)
+        robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype, pad)
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
-    ex = _Execution.build(n_seeds, chunk_size, devices, batching, dtype, out_dir, progress)
+    real = None if not pad else (int(n_samples) - int(round(n_samples * test_fraction)),
+                                 int(round(n_samples * test_fraction)))
+    ex = _Execution.build(n_seeds, chunk_size, devices, batching, dtype, out_dir, progress,
+                          None if real is None else real[1])
     prior = resolve_prior(prior)
     if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
@@ -870,11 +934,22 @@ def sweep(
                          {"prior": None if prior is None else repr(prior), "loss": loss, "loss_scale": loss_scale})
     common = {k: settings[k] for k in _COMMON_SETTINGS}
 
-    # 1. data pass: every trial's data (simulated or split once, reused by every method), the
-    #    before-calibration and oracle metrics, the true deviations
-    dlike, dout, dchunks = _data_pass(ex, source, robot, measurement, start, keep_errors, base_key, common)
-    # 2. the free parameters: fixed for the whole sweep (static under jit), from trial 0's poses
-    space, floor, sizes = _free_parameters(robot, measurement, dout, space, start, prior, noise_std)
+    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot, measurement=measurement),
+                        keep_errors)
+    data_unit = _Unit("_data", _fingerprint(common | {"unit": "data"}), dtrial, None, None, [None])
+    early = _plan_before_data(ex)
+    if early:
+        # on an accelerator: trial 0's data on the host CPU choose the free parameters (step 2)
+        # first, so that the data unit compiles together with the method units (step 4)
+        dlike, d0 = _trial_zero_on_host(dtrial, base_key, ex.dtype)
+        with jax.default_device(jax.local_devices(backend="cpu")[0]):
+            space, floor, sizes = _free_parameters(robot, measurement, d0, space, start, prior, noise_std, real)
+    else:
+        # 1. data pass: every trial's data (simulated or split once, reused by every method), the
+        #    before-calibration and oracle metrics, the true deviations
+        dlike, dout, dchunks = _data_pass(ex, data_unit, base_key)
+        # 2. the free parameters: fixed for the whole sweep (static under jit), from trial 0's poses
+        space, floor, sizes = _free_parameters(robot, measurement, dout, space, start, prior, noise_std, real)
     settings |= sizes
     common["space"] = settings["space"]
     # 3. the plan: compiled units (a method, or a group of grid points vmapped together)
@@ -887,12 +962,19 @@ def sweep(
         (ex.store.root / "sweep.json").write_text(json.dumps(settings, indent=1, default=repr))
     _progress(progress, f"{len(settings['runs'])} run(s); p = {space.n_free} free parameters; "
               f"{settings['n_train']} train / {settings['n_test']} test samples per trial")
-    method_inputs = functools.partial(_method_inputs, dlike, dchunks, ex.csize)
     # 4. compile every unit that has chunks to compute: traced one after the other, XLA-compiled in
     #    parallel threads (compilation dominates a cold sweep: ~5 s per method on an H100, ~10–20 s
-    #    on 2 CPU cores; XLA releases the GIL while it compiles)
-    runners = _compile_units(units, ex.new_runner, method_inputs(0, 0, min(ex.csize, n_seeds)),
-                             lambda u: ex.pending(u.name), progress)
+    #    on 2 CPU cores; XLA releases the GIL while it compiles); on an accelerator the data unit too
+    if early:
+        abstract = _abstract_method_inputs(dlike, ex)
+        runners = _compile_units([data_unit, *units], ex.new_runner,
+                                 lambda u: (_data_inputs(base_key, ex.csize, 0),) if u is data_unit else abstract,
+                                 lambda u: ex.pending(u.name), progress)
+        _, dout, dchunks = _data_pass(ex, data_unit, base_key, runners.get("_data"))
+    else:
+        first = _method_inputs(dlike, dchunks, ex.csize, 0, 0, min(ex.csize, n_seeds))
+        runners = _compile_units(units, ex.new_runner, lambda u: first, lambda u: ex.pending(u.name), progress)
+    method_inputs = functools.partial(_method_inputs, dlike, dchunks, ex.csize)
     # 5. every method (or grid group), chunk by chunk
     runs = _run_units(ex, units, method_inputs, runners)
     return SweepResult(
@@ -901,7 +983,7 @@ def sweep(
         before=Metrics(*(np.asarray(v) for v in dout.before)),
         oracle=Metrics(*(np.asarray(v) for v in dout.oracle)),
         floor=floor,
-        before_errors=np.asarray(dout.before_errors),
+        before_errors=np.asarray(dout.before_errors),  # trimmed to the real test rows (_compute_chunk)
         space=space,
         robot=robot,
         measurement=measurement,
@@ -909,6 +991,19 @@ def sweep(
         true_deviations=None if dout.truth is None else jax.tree.map(np.asarray, dout.truth),
         settings=settings,
     )
+
+
+def _paddable(specs) -> bool:
+    """Whether a simulated sweep runs padded to its shape bucket (:mod:`jaxcal._core._buckets`):
+    buckets on, JAX's partitionable threefry (the padded simulation's real rows equal the
+    unpadded one's only then), and every method paddable (:attr:`Method.paddable`)."""
+    if not buckets_enabled() or not jax.config.jax_threefry_partitionable:
+        return False
+    for s in specs:
+        m = s.method if s.method is not None else make_method(s.name, **(s.static_hyper | s.points[0]))
+        if not m.paddable:
+            return False
+    return True
 
 
 def _check_n_seeds(n_seeds) -> int:
@@ -932,9 +1027,11 @@ class _Execution:
     dtype: Any
     store: _Store
     progress: bool
+    #: real test rows of a padded simulation (per-sample error arrays are cut to them), or None
+    n_test: int | None = None
 
     @classmethod
-    def build(cls, n_seeds, chunk_size, devices, batching, dtype, out_dir, progress) -> _Execution:
+    def build(cls, n_seeds, chunk_size, devices, batching, dtype, out_dir, progress, n_test=None) -> _Execution:
         devs = _resolve_devices(devices)
         mesh = Mesh(np.asarray(devs), ("trials",)) if len(devs) > 1 else None
         if batching not in ("auto", "vmap", "map"):
@@ -943,7 +1040,7 @@ class _Execution:
             raise ValueError("batching='map' runs on one device; use 'vmap' (or 'auto') with several devices")
         sequential = batching == "map" or (batching == "auto" and mesh is None and devs[0].platform == "cpu")
         per_device, csize = _chunking(n_seeds, chunk_size, len(devs), devs[0].platform)
-        return cls(n_seeds, per_device, csize, devs, mesh, sequential, dtype, _Store(out_dir), progress)
+        return cls(n_seeds, per_device, csize, devs, mesh, sequential, dtype, _Store(out_dir), progress, n_test)
 
     @property
     def n_chunks(self) -> int:
@@ -996,9 +1093,13 @@ class _Execution:
         fresh = runner.compiled is None
         out, wall = runner(inputs_of(c, a, b), hyper)
         arrays = {k: (v[:, : b - a] if hyper is not None else v[: b - a]) for k, v in _flatten(out).items()}
+        if self.n_test is not None:  # padded simulation: per-sample errors of the real test rows only
+            arrays = {k: v[..., : self.n_test] if k.endswith(("test_errors", "before_errors")) else v
+                      for k, v in arrays.items()}
         per = wall / (self.csize * (n_points or 1))
         self.store.save(unit, a, b, fp, arrays, {"time_per_trial_s": per, "compile_time_s": runner.compile_time_s})
-        comp = f", compiled in {runner.compile_time_s:.1f} s" if fresh else ""
+        comp = "" if not fresh else (", compiled program reused" if runner.reused else
+                                     f", compiled in {runner.compile_time_s:.1f} s")
         _progress(self.progress, f"{_shown(unit)}: chunk {c + 1}/{self.n_chunks} (trials {a}–{b - 1}) {wall:.2f} s "
                   f"({per * 1e3:.1f} ms/trial){comp}")
         return arrays, per
@@ -1039,26 +1140,67 @@ def _settings(ex: _Execution, base_key, noise_std, source_settings, robot, measu
     }
 
 
-def _data_pass(ex: _Execution, source, robot, measurement, start, keep_errors, base_key, common):
+def _data_inputs(base_key, csize: int, a: int):
+    """The data unit's inputs for the chunk starting at trial ``a``: ``csize`` trial keys."""
+    return trial_keys(base_key, a, a + csize)
+
+
+def _data_pass(ex: _Execution, data_unit: _Unit, base_key, runner=None):
     """Step 1: every trial's data and the before/oracle metrics. Returns the shapes of one
-    trial's output (``dlike``), the merged output, and the per-chunk arrays."""
+    trial's output (``dlike``), the merged output, and the per-chunk arrays. ``runner``: the data
+    unit compiled already (step 4 on an accelerator)."""
     _progress(ex.progress, f"{ex.n_seeds} trial(s) in chunks of {ex.csize} = {len(ex.devs)} device(s) × "
               f"{ex.per_device} ({'lax.map' if ex.sequential else 'vmap'})")
-    dtrial = _DataTrial(source, robot, measurement, start, ParameterSpace.for_robot(robot, measurement=measurement),
-                        keep_errors)
-    dmerged, _, _, dchunks, runner = ex.run_unit("_data", dtrial, None, _fingerprint(common | {"unit": "data"}), None,
-                                                 lambda c, a, b: (trial_keys(base_key, a, a + ex.csize),))
+    dtrial = data_unit.trial
+    dmerged, _, _, dchunks, runner = ex.run_unit("_data", dtrial, None, data_unit.fingerprint, None,
+                                                 lambda c, a, b: (_data_inputs(base_key, ex.csize, a),), runner)
     dlike = _one_trial_like(runner, lambda: eqx.filter_eval_shape(
         lambda t, k: t(k), dtrial, trial_keys(base_key, 0, 1)[0]), ex.dtype)
     return dlike, _unflatten(dlike, dmerged), dchunks
 
 
-def _free_parameters(robot, measurement, dout, space, start, prior, noise_std):
+#: whether :func:`sweep` chooses the free parameters before its data pass (from trial 0 computed
+#: on the host CPU) and compiles the data unit with the method units: ``None`` = on an accelerator
+#: (a single device, the data pass not stored yet), where the data unit's compilation (~10 s on an
+#: H100) would otherwise precede the methods'; ``True``/``False`` force it (tests)
+_PLAN_BEFORE_DATA: bool | None = None
+
+
+def _plan_before_data(ex: _Execution) -> bool:
+    if ex.mesh is not None or not ex.pending("_data"):
+        return False
+    if _PLAN_BEFORE_DATA is not None:
+        return bool(_PLAN_BEFORE_DATA)
+    return ex.devs[0].platform != "cpu"
+
+
+def _trial_zero_on_host(dtrial, base_key, dtype):
+    """Trial 0's data-unit output (leading axis 1, NumPy) computed on the host CPU, and the shapes
+    of one trial's output: the same simulation or split as trial 0 of the data pass."""
+    cpu = jax.local_devices(backend="cpu")[0]
+    runner = _Runner(dtrial, None, dtype, False, True, cpu)
+    out, _ = runner((jax.device_put(trial_keys(base_key, 0, 1), cpu),), None)
+    return _one_trial_like(runner, None, dtype), out
+
+
+def _abstract_method_inputs(dlike, ex: _Execution):
+    """A method unit's chunk inputs as shapes (``jax.ShapeDtypeStruct`` on the sweep's device):
+    enough to lower and compile it before the data pass has run."""
+    sharding = jax.sharding.SingleDeviceSharding(ex.devs[0])
+    return jax.tree.map(lambda s: jax.ShapeDtypeStruct((ex.csize, *s.shape), s.dtype, sharding=sharding),
+                        (dlike.split, dlike.k_method))
+
+
+def _free_parameters(robot, measurement, dout, space, start, prior, noise_std, real=None):
     """Step 2: the free parameters chosen at trial 0's training poses, the statistical floor
-    (or ``None``), and the settings entries they add."""
-    q0 = jnp.asarray(dout.split.q_train[0])
-    space, report = resolve_space(robot, measurement, q0, space, start, prior=prior)
-    n_train, n_test = int(q0.shape[0]), int(dout.split.q_test.shape[1])
+    (or ``None``), and the settings entries they add. ``real``: ``(n_train, n_test)`` of a padded
+    simulation (its real rows come first)."""
+    n_train, n_test = (dout.split.q_train.shape[1], dout.split.q_test.shape[1]) if real is None else real
+    n_train, n_test = int(n_train), int(n_test)
+    # padded: the identifiability program pads to the sweep's own train rows (one program per bucket)
+    n_to = None if real is None else int(dout.split.q_train.shape[1])
+    q0 = jax.device_put(np.ascontiguousarray(dout.split.q_train[0][:n_train]))  # not jnp.asarray: no copy program
+    space, report = resolve_space(robot, measurement, q0, space, start, prior=prior, n_to=n_to)
     if n_train * measurement.size <= space.n_free + 1:
         raise ValueError(
             f"too few samples: {n_train} training sample(s) give {n_train * measurement.size} residuals "
@@ -1137,8 +1279,9 @@ def _run_units(ex: _Execution, units, method_inputs, runners) -> dict[str, Sweep
     return runs
 
 
-def _compile_units(units, new_runner, inputs, needed, progress: bool) -> dict:
-    """``{unit name: compiled _Runner}`` for the units ``needed(unit)`` says will run a chunk:
+def _compile_units(units, new_runner, inputs_of, needed, progress: bool) -> dict:
+    """``{unit name: compiled _Runner}`` for the units ``needed(unit)`` says will run a chunk
+    (``inputs_of(unit)``: its first chunk's inputs, or their shapes):
     lowered in this thread, then compiled by a thread pool (one thread per unit, at most the
     number of CPU cores; ``JAXCAL_COMPILE_THREADS`` overrides, 1 = one after the other)."""
     todo = [u for u in units if needed(u)]
@@ -1147,7 +1290,7 @@ def _compile_units(units, new_runner, inputs, needed, progress: bool) -> dict:
     runners = {}
     for u in todo:
         r = new_runner(u.trial, u.hyper)
-        r.lower(inputs, u.hyper)
+        r.lower(inputs_of(u), u.hyper)
         runners[u.name] = r
     workers = int(os.environ.get("JAXCAL_COMPILE_THREADS") or min(len(todo), os.cpu_count() or 1))
     t0 = time.perf_counter()
@@ -1159,8 +1302,11 @@ def _compile_units(units, new_runner, inputs, needed, progress: bool) -> dict:
 
         with ThreadPoolExecutor(max_workers=workers) as pool:
             list(pool.map(lambda r: r.compile(), runners.values()))
+    _forget_traces()
+    reused = sum(r.reused for r in runners.values())
     if len(todo) > 1:
-        _progress(progress, f"{len(todo)} units compiled in {time.perf_counter() - t0:.1f} s ({workers} thread(s))")
+        _progress(progress, f"{len(todo)} units compiled in {time.perf_counter() - t0:.1f} s ({workers} thread(s))"
+                  + (f"; {reused} reused from earlier sweeps" if reused else ""))
     return runners
 
 
@@ -1209,7 +1355,9 @@ def _grid_trial(s: _RunSpec, mk, space, dtype, trial_args):
     return trial, hyper
 
 
-def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype):
+def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experiment, data, dtype, pad=False):
+    """``(source, robot, measurement, settings)``; with ``pad`` a simulation runs padded to the shape
+    bucket of ``n_samples`` (:class:`_Simulated`; ``settings["bucket"]`` says so)."""
     experiment = dict(experiment or {})
     if data is None:
         from ..robots import hsr_jr680
@@ -1221,8 +1369,15 @@ def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experi
             raise ValueError("simulation needs noise_std (mm)")
         options = _simulation_options(robot, n_samples, noise_std, test_fraction, experiment)
         settings = {"kind": "simulated", **{k: to_jsonable(v) for k, v in options.items()},
-                    "true_deviations": None if truth is None else _array_digest(truth.ravel())}
-        return _Simulated(robot, measurement, truth, tuple(sorted(options.items()))), robot, measurement, settings
+                    "true_deviations": None if truth is None else _array_digest(truth.ravel()), "bucket": None}
+        sizes = None
+        if pad:
+            n, n_test = options["n_samples"], int(round(options["n_samples"] * options["test_fraction"]))
+            settings["bucket"] = bucket_size(n)
+            sizes = jnp.asarray([n, n_test, _simulate_mod.permutation_rounds(n)], jnp.int32)
+            options = options | {"n_samples": settings["bucket"]}
+        return (_Simulated(robot, measurement, truth, tuple(sorted(options.items())), sizes), robot, measurement,
+                settings)
     if experiment:
         raise ValueError("experiment options apply to simulation; they cannot be combined with data=")
     if isinstance(data, Experiment):

@@ -392,7 +392,7 @@ def select_free(Rs: np.ndarray, norms: np.ndarray, s0: float, pref: list, prior_
 
 
 def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None,
-                            prior_std=None):
+                            prior_std=None, n_to=None):
     """:func:`identifiability`, and with measurements ``y`` also their residual blocks ``[n, m]``
     (NumPy, mm) at ``deviations`` and the identification Jacobian ``[N, p]`` there (a device
     array; only where :attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), from the same
@@ -407,8 +407,10 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     The compiled program runs on the samples padded to their shape bucket
     (:mod:`jaxcal._core._buckets`; one program per bucket, not per sample count): the report and the
     residuals are the real rows', and the Jacobian carries zero rows for the padding at its end
-    (``bucket_size(n)·m`` rows)."""
-    q = jnp.asarray(q)
+    (``bucket_size(n)·m`` rows). ``n_to``: pad to this row count instead (a caller with its own
+    bucket, as :func:`jaxcal.sweep`'s padded simulation)."""
+    # jax.device_put, not jnp.asarray: the latter compiles a small copy program per new shape
+    q = q if isinstance(q, jax.Array) else jax.device_put(np.asarray(q))
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")
@@ -419,9 +421,10 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
     n = int(q.shape[0])
     qp, yp, w = q, y, None
-    if buckets_enabled():
-        qp, yp, w = pad_rows(q, y, bucket_size(n))
-        measurement = measurement.pad_rows(n, bucket_size(n))
+    if buckets_enabled() or n_to is not None:
+        n_to = bucket_size(n) if n_to is None else int(n_to)
+        qp, yp, w = pad_rows(q, y, n_to)
+        measurement = measurement.pad_rows(n, n_to)
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
     if resid is not None and w is not None:
         resid = np.asarray(resid)[:n]

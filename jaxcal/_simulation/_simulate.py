@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -196,8 +197,15 @@ class _Config(eqx.Module):
     oversample: int = eqx.field(static=True)
 
 
-@eqx.filter_jit
-def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config) -> Experiment:
+def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Config, n_real=None):
+    """The experiment's draws before the split: ``(true_deviations, q, y, k_split)`` with
+    ``cfg.n_samples`` rows.
+
+    ``n_real`` (a traced int ``≤ cfg.n_samples``; shape buckets, :func:`simulate_padded`): only the
+    first ``n_real·oversample`` candidate poses may be picked, and the first ``n_real`` rows equal
+    those of a simulation of ``n_real`` samples: ``jax.random``'s draws are prefixes of longer
+    draws of the same key (threefry in its partitionable mode, JAX's default; checked by
+    ``tests/simulation/test_simulate.py``). The rows after them are filler."""
     dtype = jnp.result_type(float)
     k_dev, k_q, k_noise, k_split = jax.random.split(key, 4)
     if true_deviations is None:
@@ -212,10 +220,14 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     p = tool_point_soa(robot, true_deviations, cand)
     anchor = jnp.asarray(getattr(measurement, "anchor", jnp.zeros(3)), dtype) + true_deviations.anchor
     ok = workspace_mask(p, anchor, cfg.wire_range, cfg.min_height_mm)
+    need = cfg.n_samples
+    if n_real is not None:
+        ok = ok & (jnp.arange(n_cand) < n_real * cfg.oversample)
+        need = n_real
     (idx,) = jnp.nonzero(ok, size=cfg.n_samples, fill_value=0)
     n_ok = jnp.sum(ok)
     idx = eqx.error_if(
-        idx, n_ok < cfg.n_samples,
+        idx, n_ok < need,
         "simulate_experiment: too few joint configurations inside the workspace filter; "
         "raise `oversample`, widen `wire_range_mm` or lower `min_height_mm`",
     )
@@ -227,6 +239,13 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     else:  # pose: noise on the position only; orientation readings stay exact
         noise = sigma * jax.random.normal(k_noise, y_true[:, :3, 3].shape, dtype)
         y = y_true.at[:, :3, 3].add(noise)
+    return true_deviations, q, y, k_split
+
+
+@eqx.filter_jit
+def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config) -> Experiment:
+    true_deviations, q, y, k_split = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg)
+    dtype = jnp.result_type(float)
     data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name,
                                             **mm_joints_metadata(robot)})
     n_test = int(round(cfg.n_samples * cfg.test_fraction))
@@ -234,3 +253,78 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     train = data.subset(perm[n_test:])
     test = data.subset(perm[:n_test])
     return Experiment(robot, measurement, true_deviations, train, test, jnp.asarray(noise_std, dtype))
+
+
+# ---------------------------------------------------------------------------------------------
+# padded to a shape bucket (jaxcal.sweep over many sample counts)
+
+
+def permutation_rounds(n: int) -> int:
+    """How many sort rounds ``jax.random.permutation`` makes for ``n`` elements (its heuristic:
+    ``ceil(3·ln n / ln(2³²−1))``; 1 up to 1 625 elements, 2 up to ~2.6 million)."""
+    return int(np.ceil(3 * np.log(max(1, int(n))) / np.log(np.iinfo(np.uint32).max)))
+
+
+def masked_permutation(key, n_cap: int, n_real, n_rounds) -> Array:
+    """``[n_cap]`` int: ``jax.random.permutation(key, n_real)`` followed by ``n_real … n_cap−1``,
+    for a traced ``n_real`` (and its :func:`permutation_rounds` ``n_rounds``) under one static
+    ``n_cap``. It repeats ``permutation``'s rounds of sorting by fresh random 32-bit keys, with the
+    keys of the positions ``≥ n_real`` set to the largest value: a stable sort keeps them last, and
+    the keys of the real positions are prefixes of the longer draws, so the real part is the very
+    permutation of ``n_real`` elements (``tests/simulation/test_simulate.py`` checks this against
+    ``jax.random.permutation`` for many sizes)."""
+    x = jnp.arange(n_cap)
+    n_real, n_rounds = (jnp.asarray(v).astype(x.dtype) for v in (n_real, n_rounds))
+    real = x < n_real
+    top = jnp.asarray(np.iinfo(np.uint32).max, jnp.uint32)
+    for r in range(permutation_rounds(n_cap)):
+        key, sub = jax.random.split(key)
+        sort_keys = jnp.where(real, jax.random.bits(sub, (n_cap,), jnp.uint32), top)
+        _, shuffled = jax.lax.sort_key_val(sort_keys, x, is_stable=True)
+        x = jnp.where(r < n_rounds, shuffled, x)
+    return x
+
+
+class PaddedSplit(NamedTuple):
+    """A simulated experiment padded to a shape bucket (:func:`simulate_padded`): the real rows
+    first, then filler rows with weight 0 (they repeat a real row)."""
+
+    true_deviations: Deviations
+    q_train: Array
+    y_train: Array
+    w_train: Array
+    q_test: Array
+    y_test: Array
+    w_test: Array
+
+
+def padded_split_sizes(n_cap: int, test_fraction: float) -> tuple[int, int]:
+    """``(train rows, test rows)`` of a :func:`simulate_padded` of bucket ``n_cap``: the largest
+    split sizes of any sample count ``≤ n_cap`` (both grow with the count)."""
+    n_test = int(round(n_cap * test_fraction))
+    return n_cap - n_test, n_test
+
+
+def simulate_padded(key, robot, measurement, true_deviations, noise_std, cfg: _Config, n_real, n_test, n_rounds
+                    ) -> PaddedSplit:
+    """:func:`simulate_experiment` of ``n_real`` samples (traced, with its ``n_test`` =
+    ``round(n_real·test_fraction)`` and :func:`permutation_rounds` ``n_rounds``) inside arrays of
+    the bucket ``cfg.n_samples``: the real rows of each split are exactly those of
+    ``simulate_experiment(key, n_samples=n_real)``, in the same order, and the rest has weight 0.
+    One compiled program serves every sample count of the bucket (:mod:`jaxcal._core._buckets`)."""
+    n_real, n_test, n_rounds = (jnp.asarray(v).astype(jnp.result_type(int)) for v in (n_real, n_test, n_rounds))
+    true_deviations, q, y, k_split = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg,
+                                                    n_real)
+    cap_train, cap_test = padded_split_sizes(cfg.n_samples, cfg.test_fraction)
+    perm = masked_permutation(k_split, cfg.n_samples, n_real, n_rounds)
+    dtype = jnp.result_type(float)
+
+    def take(offset, n, cap):
+        i = jnp.arange(cap)
+        real = i < n
+        rows = jnp.where(real, perm[jnp.clip(offset + i, 0, cfg.n_samples - 1)], perm[0])
+        return q[rows], y[rows], real.astype(dtype)
+
+    q_tr, y_tr, w_tr = take(n_test, n_real - n_test, cap_train)
+    q_te, y_te, w_te = take(0, n_test, cap_test)
+    return PaddedSplit(true_deviations, q_tr, y_tr, w_tr, q_te, y_te, w_te)

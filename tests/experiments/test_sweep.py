@@ -315,3 +315,84 @@ def test_figures_are_honest(swept):
     for ax in (a, b):
         labels = [t.get_text() for t in ax.get_legend().get_texts()]
         assert any("range over seeds" in t for t in labels) and "mean iteration to converge" in labels
+
+
+@pytest.fixture
+def buckets_reset():
+    from jaxcal._core import _buckets
+
+    yield _buckets
+    _buckets._SETTING.pop("value", None)
+
+
+def test_bucketed_sweep_equals_unbucketed_and_compiles_once_per_bucket(buckets_reset):
+    """With shape buckets a simulated sweep runs padded to its bucket: every per-trial number
+    equals the unpadded sweep's to round-off (a gradient method and LM, under a prior with the
+    Huber loss), the per-sample errors keep the real test rows only, and a second sample count of
+    the same bucket compiles nothing (the compiled units are reused)."""
+    import collections
+
+    events = collections.Counter()
+
+    def listener(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            events["n"] += 1
+
+    kw = dict(KW, prior=jaxcal.Prior(angle_deg=0.1, length_mm=0.5), loss="huber")
+    res = {}
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        for on in (False, 64):  # bucket 128 for both counts
+            buckets_reset.set_buckets(on)
+            for n in (100, 118):
+                before = events["n"]
+                res[on, n] = sweep(["lm", "adamodw"], 2, **(kw | {"n_samples": n}))
+                if on and n == 118:
+                    assert events["n"] == before, "a sample count of a known bucket compiled something"
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    for n in (100, 118):
+        a, b = res[False, n], res[64, n]
+        assert a.settings["source"]["bucket"] is None and b.settings["source"]["bucket"] == 128
+        assert (b.settings["n_train"], b.settings["n_test"]) == (a.settings["n_train"], a.settings["n_test"])
+        assert b.space.free_names == a.space.free_names and b.floor == a.floor
+        for f in ("before", "oracle"):
+            for m in ("rmse", "mean", "max"):
+                np.testing.assert_allclose(getattr(getattr(b, f), m), getattr(getattr(a, f), m), rtol=1e-12)
+        np.testing.assert_allclose(b.before_errors, a.before_errors, rtol=0, atol=1e-12)
+        for m in ("lm", "adamodw"):
+            for split in ("test", "train"):
+                for f in ("rmse", "mean", "max"):
+                    np.testing.assert_allclose(getattr(getattr(b[m], split), f), getattr(getattr(a[m], split), f),
+                                               rtol=1e-9, err_msg=f"{m} {split} {f}")
+            np.testing.assert_allclose(b[m].x, a[m].x, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(b[m].history, a[m].history, rtol=1e-9)
+            assert b[m].test_errors.shape == a[m].test_errors.shape == (2, a.settings["n_test"])
+            np.testing.assert_allclose(b[m].test_errors, a[m].test_errors, rtol=0, atol=1e-9)
+            np.testing.assert_array_equal(b[m].n_iterations, a[m].n_iterations)
+
+
+def test_unpaddable_method_sweeps_unpadded(buckets_reset):
+    """A method whose result depends on the row count (the RBF network) is never padded."""
+    buckets_reset.set_buckets(64)
+    res = sweep(["rbfnn"], 1, **(KW | {"hyperparameters": {"rbfnn": {"n_centres": 20}}}))
+    assert res.settings["source"]["bucket"] is None
+
+
+def test_plan_before_data_equals_the_plain_order(monkeypatch):
+    """The accelerator path (trial 0's data on the host CPU choose the free parameters, then the
+    data unit compiles with the method units) gives the same sweep as the plain order: forced here
+    on the CPU, where both run on one device."""
+    from jaxcal._experiments import _sweep
+
+    runs = {}
+    for early in (True, False):
+        monkeypatch.setattr(_sweep, "_PLAN_BEFORE_DATA", early)
+        runs[early] = sweep(["lm", "adamodw"], 3, **VMAP)
+    a, b = runs[True], runs[False]
+    assert a.space.free_names == b.space.free_names and a.floor == b.floor
+    np.testing.assert_array_equal(a.before.rmse, b.before.rmse)
+    np.testing.assert_array_equal(a.before_errors, b.before_errors)
+    for m in ("lm", "adamodw"):
+        for f in ("x", "history", "test_errors", "n_iterations", "status"):
+            np.testing.assert_array_equal(getattr(a[m], f), getattr(b[m], f), err_msg=f"{m}.{f}")

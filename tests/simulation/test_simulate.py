@@ -90,3 +90,50 @@ def test_float32_warns():
         with pytest.warns(jaxcal.PrecisionWarning, match="float32"):
             ex = simulate_experiment(jax.random.PRNGKey(0), n_samples=50)
     assert ex.train.q.dtype == jnp.float32
+
+
+# ---------------------------------------------------------------------------------------------
+# padded to a shape bucket (jaxcal.sweep over many sample counts)
+
+
+def test_masked_permutation_is_jax_permutation():
+    """The real part of ``masked_permutation`` is ``jax.random.permutation`` itself, around the
+    one-to-two-rounds threshold (1 625 / 1 626) too; the padding stays last. If JAX changes its
+    permutation, this fails (and padded sweeps would draw other splits than unpadded ones)."""
+    from jaxcal._simulation._simulate import masked_permutation, permutation_rounds
+
+    assert [permutation_rounds(n) for n in (1, 2, 1625, 1626, 10**6)] == [0, 1, 1, 2, 2]
+    for n in (2, 7, 300, 1625, 1626, 2000):
+        key = jax.random.key(n)
+        for cap in (n, n + 1, 3 * n // 2 + 5):
+            p = masked_permutation(key, cap, jnp.asarray(n), jnp.asarray(permutation_rounds(n)))
+            np.testing.assert_array_equal(p[:n], jax.random.permutation(key, n), err_msg=f"n={n}, cap={cap}")
+            np.testing.assert_array_equal(p[n:], np.arange(n, cap))
+
+
+@pytest.mark.parametrize("kind", ["cable", "position"])
+def test_padded_simulation_has_the_unpadded_rows(kind):
+    """``simulate_padded`` of n samples in a larger bucket: its real rows are exactly
+    ``simulate_experiment(n_samples=n)``'s (same key), in order; the filler has weight 0."""
+    from jaxcal._experiments._sweep import _CONFIG_FIELDS, _simulation_options
+    from jaxcal._simulation import _simulate as S
+    from jaxcal.robots import hsr_jr680
+
+    robot = hsr_jr680()
+    meas = jaxcal.CableLength(S.default_anchor(robot)) if kind == "cable" else jaxcal.Position()
+    opts = _simulation_options(robot, 512, 0.5, 0.2, {"tool_std_mm": 1.0})
+    cfg = S._Config(*(opts[f] for f in _CONFIG_FIELDS))
+    run = jax.jit(S.simulate_padded, static_argnums=(5,))
+    for n in (260, 511):
+        key = jax.random.key(n)
+        ex = simulate_experiment(key, robot, n_samples=n, measurement=meas, tool_std_mm=1.0)
+        n_test = int(round(0.2 * n))
+        ps = run(key, robot, meas, None, 0.5, cfg, n, n_test, S.permutation_rounds(n))
+        assert ps.q_train.shape[0] == 512 - 102 and ps.q_test.shape[0] == 102
+        for a, b in ((ps.q_train, ex.train.q), (ps.q_test, ex.test.q)):  # the same draws and split
+            np.testing.assert_array_equal(np.asarray(a)[: b.shape[0]], np.asarray(b))
+        for a, b in ((ps.y_train, ex.train.y), (ps.y_test, ex.test.y)):  # other shapes: XLA may round 1 ulp apart
+            np.testing.assert_allclose(np.asarray(a)[: b.shape[0]], np.asarray(b), rtol=1e-14, atol=0)
+        np.testing.assert_array_equal(ps.w_train, np.arange(410) < n - n_test)
+        np.testing.assert_array_equal(ps.w_test, np.arange(102) < n_test)
+        np.testing.assert_array_equal(ps.true_deviations.ravel(), ex.true_deviations.ravel())
