@@ -13,6 +13,7 @@ __version__ = "0.1.0"
 __all__ = [
     "bucket_size",
     "set_buckets",
+    "clear_compiled",
     "SerialChain",
     "chain_from_dh",
     "export_urdf",
@@ -118,6 +119,7 @@ __all__ = [
 _LAZY = {
     'bucket_size': ('_core._buckets', 'bucket_size'),
     'set_buckets': ('_core._buckets', 'set_buckets'),
+    'clear_compiled': ('_core._buckets', 'clear_compiled'),
     'AccuracyCurve': ('_experiments._plan', 'AccuracyCurve'),
     'CableLength': ('_sensors._measurement', 'CableLength'),
     'CalibrationError': ('_calibration._calibrate', 'CalibrationError'),

@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import math
 import os
+import weakref
 
 import numpy as np
 
-__all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "ENV_VAR"]
+__all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "clear_compiled", "ENV_VAR"]
 
 #: environment variable: ``off`` (no padding) or the smallest bucket (an integer, default 256).
 ENV_VAR = "JAXCAL_BUCKETS"
@@ -130,6 +131,7 @@ class BoundedCache:
         self.maxsize = int(maxsize)
         self._d: OrderedDict = OrderedDict()
         self.hits = self.misses = self.evictions = 0
+        _CACHES.add(self)
 
     def get(self, key):
         try:
@@ -165,6 +167,30 @@ class BoundedCache:
 
     def __contains__(self, key) -> bool:
         return key in self._d
+
+
+#: every :class:`BoundedCache` of the process (weakly held), for :func:`clear_compiled`
+_CACHES: weakref.WeakSet = weakref.WeakSet()
+
+
+def clear_compiled() -> None:
+    """Free every compiled program this process holds: jaxcal's bounded caches (``calibrate``,
+    ``calibrate_many``, ``sweep`` units, the identifiability program, ...) and JAX's own
+    (``jax.clear_caches()``: every ``jax.jit``'s traces and executables), then give the freed heap
+    pages back to the operating system. On XLA:CPU a compiled program holds ~3–16 MB resident
+    (the paper experiment's identifiability program and LM solve); a notebook session or a test
+    run that compiled hundreds of programs can drop them all here. The next call of each
+    program compiles it again (or loads it from the persistent compilation cache where that is
+    on, as on the command line)."""
+    import gc
+
+    import jax
+
+    for c in list(_CACHES):
+        c.clear()
+    jax.clear_caches()
+    gc.collect()
+    release_memory()
 
 
 def cache_size(name: str, default: int) -> int:
