@@ -37,7 +37,13 @@ from .._fit._diagnostics import (
 from .._fit._identifiability import identify_with_residuals
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
-from .._fit._result import CalibrationResult, Status, budget_status, iterations_to_converge
+from .._fit._result import (
+    CalibrationResult,
+    Status,
+    budget_status,
+    iterations_to_converge,
+    iterations_to_converge_numpy,
+)
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
@@ -284,16 +290,20 @@ def _default_selection(space) -> bool:
     return space is None or (isinstance(space, str) and space == "identifiable")
 
 
-def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None, n_to=None):
+def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None, jacobian: bool = True,
+                        n_to=None):
     """:func:`resolve_space` from the candidates ``cand``: ``(space, report_or_None, residuals,
     jacobian)``, the last two the residual blocks (NumPy) and the identification Jacobian of the
     chosen free parameters (device) at ``start`` when ``y`` is given and the identifiability
     program computed them (see :func:`~jaxcal._fit._identifiability.identify_with_residuals`), else
-    ``None``."""
+    ``None``; the Jacobian also ``None`` with ``jacobian=False`` (the caller does not use it: its
+    columns are not taken, a compiled program fewer)."""
     if _default_selection(space):
         prior_std = None if prior is None else prior.std(cand)
         report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y, prior_std=prior_std,
                                                    n_to=n_to)
+        if not jacobian:
+            J = None
         if J is not None:
             kept = set(report.space.free_names)
             J = _take_columns(J, np.asarray([i for i, n in enumerate(cand.free_names) if n in kept]))
@@ -573,7 +583,11 @@ def _calibration_steps(
         est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
         start, extras_msg = est.deviations, est.message
     selecting = _default_selection(space)
-    space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior)
+    # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
+    adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
+    # the start Jacobian serves a one-round fit only (below)
+    space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior,
+                                                                jacobian=not adaptive)
     problem = Problem(robot, measurement, q, y, space, start)
     n_res = problem.n_observed_residuals  # real readings (a missing marker is masked)
     _check_enough_residuals(q.shape[0], n_res, space, report, prior)
@@ -584,8 +598,6 @@ def _calibration_steps(
     else:
         resid_start = residual_blocks_numpy(problem, resid_start)
 
-    # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
-    adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
     plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
     noise = scale = None
@@ -667,8 +679,8 @@ def _calibration_steps(
         measurement=measurement,
         history=history,
         n_iterations=n_it,
-        iterations_to_converge=int(out.iterations_to_converge) if rounds == 1 else int(
-            _iterations_to_converge_jit(history, n_it)),
+        iterations_to_converge=int(out.iterations_to_converge) if rounds == 1 else
+        iterations_to_converge_numpy(history, n_it),
         status=status,
         train_metrics=Metrics(*(float(v) for v in out.train_metrics)),
         wall_time_s=run_s,
@@ -692,10 +704,6 @@ def _calibration_steps(
     for w in diag.warnings:
         warnings.warn(w, CalibrationWarning, stacklevel=3)
     return result
-
-
-#: compiled once per history length (op by op it runs several small XLA programs per call)
-_iterations_to_converge_jit = jax.jit(iterations_to_converge)
 
 
 @functools.lru_cache(maxsize=1)

@@ -25,11 +25,12 @@ import warnings
 import jax.numpy as jnp
 import numpy as np
 
+from .._core._buckets import LeanJit
 from .._core._metrics import Metrics, compute_metrics, format_table
 from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
+from .._core._precision import to_device
 from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
 from .._sensors._initialise import _residual, _sample_error
-from .._sensors._sessions import SessionMarkers, initial_sessions, masked_markers
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
@@ -99,6 +100,40 @@ def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarra
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
     pr = Problem(robot, measurement, q, data.y, space, deviations.astype(q.dtype))
     return np.asarray(sample_errors_at(pr, pr.x0()), np.float64)
+
+
+def sample_errors_many(robot, measurement, deviations, datasets) -> list[np.ndarray]:
+    """Per-row errors (mm) of ``robot + d`` for every ``d`` in ``deviations`` on every dataset of
+    ``datasets`` (one ``measurement`` model for all): a list with one ``[len(deviations), n_i]``
+    array per dataset, the values of :func:`sample_errors` (the same operations on the same
+    shapes), from one compiled program where :func:`sample_errors` per deviations and dataset
+    runs one per shape (the command line's before/after table: four programs, each loaded from
+    the compilation cache at every start). The datasets are not concatenated: XLA:CPU's code
+    for another row count can differ in the last bits."""
+    def device(a):  # jnp.asarray of a NumPy array would be a compiled program
+        return a if isinstance(a, jnp.ndarray) else to_device(a)
+
+    qs, ys = tuple(device(ds.q) for ds in datasets), tuple(device(ds.y) for ds in datasets)
+    devs = tuple(d.astype(qs[0].dtype) for d in deviations)
+    return [np.asarray(e, np.float64) for e in _sample_errors_many(robot, measurement, devs, qs, ys)]
+
+
+def _sample_errors_many_fn(robot, measurement, deviations, qs, ys):
+    from .._fit._problem import Problem
+
+    space = ParameterSpace.from_names(layout_for(robot, measurement), [])
+    out = []
+    for q, y in zip(qs, ys):
+        errors = []
+        for d in deviations:  # the kinematics once per deviations: the ops of sample_errors_at
+            pr = Problem(robot, measurement, q, y, space, d)
+            errors.append(pr.sample_errors(pr.x0()))
+        out.append(jnp.stack(errors))
+    return out
+
+
+#: compiled once per (models, number of deviations, shapes) and kept in a bounded cache
+_sample_errors_many = LeanJit(_sample_errors_many_fn, maxsize=8)
 
 
 def joints_to_file_units(robot, q) -> np.ndarray:
@@ -331,6 +366,7 @@ def _errors(robot, m, dev, q, y) -> np.ndarray:
 
 def _register(robot, m, q, y, dev, groups, frames, placements, loss: str = "linear"):
     """Closed form, then LM on ``groups`` only (robot and other extras fixed at ``dev``)."""
+    from .._sensors._sessions import initial_sessions
     from ._calibrate import calibrate
 
     if not groups:
@@ -364,6 +400,7 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
         :class:`jaxcal.Evaluation` (``registered`` names every group fitted on the new rows).
     """
     from .._datasets._dataset import Dataset
+    from .._sensors._sessions import SessionMarkers, masked_markers
 
     robot = result.robot
     if extras not in ("auto", "register", "result"):

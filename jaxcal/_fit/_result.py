@@ -77,6 +77,19 @@ def iterations_to_converge(
     return last_bad + 1
 
 
+def iterations_to_converge_numpy(history, n_iterations: int, rtol: float = CONVERGENCE_RTOL) -> int:
+    """:func:`iterations_to_converge` of one history on the host (NumPy): the same comparisons in
+    the dtype JAX would use (float32 without x64), so the same answer, without running (or, at a
+    process start, loading) a compiled program."""
+    from .._core._precision import canonical_numpy
+
+    history = canonical_numpy(history)
+    n = int(n_iterations)
+    idx = np.arange(history.shape[-1])
+    ok = (history <= history[n] * np.asarray(1 + rtol, history.dtype)) | (idx > n)
+    return int(np.max(np.where(ok, -1, idx))) + 1
+
+
 class DHTable:
     """A DH table ``[dof, 4]`` in the paper's Table V layout: α/°, a/mm, d/mm, θ/° per joint
     (angles wrapped to (−180°, 180°]).
@@ -323,9 +336,10 @@ class CalibrationResult:
                             "the per-joint corrections in .deviations; jaxcal.export_urdf writes it as URDF")
         free = dict(zip(self.space.names, np.asarray(self.space.free, bool)))
         fixed = np.asarray([[not free[f"{g}_{j + 1}"] for g in ("alpha", "a", "d", "theta")] for j in range(r.dof)])
+        # nominal + deviation on the host (an eager jnp sum is a compiled program per shape)
+        alpha, a, dd, theta = (np.asarray(getattr(r, g)) + np.asarray(getattr(d, g)) for g in ("alpha", "a", "d", "theta"))
         return DHTable(np.stack([
-            wrap_angle_deg(np.rad2deg(np.asarray(r.alpha + d.alpha))), np.asarray(r.a + d.a),
-            np.asarray(r.d + d.d), wrap_angle_deg(np.rad2deg(np.asarray(r.theta + d.theta))),
+            wrap_angle_deg(np.rad2deg(alpha)), a, dd, wrap_angle_deg(np.rad2deg(theta)),
         ], axis=1), fixed, title=f"Calibrated DH table ({self.method})")
 
     def to_dict(self) -> dict:

@@ -58,8 +58,31 @@ def _enable_compilation_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
+#: commands that are one bounded job (seconds; one calibration or one fleet program, one file
+#: written): Python's cyclic garbage collector stays off while they run (see :func:`main`)
+_NO_GC_COMMANDS = ("calibrate", "evaluate", "export", "simulate")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    """Run the command line with ``argv`` (default ``sys.argv[1:]``); returns the exit status.
+
+    Python's cyclic garbage collector is off during start-up (importing JAX and jaxcal) and while
+    a one-job command (:data:`_NO_GC_COMMANDS`) runs, and as it was afterwards: importing and
+    tracing create hundreds of thousands of long-lived objects, which its full collections
+    traversed again and again — 0.25-0.3 s of a ``jaxcal calibrate`` start on 2 cores (466
+    collections; the peak resident memory is the same without them, 344 MB)."""
+    import gc
+
+    gc_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        return _main(argv, gc_enabled)
+    finally:
+        if gc_enabled:
+            gc.enable()
+
+
+def _main(argv: list[str] | None, gc_enabled: bool) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -75,6 +98,10 @@ def main(argv: list[str] | None = None) -> int:
         _enable_compilation_cache()
     from .._calibration._calibrate import CalibrationError
 
+    if gc_enabled and args.command not in _NO_GC_COMMANDS:  # sweeps, reports, planning: collected as usual
+        import gc
+
+        gc.enable()
     try:
         return args.func(args)
     except _Usage as e:

@@ -75,14 +75,65 @@ def _metrics_rows(pairs):
 def _seed_split(seed: int, n: int, test_fraction: float):
     """``(k_method, train_idx, test_idx)``: ``k_split, k_method = jax.random.split(jax.random.key(seed))``
     and the row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test
-    parts drawn with ``k_split``, as one compiled program (op by op it was five, each loaded from
-    the compilation cache at every start)."""
+    parts drawn with ``k_split``. Computed on the host by :func:`_seed_split_numpy` (JAX's
+    threefry bits and sort-based shuffle, bit for bit) under JAX's default PRNG settings, else by
+    one compiled program (which a start loads from the compilation cache: ~0.1 s on 2 cores)."""
     import numpy as np
 
-    k_method, perm = _seed_split_program()(seed, n)
-    perm = np.asarray(perm)
+    host = _seed_split_numpy(seed, n)
+    if host is not None:
+        k_method, perm = host
+    else:
+        k_method, perm = _seed_split_program()(seed, n)
+        perm = np.asarray(perm)
     n_test = int(round(n * test_fraction))
     return k_method, perm[n_test:], perm[:n_test]
+
+
+def _threefry2x32_numpy(k1, k2, x1, x2):
+    """JAX's Threefry-2x32 hash (``jax._src.random.threefry2x32``) of uint32 arrays, in NumPy."""
+    import numpy as np
+
+    rotations = ((13, 15, 26, 6), (17, 29, 16, 24))
+    ks = (k1, k2, k1 ^ k2 ^ np.uint32(0x1BD11BDA))
+    a, b = x1 + ks[0], x2 + ks[1]
+    for i in range(5):
+        for r in rotations[i % 2]:
+            a = a + b
+            b = (b << np.uint32(r)) | (b >> np.uint32(32 - r))
+            b = a ^ b
+        a, b = a + ks[(i + 1) % 3], b + ks[(i + 2) % 3] + np.uint32(i + 1)
+    return a, b
+
+
+def _seed_split_numpy(seed: int, n: int):
+    """``(k_method, permutation of range(n))`` of :func:`_seed_split` in NumPy: the same bits as
+    ``jax.random.key``/``split`` (partitionable threefry) and ``jax.random.permutation`` (rounds of
+    stable sorts by 32 random bits), checked against JAX in ``tests/cli``; ``None`` where JAX's
+    settings differ from those (another PRNG, ``jax_threefry_partitionable`` off, no x64) or the
+    seed is outside ``[0, 2**63)``."""
+    import jax
+    import numpy as np
+
+    cfg = jax.config
+    if not (cfg.jax_default_prng_impl == "threefry2x32" and cfg.jax_threefry_partitionable
+            and cfg.jax_enable_x64 and 0 <= int(seed) < 2 ** 63 and n >= 1):
+        return None
+    seed = int(seed)
+    key = np.asarray([seed >> 32, seed & 0xFFFFFFFF], np.uint32)  # jax.random.key(seed)
+
+    def split(key):  # jax.random.split(key): counts (0, 0), (0, 1)
+        b1, b2 = _threefry2x32_numpy(key[0], key[1], np.zeros(2, np.uint32), np.arange(2, dtype=np.uint32))
+        return np.stack([b1, b2], axis=1)
+
+    k_split, k_method = split(key)
+    x = np.arange(n)
+    rounds = int(np.ceil(3 * np.log(max(1, n)) / np.log(np.iinfo(np.uint32).max)))  # as jax.random._shuffle
+    for _ in range(rounds):
+        k_split, sub = split(k_split)
+        b1, b2 = _threefry2x32_numpy(sub[0], sub[1], np.zeros(n, np.uint32), np.arange(n, dtype=np.uint32))
+        x = x[np.argsort(b1 ^ b2, kind="stable")]  # lax.sort_key_val: a stable sort
+    return jax.random.wrap_key_data(k_method), x
 
 
 def _seed_split_program():
@@ -471,8 +522,8 @@ def _cmd_calibrate(args) -> int:
         joints_to_file_units,
         nominal_with_extras,
         sample_errors,
+        sample_errors_many,
     )
-    from .._calibration._io import save_result
     from .._core._metrics import format_table, metrics_numpy
     from .._core._params import Deviations, group_kind
     from ..methods._stages import check_method_name
@@ -559,15 +610,33 @@ def _cmd_calibrate(args) -> int:
     estimated = any(group_kind(n) == "extra" for n in res.space.free_names)
     per_row = {}
 
-    def part(name, ds, rows_1based, ev=None, m=measurement):
-        eb = ev.before_errors if ev is not None else sample_errors(robot, m, dev_before, ds)
-        ea = (ev.after_errors if ev is not None else np.asarray(res.sample_errors(ds), np.float64) if m is measurement
-              else sample_errors(robot, m, res.deviations, ds))
+    # the per-row errors of the table, before (and raw nominal) and after, for train and test
+    # together: one compiled program per measurement model (sample_errors_many), not one per
+    # deviations and part, each of which a start loads from the compilation cache
+    sets = {"train": (train, measurement)}
+    if test_file is None and test.n:
+        sets["test"] = (test, measurement if full is None else full.take(test_idx))
+    devs = (dev_before, res.deviations, zero) if estimated else (dev_before, res.deviations)
+    errors = {}
+    for m in {id(m): m for _, m in sets.values()}.values():
+        names = [n for n, (_, m_n) in sets.items() if m_n is m]
+        errors.update(zip(names, sample_errors_many(robot, m, devs, [sets[n][0] for n in names])))
+
+    def part(name, ds, rows_1based, ev=None):
+        if ev is not None:
+            eb, ea = ev.before_errors, ev.after_errors
+            raw = sample_errors(robot, measurement, zero, ds) if estimated else None
+        else:
+            m = sets[name][1]
+            eb, ea = errors[name][0], errors[name][1]
+            raw = errors[name][2] if estimated else None
+            if m is measurement and res.predictor is not None:  # a learned correction (RBF) of the model
+                ea = np.asarray(res.sample_errors(ds), np.float64)
         per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
         if estimated:
-            out.append((f"{name}, raw nominal", metrics_numpy(sample_errors(robot, m, zero, ds))))
+            out.append((f"{name}, raw nominal", metrics_numpy(raw)))
         return out + [(f"{name}, before", metrics_numpy(eb)),
                       (f"{name}, after", metrics_numpy(ea))]
 
@@ -577,8 +646,7 @@ def _cmd_calibrate(args) -> int:
         evaluation = evaluate_result(res, test_file, extras="result" if args.keep_extras else "auto")
         rows += part("test", test_file, list(range(1, test_file.n + 1)), evaluation)
     elif test.n:
-        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx],
-                     m=measurement if full is None else full.take(test_idx))
+        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx])
     print()
     unit = getattr(measurement, "unit", "mm")  # px for camera data
     print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
@@ -604,6 +672,8 @@ def _cmd_calibrate(args) -> int:
                     "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
         info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
                                 "message": evaluation.message}} if evaluation is not None else {}
+        from .._calibration._io import save_result  # only with --out
+
         save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
                     rows=per_row, **info)
         print(f"\nwrote {args.out}")

@@ -49,7 +49,6 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
 
 def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):
     from .._sensors._measurement import CableLength, Markers, Pose, Position
-    from .._simulation._simulate import default_anchor
 
     if kind in ("plane", "point", "distance"):  # contact data (jaxcal._sensors._contact): planes/points from the data's labels
         if anchor is not None:
@@ -59,9 +58,13 @@ def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=No
         return contact_model(kind, robot, data)
 
     if kind == "cable":
-        import jax.numpy as jnp
+        if anchor is None:
+            from .._simulation._simulate import default_anchor
 
-        return CableLength(jnp.asarray(anchor) if anchor is not None else default_anchor(robot))
+            return CableLength(default_anchor(robot))
+        from .._core._precision import to_device
+
+        return CableLength(to_device(anchor))  # as jnp.asarray, without a compiled conversion program
     if anchor is not None:
         raise _Usage("--anchor applies to --measurement cable only")
     if kind == "markers":

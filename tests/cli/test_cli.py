@@ -179,3 +179,20 @@ def test_import_and_help_do_not_import_jax():
     env = os.environ | {"PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
+
+
+def test_seed_split_on_the_host_is_jax_bit_for_bit():
+    """The command line's train/test permutation and method key, drawn in NumPy at start-up (no
+    compiled program to load), are those of ``jax.random.split`` and ``jax.random.permutation``
+    (one and two shuffle rounds, 64-bit seeds); fails if JAX changes its PRNG."""
+    import jax
+
+    from jaxcal.cli._calibrate import _seed_split_numpy, _seed_split_program
+
+    for seed in (0, 3, 2**32 + 5, 2**63 - 1):
+        for n in (1, 400, 1625, 2000):
+            key, perm = _seed_split_numpy(seed, n)
+            key_ref, perm_ref = _seed_split_program()(seed, n)
+            np.testing.assert_array_equal(perm, np.asarray(perm_ref))
+            np.testing.assert_array_equal(jax.random.key_data(key), jax.random.key_data(key_ref))
+            assert key.dtype == key_ref.dtype
