@@ -1,13 +1,13 @@
 """Peak resident memory of the test run's worker processes (issue 25's memory row).
 
-Runs a pytest command (default: the README's test command, ``python -m pytest -q -n 2``) and
+Runs a pytest command (default: the README's test command, ``python -m pytest -q -n 2 -m "not slow"``) and
 samples every process under it every ``--every`` seconds from ``/proc/<pid>/statm``: the peak
 resident set size (RSS) of each process that reached 500 MB, with its command line (the xdist
 controller and its workers), the wall time, the test summary line and the load average.
 ``--env NAME=VALUE`` sets variables for the run (``JAXCAL_TEST_KEEP_COMPILED=1`` keeps every
 compiled program for the whole run, as before ``tests/conftest.py`` freed them after each module).
 
-Run: ``python benchmarks/bench_test_memory.py [--label TEXT] [--env N=V ...] [-- pytest args]``;
+Run: ``python benchmarks/bench_test_memory.py [--label TEXT] [--env N=V ...] [--log FILE] [-- pytest args]``;
 appends a section to ``benchmarks/results/test_memory_cpu.md``. Linux only (``/proc``).
 """
 
@@ -65,7 +65,8 @@ def main() -> None:
     ap.add_argument("--every", type=float, default=2.0)
     ap.add_argument("--label", default="")
     ap.add_argument("--env", action="append", default=[], metavar="NAME=VALUE")
-    ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "2"])
+    ap.add_argument("--log", help="write pytest's whole output here")
+    ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "2", "-m", "not slow"])
     args = ap.parse_args()
     env = dict(os.environ)
     for kv in args.env:
@@ -92,6 +93,8 @@ def main() -> None:
         time.sleep(args.every)
     reader.join(timeout=10)
     wall = time.perf_counter() - t0
+    if args.log:
+        pathlib.Path(args.log).write_text("".join(lines))
     summary = next((ln.strip() for ln in reversed(lines) if " passed" in ln or " failed" in ln), "?")
     big = sorted(((r, p) for p, r in peak.items() if r >= 500), reverse=True)
     from _common import machine
@@ -104,8 +107,8 @@ def main() -> None:
           "", "| process | peak resident memory (MB) |", "|---|---|"]
     for r, p in big:
         name = names[p]
-        kind = "xdist worker" if "execnet" in name or "gw" in name or "popen" in name else (
-            "pytest (controller)" if p == proc.pid else name[:60])
+        kind = ("pytest (controller)" if p == proc.pid else "xdist worker" if "exec(eval(sys.stdin" in name
+                else "notebook kernel" if "ipykernel" in name else f"subprocess `{name[:50]}`")
         md.append(f"| {kind} (pid {p}) | {r:.0f} |")
     out = HERE / "results" / "test_memory_cpu.md"
     if not out.exists():

@@ -29,15 +29,27 @@ from jaxcal import robots  # noqa: E402
 ROBOT_NAMES = sorted(robots.PRESETS)
 
 
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except OSError:  # not Linux: never clear
+        return 0.0
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():
-    """After each test module, free every compiled program the worker holds
-    (:func:`jaxcal.clear_compiled`): a worker runs hundreds of modules, and each kept its
-    programs (~3–16 MB resident each on XLA:CPU) until the run ended. Programs a later module
-    needs again are loaded from the run's persistent compilation cache. Off with
-    ``JAXCAL_TEST_KEEP_COMPILED=1``."""
+    """After a test module, when the worker's resident memory is above
+    ``$JAXCAL_TEST_RSS_LIMIT_MB`` (default 2 000), free every compiled program it holds
+    (:func:`jaxcal.clear_compiled`): a worker runs ~50 modules and kept every program (~3–16 MB
+    resident each on XLA:CPU) until the run ended (5.6 GB peak per worker). Programs a later
+    module needs again are then traced again and loaded from the run's persistent compilation
+    cache, which costs time; hence a threshold, not a clear after every module. ``0`` clears after
+    every module, ``JAXCAL_TEST_KEEP_COMPILED=1`` never."""
     yield
-    if os.environ.get("JAXCAL_TEST_KEEP_COMPILED", "0") != "1":
+    if os.environ.get("JAXCAL_TEST_KEEP_COMPILED", "0") == "1":
+        return
+    if _rss_mb() > float(os.environ.get("JAXCAL_TEST_RSS_LIMIT_MB", "2000")):
         import jaxcal
 
         jaxcal.clear_compiled()

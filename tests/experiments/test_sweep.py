@@ -342,16 +342,16 @@ def test_bucketed_sweep_equals_unbucketed_and_compiles_once_per_bucket(buckets_r
     res = {}
     jax.monitoring.register_event_duration_secs_listener(listener)
     try:
-        for on in (False, 64):  # bucket 128 for both counts
+        for on, n in ((64, 100), (64, 118), (False, 118)):  # bucket 128 for both counts
             buckets_reset.set_buckets(on)
-            for n in (100, 118):
-                before = events["n"]
-                res[on, n] = sweep(["lm", "adamodw"], 2, **(kw | {"n_samples": n}))
-                if on and n == 118:
-                    assert events["n"] == before, "a sample count of a known bucket compiled something"
+            before = events["n"]
+            res[on, n] = sweep(["lm", "adamodw"], 2, **(kw | {"n_samples": n}))
+            if on and n == 118:
+                assert events["n"] == before, "a sample count of a known bucket compiled something"
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
-    for n in (100, 118):
+    assert res[64, 100].settings["n_train"] == 80 and res[64, 100]["lm"].test_errors.shape == (2, 20)
+    for n in (118,):
         a, b = res[False, n], res[64, n]
         assert a.settings["source"]["bucket"] is None and b.settings["source"]["bucket"] == 128
         assert (b.settings["n_train"], b.settings["n_test"]) == (a.settings["n_train"], a.settings["n_test"])

@@ -136,6 +136,7 @@ def test_calibrated_camera_positions_within_3_sigma():
     assert np.abs(err).max() < 1.0  # mm; the start (nominal DH) was several mm off
 
 
+@pytest.mark.slow  # default-run time: test_calibrated_camera_positions_within_3_sigma covers the fit
 def test_cli_camera_reaches_floor(tmp_path, capsys):
     """`jaxcal simulate --measurement camera` then `jaxcal calibrate` (deviated DH, hand-eye and target
     unknown: started from the data; 5 % of the corners undetected): training RMSE within 3 % of the

@@ -249,6 +249,7 @@ def test_result_round_trip_of_the_model():
     np.testing.assert_allclose(np.asarray(back.translation), T_TRUE)
 
 
+@pytest.mark.slow  # default-run time: test_noise_reaches_statistical_floor covers the fit, test_sessions the CLI
 def test_cli_markers(tmp_path, capsys):
     from jaxcal.cli import main
 
