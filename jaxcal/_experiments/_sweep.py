@@ -862,7 +862,11 @@ def sweep(
         robot, measurement: nominal models (default: HSR-JR680, draw-wire at
             :func:`~jaxcal._simulation._simulate.default_anchor`).
         n_samples, noise_std, test_fraction: simulation settings (σ in mm). With given
-            ``data``, ``noise_std`` (or ``None``) only sets the statistical-floor row.
+            ``data``, ``noise_std`` (or ``None``) only sets the statistical-floor row. With shape
+            buckets on (:func:`jaxcal.set_buckets`) and every method paddable, the simulation
+            runs at the bucket of ``n_samples`` with zero-weight padding rows: the same data and
+            results to round-off, and one compiled program per bucket (a learning curve over
+            many ``n_samples`` compiles once per bucket; ``settings["source"]["bucket"]``).
         experiment: other :func:`~jaxcal.simulate_experiment` keywords (``coverage``,
             ``angle_std_deg``, ``anchor_std_mm``, ``true_deviations``, ...).
         data: instead of simulating, a :class:`~jaxcal.Dataset` (split at random per trial with
