@@ -31,11 +31,6 @@ import warnings
 HERE = pathlib.Path(__file__).resolve().parent
 
 
-def rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
-
-
 def count_compilations() -> collections.Counter:
     """A counter of this process's XLA compilations from now on: ``["n"]`` (count), ``["s"]`` (seconds)."""
     import jax
@@ -65,6 +60,7 @@ def run_counts(call, counts, events, warm_repeats: int = 5) -> dict:
     count of each bucket ``warm_repeats`` times more (a warm call of that bucket's program);
     resident memory after the first and after the last count."""
     import numpy as np
+    from _common import rss_mb
 
     from jaxcal._core._buckets import bucket_size, buckets_enabled
 

@@ -21,7 +21,6 @@ import sys
 import time
 
 HERE = pathlib.Path(__file__).resolve().parent
-PAGE = os.sysconf("SC_PAGE_SIZE")
 
 
 def children(pid: int) -> set[int]:
@@ -44,14 +43,6 @@ def children(pid: int) -> set[int]:
     return out
 
 
-def rss_mb(pid: int) -> float | None:
-    try:
-        with open(f"/proc/{pid}/statm") as f:
-            return int(f.read().split()[1]) * PAGE / 1e6
-    except OSError:
-        return None
-
-
 def cmdline(pid: int) -> str:
     try:
         with open(f"/proc/{pid}/cmdline", "rb") as f:
@@ -68,6 +59,8 @@ def main() -> None:
     ap.add_argument("--log", help="write pytest's whole output here")
     ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "2", "-m", "not slow"])
     args = ap.parse_args()
+    from _common import machine, rss_mb
+
     env = dict(os.environ)
     for kv in args.env:
         k, v = kv.split("=", 1)
@@ -97,8 +90,6 @@ def main() -> None:
         pathlib.Path(args.log).write_text("".join(lines))
     summary = next((ln.strip() for ln in reversed(lines) if " passed" in ln or " failed" in ln), "?")
     big = sorted(((r, p) for p, r in peak.items() if r >= 500), reverse=True)
-    from _common import machine
-
     md = ["", f"## {args.label or ' '.join(args.pytest_args)}", "",
           f"Machine: {machine()}. `{' '.join(['python', '-m', 'pytest', *args.pytest_args])}`"
           + (f" with {', '.join(f'`{kv}`' for kv in args.env)}" if args.env else "")

@@ -54,7 +54,7 @@ from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_s
 from .._core._json import to_jsonable
 from .._core._metrics import Floor, Metrics, compute_metrics, statistical_floor
 from .._core._params import Deviations, ParameterSpace, layout_for
-from .._core._precision import cast_floating, dtype_scope, warn_if_float32
+from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
 from .._core._xla import compile_lowered
 from .._datasets._dataset import Dataset
 from .._fit._objective import LOSSES, Objective, resolve_prior
@@ -1203,7 +1203,7 @@ def _free_parameters(robot, measurement, dout, space, start, prior, noise_std, r
     n_train, n_test = int(n_train), int(n_test)
     # padded: the identifiability program pads to the sweep's own train rows (one program per bucket)
     n_to = None if real is None else int(dout.split.q_train.shape[1])
-    q0 = jax.device_put(np.ascontiguousarray(dout.split.q_train[0][:n_train]))  # not jnp.asarray: no copy program
+    q0 = to_device(dout.split.q_train[0][:n_train])  # not jnp.asarray: no copy program per shape
     space, report = resolve_space(robot, measurement, q0, space, start, prior=prior, n_to=n_to)
     if n_train * measurement.size <= space.n_free + 1:
         raise ValueError(

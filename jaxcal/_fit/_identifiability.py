@@ -12,6 +12,7 @@ from jaxtyping import Array
 
 from .._core._buckets import LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
+from .._core._precision import to_device
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
@@ -409,8 +410,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     residuals are the real rows', and the Jacobian carries zero rows for the padding at its end
     (``bucket_size(n)·m`` rows). ``n_to``: pad to this row count instead (a caller with its own
     bucket, as :func:`jaxcal.sweep`'s padded simulation)."""
-    # jax.device_put, not jnp.asarray: the latter compiles a small copy program per new shape
-    q = q if isinstance(q, jax.Array) else jax.device_put(np.asarray(q))
+    q = q if isinstance(q, jax.Array) else to_device(q)  # not jnp.asarray: a copy program per new shape
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")

@@ -115,6 +115,8 @@ def _seed_split_numpy(seed: int, n: int):
     import jax
     import numpy as np
 
+    from .._simulation._simulate import permutation_rounds
+
     cfg = jax.config
     if not (cfg.jax_default_prng_impl == "threefry2x32" and cfg.jax_threefry_partitionable
             and cfg.jax_enable_x64 and 0 <= int(seed) < 2 ** 63 and n >= 1):
@@ -128,8 +130,7 @@ def _seed_split_numpy(seed: int, n: int):
 
     k_split, k_method = split(key)
     x = np.arange(n)
-    rounds = int(np.ceil(3 * np.log(max(1, n)) / np.log(np.iinfo(np.uint32).max)))  # as jax.random._shuffle
-    for _ in range(rounds):
+    for _ in range(permutation_rounds(n)):  # as jax.random.permutation
         k_split, sub = split(k_split)
         b1, b2 = _threefry2x32_numpy(sub[0], sub[1], np.zeros(n, np.uint32), np.arange(n, dtype=np.uint32))
         x = x[np.argsort(b1 ^ b2, kind="stable")]  # lax.sort_key_val: a stable sort
