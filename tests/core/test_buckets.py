@@ -75,7 +75,11 @@ def _compare(a, b, rtol=1e-9):
     """Two CalibrationResults equal to round-off: parameters, metrics, statistics, diagnostics."""
     assert a.status == b.status and a.space.free_names == b.space.free_names
     scale = np.maximum(np.abs(a.x), 1e-3)
-    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-8 * float(np.max(scale)))
+    # round-off, on the scale of x or of what the data determine (a millionth of the posterior σ):
+    # a GPU sums the padded/vmapped rows in another order, and LM stops where its tolerance is met,
+    # so two strongly correlated parameters (a_3, d_2: σ 0.31 mm) differed by 2e-8 mm on an H200
+    atol = np.maximum(1e-8 * float(np.max(scale)), 1e-6 * np.asarray(a.uncertainty.std))
+    np.testing.assert_array_less(np.abs(np.asarray(a.x) - np.asarray(b.x)), atol + 1e-300)
     for f in ("rmse", "mean", "max"):
         np.testing.assert_allclose(getattr(a.train_metrics, f), getattr(b.train_metrics, f), rtol=rtol)
     ua, ub = a.uncertainty, b.uncertainty

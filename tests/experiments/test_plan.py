@@ -64,7 +64,9 @@ def test_2r_greedy_picks_the_analytic_optimum():
     assert 0.99 < bound <= 1.0
     rel_x, _, _ = jaxcal.relaxed_design(planar_2r(), jaxcal.Position(), cand, 8, space=LENGTHS, iters=200,
                                         exchange=True)
-    assert rel.indices.o1 < 0.95 and rel_x.indices.o1 > 0.999  # a local optimum of the exchange, near 1
+    # which optimal design the relaxation reaches depends on round-off (o1 of its rounding: 0.943 on
+    # the CPU, 0.998 on an H200); the exchange never makes the rounding worse and ends near 1
+    assert rel_x.indices.o1 >= rel.indices.o1 - 1e-12 and rel_x.indices.o1 > 0.999
 
 
 def test_singular_set_has_o3_zero():
