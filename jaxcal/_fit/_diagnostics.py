@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._core._buckets import LeanJit
 from .._core._params import group_kind
 from .._core._precision import to_device
 from ._objective import robust_factor, robust_scale
@@ -71,7 +72,9 @@ class Uncertainty:
         std: ``[p]`` standard deviations (rad, mm); ``inf`` where the data and prior leave a
             direction undetermined.
         covariance: ``[p, p]``.
-        noise_std: σ̂, the residual standard deviation (mm).
+        noise_std: σ̂, the sensor noise estimated from the residuals (mm): their RMS over
+            ``N − p_eff`` degrees of freedom; under a robust loss made consistent for Gaussian noise
+            (:func:`robust_consistency`).
         effective_parameters: ``p_eff``.
         n_residuals: ``N``.
     """
@@ -121,6 +124,65 @@ def gram_at(problem, x, loss: str, loss_scale):
 
 
 _gram = jax.jit(gram_at, static_argnames="loss")
+
+
+#: the model's per-sample errors of the consistency draws: one program per model and draw shape
+def _sample_errors(measurement, z):
+    return measurement.sample_error(z)
+
+
+_sample_errors = LeanJit(_sample_errors, maxsize=4)
+
+
+def robust_consistency(measurement, loss: str, observed=None, n_draws: int = 40_000):
+    """``κ(k) = E[Σ (f·r)²] / E[Σ r²]`` on clean Gaussian residual blocks of ``measurement``, as a
+    function of the loss scale in units of the noise σ (``c = k·σ``): the factor by which the
+    robust objective's residual sum undershoots the plain one, and so σ̂ (Huber, 1981, §7.8).
+    Returns the function ``k ↦ κ(k)``.
+
+    Computed with the model's own :meth:`~jaxcal.MeasurementModel.sample_error` (what the robust
+    factor :func:`~jaxcal._fit._objective.robust_factor` acts on: a residual norm, an RMS over
+    markers or corners, a pose's position part) on ``n_draws`` blocks of ``N(0, 1)`` entries
+    (fixed seed; at most ~2M entries), with the data's pattern of masked readings (``observed``
+    ``[n, m]``, rows drawn in turn); ``κ`` is then exact in expectation for any model (sampling
+    error ~0.3 %). Examples (Huber, k = 1.345): 0.933 for a draw-wire length, 0.858 for a tracker
+    position (the norm of 3 entries exceeds ``c`` in 61 % of clean samples)."""
+    m = int(measurement.size)
+    n = int(min(n_draws, max(2_000, 2_000_000 // m)))
+    z = np.random.default_rng(0).standard_normal((n, m))
+    if observed is not None:
+        obs = np.asarray(observed, bool).reshape(-1, m)
+        z = z * obs[np.arange(n) % obs.shape[0]]
+    e2 = np.asarray(_sample_errors(measurement, to_device(z)), np.float64) ** 2
+    sq = np.sum(z * z, axis=1)
+    total = float(np.sum(sq))
+
+    def kappa(k: float) -> float:
+        f = robust_factor(loss, e2, np.float64(k), xp=np)  # NumPy: no program per call
+        return float(np.sum(f * f * sq) / total)
+
+    return kappa
+
+
+def _noise_std(sigma2: float, loss: str, loss_scale, problem) -> float:
+    """σ̂ (mm) from the objective's residual variance ``sigma2`` (``Σ (f·r)² / (N − p_eff)``):
+    itself for least squares; under a robust loss divided by its Gaussian consistency factor
+    :func:`robust_consistency` at ``k = c/σ̂`` (a fixed point: ``k`` depends on σ̂), so that σ̂
+    estimates the sensor noise rather than undershooting it (by 3.5 % on draw-wire, 7.4 % on
+    tracker data under the measured-data defaults before). The posterior covariance keeps
+    ``sigma2``: it weighs ``JᵀWJ`` with the same robust weights (Monte Carlo, 40 tracker data
+    sets under the measured-data defaults: reported/empirical σ 0.97, linear loss 1.07)."""
+    if loss == "linear" or not sigma2 > 0:
+        return math.sqrt(max(sigma2, 0.0))
+    c = float(np.asarray(loss_scale))
+    kappa = robust_consistency(problem.measurement, loss, problem.observed())
+    s = math.sqrt(sigma2)
+    for _ in range(100):
+        new = math.sqrt(sigma2 / kappa(c / s))
+        if abs(new - s) <= 1e-12 * s:
+            return new
+        s = new
+    return s
 
 
 def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0,
@@ -186,7 +248,8 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     undetermined = np.abs(V[:, ~np.isfinite(inv)]).max(axis=1) > 1e-6 if (~np.isfinite(inv)).any() else np.zeros(p, bool)
     std = np.where(undetermined, np.inf, std)
     space = problem.space
-    unc = Uncertainty(space.free_names, space.free_units, std, C, math.sqrt(sigma2), p_eff, N)
+    unc = Uncertainty(space.free_names, space.free_units, std, C, _noise_std(sigma2, loss, loss_scale, problem),
+                      p_eff, N)
     if not return_residuals:
         return unc, cond
     # a padded solve's residual carries its zero padding rows at the end (jaxcal._core._buckets)

@@ -229,23 +229,24 @@ class Objective(eqx.Module):
         return self.loss == "linear" and not self.has_prior
 
 
-def robust_factor(loss: str, sq_error: Array, scale: Array) -> Array:
+def robust_factor(loss: str, sq_error: Array, scale: Array, xp=jnp) -> Array:
     """Per-sample factor ``f`` with ``(f·e)² = c²·2ρ(e/c)`` for squared errors ``e²`` ``[n]``.
 
     Smooth and differentiable at ``e = 0`` (series below ``u² = 1e-8``), so ``jax.jacfwd``
-    through it is exact.
+    through it is exact. ``xp``: the array module (``jax.numpy``, or ``numpy`` for host-side
+    statistics that should not compile a program).
     """
     if loss == "linear":
-        return jnp.ones_like(sq_error)
+        return xp.ones_like(sq_error)
     u2 = sq_error / (scale * scale)
     if loss == "huber":
         big = u2 > 1.0
-        u = jnp.sqrt(jnp.where(big, u2, 1.0))
-        return jnp.where(big, jnp.sqrt(2.0 * u - 1.0) / u, 1.0)
+        u = xp.sqrt(xp.where(big, u2, 1.0))
+        return xp.where(big, xp.sqrt(2.0 * u - 1.0) / u, 1.0)
     if loss == "cauchy":
         small = u2 < 1e-8
-        u2s = jnp.where(small, 1.0, u2)
-        return jnp.where(small, 1.0 - 0.25 * u2, jnp.sqrt(jnp.log1p(u2s) / u2s))
+        u2s = xp.where(small, 1.0, u2)
+        return xp.where(small, 1.0 - 0.25 * u2, xp.sqrt(xp.log1p(u2s) / u2s))
     raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
 
 
