@@ -16,7 +16,7 @@ from .._core._precision import to_device, warn_if_float32
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._models._kinematics import tool_point_soa
 from .._models._robot import DHRobot, sample_joint_angles
-from .._sensors._measurement import CableLength, MeasurementModel, Position
+from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 
 __all__ = ["Experiment", "simulate_experiment", "default_anchor", "draw_deviations"]
 
@@ -148,7 +148,9 @@ def simulate_experiment(
        the ranges), keeping those whose true tool point is above ``min_height_mm`` and whose
        wire length lies in ``wire_range_mm`` (default ``[0.05, 1.2]·reach``).
     3. Readings of the true robot (wire length from the anchor, or positions for a
-       :class:`Position` model) plus Gaussian noise σ = ``noise_std``.
+       :class:`Position` model, poses for :class:`Pose` (noise on the position only), marker
+       positions for :class:`Markers`) plus Gaussian noise σ = ``noise_std``; other models raise
+       ``TypeError`` (contact, distance and camera data have their own simulators).
     4. A random train/test split (``test_fraction``).
 
     The paper does not state its sensor noise. The default σ = 0.5 mm puts the statistical floor
@@ -167,6 +169,7 @@ def simulate_experiment(
     robot = hsr_jr680() if robot is None else robot
     check_simulation_settings(n_samples, test_fraction, noise_std, oversample)
     measurement = CableLength(default_anchor(robot)) if measurement is None else measurement
+    noise_on(measurement)  # a model it cannot simulate: TypeError now, naming the right simulator
     reach = robot.reach_mm()
     wire_range = (0.05 * reach, 1.2 * reach) if wire_range_mm is None else tuple(map(float, wire_range_mm))
     dtype = jnp.result_type(float)
@@ -195,6 +198,20 @@ class _Config(eqx.Module):
     wire_range: tuple[float, float] = eqx.field(static=True)
     min_height_mm: float = eqx.field(static=True)
     oversample: int = eqx.field(static=True)
+
+
+def noise_on(measurement: MeasurementModel) -> str:
+    """Where :func:`simulate_experiment` puts its noise for ``measurement``: ``"readings"`` (every
+    entry: draw-wire lengths, positions, marker positions) or ``"position"`` (a pose's position;
+    its orientation stays exact). Other models raise ``TypeError`` naming their simulators (marker
+    readings were once taken for poses here: their noise fell out of bounds and was dropped)."""
+    if isinstance(measurement, Pose):
+        return "position"
+    if isinstance(measurement, (CableLength, Position, Markers)):
+        return "readings"
+    raise TypeError(
+        f"simulate_experiment simulates draw-wire, position, pose and marker readings, not {measurement.kind!r} "
+        "data; use jaxcal.simulate_contact (plane, point), simulate_distance or simulate_camera")
 
 
 def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Config, n_real=None):
@@ -234,11 +251,11 @@ def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Co
     q = cand[idx]
     y_true = measurement.predict(robot, true_deviations, q)
     sigma = jnp.asarray(noise_std, dtype)
-    if isinstance(measurement, (CableLength, Position)):
-        y = y_true + sigma * jax.random.normal(k_noise, y_true.shape, dtype)
-    else:  # pose: noise on the position only; orientation readings stay exact
+    if noise_on(measurement) == "position":  # a pose: the orientation readings stay exact
         noise = sigma * jax.random.normal(k_noise, y_true[:, :3, 3].shape, dtype)
         y = y_true.at[:, :3, 3].add(noise)
+    else:
+        y = y_true + sigma * jax.random.normal(k_noise, y_true.shape, dtype)
     return true_deviations, q, y, k_split
 
 
