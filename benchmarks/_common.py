@@ -10,15 +10,6 @@ import jax
 import numpy as np
 
 
-def rss_mb(pid="self") -> float | None:
-    """Resident memory (MB) of process ``pid`` (default this one) from ``/proc``; ``None`` if gone."""
-    try:
-        with open(f"/proc/{pid}/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
-    except OSError:
-        return None
-
-
 def machine() -> str:
     """One line naming the machine the numbers come from."""
     dev = jax.devices()[0]

@@ -60,9 +60,9 @@ def run_counts(call, counts, events, warm_repeats: int = 5) -> dict:
     count of each bucket ``warm_repeats`` times more (a warm call of that bucket's program);
     resident memory after the first and after the last count."""
     import numpy as np
-    from _common import rss_mb
 
     from jaxcal._core._buckets import bucket_size, buckets_enabled
+    from jaxcal._core._buckets import resident_mb as rss_mb
 
     rows = []
     rss_start, rss0 = rss_mb(), None

@@ -59,7 +59,9 @@ def main() -> None:
     ap.add_argument("--log", help="write pytest's whole output here")
     ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "2", "-m", "not slow"])
     args = ap.parse_args()
-    from _common import machine, rss_mb
+    from _common import machine
+
+    from jaxcal._core._buckets import resident_mb as rss_mb
 
     env = dict(os.environ)
     for kv in args.env:

@@ -29,14 +29,6 @@ from jaxcal import robots  # noqa: E402
 ROBOT_NAMES = sorted(robots.PRESETS)
 
 
-def _rss_mb() -> float:
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
-    except OSError:  # not Linux: never clear
-        return 0.0
-
-
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():
     """After a test module, when the worker's resident memory is above
@@ -49,7 +41,10 @@ def _free_compiled_programs():
     yield
     if os.environ.get("JAXCAL_TEST_KEEP_COMPILED", "0") == "1":
         return
-    if _rss_mb() > float(os.environ.get("JAXCAL_TEST_RSS_LIMIT_MB", "3000")):
+    from jaxcal._core._buckets import resident_mb
+
+    rss = resident_mb()  # None where /proc is missing (not Linux): never clear
+    if rss is not None and rss > float(os.environ.get("JAXCAL_TEST_RSS_LIMIT_MB", "3000")):
         import jaxcal
 
         jaxcal.clear_compiled()

@@ -260,6 +260,19 @@ class LeanJit:
         self.jitted.clear_cache()
 
 
+def resident_mb(pid="self") -> float | None:
+    """Resident memory (MB) of process ``pid`` (default this one) from ``/proc``; ``None`` where
+    it cannot be read (not Linux, or the process is gone). For the test run's memory guard
+    (``tests/conftest.py``) and the memory benchmarks."""
+    import os
+
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except OSError:
+        return None
+
+
 def release_memory() -> None:
     """Give the C heap's free pages back to the operating system (glibc ``malloc_trim``; nothing
     elsewhere). XLA's compiler allocates and frees hundreds of MB per compilation; glibc keeps

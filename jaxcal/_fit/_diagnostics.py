@@ -126,11 +126,11 @@ def gram_at(problem, x, loss: str, loss_scale):
 _gram = jax.jit(gram_at, static_argnames="loss")
 
 
-#: the model's per-sample errors of the consistency draws: one program per model and draw shape
 def _sample_errors(measurement, z):
     return measurement.sample_error(z)
 
 
+#: the model's per-sample errors of the consistency draws: one program per model and draw shape
 _sample_errors = LeanJit(_sample_errors, maxsize=4)
 
 

@@ -351,25 +351,24 @@ def test_bucketed_sweep_equals_unbucketed_and_compiles_once_per_bucket(buckets_r
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
     assert res[64, 100].settings["n_train"] == 80 and res[64, 100]["lm"].test_errors.shape == (2, 20)
-    for n in (118,):
-        a, b = res[False, n], res[64, n]
-        assert a.settings["source"]["bucket"] is None and b.settings["source"]["bucket"] == 128
-        assert (b.settings["n_train"], b.settings["n_test"]) == (a.settings["n_train"], a.settings["n_test"])
-        assert b.space.free_names == a.space.free_names and b.floor == a.floor
-        for f in ("before", "oracle"):
-            for m in ("rmse", "mean", "max"):
-                np.testing.assert_allclose(getattr(getattr(b, f), m), getattr(getattr(a, f), m), rtol=1e-12)
-        np.testing.assert_allclose(b.before_errors, a.before_errors, rtol=0, atol=1e-12)
-        for m in ("lm", "adamodw"):
-            for split in ("test", "train"):
-                for f in ("rmse", "mean", "max"):
-                    np.testing.assert_allclose(getattr(getattr(b[m], split), f), getattr(getattr(a[m], split), f),
-                                               rtol=1e-9, err_msg=f"{m} {split} {f}")
-            np.testing.assert_allclose(b[m].x, a[m].x, rtol=0, atol=1e-9)
-            np.testing.assert_allclose(b[m].history, a[m].history, rtol=1e-9)
-            assert b[m].test_errors.shape == a[m].test_errors.shape == (2, a.settings["n_test"])
-            np.testing.assert_allclose(b[m].test_errors, a[m].test_errors, rtol=0, atol=1e-9)
-            np.testing.assert_array_equal(b[m].n_iterations, a[m].n_iterations)
+    a, b = res[False, 118], res[64, 118]
+    assert a.settings["source"]["bucket"] is None and b.settings["source"]["bucket"] == 128
+    assert (b.settings["n_train"], b.settings["n_test"]) == (a.settings["n_train"], a.settings["n_test"])
+    assert b.space.free_names == a.space.free_names and b.floor == a.floor
+    for f in ("before", "oracle"):
+        for m in ("rmse", "mean", "max"):
+            np.testing.assert_allclose(getattr(getattr(b, f), m), getattr(getattr(a, f), m), rtol=1e-12)
+    np.testing.assert_allclose(b.before_errors, a.before_errors, rtol=0, atol=1e-12)
+    for m in ("lm", "adamodw"):
+        for split in ("test", "train"):
+            for f in ("rmse", "mean", "max"):
+                np.testing.assert_allclose(getattr(getattr(b[m], split), f), getattr(getattr(a[m], split), f),
+                                           rtol=1e-9, err_msg=f"{m} {split} {f}")
+        np.testing.assert_allclose(b[m].x, a[m].x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(b[m].history, a[m].history, rtol=1e-9)
+        assert b[m].test_errors.shape == a[m].test_errors.shape == (2, a.settings["n_test"])
+        np.testing.assert_allclose(b[m].test_errors, a[m].test_errors, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(b[m].n_iterations, a[m].n_iterations)
 
 
 def test_unpaddable_method_sweeps_unpadded(buckets_reset):
