@@ -243,7 +243,7 @@ class Evaluation:
     def __str__(self) -> str:
         lines = [self.message, self.table()]
         if self.outlier_rows:
-            lines.append(f"outlier rows (> 5 robust σ = {self.outlier_scale_mm:.3g} mm after calibration, 1-based): "
+            lines.append(f"outlier rows (residual > 5 × {self.outlier_scale_mm:.3g} mm, the robust σ after calibration; 1-based): "
                          + ", ".join(str(r + 1) for r in self.outlier_rows[:30])
                          + (" …" if len(self.outlier_rows) > 30 else ""))
         verdict = ("WORSE than the nominal robot" if self.worse else

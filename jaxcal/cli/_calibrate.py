@@ -739,7 +739,7 @@ def _print_outliers_and_warnings(res, args, checks, file_row) -> None:
     diag = res.diagnostics
     if diag.outliers_after:
         listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
-        print(f"outliers after the fit (> {checks.outlier_k:g} robust σ = {diag.outlier_scale_mm:.3g} mm): data rows "
+        print(f"outliers after the fit (residual > {checks.outlier_k:g} × {diag.outlier_scale_mm:.3g} mm, the robust σ): data rows "
               f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
               + ("" if args.exclude_outliers else
                  " (kept, down-weighted by the robust loss; --exclude-outliers drops them)" if args.loss != "linear" else
