@@ -181,6 +181,10 @@ class Evaluation:
         deviations_before, deviations_after: the deviations evaluated.
         q_file: ``[n, dof]`` the joint readings in the files' units (degrees; mm at prismatic joints).
         objective: the calibration's objective (one line), if known.
+        expected_rmse: the RMSE (mm) the calibration itself predicts on these rows
+            (:func:`expected_rmse`: its σ̂ and its parameter uncertainty at these poses), or
+            ``None`` where the result has no uncertainty; ``worse_than_expected`` says whether
+            the calibrated robot did clearly worse (more than :data:`EXPECTED_FACTOR` times).
 
     ``rmse``/``mean``/``max`` are the ``after`` numbers; ``worse`` says whether the calibrated robot
     predicts the data worse than the nominal one.
@@ -201,6 +205,14 @@ class Evaluation:
     deviations_after: Deviations
     objective: str | None = None
     q_file: np.ndarray | None = None
+    expected_rmse: float | None = None
+
+    @property
+    def worse_than_expected(self) -> bool:
+        """The calibrated robot's RMSE on these rows is more than :data:`EXPECTED_FACTOR` times
+        what the calibration predicts (:attr:`expected_rmse`): the set-up changed since (tool,
+        sensor, robot), the rows lie where the calibration did not look, or the noise is larger."""
+        return self.expected_rmse is not None and self.after.rmse > EXPECTED_FACTOR * self.expected_rmse
 
     @property
     def rmse(self) -> float:
@@ -250,6 +262,13 @@ class Evaluation:
                    f"{100 * (1 - self.after.rmse / self.before.rmse):.1f} % lower RMSE than the nominal robot"
                    if self.before.rmse > 0 else "")
         lines.append(f"calibrated robot on these data: {verdict}")
+        if self.expected_rmse is not None:
+            lines.append(f"expected from the calibration (its σ̂ and parameter uncertainty at these poses): RMSE "
+                         f"{self.expected_rmse:.3g} mm; measured {self.after.rmse:.3g} mm")
+            if self.worse_than_expected:
+                lines.append(f"WARNING: {self.after.rmse / self.expected_rmse:.1f}× worse than the calibration predicts: "
+                             "the set-up may have changed since (tool, sensor, a collision), these poses may lie "
+                             "outside the calibrated workspace, or today's noise is larger")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -261,6 +280,8 @@ class Evaluation:
             "worse": self.worse,
             "extras": {"source": self.extras, "registered": list(self.registered), "message": self.message},
             "objective": self.objective,
+            "expected_rmse_mm": self.expected_rmse,
+            "worse_than_expected": self.worse_than_expected,
             "outlier_rows": [r + 1 for r in self.outlier_rows],
             "outlier_scale_mm": self.outlier_scale_mm,
             "n_samples": self.n,
@@ -280,6 +301,37 @@ def _outliers(robot, measurement, dev, data, k: float = 5.0):
     pr = Problem(robot, measurement, q, data.y, space, dev.astype(q.dtype))
     rows, _, s = outlier_rows(pr, pr.x0(), k)
     return tuple(int(r) for r in rows), float(s)
+
+
+#: :attr:`Evaluation.worse_than_expected` when the measured RMSE exceeds this many times the expected
+#: one (the RMSE of 20 draw-wire rows scatters by ~16 % (1 sd) around its expectation)
+EXPECTED_FACTOR = 1.5
+
+
+def expected_rmse(result, data) -> float | None:
+    """The RMSE (mm) that ``result`` predicts for itself on ``data``'s poses: ``sqrt(c·σ̂² + v̄/w)``
+    with σ̂ the calibration's noise estimate, ``c = E[e²]`` of a sample error on unit noise (1 for a
+    length, 3 for a position's norm or an RMS over markers: the model's own
+    :meth:`~jaxcal.MeasurementModel.sample_error`, by the Monte Carlo of
+    :func:`~jaxcal._fit._diagnostics.robust_consistency`), ``v̄`` the mean prediction variance
+    at the poses (:meth:`~jaxcal.CalibrationResult.prediction_std`, summed over coordinates) and
+    ``w`` the coordinates one sample error averages over. On poses like the training poses this is
+    the statistical floor of a new pose (:func:`jaxcal.statistical_floor`), with σ̂ for σ; away
+    from them the parameter term grows. Approximate where the extras are registered again on the
+    new rows (their own fit then takes the place of the result's extras' uncertainty). ``None``
+    where the result has no uncertainty (a loaded result from an old file; a method with its own
+    predictor, the RBF network)."""
+    from .._fit._diagnostics import robust_consistency
+
+    unc = getattr(result, "uncertainty", None)
+    if unc is None or result.predictor is not None or not (unc.noise_std > 0 and math.isfinite(unc.noise_std)):
+        return None
+    m = result.measurement
+    c = robust_consistency(m, "linear", m.observed(data.y)).mean_sq_error
+    coords = 3 if m.kind == "pose" else m.size
+    var = result.prediction_std(data.q) ** 2
+    value = math.sqrt(c * unc.noise_std ** 2 + float(np.mean(var)) * c / coords)
+    return value if math.isfinite(value) else None
 
 
 def evaluate_result(result, data, *, extras: str = "auto", objective: str | None = None) -> Evaluation:
@@ -355,7 +407,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
         outlier_rows=rows, outlier_scale_mm=scale if math.isfinite(scale) else float("nan"),
         deviations_before=dev_b, deviations_after=dev_a, objective=objective,
-        q_file=joints_to_file_units(robot, data.q),
+        q_file=joints_to_file_units(robot, data.q), expected_rmse=expected_rmse(result, data),
     )
 
 

@@ -357,8 +357,11 @@ def load_result(path) -> CalibrationResult:
 
     The returned :class:`~jaxcal.CalibrationResult` predicts and evaluates like the original;
     ``compile_time_s``/``wall_time_s`` are the saved values. The identifiability report is kept
-    as its dict under ``result.identifiability`` (``None`` if absent); the saved diagnostics and
-    uncertainty stay in the file (``load_result_dict``), not on the result.
+    as its dict under ``result.identifiability`` (``None`` if absent); the uncertainty (posterior
+    σ and covariance of the free parameters, σ̂) is restored as ``result.uncertainty`` when the
+    file has it (what :meth:`~jaxcal.CalibrationResult.prediction_std` and the expected RMSE of
+    :func:`jaxcal.evaluate_result` need); the saved diagnostics stay in the file
+    (``load_result_dict``).
     """
     d = load_result_dict(path)
     robot = robot_from_dict(d["robot"])
@@ -395,4 +398,21 @@ def load_result(path) -> CalibrationResult:
         predictor=predictor,
     )
     object.__setattr__(result, "identifiability", d.get("identifiability"))
+    object.__setattr__(result, "uncertainty", _uncertainty_from_dict(d.get("uncertainty"), space))
     return result
+
+
+def _uncertainty_from_dict(u: dict | None, space: ParameterSpace):
+    """:class:`~jaxcal._fit._diagnostics.Uncertainty` from its ``to_dict`` (``None`` if absent or
+    written for another set of free parameters)."""
+    from .._fit._diagnostics import Uncertainty
+
+    if not u or "covariance" not in u:
+        return None
+    names = space.free_names
+    cov = np.asarray(u["covariance"], np.float64)
+    if cov.shape != (len(names), len(names)) or set(u.get("std", {})) != set(names):
+        return None
+    return Uncertainty(names, space.free_units, np.asarray([_num(u["std"][n]) for n in names], np.float64), cov,
+                       _num(u.get("noise_std_mm")), _num(u.get("effective_parameters")),
+                       int(u.get("n_residuals", 0)))

@@ -208,6 +208,14 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None) -> str
                    f'(RMSE {_num(m["after"]["rmse"])} vs {_num(m["before"]["rmse"])} mm).</p>' if d.get("worse") else
                    f'<p class="ok">The calibrated robot predicts these data with {_num(m["after"]["rmse"])} mm RMSE, '
                    f'the nominal robot with {_num(m["before"]["rmse"])} mm.</p>')
+        exp = d.get("expected_rmse_mm")
+        if exp is not None:
+            verdict += (f'<p class="bad">{_num(m["after"]["rmse"])} mm is more than 1.5× the {_num(exp)} mm the '
+                        "calibration expects of itself here (its σ̂ and parameter uncertainty at these poses): "
+                        "has the set-up changed since, or do these poses lie outside the calibrated workspace?</p>"
+                        if d.get("worse_than_expected") else
+                        f'<p class="ok">The calibration expected {_num(exp)} mm here (its σ̂ and parameter '
+                        "uncertainty at these poses).</p>")
         body += [verdict, _summary([("calibration", d.get("result")), ("new data", f"{d.get('data')}: "
                                                                                      f"{d.get('n_samples')} rows"),
                                     ("model", model), ("method", f"{d.get('method')} ({d.get('status')})"),

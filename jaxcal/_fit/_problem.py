@@ -196,6 +196,19 @@ def sample_errors_at(problem: Problem, x: Float[Array, " p"]) -> Float[Array, " 
 
 
 @jax.jit
+def prediction_variance_at(problem: Problem, x: Float[Array, " p"], covariance: Float[Array, "p p"]
+                           ) -> Float[Array, " n"]:
+    """Per-sample variance (mm²) of the predicted reading at free parameters ``x`` with parameter
+    covariance ``covariance`` ``[p, p]``: ``diag(J·Cov·Jᵀ)`` summed over the sample's coordinates
+    (the position part of a pose), jitted (one program per shape; the N×p Jacobian stays in XLA)."""
+    n, m = problem.n_samples, problem.measurement.size
+    J = problem.jacobian(x).reshape(n, m, -1)
+    if problem.measurement.kind == "pose":
+        J = J[:, :3]
+    return jnp.einsum("nmp,pk,nmk->n", J, covariance.astype(J.dtype), J)
+
+
+@jax.jit
 def predict_jit(measurement, robot, deviations, q):
     """``measurement.predict(robot, deviations, q)``, jitted for host-side callers (compiled once
     per shape; executed op by op, the kinematics run as hundreds of small XLA programs, each

@@ -276,16 +276,14 @@ class CalibrationResult:
         (``uncertainty.noise_std``) in quadrature for the expected error of a new reading."""
         if self.uncertainty is None:
             raise ValueError("this result has no uncertainty (computed by jaxcal.calibrate)")
-        from ._problem import Problem
+        from .._core._precision import to_device
+        from ._problem import Problem, prediction_variance_at
 
-        q = jnp.asarray(q)
+        q = q if isinstance(q, jnp.ndarray) else to_device(np.asarray(q))
         y = jnp.zeros((q.shape[0], *self.measurement.sample_shape), q.dtype)
         pr = Problem(self.robot, self.measurement, q, y, self.space, self.deviations.astype(q.dtype))
-        J = np.asarray(pr.jacobian(pr.x0()), np.float64).reshape(q.shape[0], self.measurement.size, -1)
-        if self.measurement.kind == "pose":
-            J = J[:, :3]
-        C = np.asarray(self.uncertainty.covariance, np.float64)
-        var = np.einsum("nmp,pk,nmk->n", J, C, J)
+        C = to_device(np.asarray(self.uncertainty.covariance, np.float64), q.dtype)
+        var = np.asarray(prediction_variance_at(pr, pr.x0(), C), np.float64)
         return np.sqrt(np.maximum(var, 0.0))
 
     def predict(self, q) -> Array:

@@ -65,6 +65,15 @@ def test_evaluate_registers_a_new_frame_and_reaches_the_floor(two_days, capsys):
     assert m["before"]["rmse"] > 3 * m["after"]["rmse"]  # nominal robot, frame registered: far worse
     assert m["raw_nominal"]["rmse"] > 100  # the guessed (identity) frame is ~1 m off
     assert len(ev["rows"]["after_mm"]) == 300 and ev["worse"] is False
+    # what the calibration expects of itself on day 2: the floor of a new pose with its own σ̂ and
+    # effective parameter count (statistical_floor: an independent formula), and day 2 meets it
+    unc = res.uncertainty  # restored from the file
+    assert unc is not None and unc.noise_std == pytest.approx(json.loads((d / "result.json").read_text())
+                                                              ["uncertainty"]["noise_std_mm"], rel=1e-12)
+    own = statistical_floor(unc.noise_std, unc.effective_parameters, 400, 3).test
+    assert ev["expected_rmse_mm"] == pytest.approx(own, rel=0.05)
+    assert m["after"]["rmse"] == pytest.approx(ev["expected_rmse_mm"], rel=0.15)
+    assert ev["worse_than_expected"] is False and "expected from the calibration" in out and "WARNING" not in out
     # the same through the Python API
     day2 = jaxcal.load_csv(d / "day2.csv")
     e = res.evaluate(day2, extras="auto")
@@ -76,6 +85,27 @@ def test_evaluate_with_the_old_frame_is_worse_and_exits_1(two_days, capsys):
     assert main(["evaluate", str(d / "result.json"), str(d / "day2.csv"), "--keep-extras"]) == 1
     cap = capsys.readouterr()
     assert "taken from the calibration result" in cap.out and "worse than the nominal robot" in cap.err
+    # day 1's frame is ~1 m off on day 2: far beyond what the calibration expects of itself
+    assert "worse than the calibration predicts" in cap.out and "has the set-up changed" in cap.err
+
+
+def test_expected_rmse_flags_a_changed_robot():
+    """The same sensor set-up, but the robot changed after calibration (a tool flange remounted 2 mm
+    further out, d_6): the new rows fit ~2.7× worse than the calibration expects, and say so;
+    rows of the unchanged robot meet the expectation (the statistical floor with σ̂)."""
+    ex = jaxcal.simulate_experiment(jax.random.key(7), n_samples=750)
+    res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", objective="measured")
+    same = jaxcal.evaluate_result(res, ex.test)
+    unc = res.uncertainty
+    assert same.expected_rmse == pytest.approx(
+        statistical_floor(unc.noise_std, unc.effective_parameters, ex.train.n, 1).test, rel=0.05)
+    assert not same.worse_than_expected and same.after.rmse == pytest.approx(same.expected_rmse, rel=0.15)
+    truth = ex.true_deviations
+    moved = truth.replace(d=truth.d.at[5].add(2.0))
+    new = jaxcal.simulate_experiment(jax.random.key(8), n_samples=100, true_deviations=moved, test_fraction=0.5)
+    changed = jaxcal.evaluate_result(res, new.test)
+    assert changed.worse_than_expected and "WARNING" in str(changed)
+    assert changed.to_dict()["worse_than_expected"] is True
 
 
 def test_calibrate_with_a_test_file(two_days, capsys):
