@@ -147,8 +147,8 @@ def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot, stacklevel: 
     elif isinstance(data, (tuple, list)) and len(data) == 2:
         q, y = data
         # host arrays by jax.device_put (jnp.asarray compiles a small program per shape)
-        q = q if isinstance(q, jax.Array) else to_device(np.asarray(q))
-        y = y if isinstance(y, jax.Array) and y.dtype == q.dtype else to_device(np.asarray(y), q.dtype)
+        q = to_device(q)
+        y = to_device(y, q.dtype)
         Dataset(q, y, measurement.kind, mm_joints_metadata(robot))  # validates shapes, NaN/inf, degrees
     else:
         raise TypeError("data must be a jaxcal.Dataset or a (q, y) pair of arrays")

@@ -110,10 +110,8 @@ def sample_errors_many(robot, measurement, deviations, datasets) -> list[np.ndar
     runs one per shape (the command line's before/after table: four programs, each loaded from
     the compilation cache at every start). The datasets are not concatenated: XLA:CPU's code
     for another row count can differ in the last bits."""
-    def device(a):  # jnp.asarray of a NumPy array would be a compiled program
-        return a if isinstance(a, jnp.ndarray) else to_device(a)
-
-    qs, ys = tuple(device(ds.q) for ds in datasets), tuple(device(ds.y) for ds in datasets)
+    # to_device, not jnp.asarray: that compiles a copy program per shape
+    qs, ys = tuple(to_device(ds.q) for ds in datasets), tuple(to_device(ds.y) for ds in datasets)
     devs = tuple(d.astype(qs[0].dtype) for d in deviations)
     return [np.asarray(e, np.float64) for e in _sample_errors_many(robot, measurement, devs, qs, ys)]
 
@@ -214,6 +212,20 @@ class Evaluation:
         sensor, robot), the rows lie where the calibration did not look, or the noise is larger."""
         return self.expected_rmse is not None and self.after.rmse > EXPECTED_FACTOR * self.expected_rmse
 
+    def expectation(self) -> tuple[str | None, str | None]:
+        """``(line, warning)``: the expected and the measured RMSE in one line, and when the rows fit
+        worse than expected (:attr:`worse_than_expected`) a sentence saying so; ``None`` for
+        what does not apply. Printed by ``str()``, ``jaxcal evaluate`` and ``jaxcal calibrate --test``."""
+        if self.expected_rmse is None:
+            return None, None
+        line = (f"expected from the calibration (its σ̂ and parameter uncertainty at these poses): RMSE "
+                f"{self.expected_rmse:.3g} mm; measured {self.after.rmse:.3g} mm")
+        warning = (f"{self.after.rmse / self.expected_rmse:.1f}× worse than the calibration predicts (RMSE "
+                   f"{self.after.rmse:.4g} vs {self.expected_rmse:.4g} mm): has the set-up changed since (tool, "
+                   "sensor, a collision), do these poses lie outside the calibrated workspace, or is the noise "
+                   "larger today?") if self.worse_than_expected else None
+        return line, warning
+
     @property
     def rmse(self) -> float:
         return self.after.rmse
@@ -262,13 +274,9 @@ class Evaluation:
                    f"{100 * (1 - self.after.rmse / self.before.rmse):.1f} % lower RMSE than the nominal robot"
                    if self.before.rmse > 0 else "")
         lines.append(f"calibrated robot on these data: {verdict}")
-        if self.expected_rmse is not None:
-            lines.append(f"expected from the calibration (its σ̂ and parameter uncertainty at these poses): RMSE "
-                         f"{self.expected_rmse:.3g} mm; measured {self.after.rmse:.3g} mm")
-            if self.worse_than_expected:
-                lines.append(f"WARNING: {self.after.rmse / self.expected_rmse:.1f}× worse than the calibration predicts: "
-                             "the set-up may have changed since (tool, sensor, a collision), these poses may lie "
-                             "outside the calibrated workspace, or today's noise is larger")
+        line, warning = self.expectation()
+        lines += [] if line is None else [line]
+        lines += [] if warning is None else [f"WARNING: {warning}"]
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -323,7 +331,7 @@ def expected_rmse(result, data) -> float | None:
     predictor, the RBF network)."""
     from .._fit._diagnostics import robust_consistency
 
-    unc = getattr(result, "uncertainty", None)
+    unc = result.uncertainty
     if unc is None or result.predictor is not None or not (unc.noise_std > 0 and math.isfinite(unc.noise_std)):
         return None
     m = result.measurement

@@ -14,17 +14,17 @@ that writes it).
 from __future__ import annotations
 
 import json
-import math
 import pathlib
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
-from .._core._json import to_jsonable
+from .._core._json import from_json_number, to_jsonable
 from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._datasets._csvfile import read_table
+from .._fit._diagnostics import Uncertainty
 from .._fit._result import CalibrationResult, Status
 from .._models._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from .._models._robot import DHRobot
@@ -347,11 +347,6 @@ def load_result_dict(path) -> dict:
     return d
 
 
-def _num(v) -> float:
-    """A JSON number back to float: ``null`` → NaN, ``"inf"``/``"-inf"`` → ±inf."""
-    return math.nan if v is None else float(v)
-
-
 def load_result(path) -> CalibrationResult:
     """Read a result file written by :func:`save_result` (or ``jaxcal calibrate --out``).
 
@@ -386,33 +381,18 @@ def load_result(path) -> CalibrationResult:
         space=space,
         robot=robot,
         measurement=measurement,
-        history=np.asarray([_num(v) for v in d.get("history_rmse_mm", [])], np.float64),
+        history=np.asarray([from_json_number(v) for v in d.get("history_rmse_mm", [])], np.float64),
         n_iterations=int(d["n_iterations"]),
         iterations_to_converge=int(d["iterations_to_converge"]),
         status=Status[str(d["status"]).upper()],
-        train_metrics=Metrics(*(_num(tm.get(f)) for f in Metrics._fields)),
-        wall_time_s=_num(d.get("wall_time_s")),
-        compile_time_s=_num(d.get("compile_time_s")),
+        train_metrics=Metrics(*(from_json_number(tm.get(f)) for f in Metrics._fields)),
+        wall_time_s=from_json_number(d.get("wall_time_s")),
+        compile_time_s=from_json_number(d.get("compile_time_s")),
         hyperparameters=dict(d.get("hyperparameters", {})),
         extra=extra,
         predictor=predictor,
     )
     object.__setattr__(result, "identifiability", d.get("identifiability"))
-    object.__setattr__(result, "uncertainty", _uncertainty_from_dict(d.get("uncertainty"), space))
+    object.__setattr__(result, "uncertainty", Uncertainty.from_dict(d.get("uncertainty"), space.free_names,
+                                                                    space.free_units))
     return result
-
-
-def _uncertainty_from_dict(u: dict | None, space: ParameterSpace):
-    """:class:`~jaxcal._fit._diagnostics.Uncertainty` from its ``to_dict`` (``None`` if absent or
-    written for another set of free parameters)."""
-    from .._fit._diagnostics import Uncertainty
-
-    if not u or "covariance" not in u:
-        return None
-    names = space.free_names
-    cov = np.asarray(u["covariance"], np.float64)
-    if cov.shape != (len(names), len(names)) or set(u.get("std", {})) != set(names):
-        return None
-    return Uncertainty(names, space.free_units, np.asarray([_num(u["std"][n]) for n in names], np.float64), cov,
-                       _num(u.get("noise_std_mm")), _num(u.get("effective_parameters")),
-                       int(u.get("n_residuals", 0)))

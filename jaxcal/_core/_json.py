@@ -24,6 +24,12 @@ def to_jsonable(v, *, nonfinite: str = "string"):
     return _convert(v, nonfinite)
 
 
+def from_json_number(v) -> float:
+    """A number written by :func:`to_jsonable` back to float: ``null`` → NaN, ``"inf"``/``"-inf"``
+    → ±inf."""
+    return math.nan if v is None else float(v)
+
+
 def _convert(v, nonfinite):
     if isinstance(v, Mapping):
         return {str(k): _convert(x, nonfinite) for k, x in v.items()}

@@ -111,6 +111,9 @@ def to_device(x, dtype=None) -> jax.Array:
 
     For host-side code outside ``jit``: there ``jnp.asarray`` of a NumPy array (or ``.astype``)
     runs a small compiled program per shape — compiled, or loaded from the persistent cache,
-    once per process and dispatched at ~20–50 µs — and ``jax.device_put`` does not.
+    once per process and dispatched at ~20–50 µs — and ``jax.device_put`` does not. A JAX array
+    already in that dtype is returned as it is (no round trip through the host).
     """
+    if isinstance(x, jax.Array) and x.dtype == jax.dtypes.canonicalize_dtype(x.dtype if dtype is None else dtype):
+        return x
     return jax.device_put(canonical_numpy(x, dtype))

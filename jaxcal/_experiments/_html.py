@@ -210,7 +210,9 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None) -> str
                    f'the nominal robot with {_num(m["before"]["rmse"])} mm.</p>')
         exp = d.get("expected_rmse_mm")
         if exp is not None:
-            verdict += (f'<p class="bad">{_num(m["after"]["rmse"])} mm is more than 1.5× the {_num(exp)} mm the '
+            from .._calibration._evaluate import EXPECTED_FACTOR
+
+            verdict += (f'<p class="bad">{_num(m["after"]["rmse"])} mm is more than {EXPECTED_FACTOR:g}× the {_num(exp)} mm the '
                         "calibration expects of itself here (its σ̂ and parameter uncertainty at these poses): "
                         "has the set-up changed since, or do these poses lie outside the calibrated workspace?</p>"
                         if d.get("worse_than_expected") else

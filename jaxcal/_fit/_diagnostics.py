@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core._buckets import LeanJit
+from .._core._json import from_json_number
 from .._core._params import group_kind
 from .._core._precision import to_device
 from ._objective import robust_factor, robust_scale
@@ -103,6 +104,20 @@ class Uncertainty:
             "n_residuals": self.n_residuals,
             "covariance": np.asarray(self.covariance).tolist(),
         }
+
+    @classmethod
+    def from_dict(cls, d: dict | None, names, units) -> Uncertainty | None:
+        """The inverse of :meth:`to_dict` for the free parameters ``names`` (``units``): ``None``
+        where ``d`` is absent or was written for another set of free parameters. ``"inf"`` and
+        ``null`` (NaN) entries as JSON writes them."""
+        if not d or "covariance" not in d:
+            return None
+        num = from_json_number
+        cov = np.asarray([[num(v) for v in row] for row in d["covariance"]], np.float64)
+        if cov.shape != (len(names), len(names)) or set(d.get("std", {})) != set(names):
+            return None
+        return cls(tuple(names), tuple(units), np.asarray([num(d["std"][n]) for n in names], np.float64), cov,
+                   num(d.get("noise_std_mm")), num(d.get("effective_parameters")), int(d.get("n_residuals", 0)))
 
 
 def gram_at(problem, x, loss: str, loss_scale):
@@ -220,17 +235,15 @@ class RobustNoise:
 
     ``None`` from :meth:`build` where the loss is linear or the robust scale is 0 or not finite
     (σ̂ is then the plain RMS).
+
+    Attributes:
+        resid_var: ``σ_r²`` (mm²).
+        kappa: ``κ(k)`` of the loss at its own constant.
+        n_residuals: ``N``, the real residual entries.
     """
 
-    def __init__(self, e2: np.ndarray, sq: np.ndarray, n_residuals: int, k: float, consistency: Consistency):
-        self._e2, self._sq, self.n_residuals = e2, sq, n_residuals
-        self.kappa = consistency(k)
-        # the cap in units of σ on the sample error: k times a clean block's RMS error, so that it
-        # caps the same share of clean blocks for every model (18 % at k = 1.345 for one reading,
-        # 13 % for a position's norm; at k itself, 61 % of positions and σ̂ ~1.4× as variable)
-        self.k = k * math.sqrt(consistency.mean_sq_error)
-        self.beta = consistency.capped(self.k)
-        self._resid_var = None
+    def __init__(self, resid_var: float, kappa: float, n_residuals: int):
+        self.resid_var, self.kappa, self.n_residuals = resid_var, kappa, n_residuals
 
     @classmethod
     def build(cls, loss: str, loss_scale, problem, blocks, r, e) -> RobustNoise | None:
@@ -243,33 +256,37 @@ class RobustNoise:
             return None
         n, m = problem.n_samples, problem.measurement.size
         rr = np.asarray(r, np.float64)[: n * m].reshape(n, m)
-        e2 = np.asarray(e, np.float64)[:n] ** 2
+        e2, sq = np.asarray(e, np.float64)[:n] ** 2, np.sum(rr * rr, axis=1)
         cons = robust_consistency(problem.measurement, loss, problem.observed())
-        return cls(e2, np.sum(rr * rr, axis=1), problem.n_observed_residuals, float(np.asarray(loss_scale)) / s, cons)
-
-    def resid_var(self) -> float:
-        """``σ_r²`` (mm²): the fixed point of the capped sum over ``N`` entries, by iteration (a
-        concave increasing map; geometric convergence from the uncapped value, above the root)."""
-        if self._resid_var is None:
-            den = self.n_residuals * self.beta
-            s2 = float(np.sum(self._sq)) / den
-            for _ in range(500):
-                new = float(np.sum(_capped_weight(self._e2, self.k * self.k * s2) * self._sq)) / den
-                done = abs(new - s2) <= 1e-12 * s2
-                s2 = new
-                if done or not s2 > 0:
-                    break
-            self._resid_var = s2
-        return self._resid_var
+        k = float(np.asarray(loss_scale)) / s
+        # the cap in units of σ on the sample error: k times a clean block's RMS error, so that it
+        # caps the same share of clean blocks for every model (18 % at k = 1.345 for one reading,
+        # 13 % for a position's norm; at k itself, 61 % of positions and σ̂ ~1.4× as variable)
+        cap = k * math.sqrt(cons.mean_sq_error)
+        N = problem.n_observed_residuals
+        return cls(_capped_fixed_point(e2, sq, cap, N * cons.capped(cap)), cons(k), N)
 
     def noise_var(self, dof: float) -> float:
         """σ̂² (mm²) over ``dof = N − p_eff`` degrees of freedom."""
-        return self.resid_var() * self.n_residuals / dof
+        return self.resid_var * self.n_residuals / dof
 
     def objective_var(self, dof: float) -> float:
         """``κ(k)·σ̂²``: the objective's residual variance ``Σ (f·r)² / dof`` that clean data with
         noise σ̂ would give (what the posterior covariance weighs ``JᵀWJ`` by)."""
         return self.kappa * self.noise_var(dof)
+
+
+def _capped_fixed_point(e2: np.ndarray, sq: np.ndarray, cap: float, den: float) -> float:
+    """``s²`` with ``s² = Σ_i min(1, (cap·s)²/e_i²)·sq_i / den``, by iteration (a concave increasing
+    map; geometric convergence from the uncapped value, above the root)."""
+    s2 = float(np.sum(sq)) / den
+    for _ in range(500):
+        new = float(np.sum(_capped_weight(e2, cap * cap * s2) * sq)) / den
+        done = abs(new - s2) <= 1e-12 * s2
+        s2 = new
+        if done or not s2 > 0:
+            break
+    return s2
 
 
 def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0,

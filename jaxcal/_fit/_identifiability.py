@@ -410,7 +410,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     residuals are the real rows', and the Jacobian carries zero rows for the padding at its end
     (``bucket_size(n)·m`` rows). ``n_to``: pad to this row count instead (a caller with its own
     bucket, as :func:`jaxcal.sweep`'s padded simulation)."""
-    q = q if isinstance(q, jax.Array) else to_device(q)  # not jnp.asarray: a copy program per new shape
+    q = to_device(q)  # not jnp.asarray: a copy program per new shape
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")

@@ -205,7 +205,7 @@ def prediction_variance_at(problem: Problem, x: Float[Array, " p"], covariance: 
     J = problem.jacobian(x).reshape(n, m, -1)
     if problem.measurement.kind == "pose":
         J = J[:, :3]
-    return jnp.einsum("nmp,pk,nmk->n", J, covariance.astype(J.dtype), J)
+    return jnp.einsum("nmp,pk,nmk->n", J, covariance, J)
 
 
 @jax.jit

@@ -279,7 +279,7 @@ class CalibrationResult:
         from .._core._precision import to_device
         from ._problem import Problem, prediction_variance_at
 
-        q = q if isinstance(q, jnp.ndarray) else to_device(np.asarray(q))
+        q = to_device(q)
         y = jnp.zeros((q.shape[0], *self.measurement.sample_shape), q.dtype)
         pr = Problem(self.robot, self.measurement, q, y, self.space, self.deviations.astype(q.dtype))
         C = to_device(np.asarray(self.uncertainty.covariance, np.float64), q.dtype)

@@ -656,13 +656,11 @@ def _cmd_calibrate(args) -> int:
     print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
           + ("; raw nominal = the guessed extras, nothing estimated" if estimated else "")
           + ("" if evaluation is None else f"\ntest file: {evaluation.message}"))
-    if evaluation is not None and evaluation.expected_rmse is not None:
-        print(f"test file: RMSE {evaluation.after.rmse:.4g} {unit} after calibration, {evaluation.expected_rmse:.4g} {unit} "
-              "expected from the calibration's σ̂ and parameter uncertainty at its poses")
-        if evaluation.worse_than_expected:
-            print(f"jaxcal: warning: the test file fits {evaluation.after.rmse / evaluation.expected_rmse:.1f}× worse than "
-                  "the calibration expects: another set-up or day (tool, sensor, a collision), poses outside the "
-                  "training workspace, or more noise?", file=sys.stderr)
+    line, warning = (None, None) if evaluation is None else evaluation.expectation()
+    if line is not None:
+        print(f"test file: {line}")
+    if warning is not None:
+        print(f"jaxcal: warning: test file: {warning}", file=sys.stderr)
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
     if hasattr(robot, "dh_table_deg"):
         _print_dh_table(robot, res, sd)

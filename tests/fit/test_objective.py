@@ -106,14 +106,20 @@ def test_robust_factor_closed_form(loss):
     assert np.isfinite(g) and g == pytest.approx(1.0)
 
 
-def _chi_quadrature(loss, k, m):
-    """E[c²·2ρ(‖z‖/c)]/m for z ~ N(0, I_m), c = k, by quadrature over the χ_m density (the
+def _chi_expectation(g, m):
+    """E[g(‖z‖)]/m for z ~ N(0, I_m), by trapezoid quadrature over the χ_m density (the
     Euclidean-norm case, independent of the library's Monte Carlo)."""
     r = np.linspace(0.0, math.sqrt(m) + 14.0, 40001)[1:]
     pdf = np.exp((m - 1) * np.log(r) - 0.5 * r * r - (0.5 * m - 1) * math.log(2.0) - math.lgamma(0.5 * m))
-    g = np.where(r <= k, r * r, 2.0 * k * r - k * k) if loss == "huber" else k * k * np.log1p((r / k) ** 2)
-    y = g * pdf
+    y = g(r) * pdf
     return float(np.sum((y[1:] + y[:-1]) * np.diff(r)) / 2 / m)
+
+
+def _chi_quadrature(loss, k, m):
+    """E[c²·2ρ(‖z‖/c)]/m for z ~ N(0, I_m), c = k."""
+    if loss == "huber":
+        return _chi_expectation(lambda r: np.where(r <= k, r * r, 2.0 * k * r - k * k), m)
+    return _chi_expectation(lambda r: k * k * np.log1p((r / k) ** 2), m)
 
 
 def test_robust_consistency_against_closed_form_and_quadrature():
@@ -146,11 +152,8 @@ def test_robust_consistency_against_closed_form_and_quadrature():
 
 
 def _chi_capped(k, m):
-    """E[min(‖z‖², k²)]/m for z ~ N(0, I_m), by quadrature over the χ_m density."""
-    r = np.linspace(0.0, math.sqrt(m) + 14.0, 40001)[1:]
-    pdf = np.exp((m - 1) * np.log(r) - 0.5 * r * r - (0.5 * m - 1) * math.log(2.0) - math.lgamma(0.5 * m))
-    y = np.minimum(r * r, k * k) * pdf
-    return float(np.sum((y[1:] + y[:-1]) * np.diff(r)) / 2 / m)
+    """E[min(‖z‖², k²)]/m for z ~ N(0, I_m)."""
+    return _chi_expectation(lambda r: np.minimum(r * r, k * k), m)
 
 
 def test_noise_estimate_consistent_under_huber():
