@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._core._buckets import BoundedCache, LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows, release_memory
+from .._core._cache import ensure_compilation_cache
 from .._core._metrics import Metrics, compute_metrics
 from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
@@ -559,6 +560,7 @@ def _calibration_steps(
     one driver runs one unit's solves one by one (:func:`calibrate`) and another runs the solves of
     many units as one vmapped program (:func:`jaxcal.calibrate_many`). Its warnings name the frame
     two levels above it (the caller of the driver)."""
+    ensure_compilation_cache()  # before the first of this call's programs compiles
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
     q, y = _as_arrays(data, measurement, robot, stacklevel=4)

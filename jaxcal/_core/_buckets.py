@@ -3,25 +3,32 @@
 XLA compiles a program for fixed array shapes, so a calibration compiled for 1 400 samples is
 compiled again for 1 401. A notebook user fitting subsets of different sizes (a learning curve)
 paid a full compilation (seconds) and ~28 MB of resident memory per new sample count. jaxcal
-therefore pads the samples of its compiled programs (the identifiability program and the solve
-of :func:`jaxcal.calibrate`) to a **bucket size** with zero-weight rows:
+therefore pads the samples of its compiled programs (the identifiability program, the solve of
+:func:`jaxcal.calibrate` and its residual evaluations) to a **bucket size** with zero-weight rows.
+On by default.
 
-* the rule (:func:`bucket_size`): ``n`` is rounded up to the next of ``256·2^k`` and
-  ``384·2^k`` (``k ≥ 0``): 256, 384, 512, 768, 1 024, 1 536, 2 048, 3 072, 4 096, 6 144, ...
-  (the halfway steps keep the padding below a third of the bucket); below 256 samples every
-  count pads to 256. Counts that are a bucket size exactly are not padded at all.
+* **The first bucket** of a process is the smallest size of a fine grid at or above ``n``: eight
+  steps per octave above the smallest bucket ``b`` (default 256): ``b·2^k·(8 + j)/8``, ``j = 0..7``
+  (256, 288, 320, ..., 1 536, 1 664, 1 792, ...), so the padding is at most 1/9 (11 %) of the
+  bucket — a user who calibrates one data size pays almost nothing for it (the paper experiment's
+  1 600 training samples run as 1 664 rows). Below ``b`` samples every count pads to ``b``.
+* **Later sizes reuse**: a count ``n`` runs in the smallest bucket this process has used already
+  that holds it and is at most :data:`REUSE_FACTOR` (2) × ``n``; only when there is none a new
+  bucket is made, and once the process has used one bucket above ``b``, new buckets come from the
+  octave grid ``b·2^k`` (a session that varies its sizes — a learning curve, a sweep of hold-outs —
+  compiles about one program set per octave, whatever order the sizes come in). The choice
+  depends on what the process ran before, which changes results only by round-off (below).
 * padded rows repeat the first sample (finite kinematics, no NaN in a derivative) and carry
   weight 0 (:attr:`jaxcal.Problem.weight`): every residual, Jacobian row and sample error of
   theirs is multiplied by 0, and every mean divides by the count of real rows. So the padded
   fit equals the unpadded one to round-off (the order of a few sums changes), and every
   statistic — RMSE, MEAN, MAX, the loss, the column scales, σ̂, the robust scale, the
   uncertainty and effective parameters, the identifiability — sees the real rows only.
-* **Off by default** (one program per sample count, results bit for bit as before padding
-  existed): on the 2-core CPU the padding rows cost the warm paper-experiment fit (1 600 →
-  2 048 rows) 17.9 instead of 11.4 ms of CPU, which breaks the warm-``calibrate`` speed goal
-  (≥ 15× scipy). Turn it on where compilations dominate — a learning curve over many sample
-  counts, a notebook session: ``JAXCAL_BUCKETS=on`` (smallest bucket 256), ``JAXCAL_BUCKETS=MIN``
-  (another smallest bucket) or :func:`set_buckets` ``(True)``; ``off`` turns it off again.
+* **Turning it off**: ``JAXCAL_BUCKETS=off`` (or :func:`set_buckets` ``(False)``) gives one program
+  per sample count, bit for bit the computations without padding; ``JAXCAL_BUCKETS=MIN`` (an
+  integer) sets another smallest bucket. Simulated sweeps (:func:`jaxcal.sweep`) pad their
+  simulation only when buckets are turned on explicitly (``JAXCAL_BUCKETS=on`` or
+  :func:`set_buckets` ``(True)``): their seeded data are then drawn on the padded rows.
 
 Methods whose result depends on the row count itself do not pad (:attr:`Method.paddable`):
 mini-batch gradient descent (``batch_size=``: the batches are drawn from the rows) and the RBF
@@ -36,38 +43,61 @@ import weakref
 
 import numpy as np
 
-__all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "clear_compiled", "ENV_VAR"]
+__all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "clear_compiled", "ENV_VAR",
+           "REUSE_FACTOR", "FINE_STEPS"]
 
-#: environment variable: ``off`` (no padding) or the smallest bucket (an integer, default 256).
+#: environment variable: ``off`` (no padding), ``on`` or the smallest bucket (an integer, default 256).
 ENV_VAR = "JAXCAL_BUCKETS"
 
+#: a count reuses a bucket the process has used already when the bucket is at most this × the count
+REUSE_FACTOR = 2.0
+
+#: steps per octave of the first bucket's grid (padding at most ``1/(FINE_STEPS + 1)`` of the bucket)
+FINE_STEPS = 8
+
 _SETTING: dict = {}
+
+#: bucket sizes above the smallest bucket that this process has used (see the module docstring)
+_USED: set[int] = set()
+
+
+def _parse_setting() -> tuple[int | None, bool]:
+    """``(smallest bucket or None when off, explicitly turned on)``."""
+    if "value" in _SETTING:
+        v = _SETTING["value"]
+        return v, v is not None
+    text = os.environ.get(ENV_VAR, "").strip().lower()
+    if text in ("on", "true", "yes"):
+        return 256, True
+    if text in ("",):
+        return 256, False  # on by default
+    if text in ("off", "none", "false", "0", "no"):
+        return None, False
+    try:
+        v = int(text)
+    except ValueError:
+        raise ValueError(f"{ENV_VAR} must be 'on', 'off' or the smallest bucket size (an integer), got {text!r}"
+                         ) from None
+    if v < 1:
+        raise ValueError(f"{ENV_VAR} must be >= 1, got {v}")
+    return v, True
 
 
 def _min_bucket() -> int | None:
     """The smallest bucket, or ``None`` when padding is off."""
-    if "value" in _SETTING:
-        return _SETTING["value"]
-    text = os.environ.get(ENV_VAR, "").strip().lower()
-    if text in ("on", "true", "yes"):
-        return 256
-    if text in ("", "off", "none", "false", "0", "no"):  # off by default: see the module docstring
-        return None
-    try:
-        v = int(text)
-    except ValueError:
-        raise ValueError(f"{ENV_VAR} must be 'off' or the smallest bucket size (an integer), got {text!r}") from None
-    if v < 1:
-        raise ValueError(f"{ENV_VAR} must be >= 1, got {v}")
-    return v
+    return _parse_setting()[0]
 
 
-def set_buckets(enabled: bool | int = True) -> None:
+def set_buckets(enabled: bool | int | None = True) -> None:
     """Turn shape bucketing on (``True``, smallest bucket 256, or an integer smallest bucket) or
-    off (``False``) for this process; overrides ``$JAXCAL_BUCKETS``."""
-    if enabled is True:
+    off (``False``) for this process, overriding ``$JAXCAL_BUCKETS``; ``None`` returns to the
+    environment's setting (on by default). Forgets the buckets used so far."""
+    _USED.clear()
+    if enabled is None:
+        _SETTING.pop("value", None)
+    elif enabled is True:
         _SETTING["value"] = 256
-    elif enabled is False or enabled is None:
+    elif enabled is False:
         _SETTING["value"] = None
     else:
         v = int(enabled)
@@ -76,24 +106,59 @@ def set_buckets(enabled: bool | int = True) -> None:
         _SETTING["value"] = v
 
 
-def buckets_enabled() -> bool:
-    return _min_bucket() is not None
+def buckets_enabled(explicit: bool = False) -> bool:
+    """Whether padding is on; ``explicit=True``: only when turned on explicitly (environment or
+    :func:`set_buckets`), not by default (what simulated sweeps require)."""
+    b, on = _parse_setting()
+    return on if explicit else b is not None
+
+
+def fine_bucket(n: int, minimum: int = 256) -> int:
+    """The smallest size ``minimum·2^k·(FINE_STEPS + j)/FINE_STEPS`` (``j = 0..FINE_STEPS−1``) that
+    is ``≥ n``; ``minimum`` for ``n ≤ minimum``."""
+    n, b = int(n), int(minimum)
+    if n <= b:
+        return b
+    k = math.floor(math.log2(n / b))
+    base = b << k
+    for j in range(FINE_STEPS + 1):
+        size = -(-base * (FINE_STEPS + j) // FINE_STEPS)
+        if size >= n:
+            return size
+    return b << (k + 1)  # pragma: no cover - log2 round-off
+
+
+def octave_bucket(n: int, minimum: int = 256) -> int:
+    """The smallest ``minimum·2^k ≥ n``."""
+    n, b = int(n), int(minimum)
+    size = b
+    while size < n:
+        size *= 2
+    return size
 
 
 def bucket_size(n: int, minimum: int | None = None) -> int:
-    """The padded sample count for ``n`` samples: the smallest of ``b·2^k`` and ``1.5·b·2^k``
-    (``b`` = ``minimum``, default 256) that is ``≥ n``; ``n`` itself with padding off."""
+    """The padded sample count for ``n`` samples (``n`` itself with padding off).
+
+    With ``minimum`` given: the fine grid's bucket (:func:`fine_bucket`), a pure function of
+    ``n``. Without (what jaxcal's programs use): the process's bucket rule of the module
+    docstring — a bucket already used that holds ``n`` and is at most :data:`REUSE_FACTOR` × ``n``,
+    else a new one (fine grid for the process's first bucket above the smallest, octave grid
+    after it), which is then remembered."""
     n = int(n)
-    b = _min_bucket() if minimum is None else minimum
+    if minimum is not None:
+        return n if n <= 0 else fine_bucket(n, minimum)
+    b = _min_bucket()
     if b is None or n <= 0:
         return n
     if n <= b:
         return b
-    k = math.floor(math.log2(n / b))
-    for size in (b << k, (3 * b << k) // 2, b << (k + 1)):
-        if size >= n:
-            return size
-    return b << (k + 1)  # pragma: no cover - log2 round-off
+    fits = [s for s in _USED if n <= s <= REUSE_FACTOR * n]
+    if fits:
+        return min(fits)
+    size = fine_bucket(n, b) if not _USED else octave_bucket(n, b)
+    _USED.add(size)
+    return size
 
 
 def pad_rows(q, y, n_to: int):
@@ -249,7 +314,9 @@ class LeanJit:
             return self.jitted(*args, **kwargs)
         compiled = self.cache.get(key)
         if compiled is None:
-            compiled = self.jitted.lower(**bound.arguments).compile()
+            from ._xla import compile_lowered
+
+            compiled = compile_lowered(self.jitted.lower(**bound.arguments))
             self.cache.put(key, compiled)
             self.jitted.clear_cache()
             release_memory()

@@ -75,7 +75,11 @@ def compiler_options(platform: str) -> dict[str, object] | None:
 
 def compile_lowered(lowered, platform: str | None = None):
     """``lowered.compile(...)`` with :func:`compiler_options` for ``platform`` (default: JAX's
-    default backend)."""
+    default backend), with jaxcal's persistent compilation cache on
+    (:func:`~jaxcal._core._cache.ensure_compilation_cache`)."""
+    from ._cache import ensure_compilation_cache
+
+    ensure_compilation_cache()
     if platform is None:
         import jax
 

@@ -407,7 +407,8 @@ def load_csv(
     Args:
         path: file path.
         kind: expected measurement kind; by default taken from the ``# kind:`` line or from
-            the value columns present.
+            the value columns present. A ``kind`` that contradicts the file's ``# kind:`` line
+            raises.
         dof: expected number of joints (e.g. ``robot.dof``); a mismatch raises.
         dtype: array dtype (default: JAX's default float).
         delimiter: the column delimiter (one character); default: recognised from the header.
@@ -418,12 +419,16 @@ def load_csv(
         FileNotFoundError: no such file.
         ValueError: missing/unknown columns, mixed angle units, gaps in the joint numbering,
             wrong joint count, empty file, unparsable or NaN/inf values (naming row, line and
-            column), or radian columns whose values look like degrees.
+            column), radian columns whose values look like degrees, or a ``kind`` other than the
+            file's ``# kind:`` line.
     """
     n_markers_expected = n_markers
     t = read_table(path, delimiter=delimiter, what="data file", row_name="data row")
     path, header, meta = t.path, t.header, dict(t.meta)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
+    if kind is not None and meta_kind is not None and meta[meta_kind].strip().lower() != kind:
+        raise ValueError(f"{path}: the file's '# {meta_kind}: {meta[meta_kind]}' line says {meta[meta_kind]} data, "
+                         f"but {kind} data were asked for (--measurement {kind} / kind={kind!r}); drop one of them")
     if kind == "distance" or (kind is None and "distance_mm" in header):  # two poses per row (jaxcal._sensors._contact)
 
         if meta_kind is not None:

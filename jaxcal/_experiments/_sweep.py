@@ -51,6 +51,7 @@ from jaxtyping import Array
 from .._calibration._calibrate import Calibrator, resolve_space
 from .._calibration._io import measurement_from_dict, measurement_to_dict, robot_from_dict, robot_to_dict
 from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory, signature
+from .._core._cache import ensure_compilation_cache
 from .._core._json import to_jsonable
 from .._core._metrics import Floor, Metrics, compute_metrics, statistical_floor
 from .._core._params import Deviations, ParameterSpace, layout_for
@@ -863,7 +864,8 @@ def sweep(
             :func:`~jaxcal._simulation._simulate.default_anchor`).
         n_samples, noise_std, test_fraction: simulation settings (σ in mm). With given
             ``data``, ``noise_std`` (or ``None``) only sets the statistical-floor row. With shape
-            buckets on (:func:`jaxcal.set_buckets`) and every method paddable, the simulation
+            buckets turned on explicitly (:func:`jaxcal.set_buckets` ``(True)``,
+            ``JAXCAL_BUCKETS=on``; not by default) and every method paddable, the simulation
             runs at the bucket of ``n_samples`` with zero-weight padding rows: the same data and
             results to round-off, and one compiled program per bucket (a learning curve over
             many ``n_samples`` compiles once per bucket; ``settings["source"]["bucket"]``).
@@ -919,6 +921,7 @@ def sweep(
         :class:`SweepResult`.
     """
     n_seeds = _check_n_seeds(n_seeds)
+    ensure_compilation_cache()
     base_key = _as_key(seed if key is None else key)
     dtype = jnp.result_type(float)
     warn_if_float32(dtype, "sweep")
@@ -999,9 +1002,10 @@ def sweep(
 
 def _paddable(specs) -> bool:
     """Whether a simulated sweep runs padded to its shape bucket (:mod:`jaxcal._core._buckets`):
-    buckets on, JAX's partitionable threefry (the padded simulation's real rows equal the
-    unpadded one's only then), and every method paddable (:attr:`Method.paddable`)."""
-    if not buckets_enabled() or not jax.config.jax_threefry_partitionable:
+    buckets turned on explicitly (:func:`jaxcal.set_buckets`, ``JAXCAL_BUCKETS=on``; not by default),
+    JAX's partitionable threefry (the padded simulation's real rows equal the unpadded one's only
+    then), and every method paddable (:attr:`Method.paddable`)."""
+    if not buckets_enabled(explicit=True) or not jax.config.jax_threefry_partitionable:
         return False
     for s in specs:
         m = s.method if s.method is not None else make_method(s.name, **(s.static_hyper | s.points[0]))

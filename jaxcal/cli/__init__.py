@@ -19,7 +19,6 @@ stderr and exit with status 2; a failed calibration exits with status 1.
 
 from __future__ import annotations
 
-import pathlib
 import sys
 
 from ._common import _Usage
@@ -36,26 +35,6 @@ def _die(msg: str, code: int = _EXIT_USAGE) -> int:
 
 
 # -- plan -------------------------------------------------------------------------------------------
-
-
-def _enable_compilation_cache() -> None:
-    """JAX's persistent compilation cache in ``$JAXCAL_CACHE_DIR`` (default ``~/.cache/jaxcal/jax``),
-    unless the user configured one already; silently skipped if the directory is not writable."""
-    import os
-
-    import jax
-
-    if jax.config.jax_compilation_cache_dir:
-        return
-    path = pathlib.Path(os.environ.get("JAXCAL_CACHE_DIR") or pathlib.Path.home() / ".cache" / "jaxcal" / "jax")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return
-    jax.config.update("jax_compilation_cache_dir", str(path))
-    # cache every compilation, also the small ones (identifiability, diagnostics: ~0.1-0.5 s each
-    # on 2 cores; JAX's default only caches compilations over 1 s)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 #: commands that are one bounded job (seconds; one calibration or one fleet program, one file
@@ -94,8 +73,9 @@ def _main(argv: list[str] | None, gc_enabled: bool) -> int:
     from .._core._precision import enable_x64
 
     enable_x64()
-    if not args.no_cache:
-        _enable_compilation_cache()
+    from .._core._cache import disable_compilation_cache, ensure_compilation_cache
+
+    disable_compilation_cache() if args.no_cache else ensure_compilation_cache()
     from .._calibration._calibrate import CalibrationError
 
     if gc_enabled and args.command not in _NO_GC_COMMANDS:  # sweeps, reports, planning: collected as usual

@@ -277,16 +277,17 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     path = pathlib.Path(data_file)
     if not path.exists():
         raise _Usage(f"data file {data_file!r} not found")
-    if args.markers is not None and args.measurement != "markers":
+    if args.markers is not None and args.measurement not in (None, "markers"):
         raise _Usage("--markers applies to --measurement markers only")
     if args.markers is not None and args.markers < 1:
         raise _Usage(f"--markers must be at least 1, got {args.markers}")
-    try:
+    try:  # without --measurement: the file's '# kind:' line, else the kind its columns show
         data = load_csv(path, kind=args.measurement, n_markers=args.markers)
     except ValueError as e:
         if args.measurement != "markers":
             raise
         raise _Usage(str(e)) from None
+    kind = data.kind
     if data.dof != robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
     if data.labels and args.test:
@@ -295,12 +296,12 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
     notes = []
-    if args.measurement == "camera":
+    if kind == "camera":
         if estimate - {"intrinsics"}:
             raise _Usage(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the target "
                          f"pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
         estimate = set()  # intrinsics: a group of the camera model (--estimate read again below)
-    if args.measurement == "distance":
+    if kind == "distance":
         if "base" in estimate:
             raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
         if "tool" not in estimate:
@@ -308,36 +309,36 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             notes.append("distance data: the tool point is estimated (from its nominal value); distances never see "
                          "the robot's base frame (d_1, theta_1 and the base's position and orientation stay at "
                          "nominal or are set by the prior)")
-    sphere = args.measurement == "point" and (args.radius_mm is not None or "radius" in estimate
+    sphere = kind == "point" and (args.radius_mm is not None or "radius" in estimate
                                               or "radius_mm" in data.meta)
     radius_mm = args.radius_mm
     if sphere and radius_mm is None and "radius_mm" in data.meta:
         radius_mm = _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0]
     estimate_radius = "radius" in estimate
     estimate.discard("radius")
-    if (args.radius_mm is not None or estimate_radius) and args.measurement != "point":
+    if (args.radius_mm is not None or estimate_radius) and kind != "point":
         raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
     if sphere:
         notes.append("point data as spheres: residual = distance to the centre minus the radius, "
                      + ("radius unknown: estimated per point (sphere fit to the data, then the joint fit)"
                         if estimate_radius else f"radius {radius_mm:g} mm (known)"))
-    if args.measurement in ("plane", "point"):
+    if kind in ("plane", "point"):
         if "base" in estimate:
-            raise _Usage(f"--estimate base does not apply to {args.measurement} data: the {args.measurement}s are "
+            raise _Usage(f"--estimate base does not apply to {kind} data: the {kind}s are "
                          "in the robot base frame and carry any base-frame error")
         if "tool" not in estimate:
             estimate.add("tool")
-            notes.append(f"{args.measurement} data: the {args.measurement}s and the tool point are estimated "
+            notes.append(f"{kind} data: the {kind}s and the tool point are estimated "
                          "(closed-form start from the data, then the joint fit); contact data have no length "
                          "reference, so the prior (or a --fix'ed length) sets the robot's scale")
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
     if bad:
         raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
-    if args.measurement != "cable" and estimate & {"anchor", "offset", "cable_offset"}:
+    if kind != "cable" and estimate & {"anchor", "offset", "cable_offset"}:
         raise _Usage("--estimate anchor/offset apply to --measurement cable only")
-    if args.measurement == "cable" and "base" in estimate:
+    if kind == "cable" and "base" in estimate:
         raise _Usage("--estimate base applies to --measurement position only")
-    if anchor is None and args.measurement == "cable":
+    if anchor is None and kind == "cable":
         if "anchor_mm" in data.meta:
             anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
         else:
@@ -345,14 +346,14 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             estimate |= {"anchor", "offset"}
             notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
                          "from the data (multilateration on the nominal robot, then the joint fit)")
-    if args.measurement == "markers":
+    if kind == "markers":
         if "base" not in estimate and not data.labels:  # sessions: every session frame is always estimated
             estimate.add("base")
             notes.append("marker data: the motion-capture frame (base extras) and the marker positions on the flange "
                          "are estimated (closed-form Kabsch start from the data, then the joint fit)")
         if "tool" in estimate:
             raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
-    if args.measurement == "camera":
+    if kind == "camera":
         from .._sensors._camera import masked_corners
 
         measurement = _camera_measurement(args, data, path)
@@ -372,7 +373,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
                      + (f"; {n_miss} of {n_all} marker readings missing (empty cells) in {n_rows} row(s): masked "
                         "(zero weight), not dropped" if n_miss else ""))
     else:
-        measurement = _measurement(args.measurement, anchor, robot,
+        measurement = _measurement(kind, anchor, robot,
                                    data.y.shape[1] if data.kind == "markers" else None, data=data)
         if sphere:
             measurement = _sphere_model("point", measurement, radius_mm, estimate_radius)
@@ -412,7 +413,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     if valid is not None and set(hyper) - set(valid):
         raise _Usage(f"--set: unknown setting(s) {sorted(set(hyper) - set(valid))} for method {method}; "
                      f"its settings: {', '.join(valid)}")
-    return types.SimpleNamespace(robot=robot, path=path, data=data, estimate=estimate, notes=notes,
+    return types.SimpleNamespace(robot=robot, path=path, data=data, kind=kind, estimate=estimate, notes=notes,
                                  measurement=measurement, test_fraction=test_fraction, loss=loss,
                                  test_file=test_file, prior=prior, checks=checks, hyper=hyper)
 
@@ -447,11 +448,18 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
             raise _Usage(f"{flag} applies to one data file; several files write one result each to --out-dir DIR")
     if not args.out_dir:
         raise _Usage("several data files: give --out-dir DIR (one RESULT.json per file and the summary table)")
-    if args.measurement not in FLEET_KINDS:
+    if args.measurement is not None and args.measurement not in FLEET_KINDS:
         raise _Usage(f"several data files take --measurement {', '.join(FLEET_KINDS)}; calibrate "
                      f"{args.measurement} data one file at a time")
     setups = [_calibration_setup(args, method, f) for f in args.data]
     first = setups[0]
+    if first.kind not in FLEET_KINDS:
+        raise _Usage(f"several data files take {', '.join(FLEET_KINDS)} data; calibrate {first.kind} data "
+                     "(from the files' '# kind:' lines or columns) one file at a time")
+    for s in setups[1:]:
+        if s.kind != first.kind:
+            raise _Usage(f"{s.path} holds {s.kind} data but {first.path} {first.kind} data: the units of a fleet "
+                         "share one sensor kind")
     for s in setups[1:]:
         if not _same_tree(s.measurement, first.measurement) or s.estimate != first.estimate:
             raise _Usage(f"{s.path} and {first.path} imply different sensor set-ups (the files' anchor_mm or "

@@ -144,8 +144,10 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
     c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "camera", "plane", "point",
-                                             "distance"), default="cable",
-                   help="cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
+                                             "distance"), default=None,
+                   help="the sensor (default: the data file's '# kind:' line, else the kind its columns show; a "
+                        "--measurement that contradicts the file's '# kind:' line is an error). "
+                        "cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "
                         "sensor frame (identity = robot base unless --estimate base); pose: x,y,z (mm) and a "
                         "rotation vector rx,ry,rz (deg) of the flange orientation; markers: N markers on the "
                         "flange seen by a motion-capture system or tracker, columns marker_k_x_mm, marker_k_y_mm, "

@@ -25,25 +25,44 @@ def ex():
 @pytest.fixture
 def buckets_on():
     yield
-    _buckets._SETTING.pop("value", None)
+    _buckets.set_buckets(None)
 
 
 def test_bucket_rule():
-    assert [bucket_size(n, 256) for n in (1, 200, 256, 257, 384, 385, 512, 513, 1600, 5000)] == [
-        256, 256, 256, 384, 384, 512, 512, 768, 2048, 6144]
-    # every bucket is at most 1.5x (and at least n)
+    # the fine grid: eight steps per octave, padding at most 1/9 of the bucket
+    assert [bucket_size(n, 256) for n in (1, 200, 256, 257, 288, 289, 512, 513, 1600, 5000)] == [
+        256, 256, 256, 288, 288, 320, 512, 576, 1664, 5120]
     for n in range(257, 20000, 37):
         b = bucket_size(n, 256)
-        assert n <= b < 1.5 * n + 1
-    assert bucket_size(1000, 64) == 1024 and bucket_size(100, 64) == 128
+        assert n <= b and (b - n) <= b / 9 + 1
+    assert bucket_size(1000, 64) == 1024 and bucket_size(100, 64) == 104
+
+
+def test_bucket_reuse(buckets_on):
+    """The process's first bucket is fine; later counts reuse a used bucket within 2x, else the
+    octave grid: an ascending learning curve 200..2000 uses a handful of buckets."""
+    _buckets.set_buckets(True)
+    assert bucket_size(1600) == 1664 and bucket_size(1600) == 1664  # the first: fine, remembered
+    assert bucket_size(900) == 1664  # reuses (1664 <= 2 x 900)
+    assert bucket_size(700) == 1024  # 1664 > 1400: a new bucket, octave grid
+    assert bucket_size(1000) == 1024 and bucket_size(1700) == 2048 and bucket_size(1664) == 1664
+    _buckets.set_buckets(True)  # forgets
+    used = {bucket_size(int(n)) for n in np.linspace(200, 2000, 31)}
+    assert len(used) <= 5, sorted(used)
+    for n in np.linspace(200, 2000, 31):
+        assert n <= bucket_size(int(n)) <= max(256, 2 * n)
 
 
 def test_setting(buckets_on, monkeypatch):
     _buckets.set_buckets(False)
     assert not _buckets.buckets_enabled() and bucket_size(300) == 300
     _buckets.set_buckets(100)
-    assert bucket_size(101) == 150
-    _buckets._SETTING.pop("value")
+    assert bucket_size(101) == 113
+    _buckets.set_buckets(None)
+    monkeypatch.delenv("JAXCAL_BUCKETS", raising=False)
+    assert _buckets.buckets_enabled() and not _buckets.buckets_enabled(explicit=True)  # on by default
+    monkeypatch.setenv("JAXCAL_BUCKETS", "on")
+    assert _buckets.buckets_enabled(explicit=True)
     monkeypatch.setenv("JAXCAL_BUCKETS", "off")
     assert bucket_size(300) == 300
     monkeypatch.setenv("JAXCAL_BUCKETS", "bad")
