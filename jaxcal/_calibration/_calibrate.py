@@ -26,6 +26,7 @@ from .._fit._diagnostics import (
     Checks,
     Diagnostics,
     coverage,
+    given_noise_std,
     gram_at,
     implausible_deviations,
     joint_units,
@@ -33,6 +34,7 @@ from .._fit._diagnostics import (
     outlier_rows,
     parameter_uncertainty,
     prior_directions,
+    result_findings,
     weak_parameters,
 )
 from .._fit._identifiability import identify_with_residuals
@@ -700,7 +702,8 @@ def _calibration_steps(
         if throw:
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=3)
-    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection))
+    diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection),
+                          given_noise_std(data, prior, measurement), resid_start)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -721,9 +724,11 @@ def _close(a, b, rtol: float = 0.05) -> bool:
 
 
 def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
-              gram=None, cov=None, reselection=()):
+              gram=None, cov=None, reselection=(), noise_std=None, resid_start=None):
     """Uncertainty and the plausibility / conditioning / coverage / outlier findings (``gram``,
-    ``cov``: :func:`gram_at` and :func:`coverage` when the caller has them)."""
+    ``cov``: :func:`gram_at` and :func:`coverage` when the caller has them; ``noise_std``: the
+    sensor's given noise, :func:`given_noise_std`; ``resid_start``: the residual blocks at the
+    last round's start), and the checks of the result as a whole (:func:`result_findings`)."""
     space = result.space
     x = np.asarray(result.x, np.float64)
     prior_std = result.prior.std(space) if result.prior is not None else None
@@ -781,6 +786,11 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
         msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} mm robust σ) at "
                     f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
                     + ("" if result.loss != "linear" else "; consider loss='huber' or excluding them"))
+    suspect, cause = result_findings(result, problem, unc, resid, resid_start, checks,
+                                     extras_started=extras_msg is not None, noise_std=noise_std)
+    if suspect:
+        msgs.append("the result fails its checks: " + "; ".join(suspect) + (f" — likely cause: {cause}" if cause else ""))
     diag = Diagnostics(tuple(msgs), bad, cond, cov, narrow, weak, tuple(int(r) for r in before_rows),
-                       tuple(int(r) for r in after_rows), s_after, extras_msg, rounds, tuple(reselection), directions)
+                       tuple(int(r) for r in after_rows), s_after, extras_msg, rounds, tuple(reselection), directions,
+                       suspect, cause)
     return diag, unc

@@ -427,8 +427,9 @@ def load_csv(
     path, header, meta = t.path, t.header, dict(t.meta)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
     if kind is not None and meta_kind is not None and meta[meta_kind].strip().lower() != kind:
-        raise ValueError(f"{path}: the file's '# {meta_kind}: {meta[meta_kind]}' line says {meta[meta_kind]} data, "
-                         f"but {kind} data were asked for (--measurement {kind} / kind={kind!r}); drop one of them")
+        raise ValueError(f"{path}: the file says '# {meta_kind}: {meta[meta_kind]}' but {kind} data were asked for "
+                         f"(--measurement {kind} / kind={kind!r}); ask for the file's kind, or correct its "
+                         f"'# {meta_kind}:' line")
     if kind == "distance" or (kind is None and "distance_mm" in header):  # two poses per row (jaxcal._sensors._contact)
 
         if meta_kind is not None:

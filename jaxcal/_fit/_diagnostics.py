@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +33,7 @@ from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg",
-           "prior_directions"]
+           "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +50,22 @@ class Checks:
             deviations (1.4826·MAD) from the median residual (default 5).
         weak_fraction: with a prior, a parameter whose posterior σ exceeds this fraction of its
             prior σ is "weakly determined" by the data (default 0.5).
+
+    Checks of the result as a whole (:func:`fit_findings`; readings in mm):
+
+    Attributes:
+        residual_fraction: the residual σ̂ above this fraction of the robot's reach
+            (``robot.reach_mm()``) is no calibration: the model does not describe the data
+            (default 0.01: 32 mm for the HSR-JR680, whose residuals after a calibration are
+            ~0.5 mm).
+        noise_factor: σ̂ above this multiple of the sensor's given noise σ (``Prior.noise_std``,
+            or a data file's ``# noise_std_mm:`` line) fails (default 10).
+        extra_fraction, extra_angle_deg: a sensor/set-up extra started from the data in closed
+            form (anchor, cable offset, tool, sensor frame, …) that the fit moved further than
+            this fraction of the reach (mm) or this angle (°) fails (default 0.05, 10°).
+        worse_rtol: the fit fails when its RMS training residual ends above ``(1 + worse_rtol)``
+            times that of its start (default 0.01: a robust loss started from the least-squares
+            extras of the nominal robot may end 0.2 % above it with only the extras free).
     """
 
     angle_deg: float = 5.0
@@ -57,6 +74,11 @@ class Checks:
     narrow_joint_deg: float = 30.0
     outlier_k: float = 5.0
     weak_fraction: float = 0.5
+    residual_fraction: float = 0.01
+    noise_factor: float = 10.0
+    extra_fraction: float = 0.05
+    extra_angle_deg: float = 10.0
+    worse_rtol: float = 0.01
 
 
 def wrap_angle_deg(v):
@@ -420,6 +442,12 @@ class Diagnostics:
             rather than the data determines (posterior variance above ``weak_fraction²`` of the
             prior variance), each named by its largest members in units of the prior σ, e.g.
             ``"0.71·d_2 + 0.71·d_3"``; the weakest first.
+        suspect: failed checks of the result as a whole (:func:`fit_findings`: σ̂ against the
+            robot's reach and the sensor's given noise, the fit against its start, the extras
+            against their closed-form start), one sentence each; any makes it implausible.
+        likely_cause: what the data point to when ``suspect`` is not empty (readings in metres,
+            joint angles in radians read as degrees, a robot model that does not match), or
+            ``None``.
     """
 
     warnings: tuple[str, ...]
@@ -435,10 +463,13 @@ class Diagnostics:
     rounds: int = 1
     reselection: tuple[str, ...] = ()
     prior_directions: tuple[str, ...] = ()
+    suspect: tuple[str, ...] = ()
+    likely_cause: str | None = None
 
     @property
     def plausible(self) -> bool:
-        return not self.implausible
+        """No implausible deviation and no failed check of the result as a whole."""
+        return not self.implausible and not self.suspect
 
     def to_dict(self) -> dict:
         return {
@@ -456,6 +487,8 @@ class Diagnostics:
             "rounds": self.rounds,
             "reselection": list(self.reselection),
             "prior_directions": list(self.prior_directions),
+            "suspect": list(self.suspect),
+            "likely_cause": self.likely_cause,
         }
 
 
@@ -563,3 +596,167 @@ def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, .
             if s > bound / 3:
                 out.append(n)
     return tuple(out)
+
+
+#: measurement kinds whose residual is ``prediction − reading`` in mm entry by entry (a pose's
+#: position part): the kinds :func:`likely_cause` compares the readings' spread for
+_READING_KINDS = ("cable", "position", "pose", "markers")
+
+
+def _readings_and_predictions(measurement, y, residual):
+    """``(readings [n, m], predictions [n, m])`` (mm) of a reading kind (:data:`_READING_KINDS`),
+    the predictions as ``reading + residual``; ``None`` for other kinds."""
+    if measurement.kind not in _READING_KINDS or residual is None:
+        return None
+    y = np.asarray(y, np.float64)
+    n = y.shape[0]
+    obs = y[:, :3, 3] if measurement.kind == "pose" else y.reshape(n, -1)
+    r = np.asarray(residual, np.float64)
+    return (obs, obs + r) if r.shape == obs.shape else None
+
+
+def _spread(v: np.ndarray) -> float:
+    """RMS over the columns of each column's standard deviation over rows (NaN cells left out)."""
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN column
+        return float(np.sqrt(np.nanmean(np.nanvar(v, axis=0))))
+
+
+def likely_cause(robot, measurement, q, y, residual, *, huge_residual: bool = False) -> str | None:
+    """What the data point to when a calibration fails its checks, or ``None``.
+
+    * Readings 1 000× off: the readings (``y``) vary 100× less (more) than the robot model
+      predicts (``y + residual``, :data:`_READING_KINDS`) → they look like metres (µm),
+      expected mm.
+    * Joint angles in radians read as degrees: every revolute joint (two or more) stays within
+      ±2π degrees (±0.11 rad) — a ``q*_deg`` column holding radians.
+    * Otherwise, with ``huge_residual`` (σ̂ beyond :attr:`Checks.residual_fraction` of the
+      reach): the robot model may not match the data.
+
+    Args:
+        robot: the nominal robot (:func:`joint_units`).
+        measurement: the measurement model (its ``kind``).
+        q: ``[n, dof]`` joint values (rad; mm at prismatic joints).
+        y: ``[n, *sample_shape]`` readings.
+        residual: ``[n, m]`` signed residual blocks (``prediction − reading``, mm; a pose's
+            position part), or ``None``.
+        huge_residual: whether the residual is far beyond any sensor's noise.
+    """
+    pair = _readings_and_predictions(measurement, y, residual)
+    if pair is not None:
+        s_y, s_p = _spread(pair[0]), _spread(pair[1])
+        what = "lengths" if measurement.kind == "cable" else "positions"
+        if s_p > 0 and 0 < s_y < 0.01 * s_p:
+            return (f"the {what} look like metres, expected mm (they vary {s_p / s_y:.0f}× less than the robot "
+                    "model predicts)")
+        if s_y > 100 * s_p > 0:
+            return (f"the {what} look like µm, expected mm (they vary {s_y / s_p:.0f}× more than the robot "
+                    "model predicts)")
+    revolute = [j for j, u in enumerate(joint_units(robot)) if u == "rad"]
+    qn = np.asarray(q, np.float64)
+    if len(revolute) >= 2 and qn.shape[0] and np.abs(qn[:, revolute]).max() <= math.radians(2 * math.pi):
+        return ("the joint angles look like radians read as degrees (every joint within ±6.3°: radians under "
+                "a q*_deg header?)")
+    if huge_residual:
+        return ("the robot model may not match the data (another robot's DH table or URDF chain?), or the "
+                "file holds another sensor's readings")
+    return None
+
+
+def given_noise_std(data, prior, measurement) -> float | None:
+    """The sensor's given noise σ (the readings' unit): ``prior.noise_std``, else a data set's
+    ``noise_std_mm`` (``noise_std_px`` for camera data) metadata (a file's ``# noise_std_mm:``
+    line), else ``None``."""
+    if prior is not None and getattr(prior, "noise_std", None) is not None:
+        return float(prior.noise_std)
+    meta = dict(getattr(data, "metadata", None) or ())  # Dataset.metadata: (key, value) pairs
+    text = meta.get(f"noise_std_{getattr(measurement, 'unit', 'mm')}")
+    try:
+        v = float(text) if text is not None else None
+    except ValueError:
+        return None
+    return v if v is not None and math.isfinite(v) and v > 0 else None
+
+
+def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_std_hat: float, extras=(),
+                 checks: Checks = Checks(),
+                 noise_std: float | None = None) -> tuple[tuple[str, ...], str | None]:
+    """Checks of a calibration result as a whole, beyond its robot deviations
+    (:func:`implausible_deviations`): a wrong unit, angle unit, sensor kind or robot model fits
+    to residuals hundreds of mm large with extras far from any physical set-up, and must not
+    pass as a result.
+
+    * σ̂ (mm readings) above ``checks.residual_fraction`` of the robot's reach;
+    * σ̂ above ``checks.noise_factor`` times the sensor's given noise ``noise_std``;
+    * the RMS training residual after the fit above ``(1 + checks.worse_rtol)`` times its start's;
+    * an extra moved from its closed-form start by more than ``checks.extra_fraction`` of the
+      reach (mm) or ``checks.extra_angle_deg`` (rad extras).
+
+    Args:
+        robot: the nominal robot (``reach_mm()``, :func:`joint_units`).
+        measurement: the measurement model (``kind``, ``unit``: mm, or px for cameras).
+        q: ``[n, dof]`` training joint values (rad; mm at prismatic joints).
+        y: ``[n, *sample_shape]`` training readings.
+        residual, residual_start: ``[n, m]`` signed residual blocks (``prediction − reading``;
+            a pose's position part; reading unit) at the solution and at the start (the nominal
+            robot, extras from the data), or ``None``.
+        noise_std_hat: σ̂, the noise estimated from the residuals (reading unit).
+        extras: ``((name, unit, start, final), ...)`` of the free extras whose start came from
+            the data in closed form (unit ``"mm"`` or ``"rad"``; others are skipped).
+        checks: the thresholds.
+        noise_std: the sensor's given noise σ (:func:`given_noise_std`), or ``None``.
+
+    Returns:
+        ``(findings, cause)``: one sentence per failed check, and :func:`likely_cause` when
+        one failed (else ``None``).
+    """
+    unit = getattr(measurement, "unit", "mm")
+    reach = float(robot.reach_mm()) if hasattr(robot, "reach_mm") else math.nan
+    out = []
+    huge = False
+    if unit == "mm" and math.isfinite(reach) and reach > 0 and not noise_std_hat <= checks.residual_fraction * reach:
+        huge = True
+        out.append(f"residual σ̂ {noise_std_hat:.4g} mm is {100 * noise_std_hat / reach:.3g} % of the robot's reach "
+                   f"({reach:.0f} mm; bound {100 * checks.residual_fraction:g} %): the model does not describe these "
+                   "data")
+    if noise_std is not None and not noise_std_hat <= checks.noise_factor * noise_std:
+        out.append(f"residual σ̂ {noise_std_hat:.4g} {unit} is {noise_std_hat / noise_std:.3g}× the sensor's given "
+                   f"noise σ = {noise_std:g} {unit} (bound {checks.noise_factor:g}×)")
+    if residual is not None and residual_start is not None:
+        before, after = (float(np.sqrt(np.nanmean(np.square(np.asarray(r, np.float64)))))
+                         for r in (residual_start, residual))
+        if not after <= (1 + checks.worse_rtol) * before:
+            out.append(f"the fit is worse than its start: RMS training residual {before:.4g} → {after:.4g} {unit}")
+    moved = []
+    for name, u, v0, v1 in extras:
+        d = float(v1) - float(v0)
+        if u == "mm" and math.isfinite(reach) and not abs(d) <= checks.extra_fraction * reach:
+            moved.append(f"{name} {d:+.4g} mm")
+        elif u == "rad" and not abs(math.degrees(d)) <= checks.extra_angle_deg:
+            moved.append(f"{name} {math.degrees(d):+.4g}°")
+    if moved:
+        out.append(f"sensor extras moved far from their closed-form start: {', '.join(moved[:8])}"
+                   f"{' …' if len(moved) > 8 else ''} (bound {100 * checks.extra_fraction:g} % of the reach, "
+                   f"{checks.extra_angle_deg:g}°)")
+    if not out:
+        return (), None
+    return tuple(out), likely_cause(robot, measurement, q, y, residual, huge_residual=huge)
+
+
+def result_findings(result, problem, unc, residual, residual_start, checks: Checks, *, extras_started: bool,
+                    noise_std: float | None = None) -> tuple[tuple[str, ...], str | None]:
+    """:func:`fit_findings` of a :class:`~jaxcal.CalibrationResult` on its training ``problem``
+    (``unc``: its :class:`Uncertainty` or ``None``; ``residual``, ``residual_start``: the signed
+    residual blocks ``[n, m]`` at the solution and at the start, or ``None``); the free extras
+    are compared with their start where that came from the data (``extras_started``)."""
+    space = result.space
+    extras = ()
+    if extras_started and result.start is not None:
+        v0 = np.asarray(result.start._ravel_numpy(), np.float64)
+        v1 = np.asarray(result.deviations._ravel_numpy(), np.float64)
+        free = set(space.free_names)
+        extras = tuple((n, u, a, b) for n, u, a, b in zip(space.names, space.units, v0, v1)
+                       if n in free and group_kind(n) == "extra")
+    sigma = unc.noise_std if unc is not None else float(result.train_metrics.rmse)
+    return fit_findings(result.robot, result.measurement, problem.q, problem.y, residual, residual_start,
+                        noise_std_hat=float(sigma), extras=extras, checks=checks, noise_std=noise_std)

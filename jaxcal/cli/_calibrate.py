@@ -766,8 +766,15 @@ def _print_outliers_and_warnings(res, args, checks, file_row) -> None:
 
 def _exit_status(res, args, measurement, extras) -> int:
     """0, or ``_EXIT_FAILED`` (with the reason on stderr) for a failed or implausible calibration."""
+    diag = res.diagnostics
+    cause = f"; likely cause: {diag.likely_cause}" if diag is not None and diag.likely_cause else ""
     if not res.ok:
-        print(f"jaxcal: calibration failed: {res.message}", file=sys.stderr)
+        print(f"jaxcal: calibration failed: {res.message}{cause}", file=sys.stderr)
+        return _EXIT_FAILED
+    if diag is not None and diag.suspect and not args.accept_implausible:
+        print(f"jaxcal: calibration not credible (see the warning above){cause}; exit status 1 — check the data's "
+              "units, the --measurement kind and the --robot model (--accept-implausible to accept it anyway)",
+              file=sys.stderr)
         return _EXIT_FAILED
     if not res.plausible and not args.accept_implausible:
         hint = ""

@@ -133,7 +133,7 @@ def _add_calibrate(sub, fmt) -> None:
                     "the guessed extras. Objective: the measured-data defaults (jaxcal.MEASURED_DEFAULTS: default "
                     "prior + Huber loss) unless --prior/--loss say otherwise; printed in the output.",
         epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT + "\n\nexit status: 0 ok, 1 calibration failed, diverged, "
-               "stopped at its step budget, or implausible (see --accept-implausible), 2 bad input.",
+               "stopped at its step budget, implausible or not credible (see --accept-implausible), 2 bad input.",
     )
     c.add_argument("data", nargs="+",
                    help="CSV data file (format below); several files: one unit each of the same robot model, "
@@ -214,7 +214,11 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("--max-length-mm", type=float, default=20.0,
                    help="plausibility bound on DH length deviations (default 20 mm)")
     c.add_argument("--accept-implausible", action="store_true",
-                   help="exit 0 even when a deviation exceeds the plausibility bounds (default: exit 1)")
+                   help="exit 0 even when a deviation exceeds the plausibility bounds or the result as a whole "
+                        "fails its checks (residual σ̂ beyond 1 %% of the robot's reach or 10× the file's "
+                        "noise_std_mm, a fit worse than its start, extras far from their closed-form start; "
+                        "default: exit 1, naming the likely cause: readings in metres, radians under q*_deg, "
+                        "another robot's model)")
     c.add_argument("--method", default="lm", help="calibration method: lm (default), gn, adam, adamw, adamod, adamodw, ga, ekf, bso, iwoa, "
                         "rbfnn (an unknown name lists the registered ones), or stages joined by '>', e.g. "
                         "'ga>lm' (quote it in a shell): each stage starts where the last ended")
