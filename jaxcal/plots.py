@@ -424,22 +424,36 @@ def residuals_vs_joints(parts: dict, path=None, *, joint_names: Sequence[str] | 
     return fig
 
 
+#: The quantile of the errors at which :func:`workspace_errors` clips its colour scale (one far
+#: outlier would otherwise paint every other point the bottom colour).
+WORKSPACE_COLOUR_QUANTILE = 0.98
+
+
+def workspace_colour_max(errors) -> float:
+    """The top of :func:`workspace_errors`' colour scale (mm): the ``WORKSPACE_COLOUR_QUANTILE``
+    quantile of the ``[n]`` ``errors`` (1 for none)."""
+    e = np.asarray(errors, np.float64)
+    return max(float(np.quantile(e, WORKSPACE_COLOUR_QUANTILE)), 1e-9) if e.size else 1.0
+
+
 def workspace_errors(points, errors, path=None, *, label: str = "tool point of the nominal robot"):
     """Error after calibration (mm, colour) over the workspace: the ``points`` ``[n, 3]`` (mm, base
-    frame) seen from above (x–y) and from the side (x–z)."""
+    frame) seen from above (x–y) and from the side (x–z). The colour scale runs from 0 to
+    :func:`workspace_colour_max` (clipped at that quantile; the colour bar says so)."""
     p = np.asarray(points, np.float64)
     e = np.asarray(errors, np.float64)
     fig = _figure((9.0, 3.8))
     axes = fig.subplots(1, 2)
-    vmax = float(np.quantile(e, 0.98)) if e.size else 1.0
+    vmax = workspace_colour_max(e)
     for ax, (a, b) in zip(axes, ((0, 1), (0, 2))):
-        sc = ax.scatter(p[:, a], p[:, b], c=e, s=10, cmap="viridis", vmin=0.0, vmax=max(vmax, 1e-9))
+        sc = ax.scatter(p[:, a], p[:, b], c=e, s=10, cmap="viridis", vmin=0.0, vmax=vmax)
         ax.set_xlabel(f"{'xyz'[a]} / mm")
         ax.set_ylabel(f"{'xyz'[b]} / mm")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
         ax.set_title(("from above" if b == 1 else "from the side") + f" ({'xyz'[a]}–{'xyz'[b]})", fontsize=9)
-    fig.colorbar(sc, ax=axes, label="error after calibration / mm", shrink=0.9)
+    fig.colorbar(sc, ax=axes, extend="max", shrink=0.9,
+                 label=f"error after calibration / mm (clipped at the {100 * WORKSPACE_COLOUR_QUANTILE:g}th percentile)")
     fig.suptitle(f"Error over the workspace ({label})", fontsize=10)
     _save(fig, path)
     return fig

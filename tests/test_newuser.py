@@ -2,6 +2,8 @@
 CLI help and messages, pose data, the ignore file."""
 
 import pathlib
+import re
+import shlex
 import warnings
 
 import jax
@@ -105,3 +107,87 @@ def test_adamodw_defaults_story_is_told_in_both_places():
     assert f"learning_rate={tuned['learning_rate']:g}" in doc and f"b3={tuned['b3']:g}" in doc
     guide = (ROOT / "docs" / "guides" / "methods.md").read_text()  # the story moved out of the README
     assert f"jaxcal.optim.adamodw({tuned['learning_rate']:g}, b3={tuned['b3']:g})" in guide
+
+
+# ---------------------------------------------------------------------------------------------
+# the getting-started page's five-minute tutorial, run as written (issue 35)
+
+TUTORIAL = "## Calibrate your robot from a CSV in five minutes"
+
+
+def _tutorial_section() -> str:
+    page = (ROOT / "docs" / "getting-started.md").read_text(encoding="utf-8")
+    start = page.index(TUTORIAL)
+    return page[start:page.index("\n## ", start + len(TUTORIAL))]
+
+
+def _blocks(section: str, lang: str) -> list[str]:
+    return re.findall(rf"```{lang}\n(.*?)```", section, flags=re.S)
+
+
+def test_the_tutorial_runs_as_written_and_prints_its_numbers(tmp_path, monkeypatch, capsys):
+    """Every command of the page's bash blocks (comments stripped) exits 0 in a fresh folder, and every
+    line of its text blocks is a line the commands printed: the page cannot drift from the program."""
+    pytest.importorskip("matplotlib")  # jaxcal report --html
+    section = _tutorial_section()
+    commands = [shlex.split(line, comments=True) for block in _blocks(section, "bash")
+                for line in block.splitlines() if line.strip()]
+    assert [c[:2] for c in commands] == [["jaxcal", "simulate"], ["jaxcal", "calibrate"], ["jaxcal", "simulate"],
+                                         ["jaxcal", "evaluate"], ["jaxcal", "report"], ["jaxcal", "export"]]
+    monkeypatch.chdir(tmp_path)
+    printed = set()
+    for argv in commands:
+        assert main(argv[1:]) == 0, argv
+        printed |= {line.rstrip() for line in capsys.readouterr().out.splitlines()}
+    shown = [line.rstrip() for block in _blocks(section, "text") for line in block.splitlines() if line.strip()]
+    assert len(shown) > 10 and [line for line in shown if line not in printed] == []
+
+    # the simulated set-up is unknown to calibrate: no anchor line, its truth quoted on the page
+    meta = jaxcal.load_csv(tmp_path / "data.csv").meta
+    assert "anchor_mm" not in meta and "extras from the data: anchor" in "\n".join(printed)
+    ax, ay, az = (float(v) for v in meta["true_anchor_mm"].split(","))
+    truth = f"anchor {ax:.2f}, {ay:.2f}, {az:.2f} mm, offset {float(meta['true_cable_offset_mm']):.2f} mm"
+    assert truth.replace("-", "−") in " ".join(section.split())
+    # tomorrow.csv is the same robot and set-up; with data.csv's seed and size it is data.csv's rows
+    new = jaxcal.load_csv(tmp_path / "tomorrow.csv").meta
+    assert (new["true_anchor_mm"], new["true_cable_offset_mm"], new["true_robot_seed"]) == (
+        meta["true_anchor_mm"], meta["true_cable_offset_mm"], meta["seed"])
+    assert main(["simulate", "--like", "result.json", "--out", "again.csv", "--samples", "300", "--seed", "0"]) == 0
+    rows = lambda name: [ln for ln in (tmp_path / name).read_text().splitlines() if not ln.startswith("#")]  # noqa: E731
+    assert rows("again.csv") == rows("data.csv")
+
+    # the report: † marks, the colour clip, version/date/input identity, no empty header row, angles wrapped
+    page = (tmp_path / "result.html").read_text(encoding="utf-8")
+    assert "theta_1†" in page and "set by the prior rather than the data" in page
+    assert "clipped at the 98th percentile" in page
+    assert f"jaxcal {jaxcal.__version__} report, made 20" in page and "result.json (sha256 " in page
+    assert "data data.csv (sha256 " in page and "<th></th>" not in page and 'class="l"></th>' not in page
+    assert "-179.7557" in page and "180.24" not in page
+    urdf = (tmp_path / "calibrated.urdf").read_text(encoding="utf-8")
+    assert "theta=-179.75" in urdf and "theta=180.24" not in urdf
+
+
+def test_simulate_like_refuses_what_it_cannot_repeat(tmp_path, capsys):
+    """--like needs a result whose data file `jaxcal simulate` wrote; the set-up comes from it alone."""
+    assert main(["simulate", "--like", str(tmp_path / "none.json"), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert main(["simulate", "--like", "r.json", "--robot", "ur5", "--out", str(tmp_path / "x.csv")]) == 2
+    assert "drop --robot" in capsys.readouterr().err
+    assert main(["simulate", "--unknown-anchor", "--measurement", "position", "--out", str(tmp_path / "x.csv")]) == 2
+    assert "--unknown-anchor applies to --measurement cable" in capsys.readouterr().err
+
+
+def test_closed_form_start_says_what_it_left_out():
+    """On clean data the rows a closed-form start leaves out are the nominal robot's largest errors:
+    the message says they are left out of the start only and kept by the calibration (issue 35)."""
+    from jaxcal._sensors._contact import length_reference_note
+    from jaxcal._sensors._initialise import trimmed_note
+
+    assert trimmed_note(0) == ""
+    note = trimmed_note(3)
+    assert note.startswith(", 3 row(s) beyond 5 robust σ left out of this start only")
+    assert "the calibration keeps them" in note and "gross outliers" in note  # the either/or, not a verdict
+    assert "no length reference" in length_reference_note("plane")
+    assert "no length reference" in length_reference_note("point")  # pivot points, or an unknown radius
+    sphere = length_reference_note("point", known_radius=True)
+    assert "no length reference" not in sphere and "weak" in sphere

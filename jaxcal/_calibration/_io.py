@@ -42,6 +42,8 @@ __all__ = [
     "load_result_dict",
     "load_robot_csv",
     "save_robot_csv",
+    "result_data_file",
+    "file_identity",
 ]
 
 #: ``"format"`` entry of calibration result files.
@@ -345,6 +347,29 @@ def load_result_dict(path) -> dict:
     if not isinstance(d, dict) or not str(d.get("format", "")).startswith("jaxcal-calibration-result/"):
         raise ValueError(f"{path} is not a jaxcal calibration result (no 'format': {RESULT_FORMAT!r} entry)")
     return d
+
+
+def result_data_file(path, d: dict) -> pathlib.Path | None:
+    """The data file a result (raw dict ``d`` of the file at ``path``) was calibrated on, as found
+    now: ``settings.data`` as given to ``jaxcal calibrate`` (relative to the working directory), else
+    relative to the result's folder; ``None`` when the result names no single file or it is gone."""
+    name = (d.get("settings") or {}).get("data")
+    if not isinstance(name, str) or not name:
+        return None
+    given = pathlib.Path(name)
+    for cand in (given, pathlib.Path(path).parent / given):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def file_identity(path, digits: int = 12) -> str:
+    """``"NAME (sha256 0123456789ab…)"``: a file's name and the first ``digits`` hex digits of the
+    SHA-256 of its bytes (what the report prints to tell input files apart)."""
+    import hashlib
+
+    p = pathlib.Path(path)
+    return f"{p.name} (sha256 {hashlib.sha256(p.read_bytes()).hexdigest()[:digits]}…)"
 
 
 def load_result(path) -> CalibrationResult:

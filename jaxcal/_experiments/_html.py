@@ -12,6 +12,7 @@ column of at most 60 em, so nothing scrolls sideways.
 from __future__ import annotations
 
 import base64
+import datetime
 import html
 import io
 import json
@@ -27,7 +28,8 @@ body { font-family: system-ui, -apple-system, 'Segoe UI', sans-serif; margin: 0 
        padding: 1em; color: #222; line-height: 1.4; }
 h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; margin-top: 1.6em; }
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; max-width: 100%; }
-th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; overflow-wrap: anywhere; }
+th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; overflow-wrap: break-word; }
+th, td:not(.l) { white-space: nowrap; }
 th { background: #f2f2f2; } td.l, th.l { text-align: left; }
 img { max-width: 100%; height: auto; display: block; margin: 0.5em 0; }
 .warn { color: #8a4b00; } .bad { color: #b00020; font-weight: bold; } .ok { color: #1b5e20; font-weight: bold; }
@@ -49,9 +51,11 @@ def _num(v, digits: int = 4) -> str:
 
 
 def _table(headers, rows, left: int = 1) -> str:
-    """An HTML table; the first ``left`` columns left-aligned."""
-    out = ["<table><tr>" + "".join(f'<th class="l">{_e(h)}</th>' if i < left else f"<th>{_e(h)}</th>"
-                                   for i, h in enumerate(headers)) + "</tr>"]
+    """An HTML table; the first ``left`` columns left-aligned; ``headers`` ``None``: no header row.
+    Headers and numbers do not wrap; left-aligned text wraps between words."""
+    out = ["<table>"] if headers is None else [
+        "<table><tr>" + "".join(f'<th class="l">{_e(h)}</th>' if i < left else f"<th>{_e(h)}</th>"
+                                for i, h in enumerate(headers)) + "</tr>"]
     for r in rows:
         out.append("<tr>" + "".join(f'<td class="l">{_e(c)}</td>' if i < left else f"<td>{_e(c)}</td>"
                                     for i, c in enumerate(r)) + "</tr>")
@@ -86,29 +90,60 @@ def _points(robot_dict, q_deg) -> np.ndarray | None:
         return None
 
 
+def _set_by_prior(d: dict) -> set[str]:
+    """Names of the free parameters the prior rather than the data set in a result dict: those
+    the diagnostics call weak (posterior σ above ``Checks.weak_fraction`` of the prior σ), as the
+    command line marks them with †; none without a prior."""
+    return set((d.get("diagnostics") or {}).get("weak_parameters") or []) if d.get("prior") else set()
+
+
+def _marks_legend(by_prior: set[str]) -> str:
+    """The legend of † (set by the prior) and * (not calibrated), as ``jaxcal calibrate`` prints it."""
+    from .._fit._diagnostics import Checks
+
+    marks = [f"† set by the prior rather than the data (posterior σ above {Checks().weak_fraction:g}× the prior σ)"
+             ] if by_prior else []
+    return "; ".join(marks + ["* not calibrated: held at its start value (not identifiable without a prior, or fixed)"])
+
+
 def _parameters(d: dict) -> str:
-    """Parameter table (Δ ± σ in ° / mm) and the correlation heat map of a result dict."""
+    """Parameter table (Δ ± σ in ° / mm; angles wrapped to (−180°, 180°]; † set by the prior) and
+    the correlation heat map of a result dict."""
+    from .._fit._diagnostics import wrap_angle_deg
     from ..plots import correlation_heatmap
 
     free = d.get("free_parameters", {})
     units = d.get("units", {})
     unc = d.get("uncertainty") or {}
     std = unc.get("std", {})
+    by_prior = _set_by_prior(d)
     rows = []
     for n, v in free.items():
         u = units.get(n, "")
         f = math.degrees if u == "rad" else (lambda x: x)
         s = std.get(n)
-        rows.append([n, "°" if u == "rad" else u, _num(f(v)), "—" if s is None else _num(f(s), 3),
+        value = float(wrap_angle_deg(f(v))) if u == "rad" else v
+        rows.append([n + ("†" if n in by_prior else ""), "°" if u == "rad" else u, _num(value),
+                     "—" if s is None else _num(f(s), 3),
                      "" if s in (None, 0) or not math.isfinite(s) else f"{abs(v) / s:.1f}"])
     parts = [f"<p>{len(free)} calibrated parameters: deviation Δ from the nominal value (sensor extras: from the "
              "guess) and one posterior standard deviation σ"
              + (f"; residual σ̂ {_num(unc.get('noise_std_mm'))} mm" if unc.get("noise_std_mm") is not None else "")
+             + (f"; {len(by_prior)} of them (†) set by the prior rather than the data: their values are the prior's, "
+                "not results" if by_prior else "")
              + ".</p>", _table(["parameter", "unit", "Δ", "σ", "|Δ|/σ"], rows)]
     dh = d.get("calibrated_dh_table")
     if dh:
-        parts.append("<p>Calibrated DH table:</p>" + _table(
-            ["joint", *dh["columns"]], [[j + 1, *(_num(v) for v in r)] for j, r in enumerate(dh["rows"])]))
+        groups = [c.split("_")[0] for c in dh["columns"]]  # alpha_deg → alpha
+
+        def cell(g, j, v):
+            name = f"{g}_{j + 1}"
+            return _num(v) + ("†" if name in by_prior else "" if name in free else "*")
+
+        parts.append("<p>Calibrated DH table (angles in (−180°, 180°]):</p>" + _table(
+            ["joint", *dh["columns"]], [[j + 1, *(cell(g, j, v) for g, v in zip(groups, r))]
+                                        for j, r in enumerate(dh["rows"])])
+            + f'<p class="small">{_e(_marks_legend(by_prior))}</p>')
     cov = unc.get("covariance")
     if cov and len(std) > 1:
         parts.append(_png(correlation_heatmap(cov, list(std))))
@@ -162,7 +197,13 @@ def _outliers(parts_rows: dict, flagged: dict) -> str:
 
 
 def _figures(parts_rows: dict, robot_dict: dict) -> str:
-    from ..plots import residual_histogram, residuals_vs_joints, workspace_errors
+    from ..plots import (
+        WORKSPACE_COLOUR_QUANTILE,
+        residual_histogram,
+        residuals_vs_joints,
+        workspace_colour_max,
+        workspace_errors,
+    )
 
     if not parts_rows:
         return "<p>This file holds no per-row residuals (written before they were saved); re-run the command.</p>"
@@ -176,13 +217,17 @@ def _figures(parts_rows: dict, robot_dict: dict) -> str:
     e = np.abs(np.concatenate([a for _, a, _ in arr.values()]))
     pts = _points(robot_dict, q)
     out.append("<h2>Error over the workspace</h2>")
-    out.append(_png(workspace_errors(pts, e)) if pts is not None else
-               "<p>The tool points of this robot model could not be computed.</p>")
+    if pts is None:
+        out.append("<p>The tool points of this robot model could not be computed.</p>")
+    else:
+        out.append(_png(workspace_errors(pts, e)) + f'<p class="small">The colour scale is clipped at the '
+                   f"{100 * WORKSPACE_COLOUR_QUANTILE:g}th percentile of the errors ({_num(workspace_colour_max(e))} "
+                   "mm): larger errors take the top colour.</p>")
     return "".join(out)
 
 
 def _summary(items) -> str:
-    return _table(["", ""], [[k, v] for k, v in items if v not in (None, "")], left=2)
+    return _table(None, [[k, v] for k, v in items if v not in (None, "")], left=2)
 
 
 def _warnings(ws) -> str:
@@ -191,9 +236,22 @@ def _warnings(ws) -> str:
     return "<ul>" + "".join(f'<li class="warn">{_e(w)}</li>' for w in ws) + "</ul>"
 
 
-def html_report(d: dict, *, source: str = "", result: dict | None = None) -> str:
+def _provenance(source: str, inputs, created: str | None) -> str:
+    """The line under the title: jaxcal's version, when the page was made and what it was made from
+    (``inputs``: :func:`~jaxcal._calibration._io.file_identity` strings)."""
+    from .. import __version__
+
+    made = f"jaxcal {__version__} report" + (f", made {created}" if created else "")
+    files = "; ".join(inputs) if inputs else source
+    return f'<p class="small">{_e(made)}, of <code>{_e(files)}</code></p>'
+
+
+def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs=(), created: str | None = None
+                ) -> str:
     """The page for a result dict (``jaxcal calibrate --out``) or an evaluation dict (``jaxcal evaluate
-    --out``; ``result``: the calibration it checks, when available, for its parameter sections)."""
+    --out``; ``result``: the calibration it checks, when available, for its parameter sections).
+    ``inputs``: the files it was made from, as ``"name (sha256 …)"`` (:func:`write_html` gives the
+    JSON file and the data file(s) it names, where found); ``created``: when (a date and time)."""
     fmt = str(d.get("format", ""))
     is_eval = fmt.startswith("jaxcal-evaluation/")
     robot = d.get("robot", {})
@@ -201,7 +259,7 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None) -> str
     model = f"{robot.get('name', '?')} ({'URDF chain' if robot.get('type') == 'serial_chain' else 'DH table'}), " \
             f"{meas.get('kind', '?')} measurements"
     title = ("Evaluation of a calibration on new data" if is_eval else "Calibration report") + f": {robot.get('name', '')}"
-    body = [f"<h1>{_e(title)}</h1>", f'<p class="small">jaxcal report of <code>{_e(source)}</code></p>', "<h2>Summary</h2>"]
+    body = [f"<h1>{_e(title)}</h1>", _provenance(source, inputs, created), "<h2>Summary</h2>"]
     if is_eval:
         m = d["metrics_mm"]
         verdict = (f'<p class="bad">The calibrated robot predicts these data WORSE than the nominal robot '
@@ -282,13 +340,25 @@ def write_html(source, out) -> pathlib.Path:
     fmt = str(d.get("format", "")) if isinstance(d, dict) else ""
     if not (fmt.startswith("jaxcal-calibration-result/") or fmt.startswith("jaxcal-evaluation/")):
         raise ValueError(f"{src} is neither a jaxcal calibration result nor an evaluation (no matching 'format')")
+    from .._calibration._io import file_identity, result_data_file
+
     result = None
-    if fmt.startswith("jaxcal-evaluation/") and d.get("result"):
-        for cand in (pathlib.Path(d["result"]), src.parent / pathlib.Path(d["result"]).name):
+    inputs = [f"{'evaluation' if fmt.startswith('jaxcal-evaluation/') else 'result'} {file_identity(src)}"]
+    if fmt.startswith("jaxcal-evaluation/"):
+        for cand in ((pathlib.Path(d["result"]), src.parent / pathlib.Path(d["result"]).name) if d.get("result") else ()):
             if cand.exists():
                 result = json.loads(cand.read_text(encoding="utf-8"))
+                inputs.append(f"calibration {file_identity(cand)}")
                 break
-    page = html_report(d, source=src.name, result=result)
+        new_data = pathlib.Path(str(d.get("data", "")))
+        if d.get("data") and new_data.is_file():
+            inputs.append(f"new data {file_identity(new_data)}")
+    else:
+        data = result_data_file(src, d)
+        if data is not None:
+            inputs.append(f"data {file_identity(data)}")
+    created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    page = html_report(d, source=src.name, result=result, inputs=inputs, created=created)
     p = pathlib.Path(out)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(page, encoding="utf-8")

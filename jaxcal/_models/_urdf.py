@@ -454,10 +454,13 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
         root = ET.Element("robot", name=chain.name)
         root.append(ET.Comment(" " + note + " "))
         if dh_table is not None:
+            from .._fit._diagnostics import wrap_angle_deg  # angles as everywhere: (−180°, 180°]
+
             conv, alpha, a, d, theta, beta, bj = dh_table
+            alpha, theta, beta = (wrap_angle_deg(np.rad2deg(np.asarray(v, np.float64))) for v in (alpha, theta, beta))
             rows = "\n".join(
-                f"  {i + 1}: alpha={np.rad2deg(alpha[i]):.9g} deg, a={a[i]:.9g} mm, d={d[i]:.9g} mm, "
-                f"theta={np.rad2deg(theta[i]):.9g} deg" + (f", beta={np.rad2deg(beta[i]):.9g} deg" if (i + 1) in bj else "")
+                f"  {i + 1}: alpha={alpha[i]:.9g} deg, a={a[i]:.9g} mm, d={d[i]:.9g} mm, "
+                f"theta={theta[i]:.9g} deg" + (f", beta={beta[i]:.9g} deg" if (i + 1) in bj else "")
                 for i in range(len(alpha)))
             root.append(ET.Comment(f" DH table ({conv} convention):\n{rows}\n "))
         ET.SubElement(root, "link", name=chain.base)

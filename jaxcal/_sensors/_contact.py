@@ -76,7 +76,7 @@ from .._models._kinematics import check_joint_angles, fk_pose_jit, rotvec_to_mat
 from ._measurement import MeasurementModel
 
 __all__ = ["PlaneContact", "FixedPoint", "plane_group", "point_groups", "initial_contact",
-    "unobservable_directions", "contact_model", "default_setup", "DistanceBar"]
+    "unobservable_directions", "contact_model", "default_setup", "DistanceBar", "length_reference_note"]
 
 
 def plane_group(label: str) -> Group:
@@ -302,6 +302,18 @@ class FixedPoint(_LabelModel):
 # -- data ---------------------------------------------------------------------------------------
 
 
+def length_reference_note(kind: str, *, known_radius: bool = False) -> str:
+    """What fixes the robot's length scale under ``kind`` contact data (``"plane"``, ``"point"``),
+    in words for the command line: planes and pivot points (or spheres of unknown radius) have no
+    length reference, so the prior or a fixed length sets the scale; a ``known_radius`` sphere is
+    one, but weak (scaling every length by ``1 + ε`` moves a residual ``‖p − c‖ − r`` by only
+    ``ε·r``), so the prior still holds most of it."""
+    if kind == "point" and known_radius:
+        return ("the known sphere radius is the data's only length reference, and a weak one: the prior (or a "
+                "--fix'ed length) still holds most of the robot's scale")
+    return "contact data have no length reference, so the prior (or a --fix'ed length) sets the robot's scale"
+
+
 def contact_model(kind: str, robot, data=None):
     """The model the command line uses: from ``data``'s labels with unknown planes / points (the
     closed-form start finds them), or without data the simulation set-up of
@@ -378,7 +390,7 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     Returns:
         :class:`jaxcal.ExtrasEstimate`.
     """
-    from ._initialise import ExtrasEstimate, _trim
+    from ._initialise import ExtrasEstimate, _trim, trimmed_note
 
     q, y = (data.q, data.y) if hasattr(data, "q") else data
     q = jnp.asarray(q)
@@ -424,7 +436,7 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     what = "planes" if kind == "plane" else ("spheres" if m.sphere else "points")
     msg = (f"extras from the data: {K} {what} ({', '.join(m.labels)})" + (" and the tool point" if "tool" in est else "")
            + f" in closed form (RMS residual of the robot {before:.2f} → {after:.2f} mm"
-           + (f", {n_trim} row(s) left out as gross outliers)" if n_trim else ")"))
+           + trimmed_note(n_trim) + ")")
     return ExtrasEstimate(dev, before, after, n_trim, msg)
 
 

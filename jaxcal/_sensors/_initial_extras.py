@@ -26,6 +26,7 @@ from ._initialise import (
     kabsch,
     multilaterate,
     project_rotation,
+    trimmed_note,
     wire_with_tool,
 )
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
@@ -264,7 +265,7 @@ def initial_extras(
     after = rms(dev)
     n_trim = int((~keep).sum())
     msg = ("extras from the data: " + "; ".join(what) + f" (RMS residual of the nominal robot {before:.2f} → "
-           f"{after:.2f} mm" + (f", {n_trim} sample(s) left out as gross outliers)" if n_trim else ")"))
+           f"{after:.2f} mm" + trimmed_note(n_trim, "sample") + ")")
     return ExtrasEstimate(dev, before, after, n_trim, msg)
 
 

@@ -89,7 +89,21 @@ class ExtrasEstimate(NamedTuple):
 _residual = jax.jit(lambda measurement, robot, dev, q, y: measurement.residual(robot, dev, q, y))
 _sample_error = jax.jit(lambda measurement, r: measurement.sample_error(r))
 
-def _trim(res: np.ndarray, k: float = 5.0) -> np.ndarray:
+#: Rows whose closed-form-start residual is beyond this many robust σ are left out of the start.
+TRIM_ROBUST_SIGMAS = 5.0
+
+
+def trimmed_note(n_trim: int, what: str = "row") -> str:
+    """The words a closed-form start's message ends with for the ``n_trim`` rows (``what``: "row",
+    "sample") :func:`_trim` left out of it: on clean data these are the nominal robot's largest
+    errors, not bad readings, and the calibration keeps every one ("" for none)."""
+    if not n_trim:
+        return ""
+    return (f", {n_trim} {what}(s) beyond {TRIM_ROBUST_SIGMAS:g} robust σ left out of this start only: the nominal "
+            "robot's largest errors or gross outliers; the calibration keeps them and judges outliers after its fit")
+
+
+def _trim(res: np.ndarray, k: float = TRIM_ROBUST_SIGMAS) -> np.ndarray:
     s = robust_scale(res)
     if not (s > 0 and math.isfinite(s)):
         return np.ones(res.shape, bool)

@@ -51,6 +51,7 @@ from ._initialise import (
     ExtrasEstimate,
     alternate_frames_and_markers,
     marker_errors,
+    trimmed_note,
 )
 from ._measurement import MarkerModel
 
@@ -436,7 +437,7 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
     n_miss, n_all, n_rows = masked_markers(Y)
     msg = (f"extras from the data: {len(fidx)} session frame(s) ({', '.join(est_f) or '-'}) and {len(pidx)} marker "
            f"placement(s) ({', '.join(est_p) or '-'}) in closed form (RMS residual of the robot {before:.2f} → "
-           f"{after:.2f} mm" + (f", {n_trim} row(s) left out as gross outliers)" if n_trim else ")")
+           f"{after:.2f} mm" + trimmed_note(n_trim) + ")"
            + (f"; {n_miss} of {n_all} marker readings missing (NaN: markers a placement does not have, or not seen) "
               f"in {n_rows} row(s): masked (zero weight), not dropped" if n_miss else ""))
     return ExtrasEstimate(dev, before, after, n_trim, msg)

@@ -259,12 +259,13 @@ def _add_simulate(sub, fmt) -> None:
     s.add_argument("--out", required=True, help="CSV file to write")
     s.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    s.add_argument("--noise-std", type=float, default=0.5, help="sensor noise σ in mm (default 0.5)")
-    s.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
+    s.add_argument("--noise-std", type=float, default=None,
+                   help="sensor noise σ in mm (default 0.5; --like: the first file's)")
+    s.add_argument("--robot", default=None, help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
     s.add_argument("--measurement", choices=("cable", "position", "pose", "camera", "plane", "point", "distance"),
-                   default="cable",
+                   default=None,
                    help="sensor: cable (draw-wire length), position (x,y,z), pose (x,y,z + rotation vector; default "
                         "cable); camera (--samples images of a 9×6 checkerboard, 20 mm squares, 1280×1024 px, "
                         "f = 1000 px, only poses that see the whole target; --noise-std in px); plane: a probe "
@@ -278,7 +279,19 @@ def _add_simulate(sub, fmt) -> None:
                         "(mm; written as '# radius_mm: R')")
     s.add_argument("--missing-corners", type=float, default=0.0, metavar="FRACTION",
                    help="camera: fraction of corners left undetected at random (empty cells; default 0)")
-    s.add_argument("--anchor", metavar="X,Y,Z", help="draw-wire anchor, mm (default (reach/2, 0, 0))")
+    s.add_argument("--anchor", metavar="X,Y,Z",
+                   help="draw-wire anchor, mm (default (reach/2, 0, 0)); written as '# anchor_mm:', the known "
+                        "anchor calibrate uses")
+    s.add_argument("--unknown-anchor", action="store_true",
+                   help="cable: a set-up as a real cell has it: the anchor drawn around the default one (σ 50 mm per "
+                        "axis) and a zero offset of the wire (σ 20 mm), from --seed; the file has no anchor_mm line, "
+                        "so calibrate estimates both from the data (the truth is in its '# true_anchor_mm:' and "
+                        "'# true_cable_offset_mm:' lines, which calibrate does not read)")
+    s.add_argument("--like", metavar="RESULT.json",
+                   help="a new file of the robot and set-up a calibration result was made from (a 'new day' of the "
+                        "same robot: same true deviations, anchor and offset; new poses and noise from --seed). The "
+                        "result's data file must be one `jaxcal simulate` wrote (its '# seed:' line names the true "
+                        "robot); cable, position and pose data")
     s.set_defaults(func=_cmd_simulate)
 
 def _add_report(sub, fmt) -> None:

@@ -3,41 +3,152 @@
 
 from __future__ import annotations
 
+import pathlib
+
 from ._common import _robot, _robot_and_sensor, _Usage
+
+#: ``--unknown-anchor``: σ per axis (mm) of the true anchor around the default one, and σ (mm) of
+#: the wire's zero offset; neither is written where ``jaxcal calibrate`` reads a known anchor.
+UNKNOWN_ANCHOR_STD_MM = 50.0
+UNKNOWN_OFFSET_STD_MM = 20.0
+#: The kinds ``--like`` re-simulates (those of :func:`jaxcal.simulate_experiment`).
+LIKE_KINDS = ("cable", "position", "pose")
 
 
 def _cmd_simulate(args) -> int:
     import jax
 
-    from .._datasets._dataset import Dataset
+    from .._datasets._dataset import Dataset, mm_joints_metadata
     from .._simulation._simulate import simulate_experiment
 
-    if args.measurement == "camera":
-        return _simulate_camera(args)
-    robot, measurement = _robot_and_sensor(args)
-    if args.samples < 2:
+    if args.measurement != "camera" and args.samples < 2:  # camera: at least 3 images (_simulate_camera)
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
-    if measurement.kind in ("plane", "point", "distance"):
-        from .._simulation._simulate_sensors import save_simulated_contact
+    if args.like:
+        robot, measurement, truth, noise, meta = _like(args)
+    else:
+        args.robot = args.robot or "hsr_jr680"
+        args.measurement = args.measurement or "cable"
+        noise = args.noise_std = 0.5 if args.noise_std is None else args.noise_std
+        if args.unknown_anchor and (args.measurement != "cable" or args.anchor):
+            raise _Usage("--unknown-anchor applies to --measurement cable without --anchor (it draws the anchor)")
+        if args.measurement == "camera":
+            return _simulate_camera(args)
+        robot, measurement = _robot_and_sensor(args)
+        if measurement.kind in ("plane", "point", "distance"):
+            from .._simulation._simulate_sensors import save_simulated_contact
 
-        save_simulated_contact(args, robot, measurement)
-        return 0
-    ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=args.noise_std,
-                             measurement=measurement, test_fraction=0.5)
+            save_simulated_contact(args, robot, measurement)
+            return 0
+        measurement, truth = _true_setup(robot, measurement, args.seed, args.unknown_anchor)
+        meta = {"seed": args.seed}
+    ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=noise,
+                             measurement=measurement, true_deviations=truth, test_fraction=0.5)
     import jax.numpy as jnp
 
     q = jnp.concatenate([ex.train.q, ex.test.q])
     y = jnp.concatenate([ex.train.y, ex.test.y])
-    from .._datasets._dataset import mm_joints_metadata
-
-    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std,
-            **mm_joints_metadata(robot)}
-    if args.measurement == "cable":
-        meta["anchor_mm"] = ",".join(f"{float(v):.6g}" for v in measurement.anchor)
+    meta = {"source": "jaxcal simulate", "robot": robot.name, **meta, "noise_std_mm": noise,
+            **_setup_metadata(measurement, truth, args.unknown_anchor), **mm_joints_metadata(robot)}
     Dataset(q, y, measurement.kind, meta).to_csv(args.out)
-    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
-          f"seed {args.seed}) to {args.out}")
+    like = f", the robot and set-up of {args.like}" if args.like else ""
+    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {noise} mm, "
+          f"seed {args.seed}{like}) to {args.out}")
     return 0
+
+
+def _true_setup(robot, measurement, robot_seed: int, unknown_anchor: bool, cable_offset_mm: float | None = None):
+    """``(measurement, true_deviations)`` of the simulated robot of ``robot_seed``.
+
+    The DH deviations are those :func:`jaxcal.simulate_experiment` draws from
+    ``jax.random.key(robot_seed)`` (so a file's rows follow from its seed alone). The measurement
+    carries the true anchor (cable). ``unknown_anchor``: the anchor is moved by
+    ``N(0, UNKNOWN_ANCHOR_STD_MM²)`` per axis and the wire gets a zero offset
+    ``N(0, UNKNOWN_OFFSET_STD_MM²)`` (mm), drawn from the same key; ``cable_offset_mm`` instead
+    sets the offset (``--like``: the one the first file recorded)."""
+    import jax
+    import jax.numpy as jnp
+
+    from .._core._params import Deviations
+    from .._sensors._measurement import CableLength
+    from .._simulation._simulate import draw_deviations
+
+    k_dev = jax.random.split(jax.random.key(robot_seed), 4)[0]  # simulate_experiment's deviation key
+    std = UNKNOWN_ANCHOR_STD_MM if unknown_anchor else 0.0
+    dev = draw_deviations(k_dev, robot, anchor_std_mm=std,
+                          cable_offset_std_mm=UNKNOWN_OFFSET_STD_MM if unknown_anchor else 0.0)
+    vals = dict(dev.values)
+    if measurement.kind == "cable":  # the true anchor in the model; the deviation's anchor back to 0
+        measurement = CableLength(measurement.anchor + vals["anchor"])
+        vals["anchor"] = jnp.zeros_like(vals["anchor"])
+    if cable_offset_mm is not None:
+        vals["cable_offset"] = jnp.full_like(vals["cable_offset"], cable_offset_mm)
+    return measurement, Deviations(vals, dev.layout)
+
+
+def _setup_metadata(measurement, truth, unknown_anchor: bool) -> dict:
+    """The set-up lines of a simulated file: ``anchor_mm`` (the known anchor, which calibrate uses)
+    or, for an unknown one, ``true_anchor_mm`` and ``true_cable_offset_mm`` (the simulation's truth
+    in full precision, which calibrate does not read: it estimates both from the data)."""
+    if measurement.kind != "cable":
+        return {}
+    if not unknown_anchor:
+        return {"anchor_mm": ",".join(f"{float(v):.6g}" for v in measurement.anchor)}
+    # the truth to the last bit: --like simulates from these lines
+    return {"true_anchor_mm": ",".join(repr(float(v)) for v in measurement.anchor),
+            "true_cable_offset_mm": repr(float(truth.cable_offset))}
+
+
+def _like(args):
+    """``--like RESULT.json``: ``(robot, measurement, true deviations, noise σ, metadata)`` of a new
+    file of the robot and set-up a result was calibrated on. The result names its data file
+    (``settings.data``, as given to calibrate or relative to the result's folder); that file must
+    be one ``jaxcal simulate`` wrote: its ``seed`` (or ``true_robot_seed``) line gives the true
+    robot, its ``anchor_mm`` or ``true_anchor_mm``/``true_cable_offset_mm`` lines the set-up and
+    its ``noise_std_mm`` the noise (unless ``--noise-std``). ``--seed`` draws the new poses and noise."""
+    from .._calibration._io import load_result, load_result_dict, result_data_file
+    from .._datasets._dataset import load_csv
+    from .._sensors._measurement import CableLength
+    from ._common import _floats
+
+    if args.robot or args.base or args.tip or args.measurement or args.anchor or args.unknown_anchor:
+        raise _Usage("--like takes the robot, the measurement and the set-up from the result; drop --robot, "
+                     "--base, --tip, --measurement, --anchor and --unknown-anchor")
+    src = pathlib.Path(args.like)
+    if not src.exists():
+        raise _Usage(f"--like: result file {args.like!r} not found")
+    try:
+        raw = load_result_dict(src)
+    except ValueError as e:
+        raise _Usage(f"--like: {e}") from None
+    path = result_data_file(src, raw)
+    if path is None:
+        data_path = (raw.get("settings") or {}).get("data")
+        raise _Usage(f"--like: the data file {data_path!r} that {src} was calibrated on is not found"
+                     if isinstance(data_path, str) else
+                     f"--like: {src} does not name one data file (a fleet result or one saved from Python); "
+                     "simulate with --robot/--seed instead")
+    meta = load_csv(path).meta
+    if meta.get("source") != "jaxcal simulate" or "seed" not in meta:
+        raise _Usage(f"--like: {path} was not written by `jaxcal simulate` (no '# source: jaxcal simulate' and "
+                     "'# seed:' lines), so its true robot is not known; measure a new file instead")
+    res = load_result(src)
+    if meta.get("robot") != res.robot.name:
+        raise _Usage(f"--like: {path} was simulated for robot {meta.get('robot')!r} but {src} calibrates "
+                     f"{res.robot.name!r}; the true robot is not known")
+    kind = res.measurement.kind
+    if kind not in LIKE_KINDS:
+        raise _Usage(f"--like re-simulates {', '.join(LIKE_KINDS)} data, not {kind!r}")
+    robot_seed = int(meta.get("true_robot_seed", meta["seed"]))
+    unknown = "true_anchor_mm" in meta
+    measurement = res.measurement
+    if kind == "cable":
+        measurement = CableLength(_floats(meta["true_anchor_mm" if unknown else "anchor_mm"], 3, f"{path}'s anchor"))
+    offset = float(meta["true_cable_offset_mm"]) if unknown else None
+    measurement, truth = _true_setup(res.robot, measurement, robot_seed, False, offset)
+    args.unknown_anchor = unknown  # the new file keeps the set-up's lines as the first one had them
+    noise = float(meta.get("noise_std_mm", 0.5)) if args.noise_std is None else args.noise_std
+    return res.robot, measurement, truth, noise, {"seed": args.seed, "true_robot_seed": robot_seed,
+                                                  "like": f"{src.name} (data {path.name})"}
 
 
 def _simulate_camera(args) -> int:
