@@ -13,9 +13,18 @@ import threading
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["materialised", "shared_joint_trig", "angle_sum_trig", "dh_joint_terms"]
+__all__ = ["materialised", "shared_joint_trig", "angle_sum_trig", "dh_joint_terms", "wrap_angle_deg"]
+
+
+def wrap_angle_deg(v):
+    """Angles in degrees (any shape, NumPy float64) wrapped to (−180°, 180°]: the one angle
+    convention of every printed table, report and exported file."""
+    v = np.asarray(v, dtype=np.float64)
+    w = np.mod(v + 180.0, 360.0) - 180.0
+    return np.where(w == -180.0, 180.0, w)
 
 
 def materialised(x: Array) -> Array:

@@ -109,7 +109,7 @@ def _marks_legend(by_prior: set[str]) -> str:
 def _parameters(d: dict) -> str:
     """Parameter table (Δ ± σ in ° / mm; angles wrapped to (−180°, 180°]; † set by the prior) and
     the correlation heat map of a result dict."""
-    from .._fit._diagnostics import wrap_angle_deg
+    from .._core._trig import wrap_angle_deg
     from ..plots import correlation_heatmap
 
     free = d.get("free_parameters", {})

@@ -454,7 +454,7 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
         root = ET.Element("robot", name=chain.name)
         root.append(ET.Comment(" " + note + " "))
         if dh_table is not None:
-            from .._fit._diagnostics import wrap_angle_deg  # angles as everywhere: (−180°, 180°]
+            from .._core._trig import wrap_angle_deg  # angles as everywhere: (−180°, 180°]
 
             conv, alpha, a, d, theta, beta, bj = dh_table
             alpha, theta, beta = (wrap_angle_deg(np.rad2deg(np.asarray(v, np.float64))) for v in (alpha, theta, beta))
