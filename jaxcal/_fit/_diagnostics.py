@@ -62,7 +62,9 @@ class Checks:
             or a data file's ``# noise_std_mm:`` line) fails (default 10).
         extra_fraction, extra_angle_deg: a sensor/set-up extra started from the data in closed
             form (anchor, cable offset, tool, sensor frame, …) that the fit moved further than
-            this fraction of the reach (mm) or this angle (°) fails (default 0.05, 10°).
+            this fraction of the reach (mm) or this angle (°) fails (default 0.25, 10°: a tool
+            point started on the flange axis may move ~100 mm); one (mm) further than 10 reaches
+            from its nominal or guessed value fails whatever its start.
         worse_rtol: the fit fails when its RMS training residual ends above ``(1 + worse_rtol)``
             times that of its start (default 0.01: a robust loss started from the least-squares
             extras of the nominal robot may end 0.2 % above it with only the extras free).
@@ -76,7 +78,7 @@ class Checks:
     weak_fraction: float = 0.5
     residual_fraction: float = 0.01
     noise_factor: float = 10.0
-    extra_fraction: float = 0.05
+    extra_fraction: float = 0.25
     extra_angle_deg: float = 10.0
     worse_rtol: float = 0.01
 
@@ -690,7 +692,8 @@ def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_st
     * σ̂ above ``checks.noise_factor`` times the sensor's given noise ``noise_std``;
     * the RMS training residual after the fit above ``(1 + checks.worse_rtol)`` times its start's;
     * an extra moved from its closed-form start by more than ``checks.extra_fraction`` of the
-      reach (mm) or ``checks.extra_angle_deg`` (rad extras).
+      reach (mm) or ``checks.extra_angle_deg`` (rad extras), or one (mm) further than 10
+      reaches from its nominal or guessed value (no physical set-up).
 
     Args:
         robot: the nominal robot (``reach_mm()``, :func:`joint_units`).
@@ -701,8 +704,9 @@ def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_st
             a pose's position part; reading unit) at the solution and at the start (the nominal
             robot, extras from the data), or ``None``.
         noise_std_hat: σ̂, the noise estimated from the residuals (reading unit).
-        extras: ``((name, unit, start, final), ...)`` of the free extras whose start came from
-            the data in closed form (unit ``"mm"`` or ``"rad"``; others are skipped).
+        extras: ``((name, unit, start, final), ...)`` of the free extras: deviations from their
+            nominal or guessed value (unit ``"mm"`` or ``"rad"``; others are skipped), ``start``
+            ``None`` unless it came from the data in closed form.
         checks: the thresholds.
         noise_std: the sensor's given noise σ (:func:`given_noise_std`), or ``None``.
 
@@ -728,7 +732,12 @@ def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_st
         if not after <= (1 + checks.worse_rtol) * before:
             out.append(f"the fit is worse than its start: RMS training residual {before:.4g} → {after:.4g} {unit}")
     moved = []
+    far = []
     for name, u, v0, v1 in extras:
+        if u == "mm" and math.isfinite(reach) and not abs(float(v1)) <= 10 * reach:
+            far.append(f"{name} {float(v1):+.4g} mm")
+        if v0 is None:
+            continue
         d = float(v1) - float(v0)
         if u == "mm" and math.isfinite(reach) and not abs(d) <= checks.extra_fraction * reach:
             moved.append(f"{name} {d:+.4g} mm")
@@ -738,6 +747,9 @@ def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_st
         out.append(f"sensor extras moved far from their closed-form start: {', '.join(moved[:8])}"
                    f"{' …' if len(moved) > 8 else ''} (bound {100 * checks.extra_fraction:g} % of the reach, "
                    f"{checks.extra_angle_deg:g}°)")
+    if far:
+        out.append(f"sensor extras beyond any physical set-up (more than 10 reaches from their guess): "
+                   f"{', '.join(far[:8])}{' …' if len(far) > 8 else ''}")
     if not out:
         return (), None
     return tuple(out), likely_cause(robot, measurement, q, y, residual, huge_residual=huge)
@@ -750,13 +762,12 @@ def result_findings(result, problem, unc, residual, residual_start, checks: Chec
     residual blocks ``[n, m]`` at the solution and at the start, or ``None``); the free extras
     are compared with their start where that came from the data (``extras_started``)."""
     space = result.space
-    extras = ()
-    if extras_started and result.start is not None:
-        v0 = np.asarray(result.start._ravel_numpy(), np.float64)
-        v1 = np.asarray(result.deviations._ravel_numpy(), np.float64)
-        free = set(space.free_names)
-        extras = tuple((n, u, a, b) for n, u, a, b in zip(space.names, space.units, v0, v1)
-                       if n in free and group_kind(n) == "extra")
+    v1 = np.asarray(result.deviations._ravel_numpy(), np.float64)
+    started = extras_started and result.start is not None
+    v0 = np.asarray(result.start._ravel_numpy(), np.float64) if started else [None] * len(v1)
+    free = set(space.free_names)
+    extras = tuple((n, u, a, b) for n, u, a, b in zip(space.names, space.units, v0, v1)
+                   if n in free and group_kind(n) == "extra")
     sigma = unc.noise_std if unc is not None else float(result.train_metrics.rmse)
     return fit_findings(result.robot, result.measurement, problem.q, problem.y, residual, residual_start,
                         noise_std_hat=float(sigma), extras=extras, checks=checks, noise_std=noise_std)
