@@ -101,6 +101,10 @@ class Calibrator(eqx.Module):
             parameters when the caller has it (``calibrate``: from the identifiability program,
             for measurements whose Jacobian does not depend on the readings); computed in the
             program otherwise. See :meth:`ScaledProblem.build`.
+        free: ``[p]`` 0/1 mask over ``space``'s parameters, run-time data: only those with 1 move
+            (the others stay at ``start``, without prior terms), so one compiled program serves
+            every free set of ``space`` (:attr:`~jaxcal.methods.Method.maskable` methods only;
+            ``None``: all of ``space`` moves). :func:`calibrate` runs LM this way.
     """
 
     robot: DHRobot
@@ -111,6 +115,11 @@ class Calibrator(eqx.Module):
     objective: Objective | None = None
     report: bool = eqx.field(static=True, default=False)
     start_jacobian: Array | None = None
+    free: Array | None = None
+
+    def __check_init__(self):
+        if self.free is not None and not self.method.maskable:
+            raise ValueError(f"method {type(self.method).__name__} cannot run with a free-parameter mask (free=)")
 
     def problem(self, q, y, weight=None) -> Problem:
         return Problem(self.robot, self.measurement, q, y, self.space, self.start, weight)
@@ -121,7 +130,8 @@ class Calibrator(eqx.Module):
         the output then equals the unpadded run's to round-off."""
         problem = self.problem(q, y, weight)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
-            scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian)
+            scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian,
+                                         mask=self.free)
             raw = self.method.run(scaled, key)
             x = scaled.x(raw.z)
             metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra), problem.weight)
@@ -350,6 +360,39 @@ def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace, report=No
         raise ValueError(
             f"too few samples: {n} sample(s) give {n_res} residuals for {what}; need more residuals than that"
         )
+
+
+def _program_space(robot, measurement, cand: ParameterSpace, space: ParameterSpace) -> ParameterSpace:
+    """The parameter space of the compiled solve of a :attr:`~jaxcal.methods.Method.maskable`
+    method: the robot's default candidates (every DH deviation, β at Hayati joints), the
+    candidates ``cand`` (requested extras, ``free=``) and the free ``space``, in layout order. The
+    free set is a run-time mask inside it (:class:`Calibrator` ``free=``), so every selection of
+    one set-up — identifiability, its re-selection at the solution, ``free=``/``fix=``, the
+    robust/MAP rounds, an evaluation registering the extras with the robot fixed — runs the same
+    compiled program."""
+    keep = set(ParameterSpace.for_robot(robot, measurement=measurement).free_names)
+    keep |= set(cand.free_names) | set(space.free_names)
+    return ParameterSpace.from_names(space.layout, [n for n in space.layout.names if n in keep])
+
+
+def _mask_output(out: CalibrationOutput, columns: np.ndarray) -> CalibrationOutput:
+    """A masked solve's output on its free parameters alone (``columns`` of the program space):
+    ``x`` and the Jacobian products of ``gram`` restricted to them, as an unmasked solve gives."""
+    x = np.asarray(out.x)[columns]
+    gram = out.gram
+    if gram is not None:
+        d, A, G, rss, r, e = gram
+        sub = np.ix_(columns, columns)
+        gram = (np.asarray(d)[columns], np.asarray(A)[sub], np.asarray(G)[sub], rss, r, e)
+    return out._replace(x=x, gram=gram)
+
+
+def _masked(meth) -> bool:
+    """Whether :func:`calibrate` runs ``meth`` with the free set as a run-time mask
+    (``$JAXCAL_FREE_MASK=off`` turns it off: one program per free set, as before)."""
+    import os
+
+    return meth.maskable and os.environ.get("JAXCAL_FREE_MASK", "on").strip().lower() not in ("off", "0", "false", "no")
 
 
 #: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)
@@ -589,9 +632,10 @@ def _calibration_steps(
     selecting = _default_selection(space)
     # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
     adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
-    # the start Jacobian serves a one-round fit only (below)
+    masked = _masked(meth)
+    # the start Jacobian serves a one-round unmasked fit only (below)
     space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior,
-                                                                jacobian=not adaptive)
+                                                                jacobian=not (adaptive or masked))
     problem = Problem(robot, measurement, q, y, space, start)
     n_res = problem.n_observed_residuals  # real readings (a missing marker is masked)
     _check_enough_residuals(q.shape[0], n_res, space, report, prior)
@@ -623,18 +667,28 @@ def _calibration_steps(
                                    or rounds - first >= 4):
                 break
             noise, scale = new_noise, new_scale
-            objective = None if plain else Objective.build(space, prior, noise, loss, scale, q.dtype)
-            cal = Calibrator(robot, measurement, meth, cur, space,
+            if masked:  # the program space with the free set as a mask (one program for every free set)
+                prog = _program_space(robot, measurement, cand, space)
+                free_set = set(space.free_names)
+                columns = np.asarray([i for i, n in enumerate(prog.free_names) if n in free_set])
+                mask = to_device(np.isin(np.arange(prog.n_free), columns).astype(np.float64), q.dtype)
+            else:
+                prog, columns, mask = space, None, None
+            objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype)
+            cal = Calibrator(robot, measurement, meth, cur, prog,
                              None if objective is None or objective.plain_least_squares else objective, report=True,
                              # the identifiability program's Jacobian serves a one-round fit (several rounds
-                             # share one compiled program, which then computes it)
-                             start_jacobian=None if adaptive else start_jac)
+                             # share one compiled program, which then computes it); a masked solve
+                             # computes its own (its columns are the program space's)
+                             start_jacobian=None if adaptive or masked else start_jac, free=mask)
             launched = yield cal, q, y, key
             out, c_s = launched.out, launched.compile_s
             if before_rows is None:  # host work that does not need the fit, while the device runs it
                 before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
                 cov = coverage(robot, q)
             out, r_s = launched.wait()
+            if masked:
+                out = _mask_output(out, columns)
             compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
             cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
             histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])

@@ -29,10 +29,11 @@ from .._core._buckets import LeanJit
 from .._core._json import from_json_number
 from .._core._params import group_kind
 from .._core._precision import to_device
+from .._core._trig import wrap_angle_deg
 from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
-__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "wrap_angle_deg",
+__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows",
            "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings"]
 
 
@@ -81,13 +82,6 @@ class Checks:
     extra_fraction: float = 0.25
     extra_angle_deg: float = 10.0
     worse_rtol: float = 0.01
-
-
-def wrap_angle_deg(v):
-    """Angles in degrees wrapped to (−180°, 180°]."""
-    v = np.asarray(v, dtype=np.float64)
-    w = np.mod(v + 180.0, 360.0) - 180.0
-    return np.where(w == -180.0, 180.0, w)
 
 
 @dataclasses.dataclass(frozen=True)

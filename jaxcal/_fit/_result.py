@@ -326,7 +326,7 @@ class CalibrationResult:
         Table V), angles wrapped to (−180°, 180°]: a :class:`DHTable` that prints as the table
         (uncalibrated entries marked ``*``) and indexes like the array (``np.asarray(t)``,
         ``t[j, col]``)."""
-        from ._diagnostics import wrap_angle_deg
+        from .._core._trig import wrap_angle_deg
 
         r, d = self.robot, self.deviations
         if not hasattr(r, "dh_table_deg"):

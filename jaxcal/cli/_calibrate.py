@@ -179,7 +179,7 @@ def _fmt_value(v: float, sd: float | None, unit: str) -> str:
 
 def _print_dh_table(robot, res, sd) -> None:
     from .._core._metrics import format_table
-    from .._fit._diagnostics import wrap_angle_deg
+    from .._core._trig import wrap_angle_deg
 
     nominal = robot.dh_table_deg()
     cal = res.dh_table()
@@ -272,6 +272,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     from .._datasets._dataset import load_csv
     from .._fit._diagnostics import Checks
     from .._fit._objective import LOSSES, Prior
+    from .._sensors._contact import length_reference_note
 
     robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
     path = pathlib.Path(data_file)
@@ -329,8 +330,8 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         if "tool" not in estimate:
             estimate.add("tool")
             notes.append(f"{kind} data: the {kind}s and the tool point are estimated "
-                         "(closed-form start from the data, then the joint fit); contact data have no length "
-                         "reference, so the prior (or a --fix'ed length) sets the robot's scale")
+                         "(closed-form start from the data, then the joint fit); "
+                         + length_reference_note(kind, known_radius=sphere and not estimate_radius))
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
     if bad:
         raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")

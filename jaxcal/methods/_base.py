@@ -57,13 +57,21 @@ class ScaledProblem(eqx.Module):
     scale: Float[Array, " p"]
     objective: Objective | None = None
     start_jacobian: Float[Array, "N p"] | None = None
+    #: ``[p]`` 1 for a parameter that moves, 0 for one held at ``x_start`` (``None``: all move).
+    mask: Float[Array, " p"] | None = None
 
     @classmethod
     def build(cls, problem: Problem, x_start: Float[Array, " p"] | None = None,
-              objective: Objective | None = None, jacobian: Float[Array, "N p"] | None = None) -> ScaledProblem:
+              objective: Objective | None = None, jacobian: Float[Array, "N p"] | None = None,
+              mask: Float[Array, " p"] | None = None) -> ScaledProblem:
         """Scales from the Jacobian ``problem.jacobian(x_start)`` (``x_start`` default
         ``problem.x0()``), or from ``jacobian`` when the caller has computed it (it is then kept
-        as ``start_jacobian`` for the least-squares methods' first step)."""
+        as ``start_jacobian`` for the least-squares methods' first step).
+
+        ``mask`` ``[p]`` (0/1, run-time data): the free set inside ``problem.space``. A masked
+        parameter gets scale 0 (its column of ``∂r/∂z`` is zero, so no step moves it and ``x`` keeps
+        its start value) and no prior term, so one compiled program serves every free set of a
+        parameter space (:attr:`Method.maskable` methods; the others see ``mask=None``)."""
         if objective is not None and objective.plain_least_squares:
             objective = None
         x_start = problem.x0() if x_start is None else jnp.asarray(x_start, problem.dtype)
@@ -79,7 +87,20 @@ class ScaledProblem(eqx.Module):
         scale = jnp.where(norms > 0, root_n / jnp.where(norms > 0, norms, 1.0), 1.0)
         if objective is not None:
             objective = jax.tree.map(lambda a: jnp.asarray(a, problem.dtype), objective)
-        return cls(problem, x_start, scale, objective, None if jacobian is None else J)
+        if mask is not None:
+            mask = jnp.asarray(mask, problem.dtype)
+            scale = scale * mask
+            if objective is not None:
+                objective = eqx.tree_at(lambda o: o.prior_precision, objective, objective.prior_precision * mask)
+        return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask)
+
+    @property
+    def n_prior_residuals(self):
+        """Prior residuals that count (:meth:`prior_residual`): the free parameters with a prior
+        active, 0 without one (a traced count with a ``mask``)."""
+        if self.objective is None or not self.objective.has_prior:
+            return 0
+        return self.n_free if self.mask is None else jnp.sum(self.mask)
 
     @property
     def plain(self) -> bool:
@@ -283,6 +304,13 @@ class Method(eqx.Module):
 
     def label(self) -> str:
         return type(self).name
+
+    #: whether :func:`jaxcal.calibrate` may run the method on its parameter space with the free
+    #: set as a run-time mask (:meth:`ScaledProblem.build`): one compiled program for every free
+    #: set. True where a masked parameter provably never moves and the run equals the run on the
+    #: free parameters alone to round-off (LM: a zero column of the damped normal equations gives
+    #: a zero step); random search and decoupled weight decay would act on the masked coordinates.
+    maskable: ClassVar[bool] = False
 
     @property
     def paddable(self) -> bool:

@@ -152,10 +152,10 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     computed for every member).
     """
     pr = problem.problem
-    if pr.weight is not None and isinstance(solver.search, RoundoffAwareTrustRegion):
-        # the round-off threshold counts the real residuals (data + prior), not the padding
-        extra = problem.n_objective_residuals - pr.n_residuals
-        solver = eqx.tree_at(lambda s: s.search.n_residuals, solver, pr.n_real_residuals + extra,
+    if (pr.weight is not None or problem.mask is not None) and isinstance(solver.search, RoundoffAwareTrustRegion):
+        # the round-off threshold counts the real residuals (data + the free parameters' prior),
+        # not the padding nor the prior rows of masked parameters (zeros)
+        solver = eqx.tree_at(lambda s: s.search.n_residuals, solver, pr.n_real_residuals + problem.n_prior_residuals,
                              is_leaf=lambda v: v is None)
     search, descent = solver.search, solver.descent
     z0 = jnp.zeros(problem.n_free, problem.dtype)
@@ -286,6 +286,7 @@ class LevenbergMarquardt(_OptimistixMethod):
 
     name: ClassVar[str] = "lm"
     solver_cls: ClassVar[type] = optx.LevenbergMarquardt
+    maskable: ClassVar[bool] = True
 
 
 @register_method("gn")

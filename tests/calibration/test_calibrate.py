@@ -151,12 +151,12 @@ def test_lm_started_at_its_optimum_stops_at_once(experiment):
 
 def test_start_jacobian_from_identifiability_gives_the_same_fit(experiment):
     """calibrate() hands the identifiability program's Jacobian (cable data: it does not depend
-    on the readings) to the solve as its start Jacobian: the fit equals the one whose program
-    computes its own to round-off, and a Jacobian of the wrong shape is refused."""
+    on the readings) to an unmasked solve (GN here) as its start Jacobian: the fit equals the one
+    whose program computes its own to round-off, and a Jacobian of the wrong shape is refused."""
     ex = experiment
-    res = calibrate(ex.robot, ex.measurement, ex.train, "lm")
+    res = calibrate(ex.robot, ex.measurement, ex.train, "gn")
     q, y = jnp.asarray(ex.train.q), jnp.asarray(ex.train.y)
-    cal = Calibrator(ex.robot, ex.measurement, make_method("lm"), res.start, res.space)
+    cal = Calibrator(ex.robot, ex.measurement, make_method("gn"), res.start, res.space)
     own = jax.jit(lambda q, y: cal(q, y, None))(q, y)
     np.testing.assert_allclose(res.x, own.x, rtol=0, atol=1e-10)
     assert res.n_iterations == int(own.n_iterations)
@@ -176,6 +176,36 @@ def test_lm_qr_whole_solve_agrees(experiment):
     a = calibrate(ex.robot, ex.measurement, ex.train, "lm", linear_solver="qr")
     b = calibrate(ex.robot, ex.measurement, ex.train, "lm")
     np.testing.assert_allclose(a.train_metrics.rmse, b.train_metrics.rmse, rtol=1e-9)
+
+
+def test_free_set_is_data(experiment, monkeypatch):
+    """LM runs with the free set as a run-time mask over one program space: fits with different
+    free sets (identifiable subset, MAP over all candidates with a Huber loss, fix=, extras)
+    share one compiled solve, and each equals the solve compiled for its free set alone
+    (``JAXCAL_FREE_MASK=off``) to round-off: parameters, iterations, RMSE, σ̂ and posterior σ."""
+    from jaxcal._calibration import _calibrate as cal_mod
+
+    ex = experiment
+    data = ex.train.subset(np.arange(300))
+    settings = [dict(), dict(fix="d_4,a_2"), dict(objective="measured"), dict(objective="measured", fix="theta")]
+    before = set(cal_mod._COMPILED._d)
+    masked = [calibrate(ex.robot, ex.measurement, data, "lm", **kw) for kw in settings]
+    new = [k for k in cal_mod._COMPILED._d if k not in before]
+    assert len(new) <= 2, len(new)  # one program per objective kind (plain; prior + Huber), not per free set
+    assert masked[0].space.n_free != masked[1].space.n_free != masked[2].space.n_free
+    monkeypatch.setenv("JAXCAL_FREE_MASK", "off")
+    for kw, m in zip(settings, masked):
+        ref = calibrate(ex.robot, ex.measurement, data, "lm", **kw)
+        assert ref.space.free_names == m.space.free_names
+        np.testing.assert_allclose(m.x, ref.x, rtol=0, atol=1e-9 * max(1.0, np.abs(ref.x).max()))
+        assert m.n_iterations == ref.n_iterations and m.status == ref.status
+        np.testing.assert_allclose(m.train_metrics.rmse, ref.train_metrics.rmse, rtol=1e-10)
+        np.testing.assert_allclose(m.uncertainty.noise_std, ref.uncertainty.noise_std, rtol=1e-9)
+        np.testing.assert_allclose(m.uncertainty.std, ref.uncertainty.std, rtol=1e-7)
+    # only maskable methods take a mask
+    with pytest.raises(ValueError, match="cannot run with a free-parameter mask"):
+        Calibrator(ex.robot, ex.measurement, make_method("gn"), masked[0].start, masked[0].space,
+                   free=jnp.ones(masked[0].space.n_free))
 
 
 @pytest.mark.parametrize("name", GRADIENT_METHODS)
