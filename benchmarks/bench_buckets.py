@@ -13,7 +13,8 @@ resident memory (RSS) before the first and after the last call. ``--no-buckets``
 in fresh processes and writes ``benchmarks/results/buckets_cpu.md``.
 
 Run: ``python benchmarks/bench_buckets.py --both`` (a few minutes on 2 busy cores; the
-no-bucket run uses ``--calls-off`` counts, default 12, because each one compiles).
+no-bucket run uses ``--calls-off`` counts, default 10, because each one compiles). A learning
+curve as a notebook runs it: ``--both --calls 31 --calls-off 31 --min 200 --max 2000 --order ascending``.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 
@@ -46,12 +48,14 @@ def count_compilations() -> collections.Counter:
     return events
 
 
-def sample_counts(calls: int, lo: int, hi: int, seed: int = 0):
-    """``calls`` different sample counts spread evenly over ``lo..hi``, in a random order."""
+def sample_counts(calls: int, lo: int, hi: int, seed: int = 0, order: str = "random"):
+    """``calls`` different sample counts spread evenly over ``lo..hi``, in a random order (or
+    ``order="ascending"``: a learning curve as a notebook runs it)."""
     import numpy as np
 
     counts = np.unique(np.linspace(lo, hi, calls).round().astype(int))
-    np.random.default_rng(seed).shuffle(counts)
+    if order == "random":
+        np.random.default_rng(seed).shuffle(counts)
     return [int(n) for n in counts]
 
 
@@ -94,7 +98,7 @@ def run_counts(call, counts, events, warm_repeats: int = 5) -> dict:
                 load=os.getloadavg(), compiles_after=events["n"])
 
 
-def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
+def run(calls: int, lo: int, hi: int, seed: int = 0, order: str = "random") -> dict:
     """``jaxcal.calibrate(..., "lm")`` on ``calls`` sample counts (issue 25's first acceptance row)."""
     import jax
     import numpy as np
@@ -111,7 +115,7 @@ def run(calls: int, lo: int, hi: int, seed: int = 0) -> dict:
         res = jaxcal.calibrate(robot, meas, (qn[:n], yn[:n]), "lm")
         return dict(rmse=res.train_metrics.rmse, status=int(res.status))
 
-    return run_counts(call, sample_counts(calls, lo, hi, seed), events)
+    return run_counts(call, sample_counts(calls, lo, hi, seed, order), events)
 
 
 def run_sweep(calls: int, lo: int, hi: int, n_seeds: int, seed: int = 0) -> dict:
@@ -152,7 +156,8 @@ def summarise(out: dict, what: str = "calls") -> list[str]:
                      f"{rs[0]['s']:.2f} | {1e3 * med:.1f} | {1e3 * w:.1f} | {med / w:.2f} |")
     total = sum(r["compiles"] for r in rows)
     lines += ["",
-              f"{len(rows)} {what} on {len(rows)} sample counts, {len(by)} buckets: {total} XLA compilations "
+              f"{len(rows)} {what} on {len(rows)} sample counts, {len(by)} buckets; "
+              f"{sum(1 for r in rows if r['compiles'])} of the calls compiled anything: {total} XLA compilations "
               f"({sum(r['compile_s'] for r in rows):.1f} s of compiling); {out['compiles_after'] - total} more in the "
               f"warm repeats; resident memory {out['rss_start']:.0f} MB before the first call, {out['rss0']:.0f} MB after it, {out['rss1']:.0f} MB after "
               f"the last (+{out['rss1'] - out['rss0']:.0f} MB); load average {out['load'][0]:.2f} at the end."]
@@ -166,6 +171,8 @@ def main() -> None:
     ap.add_argument("--min", type=int, default=200)
     ap.add_argument("--max", type=int, default=5000)
     ap.add_argument("--no-buckets", action="store_true")
+    ap.add_argument("--order", choices=("random", "ascending"), default="random",
+                    help="order of the sample counts (ascending: a learning curve)")
     ap.add_argument("--json", help="write the raw numbers here")
     ap.add_argument("--both", action="store_true", help="with and without buckets, fresh processes; writes the md")
     ap.add_argument("--sweep", type=int, metavar="K", default=0,
@@ -195,17 +202,20 @@ def main() -> None:
         for name, calls, env in (("buckets", args.calls, {}), ("off", args.calls_off, {"JAXCAL_BUCKETS": "off"})):
             path = HERE / "results" / f".buckets_{name}.json"
             cmd = [sys.executable, __file__, "--calls", str(calls), "--min", str(args.min), "--max", str(args.max),
-                   "--json", str(path)]
+                   "--order", args.order, "--json", str(path)]
             load0 = os.getloadavg()
-            subprocess.run(cmd, check=True, env={**os.environ, **env})
+            with tempfile.TemporaryDirectory() as cache:  # cold: nothing loaded from an earlier run
+                subprocess.run(cmd, check=True, env={**os.environ, "JAXCAL_CACHE_DIR": cache, **env})
             res[name] = json.loads(path.read_text())
             res[name]["load0"] = load0
             path.unlink()
         md = ["# Shape buckets: many sample counts in one session (issue 25)", "",
-              f"Machine: {machine()}. `python benchmarks/bench_buckets.py --both` "
-              f"(`calibrate(..., 'lm')`, default experiment robot, counts {args.min}..{args.max} in random order; "
-              "every XLA compilation of the process counted).", "",
-              f"## With shape buckets (`JAXCAL_BUCKETS=on`; off by default; load average {res['buckets']['load0'][0]:.2f} at the start)", ""]
+              f"Machine: {machine()}. `python benchmarks/bench_buckets.py --both --calls {args.calls} "
+              f"--calls-off {args.calls_off} --min {args.min} --max {args.max} --order {args.order}` "
+              f"(`calibrate(..., 'lm')` with its defaults, default experiment robot, counts {args.min}..{args.max} in "
+              f"{args.order} order; every XLA compilation of the process counted, each process with an empty "
+              "persistent compilation cache).", "",
+              f"## Defaults (shape buckets on; load average {res['buckets']['load0'][0]:.2f} at the start)", ""]
         md += summarise(res["buckets"])
         md += ["", f"## `JAXCAL_BUCKETS=off` (one program per sample count, as before; load average "
                f"{res['off']['load0'][0]:.2f} at the start)", ""]
@@ -215,7 +225,7 @@ def main() -> None:
         return
     if args.no_buckets:
         os.environ["JAXCAL_BUCKETS"] = "off"
-    out = run(args.calls, args.min, args.max)
+    out = run(args.calls, args.min, args.max, order=args.order)
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps(out))
     print("\n".join(summarise(out)))

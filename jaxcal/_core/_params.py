@@ -411,7 +411,10 @@ class Deviations(eqx.Module):
 
 @functools.lru_cache(maxsize=64)
 def _zeros(cls, layout: Layout, dtype: np.dtype) -> Deviations:
-    return cls({}, layout, dtype=dtype)
+    # concrete arrays even when first asked for inside a jit trace: a traced value kept in this
+    # cache would leak into every later use (UnexpectedTracerError)
+    with jax.ensure_compile_time_eval():
+        return cls({}, layout, dtype=dtype)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

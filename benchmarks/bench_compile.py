@@ -1,0 +1,125 @@
+"""What a command-line user waits for: XLA programs and wall time of `jaxcal calibrate`, then
+`jaxcal evaluate` and `jaxcal report` on the same set-up, with an empty and with a warm
+persistent compilation cache (issue 33).
+
+The set-up is the issue's: a 1 500-row laser-tracker file (`jaxcal simulate --measurement position
+--samples 1500`), calibrated with `--measurement position --estimate base,tool` (the measured-data
+defaults: prior + Huber), evaluated on a second file of the same robot (another seed), reported as
+HTML. Each command runs in a fresh process with ``JAX_LOG_COMPILES=1``; the script counts the
+programs XLA compiled ("Finished XLA compilation of …") and those loaded from the cache ("cache
+hit"), sums their compile seconds and lists the slowest programs. ``--source DIR`` runs another
+checkout of jaxcal (``PYTHONPATH``), e.g. an older commit in a ``git worktree``, for the before
+column. Writes ``benchmarks/results/compile_cpu.md`` (``--out``) with the load average.
+
+Run: ``python benchmarks/bench_compile.py [--source /tmp/old --label before]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import pathlib
+import re
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = pathlib.Path(__file__).resolve().parent
+_DONE = re.compile(r"Finished XLA compilation of (\S+) in ([0-9.]+) sec")
+
+
+def run_cli(args: list[str], env: dict, cwd: str) -> dict:
+    """One ``jaxcal`` command in a fresh process: wall time, exit code, compiled programs."""
+    t = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "jaxcal.cli", *args], env=env, cwd=cwd, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    done = [(m.group(1), float(m.group(2))) for m in _DONE.finditer(p.stderr)]
+    hits = p.stderr.count("Persistent compilation cache hit")
+    slow = collections.Counter()
+    for name, s in done:
+        slow[name] += s
+    return dict(cmd=" ".join(["jaxcal", *args]), rc=p.returncode, wall=wall, programs=len(done),
+                compile_s=sum(s for _, s in done), hits=hits, slowest=slow.most_common(4),
+                err=p.stderr[-800:] if p.returncode not in (0, 1) else "")
+
+
+def round_trip(source: str | None, rows: int) -> dict:
+    """Empty cache: simulate (untimed), calibrate, evaluate, report; then calibrate again (warm)."""
+    with tempfile.TemporaryDirectory() as work:
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "JAXCAL_"))}
+        env.update(JAX_PLATFORMS="cpu", JAXCAL_CACHE_DIR=str(pathlib.Path(work) / "cache"))
+        if source:
+            env["PYTHONPATH"] = source + os.pathsep + env.get("PYTHONPATH", "")
+        for seed, name in ((3, "track.csv"), (4, "track2.csv")):
+            subprocess.run([sys.executable, "-m", "jaxcal.cli", "simulate", "--out", name, "--samples", str(rows),
+                            "--measurement", "position", "--seed", str(seed)], env=env, cwd=work, check=True,
+                           capture_output=True)
+        shutil_rm(pathlib.Path(work) / "cache")  # the simulation's programs do not count
+        env["JAX_LOG_COMPILES"] = "1"
+        cal = ["calibrate", "track.csv", "--robot", "hsr_jr680", "--measurement", "position", "--estimate",
+               "base,tool", "--out", "res.json"]
+        out = {"calibrate (empty cache)": run_cli(cal, env, work),
+               "evaluate (right after)": run_cli(["evaluate", "res.json", "track2.csv"], env, work),
+               "report (right after)": run_cli(["report", "res.json", "--out", "r.html"], env, work),
+               "calibrate (warm cache)": run_cli(cal, env, work),
+               "evaluate (warm cache)": run_cli(["evaluate", "res.json", "track2.csv"], env, work)}
+    return out
+
+
+def shutil_rm(path: pathlib.Path) -> None:
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def table(res: dict, label: str) -> list[str]:
+    lines = [f"### {label}", "", "| command | exit | wall (s) | programs compiled | compile (s) | loaded from cache | "
+             "slowest programs (s) |", "|---|---|---|---|---|---|---|"]
+    for what, r in res.items():
+        slow = ", ".join(f"`{n}` {s:.1f}" for n, s in r["slowest"])
+        lines.append(f"| {what} | {r['rc']} | {r['wall']:.1f} | {r['programs']} | {r['compile_s']:.1f} | {r['hits']} | "
+                     f"{slow} |")
+    return lines
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--source", action="append", default=[],
+                    help="a jaxcal checkout to run instead of the installed one (repeatable, with --label)")
+    ap.add_argument("--label", action="append", default=[])
+    ap.add_argument("--rows", type=int, default=1500)
+    ap.add_argument("--out", default=str(HERE / "results" / "compile_cpu.md"))
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    sources = args.source or [None]
+    labels = args.label or ["this checkout"] * len(sources)
+    sys.path.insert(0, str(HERE))
+    from _common import machine
+
+    md = ["# What a command-line user waits for: XLA programs per command (issue 33)", "",
+          f"Machine: {machine()}. `python benchmarks/bench_compile.py` (a {args.rows}-row simulated tracker "
+          "file, `jaxcal calibrate --measurement position --estimate base,tool` with the measured-data defaults, "
+          "then `evaluate` on a second file of the same robot and `report`; each command a fresh process with "
+          "`JAX_LOG_COMPILES=1`; the cache starts empty).", ""]
+    raw = {}
+    for src, label in zip(sources, labels):
+        load = os.getloadavg()[0]
+        res = round_trip(src, args.rows)
+        raw[label] = res
+        md += table(res, f"{label} (load average {load:.2f} at the start, {os.getloadavg()[0]:.2f} at the end)")
+        md.append("")
+        for r in res.values():
+            if r["err"]:
+                md += ["```", r["err"], "```"]
+    text = "\n".join(md) + "\n"
+    pathlib.Path(args.out).write_text(text)
+    if args.json:
+        pathlib.Path(args.json).write_text(json.dumps(raw, indent=1))
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
