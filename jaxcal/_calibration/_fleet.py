@@ -48,7 +48,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._core._buckets import BoundedCache, bucket_size, cache_size, release_memory
+from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory
 from .._core._metrics import format_table, statistical_floor
 from .._core._precision import cast_floating, dtype_scope
 from .._core._xla import compile_lowered
@@ -313,7 +313,10 @@ def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
     """The pending requests ``{unit: (cal, q, y, key)}`` grouped into :class:`_Batch` es: padded
     to one row count (the bucket of the largest unit; methods that cannot pad keep theirs), then
     grouped by static part and leaf shapes."""
-    n_to = bucket_size(max(_n_rows(r[1]) for r in pending.values()), minimum=256)
+    # the process's bucket rule (a later round of fewer units reuses the bucket of the first);
+    # with buckets off still one padded size per batch (the fine grid)
+    n_rows = max(_n_rows(r[1]) for r in pending.values())
+    n_to = bucket_size(n_rows) if buckets_enabled() else bucket_size(n_rows, minimum=256)
     groups: dict = {}
     for i, (cal, q, y, key) in pending.items():
         with dtype_scope(q.dtype):
@@ -332,7 +335,7 @@ def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
 
 #: the :class:`~jaxcal.Calibrator` fields that belong to one unit (always batched, even where two
 #: units hold the same object, so that a batch of one unit runs the same program)
-_UNIT_FIELDS = ("start", "objective", "start_jacobian")
+_UNIT_FIELDS = ("start", "objective", "start_jacobian", "free")
 
 
 def _own(path) -> bool:

@@ -322,7 +322,7 @@ def buckets_reset():
     from jaxcal._core import _buckets
 
     yield _buckets
-    _buckets._SETTING.pop("value", None)
+    _buckets.set_buckets(None)
 
 
 def test_bucketed_sweep_equals_unbucketed_and_compiles_once_per_bucket(buckets_reset):
@@ -342,17 +342,21 @@ def test_bucketed_sweep_equals_unbucketed_and_compiles_once_per_bucket(buckets_r
     res = {}
     jax.monitoring.register_event_duration_secs_listener(listener)
     try:
-        for on, n in ((64, 100), (64, 118), (False, 118)):  # bucket 128 for both counts
-            buckets_reset.set_buckets(on)
+        setting = None
+        # 100 makes the bucket (104: the fine grid above 64), 97 reuses it
+        for on, n in ((64, 100), (64, 97), (False, 97)):
+            if on != setting:
+                buckets_reset.set_buckets(on)
+                setting = on
             before = events["n"]
             res[on, n] = sweep(["lm", "adamodw"], 2, **(kw | {"n_samples": n}))
-            if on and n == 118:
+            if on and n == 97:
                 assert events["n"] == before, "a sample count of a known bucket compiled something"
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
     assert res[64, 100].settings["n_train"] == 80 and res[64, 100]["lm"].test_errors.shape == (2, 20)
-    a, b = res[False, 118], res[64, 118]
-    assert a.settings["source"]["bucket"] is None and b.settings["source"]["bucket"] == 128
+    a, b = res[False, 97], res[64, 97]
+    assert a.settings["source"]["bucket"] is None and b.settings["source"]["bucket"] == 104
     assert (b.settings["n_train"], b.settings["n_test"]) == (a.settings["n_train"], a.settings["n_test"])
     assert b.space.free_names == a.space.free_names and b.floor == a.floor
     for f in ("before", "oracle"):
