@@ -375,6 +375,20 @@ def _program_space(robot, measurement, cand: ParameterSpace, space: ParameterSpa
     return ParameterSpace.from_names(space.layout, [n for n in space.layout.names if n in keep])
 
 
+def _solve_space(robot, measurement, cand: ParameterSpace, space: ParameterSpace, masked: bool, dtype):
+    """``(program space, columns, mask)`` of a solve of the free ``space``: with ``masked``, the
+    :func:`_program_space`, the free parameters' columns in it and the run-time 0/1 mask; else
+    ``(space, None, None)``."""
+    if not masked:
+        return space, None, None
+    prog = _program_space(robot, measurement, cand, space)
+    free = set(space.free_names)
+    columns = np.asarray([i for i, n in enumerate(prog.free_names) if n in free])
+    mask = np.zeros(prog.n_free)
+    mask[columns] = 1.0
+    return prog, columns, to_device(mask, dtype)
+
+
 def _mask_output(out: CalibrationOutput, columns: np.ndarray) -> CalibrationOutput:
     """A masked solve's output on its free parameters alone (``columns`` of the program space):
     ``x`` and the Jacobian products of ``gram`` restricted to them, as an unmasked solve gives."""
@@ -654,6 +668,7 @@ def _calibration_steps(
     before_rows = cov = None
     while True:  # re-selection: identifiability judged again at the solution (below)
         first = rounds
+        prog, columns, mask = _solve_space(robot, measurement, cand, space, masked, q.dtype)
         while True:  # rounds of re-estimated scales
             if plain:
                 new_noise = new_scale = None
@@ -667,13 +682,6 @@ def _calibration_steps(
                                    or rounds - first >= 4):
                 break
             noise, scale = new_noise, new_scale
-            if masked:  # the program space with the free set as a mask (one program for every free set)
-                prog = _program_space(robot, measurement, cand, space)
-                free_set = set(space.free_names)
-                columns = np.asarray([i for i, n in enumerate(prog.free_names) if n in free_set])
-                mask = to_device(np.isin(np.arange(prog.n_free), columns).astype(np.float64), q.dtype)
-            else:
-                prog, columns, mask = space, None, None
             objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype)
             cal = Calibrator(robot, measurement, meth, cur, prog,
                              None if objective is None or objective.plain_least_squares else objective, report=True,
@@ -687,7 +695,7 @@ def _calibration_steps(
                 before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
                 cov = coverage(robot, q)
             out, r_s = launched.wait()
-            if masked:
+            if columns is not None:
                 out = _mask_output(out, columns)
             compile_s, run_s, rounds = compile_s + c_s, run_s + r_s, rounds + 1
             cur = out.deviations  # space.from_vector(out.x, cur), made in the compiled program
