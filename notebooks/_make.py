@@ -475,7 +475,7 @@ def real_data():
 # 05 · Real, messy data: initialise, diagnose, regularise, validate by region, read the σ
 
 Simulated data that matches the model is easy: every method reaches the statistical floor. Real
-draw-wire sessions are not like that (DESIGN.md §7): the anchor is guessed hundreds of mm off,
+draw-wire sessions are not like that: the anchor is guessed hundreds of mm off,
 the wrist joints move only 10–20°, joint readings are quantised, joints bend under gravity, and
 a wire slips now and then. `jaxcal.simulate_messy` simulates exactly that, from a seed, so we can
 check every step against the truth.

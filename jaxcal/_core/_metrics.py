@@ -82,7 +82,7 @@ class Floor(NamedTuple):
 
 
 def statistical_floor(noise_std: float, n_params: int, n_train: int, size: int = 1) -> Floor:
-    """The statistical floor for RMSE (DESIGN.md §3).
+    """The statistical floor for RMSE.
 
     With ``N = n_train·size`` residuals, ``p`` identifiable parameters and i.i.d. Gaussian
     noise σ per residual entry, least squares leaves an expected mean square residual of

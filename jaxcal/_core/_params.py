@@ -1,5 +1,5 @@
 """Calibration parameters: deviations Δ from the nominal model as named groups, a free mask,
-flattening (DESIGN.md §8).
+flattening.
 
 Every calibratable quantity belongs to a :class:`Group` (DH errors, per-joint geometric errors
 of a generic chain, sensor extras, base/tool frames, non-geometric errors...). A

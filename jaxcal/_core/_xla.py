@@ -4,8 +4,8 @@ On a GPU, XLA autotunes the kernels of every fusion it compiles. For jaxcal's pr
 ``while_loop``/``scan`` bodies of small reductions over the samples) that step dominates: on an
 H100 (JAX 0.11.2) the vmapped chunk of 1 000 LM trials compiled in more than 2 minutes with the
 default flags, almost all of it autotuning reduction fusions ("Compiling module
-input_reduce_fusion… very slow compile"), and in 4.3 s with ``--xla_gpu_autotune_level=0``
-(DESIGN.md §6). So jaxcal compiles its own programs on GPUs with ``xla_gpu_autotune_level=0``.
+input_reduce_fusion… very slow compile"), and in 4.3 s with ``--xla_gpu_autotune_level=0``.
+So jaxcal compiles its own programs on GPUs with ``xla_gpu_autotune_level=0``.
 The option is passed per compilation (``jax.stages.Lowered.compile(compiler_options)``), not
 through the process-wide ``XLA_FLAGS``, so the user's other JAX programs are untouched.
 

@@ -15,7 +15,7 @@ residual row (mm per rad or mm per mm) so that angle and length columns compare.
 (mm) and Gaussian priors of σ_j (:class:`jaxcal.Prior`; none by default, as in
 :func:`jaxcal.calibrate`), the information matrix in scaled units is
 ``M = J_sᵀJ_s + Λ``, ``Λ = diag(σ²/(s_j σ_j)²)``, and the covariance of the estimate is
-``Σ = σ²·(JᵀJ + σ²·diag(1/σ_j²))⁻¹`` (Cramér–Rao; DESIGN.md §3).
+``Σ = σ²·(JᵀJ + σ²·diag(1/σ_j²))⁻¹`` (Cramér–Rao).
 """
 
 from __future__ import annotations

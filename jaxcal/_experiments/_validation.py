@@ -2,7 +2,7 @@
 
 A random train/test split only asks how well a calibration interpolates between measured poses.
 Real calibrations are used where nobody measured, so jaxcal also validates by **workspace
-region** (DESIGN.md §7): train on the poses with joint ``j`` below its median, test on those
+region**: train on the poses with joint ``j`` below its median, test on those
 above (and the reverse), for joints 1–3. Unregularised fits on narrow data win the random folds
 by a hair and lose the region folds clearly; :func:`cross_validate_prior` measures that
 trade-off for a range of prior strengths and picks the strength with the lowest mean held-out

@@ -1,7 +1,7 @@
 """What a calibration minimises beyond plain least squares: Gaussian priors (MAP) and robust losses.
 
 Plain calibration minimises ``Σ r²`` over the residuals ``r`` (mm). On real data two additions
-matter (DESIGN.md §7):
+matter:
 
 * **Priors toward the nominal robot** (maximum a posteriori). With measurement noise σ (mm) and
   independent Gaussian priors ``Δ_j ~ N(m_j, s_j²)`` the negative log posterior is, up to a

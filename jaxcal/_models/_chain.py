@@ -32,7 +32,7 @@ The tip errors ``tip_dx, tip_dy, tip_dz`` (mm, in the last joint frame) and ``ti
 tip_drz`` (rad, about the tip link frame's axes) are the same 6-parameter error of the last
 link's fixed transform (where a DH robot's ``a_n, α_n`` and the flange's ``d`` live): without
 them nothing after the last joint's motion can be corrected, and a mechanical flange is as
-imprecise as the other links (DESIGN.md §10: a URDF robot ended 24 % above the statistical
+imprecise as the other links (a URDF robot ended 24 % above the statistical
 floor on tool-point data without them). All six are free by default; which of them the data
 can see is left to the identifiability QR: ``tip_dz`` always acts like a translation of the last
 joint along its axis, and on the positions of one tool point the tip rotation acts like a tip
@@ -48,7 +48,7 @@ intersecting or skew axes need no Hayati special case) and every parameter names
 physical correction of one URDF ``<origin>``.
 
 The kernel works on a point in structure-of-arrays form (three ``[n]`` arrays) from the tip
-inward, like the DH kernel (DESIGN.md §2): per joint one plane rotation by ``q`` and three
+inward, like the DH kernel: per joint one plane rotation by ``q`` and three
 additions. Nominal FK (no deviations) applies the constant ``R_o`` with its exact zeros and ones
 skipped statically (URDF origins are mostly signed permutations). With deviations, the per-joint
 constant ``R_o·Rx(drx)·Ry(dry)`` is formed as a ``[3, 3]`` matrix and applied as one matrix

@@ -2,7 +2,7 @@
 
 Each rotation column and the position are kept as separate ``[n]`` arrays and updated joint by
 joint with closed-form products by elementary rotations, instead of multiplying ``[n, 4, 4]``
-matrices per sample. On CPU this is ~15x faster for residuals and Jacobians (DESIGN.md §2) and
+matrices per sample. On CPU this is ~15x faster for residuals and Jacobians and
 it makes ``jax.jacfwd`` Jacobians w.r.t. the calibration parameters cheap.
 
 Positions (``fk_position``, the draw-wire and position measurement models) need no frame: the

@@ -1,6 +1,6 @@
 """Non-geometric errors: joint compliance under gravity and harmonic transmission errors.
 
-Both are **joint-space** corrections (DESIGN.md §8): the kinematics kernels use
+Both are **joint-space** corrections: the kinematics kernels use
 ``q_eff = q + Δq(q)`` (:func:`jaxcal._models._kinematics.effective_joint_angles`), where ``q`` is the
 commanded joint position ``[n, dof]`` (rad) and every correction is a function of the commanded
 ``q`` (not of each other). Each model is a calibratable group of kind ``"nongeometric"``:

@@ -5,7 +5,7 @@ Parser choice: the standard library's ``xml.etree.ElementTree``. A serial-chain 
 mimic) only — about a hundred lines. The pure-Python parsers available were heavier than that:
 ``yourdfpy`` pulls ``trimesh`` and ``lxml`` (meshes we never use), ``urchin``/``urdfpy`` add
 ``networkx``, ``pycollada`` and ``trimesh``, and ``urdf_parser_py`` is a ROS package that is not
-maintained on PyPI for current Pythons. jaxcal keeps its dependencies lean (DESIGN.md §9), so a
+maintained on PyPI for current Pythons. jaxcal keeps its dependencies lean, so a
 stdlib loader it is. ``xacro`` files must be expanded first (``xacro robot.urdf.xacro > robot.urdf``).
 
 Units: URDF lengths are metres; jaxcal works in mm. The loader multiplies every length (joint

@@ -3,7 +3,7 @@
 Real setups do not know where the draw-wire leaves its housing (the anchor), the cable's zero
 offset, where a laser tracker stands relative to the robot base, nor exactly where the wire or
 the target is attached to the flange (the tool point); a first guess can be 500 mm off, and local
-solvers started there land in nonsense (DESIGN.md §7, §10). With the nominal robot (plus the DH
+solvers started there land in nonsense. With the nominal robot (plus the DH
 part of ``start``) the flange frames ``(P_i, F_i)`` (origin ``[3]`` mm, rotation ``[3, 3]``) are
 known to a few mm, so the sensor unknowns follow in closed form. ``t`` is the tool point in the
 flange frame (nominal + ``tool`` deviation, mm) and ``p_i = P_i + F_i t`` the tool points:

@@ -2,12 +2,12 @@
 
 :func:`simulate_experiment` reproduces the paper's idealised experiment: the anchor is known,
 joints sweep their whole range, readings are exact apart from Gaussian noise, and the model
-holds the truth. Real data (DESIGN.md §7) is different, and every difference is a feature the
+holds the truth. Real data is different, and every difference is a feature the
 library must handle; this module simulates each of them from one ``jax.random`` key, so those
 features can be tested without real data:
 
 =====================================  ===========================================================
-mess                                   what it imitates (DESIGN.md §3, §7)
+mess                                   what it imitates
 =====================================  ===========================================================
 narrow joint coverage                  a real session visits a small part of the workspace
                                        (wrist joints moving 10–20°): ``joint_ranges_deg``
@@ -33,7 +33,7 @@ quantum. So with the compliance, gear error, quantisation, noise and outliers sw
 the true deviations reproduce the readings to round-off (tested).
 
 :func:`region_split` / :func:`region_folds` split a data set by a joint's reading, for
-"train on one half of the workspace, test on the other" validation (DESIGN.md §7: validate by
+"train on one half of the workspace, test on the other" validation (validate by
 workspace region, not only by a random split).
 """
 
@@ -69,7 +69,7 @@ __all__ = [
 ]
 
 #: half-width (deg) of the default visited range of joints 1..6, centred in the joint limits:
-#: a draw-wire session of DESIGN.md §7 (wrist joints moving 16°). Joints beyond the 6th: 45°.
+#: a real draw-wire session (wrist joints moving 16°). Joints beyond the 6th: 45°.
 DEFAULT_HALF_RANGE_DEG = (45.0, 30.0, 30.0, 8.0, 8.0, 45.0)
 #: point-mass gravity model (see :func:`gravity_torques`): kg per metre of link length …
 LINK_MASS_KG_PER_M = 20.0
@@ -676,7 +676,7 @@ def region_split(data: Dataset, joint: int, *, at: float | None = None) -> tuple
         joint: 1-based joint number.
         at: threshold (rad); default the median of that joint's readings.
 
-    For "train on one half of the workspace, test on the other" validation (DESIGN.md §7):
+    For "train on one half of the workspace, test on the other" validation:
     a random split tests interpolation, a region split tests extrapolation.
 
     Raises:

@@ -21,7 +21,7 @@ batched forward-kinematics call (``ScaledProblem.rmse_batch``); the generations 
 
 Written in JAX rather than on ``evosax.algorithms.SimpleGA``: SimpleGA has no tournament/SBX/
 polynomial-mutation operators and barely converges with its default mutation std
-(DESIGN.md §5), and a plain JAX loop is exact, vmappable and adds no dependency.
+, and a plain JAX loop is exact, vmappable and adds no dependency.
 """
 
 from __future__ import annotations

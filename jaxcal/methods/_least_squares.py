@@ -8,7 +8,7 @@ lineax materialisation and the transposes in the normal equations are matrix pro
 of passes through the linearised kinematics — which XLA:CPU evaluated ~3x slower than the
 Jacobian itself (the LM solve of the default experiment: 11.3 ms → 4.6 ms, 2-core CPU; the
 iterates are the same to round-off). The damped system is solved through its small ``p×p`` normal
-equations, ``lineax.Normal(lineax.Cholesky())`` (DESIGN.md §2), in the column-scaled coordinates
+equations, ``lineax.Normal(lineax.Cholesky())``, in the column-scaled coordinates
 of :class:`ScaledProblem` (which keep them well conditioned on an identifiable parameter set).
 ``linear_solver="qr"`` selects optimistix's default QR instead. LM's trust region is
 optimistix's ``ClassicalTrustRegion`` plus one rule (:class:`RoundoffAwareTrustRegion`): a step

@@ -1,4 +1,4 @@
-"""Calibration parameters as named groups (DESIGN.md §8): layouts, deviations, spaces, and a new
+"""Calibration parameters as named groups: layouts, deviations, spaces, and a new
 error model added as a group without touching the solver, identifiability or report layers."""
 
 from __future__ import annotations
