@@ -153,7 +153,11 @@ def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutpu
 
 
 def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot, stacklevel: int = 3):
-    if isinstance(data, Dataset):
+    if measurement.kind == "blocks" and isinstance(data, (tuple, list)) and len(data) == 2:
+        # stacked blocks (jaxcal._sensors._blocks.combine validated each block's data): checked below
+        q = to_device(data[0])
+        y = to_device(data[1], q.dtype)
+    elif isinstance(data, Dataset):
         if data.kind != measurement.kind:
             raise ValueError(f"data are {data.kind!r} measurements but the measurement model is {measurement.kind!r}")
         q, y = data.q, data.y
@@ -198,6 +202,9 @@ def extras_flags(extras, measurement: MeasurementModel) -> dict[str, bool]:
         if key not in EXTRAS:
             raise ValueError(f"unknown extra {e!r}; choose from anchor, cable_offset (offset), tool, base")
         flag = EXTRAS[key]
+        if measurement.kind == "blocks":  # several sensors: each block checked its own (jaxcal.Block)
+            flags[flag] = True
+            continue
         if flag == "base" and hasattr(measurement, "frame_index"):
             continue  # SessionMarkers: every session frame is already free (base_rotation@F, ...)
         if flag in ("anchor", "cable_offset") and measurement.kind != "cable":
@@ -269,7 +276,9 @@ def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> Paramet
     if free is not None:  # free replaces the robot part; the requested extras stay
         chosen = _selection(free, layout) | {n for n in chosen if group_kind(n) == "extra"}
     chosen -= _selection(fix, layout)
-    wrong = sorted(n for n in chosen if group_of(n) in ("anchor", "cable_offset") and measurement.kind != "cable")
+    blocks = measurement.kind == "blocks"  # several sensors: each block checked its own extras
+    wrong = sorted(n for n in chosen if group_of(n) in ("anchor", "cable_offset") and measurement.kind != "cable"
+                   and not blocks)
     wrong += sorted(n for n in chosen if group_of(n).startswith("base") and measurement.kind == "cable")
     if wrong:
         raise ValueError(f"{', '.join(wrong)} do not apply to {measurement.kind} data")

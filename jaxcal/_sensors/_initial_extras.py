@@ -37,7 +37,8 @@ __all__ = ["INITIALISABLE", "initial_extras"]
 #: extras :func:`initial_extras` can start from data, per measurement kind.
 INITIALISABLE = {"cable": ("anchor", "cable_offset", "tool"), "position": ("base", "tool"), "pose": ("base", "tool"),
                  "markers": ("base", "markers"), "camera": ("handeye", "target"), "plane": ("plane", "tool"),
-                 "point": ("point", "tool"), "distance": ()}
+                 "point": ("point", "tool"), "distance": (),
+                 "blocks": (), "relations": ()}  # combined blocks: each block's own start (calibrate_blocks)
 
 
 def _pose_start(P, F, Ym, R0, b0, t0, est_base: bool, est_tool: bool, prior_std: float = TOOL_PRIOR_STD_MM):

@@ -1,0 +1,264 @@
+"""One fit over several data blocks: :func:`calibrate_blocks` (issue 34).
+
+The blocks (:class:`jaxcal.Block`: a measurement model, its data and its noise σ) and the known
+relations between their extras are one :class:`~jaxcal._sensors._blocks.Combined` measurement,
+whose residual is each block's residual over its σ_b; :func:`jaxcal.calibrate` fits it. A σ_b
+not given is estimated by **variance components** (Förstner 1979; Koch 1999, §3.6): after a fit
+with the current σ, each block's σ̂_b² = RSS_b / r_b, with ``RSS_b`` the block's residual sum of
+squares (its unit) and ``r_b = Σ_{i∈b} (1 − h_ii)`` its redundancy, ``h_ii`` the diagonal of the
+whitened hat matrix ``J (JᵀJ + Λ)⁻¹ Jᵀ`` (``Λ`` the prior's precision in whitened units); then
+the fit is repeated with the new σ until no σ moves by more than ``sigma_rtol``. The redundancies
+sum to ``N − p`` (the residual count less the parameters the data determine), so each block gets
+its share of the degrees of freedom the fit used, and σ̂_b is unbiased for a linear model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._core._params import STANDARD_EXTRAS, Deviations, layout_for
+from .._core._precision import to_device
+from .._datasets._dataset import Dataset, mm_joints_metadata
+from .._fit._problem import Problem
+from .._sensors._blocks import Block, Combined, Relations, combine
+from .._sensors._initial_extras import INITIALISABLE, initial_extras
+
+__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor"]
+
+#: a block's ``extras=`` names → the standard groups they free
+_EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
+                 "cable_offset": ("cable_offset",), "offset": ("cable_offset",)}
+#: a measurement's own groups that :func:`initial_extras` starts (free by default, as alone)
+_OWN_INIT = ("plane", "point", "markers", "handeye", "target")
+
+
+@dataclasses.dataclass(frozen=True)
+class BlockStats:
+    """One block's statistics after a combined fit.
+
+    Attributes:
+        name, kind: the block's name and measurement kind (``"relations"`` for the relations).
+        unit: its residuals' unit (``"mm"``, ``"px"``; ``"σ"`` for the whitened relations).
+        n_samples: its rows; n_residuals: its real residual entries (masked ones left out).
+        sigma: the σ its residuals were divided by in the final fit (its unit).
+        sigma_given: whether ``sigma`` was given (else estimated by variance components).
+        sigma_hat: the variance-component estimate ``sqrt(RSS_b / r_b)`` at the solution (its unit).
+        redundancy: ``r_b``, the block's share of the residual degrees of freedom.
+        rmse: RMS of its per-sample errors (its unit: the sensor's own metric, e.g. the 3-D
+            distance of a position, the RMS reprojection distance of an image).
+        rms: RMS of its residual entries (its unit).
+    """
+
+    name: str
+    kind: str
+    unit: str
+    n_samples: int
+    n_residuals: int
+    sigma: float
+    sigma_given: bool
+    sigma_hat: float
+    redundancy: float
+    rmse: float
+    rms: float
+
+    def line(self) -> str:
+        given = "given" if self.sigma_given else "estimated"
+        return (f"{self.name} ({self.kind}): {self.n_samples} rows, {self.n_residuals} residuals, σ = {self.sigma:.4g} "
+                f"{self.unit} ({given}), σ̂ = {self.sigma_hat:.4g} {self.unit} (redundancy {self.redundancy:.1f}), "
+                f"RMSE {self.rmse:.4g} {self.unit}")
+
+
+def combined_floor(n_params: int, n_residuals: int):
+    """The statistical floor of a combined (whitened) problem: ``Floor(train, test)`` of the RMS
+    whitened residual entry, ``sqrt(1 − p/N)`` and ``sqrt(1 + p/(N − p − 1))``
+    (:func:`jaxcal.statistical_floor` with σ = 1): each block's residual over its true σ_b."""
+    from .._core._metrics import statistical_floor
+
+    return statistical_floor(1.0, n_params, n_residuals, 1)
+
+
+@eqx.filter_jit
+def _jacobian_and_blocks(problem: Problem):
+    x = problem.x0()
+    dev = problem.deviations(x)
+    m = problem.measurement
+    return problem.jacobian(x), m.residual(problem.robot, dev, problem.q, problem.y), \
+        tuple(m.block_residuals(problem.robot, dev, problem.q, problem.y))
+
+
+def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) -> tuple[BlockStats, ...]:
+    """Per-block σ̂ (variance components), redundancy and RMSE of a combined fit ``result``
+    (a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``)."""
+    q = to_device(np.asarray(q, np.float64))
+    problem = Problem(result.robot, model, q, to_device(np.asarray(y, np.float64)), result.space,
+                      result.deviations.astype(q.dtype))
+    J, r, parts = _jacobian_and_blocks(problem)
+    J, r = np.asarray(J, np.float64), np.asarray(r, np.float64)
+    p = J.shape[1]
+    lam = np.zeros(p)
+    if result.prior is not None:
+        s = result.prior.std(result.space)
+        lam = np.where(np.isfinite(s), (prior_noise / s) ** 2, 0.0)
+    A = J.T @ J + np.diag(lam)
+    h = np.einsum("ip,ip->i", J @ np.linalg.pinv(A), J)  # diagonal of the hat matrix
+    obs = model.observed(np.asarray(y))
+    obs = np.ones(r.shape, bool) if obs is None else obs
+    h = h.reshape(r.shape)
+    out, s0 = [], 0
+    sigma = np.asarray(model.sigma, np.float64)
+    for b, (name, n, mod) in enumerate(zip(model.names, model.counts, model.models)):
+        rows = slice(s0, s0 + n)
+        s0 += n
+        ob = obs[rows]
+        rw, hb = r[rows][ob], h[rows][ob]
+        red = float(np.sum(1.0 - hb))
+        raw = np.asarray(parts[b], np.float64)  # its own unit
+        rss = float(np.sum(rw**2)) * sigma[b] ** 2
+        sig_hat = math.sqrt(rss / red) if red > 0 else float("nan")
+        err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
+        unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
+        out.append(BlockStats(name, mod.kind, unit, n, int(ob.sum()), float(sigma[b]), False, sig_hat, red,
+                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob[:, : raw.shape[1]]] ** 2)))))
+    return tuple(out)
+
+
+def _groups_of(model: Combined, b: int) -> dict[str, str]:
+    """Block ``b``'s group → the combined group."""
+    return dict(model.views[b][1])
+
+
+def _extras_and_fix(robot, model: Combined, blocks: Sequence[Block]):
+    """``(extras, fix)`` of :func:`jaxcal.calibrate` for the blocks' ``extras``: the standard groups a
+    block asks for under their own name, and the renamed per-block groups nobody asked for."""
+    plain, wanted = set(), set()
+    for b, blk in enumerate(blocks):
+        names = _groups_of(model, b)
+        for e in blk.extras:
+            key = e.strip().lower()
+            if key not in _EXTRA_GROUPS:
+                raise ValueError(f"block {blk.name!r}: unknown extra {e!r}; choose from tool, base, anchor, cable_offset")
+            for g in _EXTRA_GROUPS[key]:
+                c = names[g]
+                (plain if c == g else wanted).add(c)
+    extras = sorted({k for k, gs in _EXTRA_GROUPS.items() if k != "offset" and any(g in plain for g in gs)})
+    std = {g.name for g in STANDARD_EXTRAS}
+    layout = layout_for(robot, model)
+    fix = [n for g in layout.groups if g.name.partition("@")[0] in std and g.name not in std and g.name not in wanted
+           for n in g.names]
+    return extras, fix
+
+
+def _initial_start(robot, model: Combined, blocks: Sequence[Block], q, y, start: Deviations):
+    """Each block's extras from its data in closed form (:func:`jaxcal.initial_extras`), in block
+    order; a shared tool point is started by the first block that estimates it."""
+    vals = dict(start.values)
+    msgs = []
+    tool_done = set()
+    qs, ys = model._rows(np.asarray(q), q.shape[0]), model._rows(np.asarray(y), q.shape[0])
+    for b, blk in enumerate(blocks):
+        mod = blk.measurement
+        names = _groups_of(model, b)
+        asked = {g for e in blk.extras for g in _EXTRA_GROUPS.get(e.strip().lower(), ())}
+        can = INITIALISABLE.get(mod.kind, ())
+        est = [e for e in can if e in _OWN_INIT]
+        est += [e for e in can if e not in _OWN_INIT and set(_EXTRA_GROUPS.get(e, (e,))) & asked]
+        if "tool" in est and names["tool"] in tool_done:
+            est.remove("tool")
+        if not est:
+            continue
+        view = model.view(b, Deviations(vals, start.layout))
+        try:
+            res = initial_extras(robot, mod, (qs[b], model._y(b, ys[b])), estimate=est, start=view)
+        except ValueError as e:
+            raise ValueError(f"block {blk.name!r}: {e}") from None
+        for g, c in names.items():
+            if res.deviations.layout.group(g).kind == "extra":
+                vals[c] = np.asarray(res.deviations.values[g])
+        if "tool" in est:
+            tool_done.add(names["tool"])
+        msgs.append(f"{blk.name}: {res.message}")
+    return Deviations(vals, start.layout, dtype=start.arrays[0].dtype), msgs
+
+
+def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), method="lm", *,
+                     start: Deviations | None = None, init: str = "auto", sigma_rtol: float = 0.01,
+                     max_rounds: int = 10, **kwargs):
+    """Calibrate ``robot`` from several data blocks at once, sharing the robot's parameters.
+
+    Args:
+        robot: nominal robot model.
+        blocks: :class:`jaxcal.Block` s (name, measurement model, data, σ or ``None``, extras).
+        relations: known relations between labelled extras (:class:`jaxcal.KnownDistance`,
+            :class:`jaxcal.PlaneDistance`, :class:`jaxcal.PlaneAngle`, :class:`jaxcal.PointOnPlane`).
+        method: as :func:`jaxcal.calibrate` (least-squares methods estimate the variance
+            components; any method fits).
+        start: starting deviations in the combined layout (default nominal + ``init``).
+        init: ``"auto"``: each block's extras started in closed form from its data; ``"none"``.
+        sigma_rtol: stop the variance-component rounds when no estimated σ moves by more than this.
+        max_rounds: at most this many fits.
+        **kwargs: :func:`jaxcal.calibrate`'s other arguments (``prior``, ``loss``, ``objective``,
+            ``free``, ``fix``, ``space``, ``checks``...). Its σ-dependent parts (the prior's weight,
+            the robust scale) act on the whitened residuals, where σ = 1 at the truth.
+
+    Returns:
+        The :class:`jaxcal.CalibrationResult` of the last fit (its measurement the
+        :class:`~jaxcal._sensors._blocks.Combined` model, its train metrics whitened), with
+        ``blocks`` (:class:`BlockStats` per block, the relations last), ``sigma`` (``{block: σ}``
+        of the last fit, each block's unit) and ``variance_rounds`` (the fits run).
+
+    Raises:
+        ValueError: naming the block or relation at fault (see :func:`combine`).
+    """
+    from ._calibrate import calibrate
+
+    blocks = tuple(blocks)
+    for blk in blocks:  # each block's data as calibrate would check them alone (shapes, units, NaN)
+        qb, yb = blk.arrays()
+        if not hasattr(blk.data, "q"):
+            try:
+                Dataset(qb, yb, blk.measurement.kind, mm_joints_metadata(robot))
+            except ValueError as e:
+                raise ValueError(f"block {blk.name!r}: {e}") from None
+    model, q, y = combine(robot, blocks, relations)
+    estimated = [blk.sigma is None for blk in blocks] + ([False] if model.relations is not None else [])
+    extras, fix = _extras_and_fix(robot, model, blocks)
+    user_fix = kwargs.pop("fix", ())
+    user_fix = [s for s in user_fix.split(",") if s.strip()] if isinstance(user_fix, str) else list(user_fix or ())
+    user_extras = kwargs.pop("extras", ())
+    if user_extras:
+        raise TypeError("calibrate_blocks takes the extras per block (Block(..., extras=...)), not extras=")
+    layout = layout_for(robot, model)
+    cur = Deviations.zeros(layout) if start is None else start
+    msgs = []
+    if init == "auto":
+        cur, msgs = _initial_start(robot, model, blocks, q, y, cur)
+    elif init != "none":
+        raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
+    sigma = np.asarray(model.sigma, np.float64)
+    rounds = 0
+    q_dev, y_dev = to_device(q), to_device(y)
+    while True:
+        m = model.with_sigma(sigma)
+        res = calibrate(robot, m, (q_dev, y_dev), method, start=cur, init="none", extras=extras,
+                        fix=[*fix, *user_fix], **kwargs)
+        rounds += 1
+        stats = block_statistics(res, m, q, y)
+        new = np.asarray([s.sigma_hat if est and np.isfinite(s.sigma_hat) and s.sigma_hat > 0 else s.sigma
+                          for s, est in zip(stats, estimated)])
+        cur = res.deviations
+        done = np.all(np.abs(new - sigma) <= sigma_rtol * sigma) or rounds >= max_rounds or not any(estimated)
+        if done:
+            break
+        sigma = new
+    stats = tuple(dataclasses.replace(s, sigma_given=not est) for s, est in zip(stats, estimated))
+    object.__setattr__(res, "blocks", stats)
+    object.__setattr__(res, "sigma", {s.name: s.sigma for s in stats})
+    object.__setattr__(res, "variance_rounds", rounds)
+    object.__setattr__(res, "block_messages", tuple(msgs))
+    return res
