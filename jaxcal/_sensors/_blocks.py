@@ -56,7 +56,7 @@ from ._contact import FixedPoint, PlaneContact, _per_label
 from ._measurement import MeasurementModel
 
 __all__ = ["Block", "Combined", "Relations", "KnownDistance", "PlaneDistance", "PlaneAngle", "PointOnPlane",
-           "combine", "SENSOR_GROUPS"]
+           "combine", "SENSOR_GROUPS", "load_relations", "parse_relation"]
 
 #: the standard extras that belong to one sensor (renamed per block when several blocks use them)
 SENSOR_GROUPS = ("anchor", "cable_offset", "base_rotation", "base_translation")
@@ -217,6 +217,48 @@ class PointOnPlane:
 
 
 RELATIONS = (KnownDistance, PlaneDistance, PlaneAngle, PointOnPlane)
+#: the relation file's keywords → (class, number of labels, number of numbers required, allowed)
+_KEYWORDS = {"distance": (KnownDistance, 2, (1, 2)), "plane_distance": (PlaneDistance, 2, (1, 2)),
+             "plane_angle": (PlaneAngle, 2, (1, 2)), "point_on_plane": (PointOnPlane, 2, (0, 2))}
+
+
+def parse_relation(line: str, where: str = "relation"):
+    """One relation from a line of a relations file (see :func:`load_relations`)."""
+    parts = line.replace(",", " ").split()
+    if not parts or parts[0].lower() not in _KEYWORDS:
+        raise ValueError(f"{where}: expected one of {', '.join(_KEYWORDS)} followed by two labels and numbers, "
+                         f"got {line.strip()!r}")
+    cls, n_labels, (lo, hi) = _KEYWORDS[parts[0].lower()]
+    labels, nums = parts[1:1 + n_labels], parts[1 + n_labels:]
+    if len(labels) != n_labels or not lo <= len(nums) <= hi:
+        raise ValueError(f"{where}: {parts[0]} takes {n_labels} labels and {lo}–{hi} numbers, got {line.strip()!r}")
+    try:
+        values = [float(v) for v in nums]
+    except ValueError:
+        raise ValueError(f"{where}: not a number in {line.strip()!r}") from None
+    if cls is PointOnPlane:  # point_on_plane POINT PLANE [std_mm [offset_mm]]
+        return cls(*labels, *values)
+    return cls(*labels, *values)
+
+
+def load_relations(path) -> list:
+    """Relations from a small text file, one per line (``#`` starts a comment; commas or spaces):
+
+    ``distance A B L_mm [std_mm]`` — :class:`KnownDistance` between fixed points ``A`` and ``B``;
+    ``plane_distance A B L_mm [std_mm]`` — :class:`PlaneDistance`;
+    ``plane_angle A B angle_deg [std_deg]`` — :class:`PlaneAngle`;
+    ``point_on_plane POINT PLANE [std_mm [offset_mm]]`` — :class:`PointOnPlane`.
+
+    The labels are the point / plane labels of the data files (their ``point`` / ``plane`` column)."""
+    out = []
+    with open(path, encoding="utf-8") as f:
+        for i, raw in enumerate(f, 1):
+            line = raw.split("#", 1)[0].strip()
+            if line:
+                out.append(parse_relation(line, f"{path}, line {i}"))
+    if not out:
+        raise ValueError(f"{path}: no relations found")
+    return out
 
 
 def _check_relation(rel, labels, value, std, allow_zero: bool = False) -> None:
