@@ -156,7 +156,7 @@ def test_combined_model_whitens_renames_and_names_errors(robot):
     from jaxcal import Position
     from jaxcal._simulation._simulate import simulate_experiment
 
-    ex = simulate_experiment(jax.random.key(0), robot, n_samples=12, noise_std=0.1, measurement="position")
+    ex = simulate_experiment(jax.random.key(0), robot, n_samples=12, noise_std=0.1, measurement=Position())
     pts = FixedPoint(("s1", "s2"), np.zeros((2, 3)))
     lab = np.arange(12) % 2.0
     blocks = [Block("t1", Position(), ex.train, 0.1), Block("t2", Position(), ex.train, 0.3, own_tool=True),
@@ -171,7 +171,7 @@ def test_combined_model_whitens_renames_and_names_errors(robot):
     own = np.asarray(Position().residual(robot, None, ex.train.q, ex.train.y))
     assert np.allclose(r[:n], own / 0.1) and np.allclose(r[n:2 * n], own / 0.3)
     obs = model.observed(y)
-    assert obs[:2 * n].all() and not obs[2 * n:, 1:].any() and obs[2 * n:, 0].all()
+    assert obs[:3 * n].all() and obs[-1].tolist() == [True, False, False]  # a pivot row: 3 entries; a relation: 1
     assert np.isclose(r[-1, 0], (0.0 - 50.0) / 0.01)  # both points at the origin: distance 0
     # padded to a bucket: the padding rows repeat row 0 and are cut off again
     padded = model.pad_rows(q.shape[0], q.shape[0] + 5)
@@ -183,3 +183,33 @@ def test_combined_model_whitens_renames_and_names_errors(robot):
     sphere = FixedPoint(("s1",), np.zeros((1, 3)), radii_mm=10.0, estimate_radius=True)
     with pytest.raises(ValueError, match="defined differently|block names must differ"):
         combine(robot, [*blocks, Block("t1", sphere, (np.asarray(ex.train.q), np.zeros(n)))])
+
+
+def test_relations_file(tmp_path):
+    from jaxcal import PlaneAngle, PlaneDistance, PointOnPlane, load_relations
+
+    path = tmp_path / "relations.txt"
+    path.write_text("# plate\ndistance a0 b0 50.00 0.005\nplane_distance top, bottom, 25\n"
+                    "plane_angle wall_a wall_b 90 0.01  # a cube\npoint_on_plane p1 table\n")
+    rel = load_relations(path)
+    assert rel == [KnownDistance("a0", "b0", 50.0, 0.005), PlaneDistance("top", "bottom", 25.0),
+                   PlaneAngle("wall_a", "wall_b", 90.0, 0.01), PointOnPlane("p1", "table")]
+    assert np.isclose(rel[2].target, np.pi / 2) and np.isclose(rel[2].std, np.radians(0.01))
+    path.write_text("diameter a0 b0 50\n")
+    with pytest.raises(ValueError, match="line 1: expected one of distance"):
+        load_relations(path)
+    path.write_text("distance a0 b0 -5\n")
+    with pytest.raises(ValueError, match="finite number > 0"):
+        load_relations(path)
+    # their values on a known geometry (closed forms): a 25 mm block with outward faces, two walls at
+    # 90°, a point on a table
+    from jaxcal import PlaneContact
+    from jaxcal._sensors._blocks import Relations
+
+    planes = PlaneContact(("top", "bottom", "wall_a", "wall_b", "table"),
+                          [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [25.0, 0.0, 0.0, 0.0, 3.0])
+    pts = FixedPoint(("a0", "b0", "p1"), [[0, 0, 0], [30, 40, 0], [1, 2, 3]])
+    with pytest.raises(ValueError, match="names plane 'nope'"):
+        Relations([PlaneDistance("top", "nope", 1.0)], [planes, pts])
+    values = np.asarray(Relations(rel, [planes, pts]).values(None))
+    assert np.allclose(values, [50.0, 25.0, np.pi / 2, 0.0])
