@@ -29,7 +29,7 @@ from .._fit._problem import Problem
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
-__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor"]
+__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor", "block_result"]
 
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
@@ -53,6 +53,8 @@ class BlockStats:
         rmse: RMS of its per-sample errors (its unit: the sensor's own metric, e.g. the 3-D
             distance of a position, the RMS reprojection distance of an image).
         rms: RMS of its residual entries (its unit).
+        mean, max: mean and largest of its per-sample errors (its unit; signed errors by
+            absolute value).
     """
 
     name: str
@@ -66,6 +68,8 @@ class BlockStats:
     redundancy: float
     rmse: float
     rms: float
+    mean: float = float("nan")
+    max: float = float("nan")
 
     def line(self) -> str:
         given = "given" if self.sigma_given else "estimated"
@@ -124,7 +128,8 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
         err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
         unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
         out.append(BlockStats(name, mod.kind, unit, n, int(ob.sum()), float(sigma[b]), False, sig_hat, red,
-                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob[:, : raw.shape[1]]] ** 2)))))
+                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob[:, : raw.shape[1]]] ** 2))),
+                              float(np.mean(np.abs(err))), float(np.max(np.abs(err)))))
     return tuple(out)
 
 
@@ -262,3 +267,49 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
     object.__setattr__(res, "variance_rounds", rounds)
     object.__setattr__(res, "block_messages", tuple(msgs))
     return res
+
+
+def block_result(result, name: str):
+    """Block ``name``'s part of a combined result (:func:`calibrate_blocks`) as a one-sensor
+    :class:`jaxcal.CalibrationResult`: its own measurement model, the robot's parameters and the
+    block's extras under their own names (``base_rotation@tracker`` → ``base_rotation``), its
+    train metrics in its unit (:class:`BlockStats`), and the posterior covariance of its free
+    parameters taken from the combined fit (σ̂ = the block's σ). :func:`jaxcal.save_result`,
+    ``jaxcal evaluate`` and :meth:`~jaxcal.CalibrationResult.predict` read it like any result.
+
+    Raises ``KeyError`` for an unknown block, ``ValueError`` for the relations block."""
+    from .._core._metrics import Metrics
+    from .._core._params import ParameterSpace
+    from .._fit._diagnostics import Uncertainty
+    from .._fit._result import CalibrationResult
+
+    model = result.measurement
+    if not isinstance(model, Combined) or not hasattr(result, "blocks"):
+        raise TypeError("block_result takes a result of jaxcal.calibrate_blocks")
+    b = model.block_index(name)
+    if model.views[b] is None:
+        raise ValueError("the relations block has no result of its own: it has no measurement model")
+    layout, mapping = model.views[b]
+    comb = result.space.layout
+    to_comb = {bn: cn for g, c in mapping for bn, cn in zip(layout.group(g).names, comb.group(c).names)}
+    free_c = set(result.space.free_names)
+    space = ParameterSpace.from_names(layout, [n for n in layout.names if to_comb[n] in free_c])
+    dev = model.view(b, result.deviations)
+    stats = {s.name: s for s in result.blocks}[name]
+    out = CalibrationResult(
+        method=result.method, deviations=dev, x=space.to_vector_numpy(dev), space=space, robot=result.robot,
+        measurement=model.models[b], history=result.history, n_iterations=result.n_iterations,
+        iterations_to_converge=result.iterations_to_converge, status=result.status,
+        train_metrics=Metrics(stats.rmse, stats.mean, stats.max), wall_time_s=result.wall_time_s,
+        compile_time_s=result.compile_time_s, hyperparameters=result.hyperparameters, prior=result.prior,
+        loss=result.loss, start=None if result.start is None else model.view(b, result.start))
+    unc = getattr(result, "uncertainty", None)
+    if unc is not None:
+        idx = [unc.names.index(to_comb[n]) for n in space.free_names]
+        cov = np.asarray(unc.covariance)[np.ix_(idx, idx)]
+        unc = Uncertainty(space.free_names, space.free_units, np.asarray(unc.std)[idx], cov, stats.sigma,
+                          float(len(idx)), stats.n_residuals)
+    object.__setattr__(out, "uncertainty", unc)
+    object.__setattr__(out, "identifiability", None)
+    object.__setattr__(out, "diagnostics", getattr(result, "diagnostics", None))
+    return out

@@ -34,7 +34,7 @@ from .._sensors._initialise import _residual, _sample_error
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
-    "evaluate_sessions"]
+    "evaluate_sessions", "relabelled_result"]
 
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
@@ -54,6 +54,58 @@ def registrable_extras(result) -> tuple[str, ...]:
     layout = result.space.layout
     groups = dict.fromkeys(layout.group_of(n) for n in result.space.free_names if group_kind(n) == "extra")
     return tuple(g for g in groups if _family(g) in _REGISTRABLE)
+
+
+def relabelled_result(result, labels):
+    """A contact result (plane / point) for data whose labels are ``labels``: the same robot and
+    tool, the model's labels those of the data — the planes / points the result has keep their
+    nominal geometry and deviations, new ones start at a zero nominal, free, so that
+    :func:`evaluate_result` registers them on the new rows (a new placement of a plate, another
+    table). The posterior covariance is kept for
+    the parameters the result had, zero for the new labels (registered on the new data instead).
+    ``result`` itself when it has every label."""
+    from .._fit._diagnostics import Uncertainty
+    from .._sensors._contact import FixedPoint, PlaneContact
+
+    m = result.measurement
+    labels = tuple(labels)
+    if not isinstance(m, (PlaneContact, FixedPoint)) or set(labels) <= set(m.labels):
+        return result
+    new_labels = labels  # the file's labels: the ones the result has keep its nominal geometry
+    at = [m.labels.index(s) if s in m.labels else -1 for s in new_labels]
+
+    def take(a, fill):
+        a = np.asarray(a, np.float64)
+        return np.stack([a[i] if i >= 0 else np.asarray(fill, np.float64) for i in at])
+
+    if isinstance(m, PlaneContact):
+        new = PlaneContact(new_labels, take(m.normals, [0.0, 0.0, 1.0]), take(m.offsets, 0.0))
+    else:
+        r = np.asarray(m.radii, np.float64)
+        new = FixedPoint(new_labels, take(m.centres, np.zeros(3)), take(r, r[0]) if m.sphere else None,
+                         m.estimate_radius)
+    layout = layout_for(result.robot, new)
+    old = result.deviations.values
+    dev = Deviations({g: old[g] for g in layout.group_names if g in old}, layout,
+                     dtype=np.asarray(result.deviations._ravel_numpy()).dtype)
+    added = [n for g in new.extra_groups() if g.name not in old for n in g.names]
+    space = ParameterSpace.from_names(layout, [n for n in layout.names
+                                               if n in set(result.space.free_names) or n in set(added)])
+    out = dataclasses.replace(result, measurement=new, deviations=dev, space=space, x=space.to_vector_numpy(dev),
+                              start=None)
+    unc = result.uncertainty
+    if unc is not None:
+        idx = {n: i for i, n in enumerate(unc.names)}
+        p = space.n_free
+        cov = np.zeros((p, p))
+        keep = [(j, idx[n]) for j, n in enumerate(space.free_names) if n in idx]
+        if keep:
+            a, b = (np.asarray(v) for v in zip(*keep))
+            cov[np.ix_(a, a)] = np.asarray(unc.covariance)[np.ix_(b, b)]
+        unc = Uncertainty(space.free_names, space.free_units, np.sqrt(np.diag(cov)), cov, unc.noise_std,
+                          unc.effective_parameters, unc.n_residuals)
+    object.__setattr__(out, "uncertainty", unc)
+    return out
 
 
 def _extras_of(groups, source: Deviations, into: Deviations) -> Deviations:

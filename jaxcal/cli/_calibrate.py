@@ -432,6 +432,81 @@ def _same_tree(a, b) -> bool:
 FLEET_KINDS = ("cable", "position", "pose")
 
 
+def _cmd_calibrate_combined(args, method: str) -> int:
+    """`jaxcal calibrate a.csv b.csv ... --combine --out-dir DIR [--relations FILE]`: the files are
+    blocks of one robot (:func:`jaxcal.calibrate_blocks`): one fit, each block's σ estimated; one
+    result JSON per block (:func:`~jaxcal._calibration._blocks.block_result`, read by `jaxcal
+    evaluate`) and ``combined.json`` (per-block statistics, relations, free parameters)."""
+    import json
+
+    from .._calibration._blocks import block_result, calibrate_blocks
+    from .._calibration._calibrate import CalibrationWarning
+    from .._calibration._io import save_result
+    from .._core._json import to_jsonable
+    from .._sensors._blocks import Block, load_relations
+
+    if not args.combine:
+        raise _Usage("--relations applies to --combine (several files of one robot)")
+    for given, flag in ((args.out, "--out"), (args.test, "--test"), (args.exclude_rows, "--exclude-rows"),
+                        (args.exclude_outliers, "--exclude-outliers"), (args.measurement, "--measurement")):
+        if given:
+            raise _Usage(f"{flag} does not apply to --combine: every row of every file trains, each file says its "
+                         "kind ('# kind:' line or columns), the results go to --out-dir DIR")
+    if not args.out_dir:
+        raise _Usage("--combine: give --out-dir DIR (one RESULT.json per file and combined.json)")
+    setups = [_calibration_setup(args, method, f) for f in args.data]
+    names = [s.path.stem for s in setups]
+    if len(set(names)) != len(names):
+        raise _Usage(f"--combine: the files' names (their blocks) must differ, got {names}")
+    first = setups[0]
+    try:
+        relations = load_relations(args.relations) if args.relations else ()
+        blocks = [Block(n, s.measurement, s.data, extras=[e for e in sorted(s.estimate)
+                                                           if e in ("tool", "base", "anchor", "offset", "cable_offset")])
+                  for n, s in zip(names, setups)]
+    except (ValueError, OSError) as e:
+        raise _Usage(str(e)) from None
+    print(f"combined fit of robot {first.robot.name}: {len(blocks)} blocks ("
+          + ", ".join(f"{n}: {s.data.n} {s.kind} rows" for n, s in zip(names, setups))
+          + (f"), {len(relations)} relations from {args.relations}" if relations else ")") + f", method {method}; "
+          "every row trains; each block's σ estimated (variance components)")
+    for s in setups:
+        for n in s.notes:
+            print(f"note: {s.path.name}: {n}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationWarning)
+        try:
+            res = calibrate_blocks(first.robot, blocks, relations, method, prior=first.prior, loss=first.loss,
+                                   checks=first.checks, free=args.free, fix=args.fix or (), **first.hyper)
+        except ValueError as e:
+            raise _Usage(str(e)) from None
+    for w in caught:
+        if issubclass(w.category, CalibrationWarning):
+            print(f"jaxcal: warning: {w.message}", file=sys.stderr)
+    for m in res.block_messages:
+        print(f"start: {m}")
+    print(f"status {res.status.name.lower()}, {res.variance_rounds} fit(s) with re-estimated σ, "
+          f"{res.space.n_free} free parameters; whitened train RMSE {res.train_metrics.rmse:.4f} (1 at the floor)")
+    for st in res.blocks:
+        print("  " + st.line())
+    out = pathlib.Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for n, s in zip(names, setups):
+        br = block_result(res, n)
+        settings = {"data": str(s.path), "n_samples": s.data.n, "n_train": s.data.n, "n_test": 0, "method": method,
+                    "prior": args.prior, "loss": first.loss, "combined": names,
+                    "relations": None if not args.relations else str(args.relations)}
+        save_result(br, out / f"{n}.json", settings=settings, metrics_mm={"train, after": br.train_metrics._asdict()})
+    summary = {"format": "jaxcal-combined/1", "robot": first.robot.name, "status": res.status.name.lower(),
+               "blocks": [st.__dict__ for st in res.blocks], "sigma": res.sigma,
+               "relations": [r.describe() for r in relations], "free_names": list(res.space.free_names),
+               "deviations": res.deviations.named(), "variance_rounds": res.variance_rounds}
+    (out / "combined.json").write_text(json.dumps(to_jsonable(summary), indent=1, allow_nan=False) + "\n",
+                                       encoding="utf-8")
+    print(f"wrote {len(names)} block result(s) and combined.json to {out}")
+    return 0 if res.status.name not in ("DIVERGED", "FAILED") else _EXIT_FAILED
+
+
 def _cmd_calibrate_fleet(args, method: str) -> int:
     """`jaxcal calibrate a.csv b.csv ... --out-dir DIR`: every file one unit of the same robot model,
     calibrated by :func:`jaxcal.calibrate_many` (the solves as one compiled program); one result
@@ -542,6 +617,8 @@ def _cmd_calibrate(args) -> int:
         method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
     except ValueError as e:
         raise _Usage(str(e)) from None
+    if args.combine or args.relations:
+        return _cmd_calibrate_combined(args, method)
     if len(args.data) > 1 or args.out_dir:
         return _cmd_calibrate_fleet(args, method)
     setup = _calibration_setup(args, method, args.data[0])

@@ -240,6 +240,15 @@ def _add_calibrate(sub, fmt) -> None:
                         "DIR/summary.md and DIR/summary.csv (unit, samples, status, train RMSE/MAX, σ̂, floor, "
                         "out-of-tolerance flag); exit status 1 when a unit failed or is out of tolerance. "
                         "Cable, position and pose data; no --test/--exclude-*")
+    c.add_argument("--combine", action="store_true",
+                   help="several data files of ONE robot (each file its own sensor, kind from its '# kind:' line or "
+                        "columns): one fit sharing the robot's parameters, each file a block with its own extras "
+                        "and noise σ (estimated); writes DIR/<file name>.json per block and DIR/combined.json "
+                        "(give --out-dir). Without it, several files are a fleet of units")
+    c.add_argument("--relations", metavar="FILE",
+                   help="with --combine: known relations between the files' point/plane labels, one per line "
+                        "(distance A B L_mm [std_mm]; plane_distance; plane_angle; point_on_plane; see the how-to "
+                        "'Several sensors in one fit')")
     c.add_argument("--tolerance-mm", type=float, metavar="MM",
                    help="with several files: flag units whose train RMSE exceeds MM in the summary")
     c.add_argument("--noise-std", type=float, metavar="MM",

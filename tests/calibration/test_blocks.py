@@ -98,11 +98,11 @@ def _register(robot, res, model, data):
     return c, float(np.sqrt(np.mean((p - c[lab]) ** 2)))
 
 
-def test_ball_in_socket_known_distance_sets_the_scale(robot):
-    """A ball on the flange put many times into two sockets 50.00 mm apart, four plate placements;
-    the robot's links 1.5 % longer than nominal (a length scale pivot points cannot see). With the
-    known distances, two held-out placements' socket distances come out within 0.05 mm and their
-    consistency at the floor; without them the scale error shows (≈ 0.75 mm short)."""
+@pytest.fixture(scope="module")
+def sockets(robot):
+    """Ball-in-socket data: the robot's links 1.5 % longer than nominal, a ball 80 mm off the flange,
+    four training plate placements (labels a0, b0 … a3, b3: 320 rows) and two held-out ones
+    (a4, b4, a5, b5: 160 rows), σ = 0.02 mm per axis."""
     from jaxcal._simulation._simulate import draw_deviations
 
     rng = np.random.default_rng(7)
@@ -114,6 +114,7 @@ def test_ball_in_socket_known_distance_sets_the_scale(robot):
     train_labels = tuple(f"{s}{k}" for k in range(4) for s in "ab")
     test_labels = tuple(f"{s}{k}" for k in range(4, 6) for s in "ab")
     centres = _plates(rng, mid, 6)
+    assert np.allclose(np.linalg.norm(centres[1::2] - centres[::2], axis=1), SOCKETS_MM)
     sims = []
     for labels, c, n, seed in ((train_labels, centres[:8], 320, 11), (test_labels, centres[8:], 160, 12)):
         m = FixedPoint(labels, c)
@@ -121,8 +122,16 @@ def test_ball_in_socket_known_distance_sets_the_scale(robot):
         t = Deviations({g: v for g, v in truth.values.items() if g in layout.group_names}, layout)
         sims.append((m, simulate_contact(jax.random.key(seed), robot, m, n_samples=n, noise_std=SIGMA_BALL,
                                          test_fraction=0.0, true_deviations=t).train))
-    (m_train, train), (m_test, test) = sims
-    assert np.allclose(np.linalg.norm(centres[1::2] - centres[::2], axis=1), SOCKETS_MM)
+    return sims
+
+
+def test_ball_in_socket_known_distance_sets_the_scale(robot, sockets):
+    """A ball on the flange put many times into two sockets 50.00 mm apart, four plate placements;
+    the robot's links 1.5 % longer than nominal (a length scale pivot points cannot see). With the
+    known distances, two held-out placements' socket distances come out within 0.05 mm and their
+    consistency at the floor; without them the scale error shows (≈ 0.75 mm short)."""
+    (m_train, train), (m_test, test) = sockets
+    train_labels, test_labels = m_train.labels, m_test.labels
     fit_model = FixedPoint(train_labels)  # centres unknown: started from the data
     rel = [KnownDistance(f"a{k}", f"b{k}", SOCKETS_MM) for k in range(4)]
     out = {}
@@ -213,3 +222,36 @@ def test_relations_file(tmp_path):
         Relations([PlaneDistance("top", "nope", 1.0)], [planes, pts])
     values = np.asarray(Relations(rel, [planes, pts]).values(None))
     assert np.allclose(values, [50.0, 25.0, np.pi / 2, 0.0])
+
+
+def test_cli_combine_with_relations_and_evaluate_new_labels(robot, sockets, tmp_path, capsys):
+    """`jaxcal calibrate sockets.csv --combine --relations rel.txt --out-dir DIR`, then `jaxcal evaluate`
+    on a file with new point labels (two new plate placements): they are registered on its rows, and
+    their registered sockets are 50 mm apart (the relation set the scale)."""
+    import json
+
+    import jaxcal.cli
+
+    (_, train), (_, test) = sockets
+    train.to_csv(tmp_path / "sockets.csv")
+    test.to_csv(tmp_path / "held_out.csv")
+    (tmp_path / "rel.txt").write_text("".join(f"distance a{k} b{k} 50.00 0.005\n" for k in range(4)))
+    out = tmp_path / "fit"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = jaxcal.cli.main(["calibrate", str(tmp_path / "sockets.csv"), "--robot", "hsr_jr680", "--combine",
+                              "--relations", str(tmp_path / "rel.txt"), "--out-dir", str(out), "--estimate", "tool"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "sockets (point)" in text and "relations (relations): 4 rows" in text
+    summary = json.loads((out / "combined.json").read_text())
+    assert [b["name"] for b in summary["blocks"]] == ["sockets", "relations"]
+    rc = jaxcal.cli.main(["evaluate", str(out / "sockets.json"), str(tmp_path / "held_out.csv"),
+                          "--out", str(tmp_path / "ev.json")])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "new point labels" in text and "a4, b4, a5, b5" in text
+    dev = json.loads((tmp_path / "ev.json").read_text())["deviations_after"]
+    c = {s: np.array([dev[f"point_{x}@{s}"] for x in "xyz"]) for s in ("a4", "b4", "a5", "b5")}
+    for k in (4, 5):  # nominal centres are zero for new labels: the deviations are the centres
+        assert abs(np.linalg.norm(c[f"a{k}"] - c[f"b{k}"]) - SOCKETS_MM) < 0.05
