@@ -29,7 +29,7 @@ from .._fit._problem import Problem
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
-__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor", "block_result"]
+__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor", "block_result", "who_sees_what"]
 
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
@@ -55,6 +55,10 @@ class BlockStats:
         rms: RMS of its residual entries (its unit).
         mean, max: mean and largest of its per-sample errors (its unit; signed errors by
             absolute value).
+        information: ``{free parameter: share}``, the block's share of each free parameter's
+            information at the solution, ``Σ_{i∈b} J_ij² / Σ_i J_ij²`` of the whitened Jacobian
+            (1: only this block sees the parameter; 0: it does not see it at all). Shares of one
+            parameter sum to 1 over the blocks; a prior's information is not counted.
     """
 
     name: str
@@ -70,12 +74,31 @@ class BlockStats:
     rms: float
     mean: float = float("nan")
     max: float = float("nan")
+    information: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def line(self) -> str:
         given = "given" if self.sigma_given else "estimated"
         return (f"{self.name} ({self.kind}): {self.n_samples} rows, {self.n_residuals} residuals, σ = {self.sigma:.4g} "
                 f"{self.unit} ({given}), σ̂ = {self.sigma_hat:.4g} {self.unit} (redundancy {self.redundancy:.1f}), "
                 f"RMSE {self.rmse:.4g} {self.unit}")
+
+
+def who_sees_what(stats, threshold: float = 0.9) -> tuple[str, ...]:
+    """Lines naming, per block, the free parameters it alone (nearly) determines (information share
+    ≥ ``threshold``, :attr:`BlockStats.information`) and the parameters no block dominates."""
+    lines, seen = [], set()
+    for s in stats:
+        own = [n for n, v in s.information.items() if v >= threshold]
+        seen |= set(own)
+        if own:
+            lines.append(f"{s.name} alone determines: {', '.join(own)}")
+    if stats:
+        shared = [n for n in stats[0].information if n not in seen]
+        if shared:
+            lines.append("shared by several blocks: " + ", ".join(
+                f"{n} ({' / '.join(f'{s.name} {s.information[n]:.0%}' for s in stats if s.information[n] >= 0.05)})"
+                for n in shared))
+    return tuple(lines)
 
 
 def combined_floor(n_params: int, n_residuals: int):
@@ -114,6 +137,8 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
     obs = model.observed(np.asarray(y))
     obs = np.ones(r.shape, bool) if obs is None else obs
     h = h.reshape(r.shape)
+    col = np.sum(J**2, axis=0)
+    Jr = (J**2).reshape(*r.shape, p)
     out, s0 = [], 0
     sigma = np.asarray(model.sigma, np.float64)
     for b, (name, n, mod) in enumerate(zip(model.names, model.counts, model.models)):
@@ -127,9 +152,11 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
         sig_hat = math.sqrt(rss / red) if red > 0 else float("nan")
         err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
         unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
+        share = np.sum(Jr[rows][ob], axis=0) / np.where(col > 0, col, 1.0)
         out.append(BlockStats(name, mod.kind, unit, n, int(ob.sum()), float(sigma[b]), False, sig_hat, red,
                               float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob[:, : raw.shape[1]]] ** 2))),
-                              float(np.mean(np.abs(err))), float(np.max(np.abs(err)))))
+                              float(np.mean(np.abs(err))), float(np.max(np.abs(err))),
+                              dict(zip(result.space.free_names, share.tolist()))))
     return tuple(out)
 
 
@@ -215,7 +242,9 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         The :class:`jaxcal.CalibrationResult` of the last fit (its measurement the
         :class:`~jaxcal._sensors._blocks.Combined` model, its train metrics whitened), with
         ``blocks`` (:class:`BlockStats` per block, the relations last), ``sigma`` (``{block: σ}``
-        of the last fit, each block's unit) and ``variance_rounds`` (the fits run).
+        of the last fit, each block's unit), ``variance_rounds`` (the fits run),
+        ``block_messages`` (the closed-form starts) and ``block_report`` (which block determines
+        which parameter: :func:`who_sees_what`).
 
     Raises:
         ValueError: naming the block or relation at fault (see :func:`combine`).
@@ -266,6 +295,7 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
     object.__setattr__(res, "sigma", {s.name: s.sigma for s in stats})
     object.__setattr__(res, "variance_rounds", rounds)
     object.__setattr__(res, "block_messages", tuple(msgs))
+    object.__setattr__(res, "block_report", who_sees_what(stats))
     return res
 
 

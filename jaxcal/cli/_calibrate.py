@@ -489,6 +489,8 @@ def _cmd_calibrate_combined(args, method: str) -> int:
           f"{res.space.n_free} free parameters; whitened train RMSE {res.train_metrics.rmse:.4f} (1 at the floor)")
     for st in res.blocks:
         print("  " + st.line())
+    for line in res.block_report:
+        print("  " + line)
     out = pathlib.Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for n, s in zip(names, setups):
@@ -500,7 +502,8 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     summary = {"format": "jaxcal-combined/1", "robot": first.robot.name, "status": res.status.name.lower(),
                "blocks": [st.__dict__ for st in res.blocks], "sigma": res.sigma,
                "relations": [r.describe() for r in relations], "free_names": list(res.space.free_names),
-               "deviations": res.deviations.named(), "variance_rounds": res.variance_rounds}
+               "deviations": res.deviations.named(), "variance_rounds": res.variance_rounds,
+               "who_sees_what": list(res.block_report)}
     (out / "combined.json").write_text(json.dumps(to_jsonable(summary), indent=1, allow_nan=False) + "\n",
                                        encoding="utf-8")
     print(f"wrote {len(names)} block result(s) and combined.json to {out}")

@@ -54,6 +54,18 @@ def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot
         print(seed, [s.line() for s in res.blocks], res.variance_rounds)
         assert abs(est["plane"].sigma_hat / SIGMA_PLANE - 1) < 0.05
         assert abs(est["bar"].sigma_hat / SIGMA_BAR - 1) < 0.05
+        # who sees what: a plane's offset only the plane rows; the bar rows never the base rotation θ_1
+        assert est["plane"].information["plane_d@table"] == pytest.approx(1.0)
+        assert est["bar"].information["plane_d@table"] == pytest.approx(0.0)
+        assert est["bar"].information.get("theta_1", 0.0) < 1e-9
+        assert any(line.startswith("plane alone determines: ") and "plane_d@table" in line for line in res.block_report)
+        # and within 2 % of the noise these rows really carry (the RMS residual of the true set-up)
+        model = res.measurement
+        layout = res.space.layout
+        t = Deviations({g: v for g, v in truth.values.items() if g in layout.group_names}, layout)
+        q, y = np.concatenate([pd.q, bd.q]), np.concatenate([np.pad(np.asarray(pd.y)[:, None], ((0, 0), (0, 6))), bd.y])
+        realised = [float(np.sqrt(np.mean(np.asarray(r) ** 2))) for r in model.block_residuals(robot, t, q, y)]
+        assert abs(est["plane"].sigma_hat / realised[0] - 1) < 0.02 and abs(est["bar"].sigma_hat / realised[1] - 1) < 0.02
         assert not est["plane"].sigma_given and est["plane"].kind == "plane" and est["bar"].unit == "mm"
         # the redundancies share the residual degrees of freedom: Σ r_b = N − rank J (p, or one less
         # where the Jacobian is numerically rank deficient: d_2/d_3 of the parallel axes 2 and 3)
@@ -255,3 +267,33 @@ def test_cli_combine_with_relations_and_evaluate_new_labels(robot, sockets, tmp_
     c = {s: np.array([dev[f"point_{x}@{s}"] for x in "xyz"]) for s in ("a4", "b4", "a5", "b5")}
     for k in (4, 5):  # nominal centres are zero for new labels: the deviations are the centres
         assert abs(np.linalg.norm(c[f"a{k}"] - c[f"b{k}"]) - SOCKETS_MM) < 0.05
+
+
+def test_tracker_and_camera_at_the_combined_floor(robot):
+    """A laser tracker (tool point, its own frame; σ = 0.05 mm) and an eye-in-hand camera (hand-eye and
+    target unknown; σ = 0.3 px) on one robot: σ of each estimated (mm and px, within 5 %), and on fresh
+    rows of both the whitened RMS at the combined floor (3 %)."""
+    from jaxcal import Camera, Position
+    from jaxcal._simulation._simulate import simulate_experiment
+    from jaxcal._simulation._simulate_sensors import simulate_camera
+
+    q_c, y_c, cam, truth = simulate_camera(jax.random.key(0), robot, n_views=40, noise_px=0.3)
+    q_t, y_t, _, _ = simulate_camera(jax.random.key(1), robot, cam, n_views=40, noise_px=0.3, true_deviations=truth)
+    dh = _dh_only(robot, truth).replace(tool=np.array([20.0, -10.0, 90.0]))
+    trk = simulate_experiment(jax.random.key(2), robot, n_samples=1000, noise_std=0.05, measurement=Position(),
+                              true_deviations=dh, test_fraction=0.5)
+    nominal = Camera(cam.points, cam.intrinsics, cam.mount, image_size=cam.image_size)  # hand-eye, target unknown
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate_blocks(robot, [Block("tracker", Position(), trk.train, extras="tool,base"),
+                                       Block("camera", nominal, (q_c, y_c))])
+    est = {s.name: s for s in res.blocks}
+    print([s.line() for s in res.blocks], res.variance_rounds)
+    assert est["camera"].unit == "px" and est["tracker"].unit == "mm"
+    assert abs(est["tracker"].sigma_hat / 0.05 - 1) < 0.05 and abs(est["camera"].sigma_hat / 0.3 - 1) < 0.05
+    model, q, y = combine(robot, [Block("tracker", Position(), trk.test, 0.05), Block("camera", nominal, (q_t, y_t), 0.3)])
+    r = np.asarray(model.residual(robot, res.deviations, q, y))
+    n_train = est["tracker"].n_residuals + est["camera"].n_residuals
+    ratio = float(np.sqrt(np.mean(r[model.observed(y)] ** 2))) / combined_floor(res.identifiability.rank, n_train).test
+    print("whitened test RMS / combined floor", ratio)
+    assert abs(ratio - 1) < 0.03, ratio
