@@ -269,6 +269,7 @@ def test_cli_combine_with_relations_and_evaluate_new_labels(robot, sockets, tmp_
         assert abs(np.linalg.norm(c[f"a{k}"] - c[f"b{k}"]) - SOCKETS_MM) < 0.05
 
 
+@pytest.mark.slow  # ~4.5 min on the 2-core VM under load; test_plane_and_distance_bar_... covers the default run
 def test_tracker_and_camera_at_the_combined_floor(robot):
     """A laser tracker (tool point, its own frame; σ = 0.05 mm) and an eye-in-hand camera (hand-eye and
     target unknown; σ = 0.3 px) on one robot: σ of each estimated (mm and px, within 5 %), and on fresh
@@ -297,3 +298,26 @@ def test_tracker_and_camera_at_the_combined_floor(robot):
     ratio = float(np.sqrt(np.mean(r[model.observed(y)] ** 2))) / combined_floor(res.identifiability.rank, n_train).test
     print("whitened test RMS / combined floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
+
+
+def test_known_plane_distance_lets_plane_data_see_the_scale(robot):
+    """Plane contact alone cannot see the length scale (one null direction of the Jacobian); a known
+    distance between two parallel planes (a step of 25 mm), or a point on a plane at a known offset
+    with a known socket distance, adds exactly that direction: the rank rises by one."""
+    from jaxcal import PlaneContact, PlaneDistance, identifiability
+    from jaxcal._core._params import ParameterSpace
+
+    base = default_setup("plane", robot)
+    n = np.asarray(base.normals)
+    d = np.asarray(base.offsets)
+    planes = PlaneContact((*base.labels, "step"), np.concatenate([n, n[:1]]), np.concatenate([d, d[:1] + 25.0]))
+    ex = simulate_contact(jax.random.key(4), robot, planes, n_samples=160, noise_std=0.0, test_fraction=0.0)
+    ranks = []
+    for relations in ((), [PlaneDistance("table", "step", 25.0)]):
+        model, q, y = combine(robot, [Block("planes", planes, ex.train, 0.05)], relations)
+        layout = layout_for(robot, model)
+        truth = Deviations({g: v for g, v in ex.true_deviations.values.items() if g in layout.group_names}, layout)
+        space = ParameterSpace.for_robot(robot, measurement=model, tool=True)
+        ranks.append(identifiability(robot, model, q, space, truth).rank)
+    print("rank without / with the plane distance", ranks)
+    assert ranks[1] == ranks[0] + 1
