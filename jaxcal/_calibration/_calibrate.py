@@ -854,7 +854,8 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
     if len(after_rows):
         shown = ", ".join(str(int(r)) for r in after_rows[:12])
-        msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} mm robust σ) at "
+        unit = getattr(problem.measurement, "unit", "mm")  # px for a camera, σ for combined blocks (whitened)
+        msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} {unit} robust σ) at "
                     f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
                     + ("" if result.loss != "linear" else "; consider loss='huber' or excluding them"))
     suspect, cause = result_findings(result, problem, unc, resid, resid_start, checks,
