@@ -580,6 +580,28 @@ class Combined(MeasurementModel):
         return all(m.jacobian_free_of_data for m in self.models)
 
 
+def _check_shared_labels(blocks: Sequence[Block]) -> None:
+    """A label shared by two blocks is one object: its nominal geometry must agree (it shares one
+    deviation group, ``plane@K`` / ``point@K``)."""
+    seen: dict = {}
+    for b in blocks:
+        m = b.measurement
+        if isinstance(m, PlaneContact):
+            geo = {s: np.concatenate([np.asarray(m.normals[k]), np.asarray(m.offsets[k])[None]])
+                   for k, s in enumerate(m.labels)}
+        elif isinstance(m, FixedPoint):
+            geo = {s: np.concatenate([np.asarray(m.centres[k]), np.asarray(m.radii[k])[None]])
+                   for k, s in enumerate(m.labels)}
+        else:
+            continue
+        for s, v in geo.items():
+            key = (m.kind, s)
+            if key in seen and not np.allclose(seen[key][1], v):
+                raise ValueError(f"{m.kind} {s!r} is in blocks {seen[key][0]!r} and {b.name!r} with different nominal "
+                                 "geometry; a label names one object: give them the same nominal values or other labels")
+            seen.setdefault(key, (b.name, v))
+
+
 def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[Combined, np.ndarray, np.ndarray]:
     """The :class:`Combined` model of ``blocks`` (and ``relations``) and its stacked data
     ``(model, q [N, dof] rad, y [N, W])``; σ of each block its given ``sigma`` or 1.
@@ -604,6 +626,7 @@ def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[C
         for g in b.measurement.extra_groups() if hasattr(b.measurement, "extra_groups") else ():
             if "@" not in g.name:
                 own_counts[g.name] = own_counts.get(g.name, 0) + 1
+    _check_shared_labels(blocks)
     groups: dict[str, Group] = {}
     views, qs, ys, models, counts, widths, sigma = [], [], [], [], [], [], []
     for b in blocks:

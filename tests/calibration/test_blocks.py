@@ -201,6 +201,9 @@ def test_combined_model_whitens_renames_and_names_errors(robot):
     assert np.allclose(rp[: q.shape[0]], r) and np.allclose(rp[q.shape[0]:], r[:1])
     with pytest.raises(ValueError, match="names point 'nope', which no block has"):
         combine(robot, blocks, [KnownDistance("s1", "nope", 50.0)])
+    moved = FixedPoint(("s1",), np.ones((1, 3)))
+    with pytest.raises(ValueError, match="point 's1' is in blocks 'pivot' and 'other' with different nominal"):
+        combine(robot, [*blocks, Block("other", moved, (np.asarray(ex.train.q), np.zeros(n)))])
     sphere = FixedPoint(("s1",), np.zeros((1, 3)), radii_mm=10.0, estimate_radius=True)
     with pytest.raises(ValueError, match="defined differently|block names must differ"):
         combine(robot, [*blocks, Block("t1", sphere, (np.asarray(ex.train.q), np.zeros(n)))])
