@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._core._params import STANDARD_EXTRAS, Deviations, Group, Layout, layout_for
+from .._core._params import STANDARD_EXTRAS, Deviations, Group, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import _check_label
 from ._contact import FixedPoint, PlaneContact, _per_label
@@ -236,9 +236,7 @@ def parse_relation(line: str, where: str = "relation"):
         values = [float(v) for v in nums]
     except ValueError:
         raise ValueError(f"{where}: not a number in {line.strip()!r}") from None
-    if cls is PointOnPlane:  # point_on_plane POINT PLANE [std_mm [offset_mm]]
-        return cls(*labels, *values)
-    return cls(*labels, *values)
+    return cls(*labels, *values)  # point_on_plane POINT PLANE [std_mm [offset_mm]]; the others A B value [std]
 
 
 def load_relations(path) -> list:
@@ -676,7 +674,3 @@ def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[C
     model = Combined(models, sigma, names, counts, widths, views, tuple(groups.values()))
     return model, np.concatenate(qs), y
 
-
-def combined_layout(robot, model: Combined) -> Layout:
-    """The layout of a combined fit (:func:`~jaxcal._core._params.layout_for`)."""
-    return layout_for(robot, model)
