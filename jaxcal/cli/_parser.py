@@ -138,7 +138,7 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("data", nargs="+",
                    help="CSV data file (format below); several files: one unit each of the same robot model, "
                         "calibrated together (jaxcal.calibrate_many: the solves as one compiled program) — give "
-                        "--out-dir")
+                        "--out-dir; with --combine: several sensors of ONE robot in one fit")
     c.add_argument("--robot", required=True, help="preset name, DH table CSV file or URDF file (format below)")
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
@@ -336,7 +336,10 @@ def _add_evaluate(sub, fmt) -> None:
                     "robot with the result's extras. The raw nominal line uses the guessed extras. Prints which "
                     "extras were registered, the rows that are outliers after calibration (> 5 robust σ, 1-based), "
                     "and writes per-row errors to --out (EVAL.json: metrics_mm.before/after with rmse, mean, max).",
-        epilog=_DATA_FORMAT + "\n\nThe data file's kind comes from the result (cable, position, pose, markers).\n\n"
+        epilog=_DATA_FORMAT + "\n\nThe data file's kind comes from the result (cable, position, pose, markers, camera, "
+               "plane, point, distance; a block result of `calibrate --combine` is its block's kind). A plane/point "
+               "file may name planes/points the result does not have (another table, a new plate placement): they "
+               "are registered on its rows with the robot fixed.\n\n"
                "exit status: 0 the calibrated robot predicts the new data at least as well as the nominal one, "
                "1 worse, 2 bad input.",
     )
