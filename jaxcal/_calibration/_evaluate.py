@@ -19,6 +19,7 @@ anchor / frame, as written in the measurement model) is only shown as its own li
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 
@@ -368,7 +369,48 @@ def _outliers(robot, measurement, dev, data, k: float = 5.0):
 EXPECTED_FACTOR = 1.5
 
 
-def expected_rmse(result, data) -> float | None:
+@functools.lru_cache(maxsize=1)
+def _jacobian_program():
+    import equinox as eqx
+
+    return eqx.filter_jit(lambda problem: problem.jacobian(problem.x0()))
+
+
+def _registered_terms(result, data, registered, deviations):
+    """``(mean prediction variance per sample, registered parameters p_E, residual entries N)`` when
+    the extras ``registered`` are fitted again on ``data`` with the robot fixed: the robot's
+    uncertainty seen through ``M = I − J_E J_E⁺`` (what the registration does not absorb: a base
+    rotation the prior alone held is absorbed by new point centres), at ``data``'s own readings
+    (labels pick the plane/point of each row)."""
+    from .._fit._problem import Problem
+
+    m = result.measurement
+    layout = result.space.layout
+    unc = result.uncertainty
+    e_names = [n for g in registered for n in layout.group(g).names]
+    theta = [n for n in result.space.free_names if n not in set(e_names) and n in unc.names]
+    space = ParameterSpace.from_names(layout, [n for n in layout.names if n in set(theta) | set(e_names)])
+    q = to_device(np.asarray(data.q, np.float64))
+    pr = Problem(result.robot, m, q, to_device(np.asarray(data.y, np.float64)), space, deviations.astype(q.dtype))
+    J = np.asarray(_jacobian_program()(pr), np.float64)
+    obs = m.observed(np.asarray(data.y))
+    size = m.size
+    keep = np.ones(J.shape[0], bool) if obs is None else np.asarray(obs, bool).reshape(-1)
+    if m.kind == "pose":  # the position part, as the sample error
+        keep &= np.tile(np.arange(size) < 3, q.shape[0])
+    J = np.where(keep[:, None], J, 0.0)
+    idx = {n: i for i, n in enumerate(space.free_names)}
+    JE, Jt = J[:, [idx[n] for n in e_names]], J[:, [idx[n] for n in theta]]
+    U, s, _ = np.linalg.svd(JE, full_matrices=False)
+    U = U[:, s > 1e-10 * (s[0] if s.size else 1.0)]
+    MJ = Jt - U @ (U.T @ Jt)
+    ui = [unc.names.index(n) for n in theta]
+    cov = np.asarray(unc.covariance, np.float64)[np.ix_(ui, ui)]
+    v = np.einsum("ip,pq,iq->i", MJ, cov, MJ).reshape(q.shape[0], size).sum(axis=1)
+    return float(np.mean(v)), U.shape[1], int(keep.sum())
+
+
+def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
     """The RMSE (mm) that ``result`` predicts for itself on ``data``'s poses: ``sqrt(c·σ̂² + v̄/w)``
     with σ̂ the calibration's noise estimate, ``c = E[e²]`` of a sample error on unit noise (1 for a
     length, 3 for a position's norm or an RMS over markers: the model's own
@@ -380,7 +422,9 @@ def expected_rmse(result, data) -> float | None:
     from them the parameter term grows. Approximate where the extras are registered again on the
     new rows (their own fit then takes the place of the result's extras' uncertainty). ``None``
     where the result has no uncertainty (a loaded result from an old file; a method with its own
-    predictor, the RBF network)."""
+    predictor, the RBF network). ``registered``: extra groups fitted again on ``data`` (robot fixed) at
+    ``deviations``: the parameter term then counts only what the registration cannot absorb, and the
+    noise term the ``p_E`` parameters the registration fits, ``σ̂²(1 − p_E/N)`` per entry."""
     from .._fit._diagnostics import robust_consistency
 
     unc = result.uncertainty
@@ -389,6 +433,11 @@ def expected_rmse(result, data) -> float | None:
     m = result.measurement
     c = robust_consistency(m, "linear", m.observed(data.y)).mean_sq_error
     coords = 3 if m.kind == "pose" else m.size
+    if registered:
+        mean_var, p_e, n_entries = _registered_terms(result, data, registered, deviations)
+        noise = unc.noise_std ** 2 * max(0.0, 1.0 - p_e / max(n_entries, 1))
+        value = math.sqrt(c * noise + mean_var * c / coords)
+        return value if math.isfinite(value) else None
     var = result.prediction_std(data.q) ** 2
     value = math.sqrt(c * unc.noise_std ** 2 + float(np.mean(var)) * c / coords)
     return value if math.isfinite(value) else None
@@ -467,7 +516,8 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
         outlier_rows=rows, outlier_scale_mm=scale if math.isfinite(scale) else float("nan"),
         deviations_before=dev_b, deviations_after=dev_a, objective=objective,
-        q_file=joints_to_file_units(robot, data.q), expected_rmse=expected_rmse(result, data),
+        q_file=joints_to_file_units(robot, data.q),
+        expected_rmse=expected_rmse(result, data, registered, dev_a if registered else None),
     )
 
 

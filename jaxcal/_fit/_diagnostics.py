@@ -215,6 +215,9 @@ def robust_consistency(measurement, loss: str, observed=None, n_draws: int = 40_
     for a tracker position (the norm of 3 entries exceeds ``c`` in 61 % of clean samples)."""
     m = int(measurement.size)
     n = int(min(n_draws, max(2_000, 2_000_000 // m)))
+    fixed = getattr(measurement, "fixed_rows", None)
+    if fixed:  # a model whose rows have fixed meanings (combined blocks): whole copies of its rows
+        return _consistency_in_copies(measurement, loss, observed, int(fixed), max(1, -(-n // int(fixed))))
     if observed is None:
         real = np.ones((n, m), bool)
     else:
@@ -226,6 +229,22 @@ def robust_consistency(measurement, loss: str, observed=None, n_draws: int = 40_
     z[real] = np.random.default_rng(0).standard_normal(int(real.sum()))
     e2 = np.asarray(_sample_errors(measurement, to_device(z)), np.float64) ** 2
     return Consistency(loss, e2, np.sum(z * z, axis=1))
+
+
+def _consistency_in_copies(measurement, loss: str, observed, rows: int, copies: int) -> Consistency:
+    """:func:`robust_consistency` for a model whose ``sample_error`` reads ``rows`` rows of fixed
+    meaning (:class:`~jaxcal._sensors._blocks.Combined`: each row its block's): ``copies`` draws of
+    all of them, with the data's mask."""
+    m = int(measurement.size)
+    real = np.ones((rows, m), bool) if observed is None else np.asarray(observed, bool).reshape(rows, m)
+    rng = np.random.default_rng(0)
+    e2, z2 = [], []
+    for _ in range(copies):
+        z = np.zeros((rows, m))
+        z[real] = rng.standard_normal(int(real.sum()))
+        e2.append(np.asarray(_sample_errors(measurement, to_device(z)), np.float64) ** 2)
+        z2.append(np.sum(z * z, axis=1))
+    return Consistency(loss, np.concatenate(e2), np.concatenate(z2))
 
 
 class RobustNoise:

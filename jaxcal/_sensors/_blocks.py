@@ -454,6 +454,12 @@ class Combined(MeasurementModel):
     def n_rows(self) -> int:
         return sum(self.counts)
 
+    @property
+    def fixed_rows(self) -> int:
+        """Rows :meth:`sample_error` and :meth:`residual` read (each row its block's): statistics
+        that draw residuals (:func:`~jaxcal._fit._diagnostics.robust_consistency`) draw whole copies."""
+        return self.n_rows + self.pad
+
     def extra_groups(self) -> tuple[Group, ...]:
         return self.groups
 
