@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
@@ -34,7 +35,8 @@ class SimulatedFleet(NamedTuple):
 
 def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, measurement: MeasurementModel | None
                    = None, noise_std: float = 0.05, spread_angle_deg: float = 0.02, spread_length_mm: float = 0.08,
-                   mean: Deviations | None = None, test_fraction: float = 0.5) -> SimulatedFleet:
+                   mean: Deviations | None = None, test_fraction: float = 0.5, measure_key: Array | None = None,
+                   shift: Deviations | None = None, **simulate) -> SimulatedFleet:
     """``n_units`` simulated units of ``robot`` from one ``jax.random`` key, all simulated in one
     vectorised program (same ``n_samples`` each).
 
@@ -45,24 +47,36 @@ def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, 
     unit is measured at its own random poses by ``measurement`` (default: a :class:`Position`
     sensor in the base frame) with Gaussian noise ``noise_std`` (mm) and split into train and
     test (``test_fraction``), as :func:`jaxcal.simulate_experiment`.
+
+    The units (their true deviations) come from ``key``; their poses and noise from
+    ``measure_key`` (default: from ``key``): the same ``key`` with another ``measure_key``
+    measures the same units again (a recalibration), ``shift`` (deviations added to every
+    unit's truth, e.g. ``0.1°`` on ``theta_3``) makes them drift in between. Unit ``i`` depends on
+    ``i`` and the keys only: the first units of a larger fleet are the same units. ``simulate``:
+    further keywords of :func:`jaxcal.simulate_experiment` (``coverage``, ``oversample``...).
     """
     if n_units < 1:
         raise ValueError(f"n_units must be at least 1, got {n_units}")
     measurement = Position() if measurement is None else measurement
     k_mean, k_units, k_data = jax.random.split(key, 3)
+    k_data = k_data if measure_key is None else measure_key
     mean = draw_deviations(k_mean, robot) if mean is None else mean
-    one = draw_deviations(k_units, robot, angle_std_deg=1.0, length_std_mm=1.0)  # which entries vary, and their unit
+    one = draw_deviations(k_mean, robot, angle_std_deg=1.0, length_std_mm=1.0)  # which entries vary
     scale = {"rad": np.radians(spread_angle_deg), "mm": spread_length_mm}
     sd = np.asarray([scale.get(u, 0.0) for u in mean.layout.units]) * (np.asarray(one._ravel_numpy()) != 0)
     spread = Deviations.unravel(sd, mean.layout)
 
+    center = mean.ravel() if shift is None else mean.ravel() + shift.ravel()
+
     def unit(k_dev, k_sim):
         z = jax.random.normal(k_dev, (mean.layout.size,), sd.dtype)
-        true = Deviations.unravel(mean.ravel() + sd * z, mean.layout)
+        true = Deviations.unravel(center + sd * z, mean.layout)
         return simulate_experiment(k_sim, robot, measurement=measurement, true_deviations=true, n_samples=n_samples,
-                                   noise_std=noise_std, test_fraction=test_fraction)
+                                   noise_std=noise_std, test_fraction=test_fraction, **simulate)
 
-    ks = jax.random.split(k_data, 2 * n_units).reshape(2, n_units)
-    batch: Experiment = jax.jit(jax.vmap(unit))(ks[0], ks[1])
+    # unit i's keys are fold_in(key, i): the first units of a larger fleet are the same units
+    ids = jnp.arange(n_units)
+    fold = jax.vmap(jax.random.fold_in, in_axes=(None, 0))
+    batch: Experiment = jax.jit(jax.vmap(unit))(fold(k_units, ids), fold(k_data, ids))
     units = [jax.tree.map(lambda a, i=i: a[i], batch) for i in range(n_units)]
     return SimulatedFleet(mean, spread, units)
