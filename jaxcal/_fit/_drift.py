@@ -33,7 +33,7 @@ class DriftRow(NamedTuple):
         label: ``"joint 3's offset θ"``.
         unit: ``"°"`` or ``"mm"`` (the display unit).
         change: current − previous estimate.
-        std: σ of the change (both calibrations' posterior σ, see :func:`drift`).
+        std: σ of the change (both calibrations' posterior σ in quadrature).
         z: ``change / std``.
         moved: ``|z|`` above the report's threshold.
     """
@@ -55,15 +55,12 @@ class DriftReport(NamedTuple):
         since: a label of the previous calibration (a date, a file name) or ``""``.
         threshold: the ``|z|`` beyond which a parameter counts as moved.
         alpha: the family-wise false-alarm probability the threshold is set for.
-        independent: the change's σ assumes two independent calibrations (else the current one
-            was calibrated with the previous as its prior, see :func:`drift`).
     """
 
     rows: tuple
     since: str
     threshold: float
     alpha: float
-    independent: bool
 
     @property
     def moved(self) -> tuple:
@@ -88,8 +85,7 @@ class DriftReport(NamedTuple):
         return "\n".join(head) + "\n\n" + self.table()
 
     def to_dict(self) -> dict:
-        return {"since": self.since, "threshold": self.threshold, "alpha": self.alpha,
-                "independent": self.independent, "moved": list(self.moved),
+        return {"since": self.since, "threshold": self.threshold, "alpha": self.alpha, "moved": list(self.moved),
                 "rows": [r._asdict() for r in self.rows]}
 
 
@@ -120,23 +116,20 @@ def _was_prior_of(previous, current) -> bool:
                for n, v in zip(names, np.asarray(previous.x)) if n in p.covariance[0])
 
 
-def drift(previous, current, *, since: str = "", alpha: float = 0.01, independent: bool | None = None
-          ) -> DriftReport:
+def drift(previous, current, *, since: str = "", alpha: float = 0.01) -> DriftReport:
     """Which robot parameters of one unit moved between two calibrations, beyond their uncertainty.
 
-    For each robot parameter both fitted (sensor extras left out: a new set-up), the change
-    ``Δ = x_current − x_previous`` and its σ:
+    The two calibrations must be independent: each from its own data under a generic prior (as
+    ``jaxcal calibrate`` does by default). For each robot parameter both fitted (sensor extras
+    left out: a new set-up), the change ``Δ = x_current − x_previous`` has ``Var Δ = C_prev +
+    C_cur`` (their posterior variances); in directions a prior rather than the data set, both
+    estimates sit near the prior and the σ is conservative. A parameter counts as moved when
+    ``|Δ/σ| > Φ⁻¹(1 − α/(2m))`` over the ``m`` parameters compared (Bonferroni: a unit that did not
+    change reports any move with probability at most ``alpha``).
 
-    * two **independent** calibrations (each from its own data under a generic prior):
-      ``Var Δ = C_prev + C_cur`` (their posterior covariances);
-    * ``current`` calibrated with ``previous`` as its prior (:meth:`jaxcal.Prior.from_result`,
-      detected from ``current.prior`` unless ``independent`` says): the update's shift has
-      ``Var Δ = C_prev − C_cur`` if nothing moved (the Kalman update's innovation, Bar-Shalom et
-      al., *Estimation with Applications to Tracking*, 2001, §5.2), floored at 1 % of ``C_prev``.
-
-    A parameter counts as moved when ``|Δ/σ| > Φ⁻¹(1 − α/(2m))`` over the ``m`` parameters
-    compared (Bonferroni: the chance that a unit that did not change reports any move is at
-    most ``alpha``).
+    A calibration with the previous result as its prior (:meth:`jaxcal.Prior.from_result`) is
+    refused: it pulls toward the previous estimate, and a change it cannot give back to the
+    parameter that moved (held by the tight prior) spreads over the correlated others.
 
     Args:
         previous, current: :class:`~jaxcal.CalibrationResult` of one unit (same robot model), with
@@ -145,7 +138,7 @@ def drift(previous, current, *, since: str = "", alpha: float = 0.01, independen
         alpha: family-wise false-alarm probability (default 0.01).
 
     Returns:
-        :class:`DriftReport` (``str()``: ``"joint 3's offset θ (theta_3) moved +0.1° ± 0.0031° since
+        :class:`DriftReport` (``str()``: ``"joint 3's offset θ (theta_3) moved +0.1° ± 0.0021° since
         2026-05-01"`` lines and a table; ``.moved`` the names).
     """
     if not 0.0 < alpha < 1.0:
@@ -153,7 +146,9 @@ def drift(previous, current, *, since: str = "", alpha: float = 0.01, independen
     if previous.space.layout != current.space.layout or previous.robot.name != current.robot.name:
         raise ValueError(f"the two results are not of one robot model ({previous.robot.name!r}, "
                          f"{current.robot.name!r}, or different parameter layouts)")
-    independent = not _was_prior_of(previous, current) if independent is None else independent
+    if _was_prior_of(previous, current):
+        raise ValueError("the current calibration used the previous one as its prior: for a drift report, "
+                         "calibrate the new data under the generic prior (the default) and compare the two")
     ia, xa, Ca, units = _robot_posterior(previous)
     ib, xb, Cb, _ = _robot_posterior(current)
     names = [n for n in ia if n in ib]
@@ -161,16 +156,14 @@ def drift(previous, current, *, since: str = "", alpha: float = 0.01, independen
         raise ValueError("the two calibrations have no robot parameter in common")
     a = np.asarray([ia[n] for n in names])
     b = np.asarray([ib[n] for n in names])
-    va, vb = np.diag(Ca)[a], np.diag(Cb)[b]
-    var = va + vb if independent else np.maximum(va - vb, 0.01 * va)
     change = xb[b] - xa[a]
-    std = np.sqrt(var)
+    std = np.sqrt(np.diag(Ca)[a] + np.diag(Cb)[b])
     threshold = statistics.NormalDist().inv_cdf(1.0 - alpha / (2 * len(names)))
     rows = []
     for j, n in enumerate(names):
         deg = units[a[j]] == "rad"
         f = math.degrees(1.0) if deg else 1.0
-        z = float(change[j] / std[j]) if std[j] > 0 else math.inf * np.sign(change[j])
+        z = float(change[j] / std[j]) if std[j] > 0 else math.copysign(math.inf, change[j])
         rows.append(DriftRow(n, parameter_label(n), "°" if deg else units[a[j]], float(change[j] * f),
                              float(std[j] * f), z, bool(abs(z) > threshold)))
-    return DriftReport(tuple(rows), since, float(threshold), float(alpha), bool(independent))
+    return DriftReport(tuple(rows), since, float(threshold), float(alpha))

@@ -282,7 +282,7 @@ def fleet_prior(results, *, base: Prior | None = None, noise_std: float | None =
         source=f"fleet of {K} units of {robot}", population=population)
 
 
-def _result_prior(free, units, x, cov, deviations: dict, base: Prior, source: str) -> Prior:
+def _result_prior(free, units, x, cov, deviations: dict, base: Prior, source: str, noise_std=None) -> Prior:
     rob = robot_part(free)
     C = np.asarray(cov, np.float64)[np.ix_(rob, rob)]
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
@@ -293,7 +293,8 @@ def _result_prior(free, units, x, cov, deviations: dict, base: Prior, source: st
     mean.update({free[i]: float(x[i]) for i in rob})
     return dataclasses.replace(base, mean=tuple(mean.items()),
                                covariance=(tuple(names), tuple(map(tuple, (0.5 * (C + C.T)).tolist()))),
-                               source=source, population=None)
+                               source=source, population=None,
+                               noise_std=base.noise_std if base.noise_std is not None else noise_std)
 
 
 def result_prior(result, *, base: Prior | None = None, source: str | None = None) -> Prior:
@@ -301,12 +302,17 @@ def result_prior(result, *, base: Prior | None = None, source: str | None = None
     estimate of every robot parameter, covariance = the previous posterior covariance of those it
     fitted (parameters it did not fit keep ``base``'s σ: default 0.5°, 2 mm); the sensor extras
     stay out (a new set-up). ``result``: a :class:`~jaxcal.CalibrationResult` with its
-    ``uncertainty``."""
+    ``uncertainty``.
+
+    The noise σ the prior is weighed against is the previous fit's σ̂ (the unit's sensor), unless
+    ``base.noise_std`` says: estimated from the new fit instead, a prior this tight can hold the
+    fit where it was, leave large residuals, and so read a large σ̂ that keeps it there (a 0.1°
+    change went unseen that way)."""
     if result.uncertainty is None:
         raise ValueError("the previous result has no posterior covariance (result.uncertainty)")
     return _result_prior(list(result.space.free_names), list(result.space.free_units), np.asarray(result.x),
                          result.uncertainty.covariance, result.deviations.named(), Prior() if base is None else base,
-                         source or f"previous calibration of {result.robot.name}")
+                         source or f"previous calibration of {result.robot.name}", result.uncertainty.noise_std)
 
 
 # -- files ----------------------------------------------------------------------------------------------
@@ -389,5 +395,5 @@ def prior_from_file(path) -> Prior:
             base = dataclasses.replace(base, covariance=(), mean=None, population=None)
         name = (d.get("robot") or {}).get("name", "robot")
         return _result_prior(free, units, x, unc["covariance"], d["deviations"], base,
-                             f"previous calibration of {name} ({pathlib.Path(path).name})")
+                             f"previous calibration of {name} ({pathlib.Path(path).name})", unc.get("noise_std_mm"))
     return prior_from_dict(d, str(path))

@@ -67,16 +67,37 @@ def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, 
     spread = Deviations.unravel(sd, mean.layout)
 
     center = mean.ravel() if shift is None else mean.ravel() + shift.ravel()
-
-    def unit(k_dev, k_sim):
-        z = jax.random.normal(k_dev, (mean.layout.size,), sd.dtype)
-        true = Deviations.unravel(center + sd * z, mean.layout)
-        return simulate_experiment(k_sim, robot, measurement=measurement, true_deviations=true, n_samples=n_samples,
-                                   noise_std=noise_std, test_fraction=test_fraction, **simulate)
-
     # unit i's keys are fold_in(key, i): the first units of a larger fleet are the same units
     ids = jnp.arange(n_units)
     fold = jax.vmap(jax.random.fold_in, in_axes=(None, 0))
-    batch: Experiment = jax.jit(jax.vmap(unit))(fold(k_units, ids), fold(k_data, ids))
+    batch: Experiment = _simulate_units(fold(k_units, ids), fold(k_data, ids), center, jnp.asarray(sd), robot,
+                                        measurement, mean.layout, n_samples, noise_std, test_fraction,
+                                        tuple(sorted(simulate.items())))
     units = [jax.tree.map(lambda a, i=i: a[i], batch) for i in range(n_units)]
     return SimulatedFleet(mean, spread, units)
+
+
+#: compiled unit simulators by (robot, sensor, sizes, settings); the robot is closed over (its
+#: reach sets the workspace filter on the host), the population's values are arguments
+_PROGRAMS: dict = {}
+
+
+def _simulate_units(k_dev, k_sim, center, sd, robot, measurement, layout, n_samples, noise_std, test_fraction,
+                    simulate) -> Experiment:
+    """The units of :func:`simulate_fleet`, vectorised; one compiled program per robot object,
+    sensor object, sizes and settings (kept while the robot and sensor are)."""
+    key = (id(robot), id(measurement), layout, n_samples, float(noise_std), float(test_fraction), simulate)
+    entry = _PROGRAMS.get(key)
+    if entry is None or entry[0] is not robot or entry[1] is not measurement:
+
+        def unit(kd, ks, center, sd):
+            z = jax.random.normal(kd, center.shape, center.dtype)
+            true = Deviations.unravel(center + sd * z, layout)
+            return simulate_experiment(ks, robot, measurement=measurement, true_deviations=true,
+                                       n_samples=n_samples, noise_std=noise_std, test_fraction=test_fraction,
+                                       **dict(simulate))
+
+        if len(_PROGRAMS) > 8:
+            _PROGRAMS.clear()
+        entry = _PROGRAMS[key] = (robot, measurement, jax.jit(jax.vmap(unit, in_axes=(0, 0, None, None))))
+    return entry[2](k_dev, k_sim, center, sd)

@@ -441,11 +441,11 @@ def _add_drift(sub, fmt) -> None:
     d = sub.add_parser(
         "drift", formatter_class=fmt, help="which robot parameters of a unit moved between two calibrations",
         description="Compare two calibrations of one unit (result files, e.g. months apart): for every robot "
-                    "parameter both fitted, the change and its σ from the two posterior covariances (or, when the "
-                    "newer one was calibrated with --prior PREVIOUS.json, the update's own σ), and whether it moved "
+                    "parameter both fitted, the change and its σ from the two posterior σ, and whether it moved "
                     "beyond its uncertainty (|z| above a Bonferroni threshold: a unit that did not change reports "
                     "a move with probability at most --alpha). Angles in degrees, lengths in mm. Exits with "
-                    "status 1 if a parameter moved.",
+                    "status 1 if a parameter moved. Calibrate the new data independently (the default prior, "
+                    "not --prior PREVIOUS.json, which pulls toward the previous estimate).",
     )
     d.add_argument("previous", help="the earlier RESULT.json")
     d.add_argument("current", help="the later RESULT.json")
