@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -57,7 +58,7 @@ def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, 
     """
     if n_units < 1:
         raise ValueError(f"n_units must be at least 1, got {n_units}")
-    measurement = Position() if measurement is None else measurement
+    measurement = _default_sensor() if measurement is None else measurement
     k_mean, k_units, k_data = jax.random.split(key, 3)
     k_data = k_data if measure_key is None else measure_key
     mean = draw_deviations(k_mean, robot) if mean is None else mean
@@ -75,6 +76,12 @@ def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, 
                                         tuple(sorted(simulate.items())))
     units = [jax.tree.map(lambda a, i=i: a[i], batch) for i in range(n_units)]
     return SimulatedFleet(mean, spread, units)
+
+
+@functools.lru_cache(maxsize=1)
+def _default_sensor() -> Position:
+    """One :class:`Position` sensor object for every call (the compiled simulators are kept per object)."""
+    return Position()
 
 
 #: compiled unit simulators by (robot, sensor, sizes, settings); the robot is closed over (its
