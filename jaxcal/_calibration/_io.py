@@ -26,6 +26,7 @@ from .._core._params import Deviations, ParameterSpace, layout_for
 from .._datasets._csvfile import read_table
 from .._fit._diagnostics import Uncertainty
 from .._fit._learned_prior import prior_from_dict, prior_to_dict
+from .._fit._objective import Prior
 from .._fit._result import CalibrationResult, Status
 from .._models._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from .._models._robot import DHRobot
@@ -420,7 +421,7 @@ def load_result(path) -> CalibrationResult:
         hyperparameters=dict(d.get("hyperparameters", {})),
         extra=extra,
         predictor=predictor,
-        prior=prior_from_dict(d["prior_spec"], str(path)) if d.get("prior_spec") else None,
+        prior=prior_from_dict(d["prior_spec"], Prior, str(path)) if d.get("prior_spec") else None,
         loss=str(d.get("loss") or "linear"),
         loss_scale_mm=d.get("loss_scale_mm"),
     )

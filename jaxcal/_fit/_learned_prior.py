@@ -37,13 +37,16 @@ import dataclasses
 import json
 import math
 import pathlib
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._core._json import to_jsonable
 from .._core._metrics import format_table
 from .._core._params import ParameterSpace, group_kind
-from ._objective import Prior
+
+if TYPE_CHECKING:  # the Prior class is passed in (Prior's own methods call these): no import circle
+    from ._objective import Prior
 
 __all__ = ["FleetPopulation", "fleet_prior", "result_prior", "save_prior", "load_prior", "prior_from_file",
            "PRIOR_FORMAT", "robot_part"]
@@ -59,7 +62,7 @@ def _display(value: float, unit: str) -> tuple[float, str]:
 
 @dataclasses.dataclass(frozen=True)
 class FleetPopulation:
-    """The population of a robot model's units, as learned by :func:`fleet_prior` (rad, mm).
+    """The population of a robot model's units, as learned by :meth:`jaxcal.Prior.from_fleet` (rad, mm).
 
     Attributes:
         robot: the robot model's name.
@@ -186,7 +189,7 @@ def _correlation_shrinkage(samples: np.ndarray) -> float:
     return 1.0 if denom <= 0 else float(np.clip(var_r[off].sum() / denom, 0.0, 1.0))
 
 
-def fleet_prior(results, *, base: Prior | None = None, noise_std: float | None = None, iterations: int = 1000,
+def fleet_prior(results, base: Prior, *, noise_std: float | None = None, iterations: int = 1000,
                 tol: float = 1e-7) -> Prior:
     """The robot model's prior learned from calibrated units of it (empirical Bayes; see the module
     docstring): a :class:`~jaxcal.Prior` with the population mean as its ``mean`` and the
@@ -201,8 +204,8 @@ def fleet_prior(results, *, base: Prior | None = None, noise_std: float | None =
             result file keeps it from this version on; a result without one counts as a fit
             without a prior).
         base: the generic prior: where the spread starts, what the directions no unit's data see
-            keep, the hyper-prior of the mean, and the σ of parameters no unit fitted (default
-            :class:`~jaxcal.Prior` ``()``: 0.5°, 2 mm).
+            keep, the hyper-prior of the mean, and the σ of parameters no unit fitted
+            (:meth:`jaxcal.Prior.from_fleet`: :class:`~jaxcal.Prior` ``()``, 0.5°, 2 mm).
         noise_std: the sensor noise σ (mm) the prior is weighed against (default: estimated from
             each new fit, see ``Prior.noise_std``).
         iterations, tol: expectation–maximisation's budget and relative tolerance on ``Σ``.
@@ -213,7 +216,6 @@ def fleet_prior(results, *, base: Prior | None = None, noise_std: float | None =
     if len(results) < 3:
         raise ValueError(f"a fleet prior needs at least 3 calibrated units, got {len(results)}")
     _same_model(results)
-    base = Prior() if base is None else base
     layout = results[0].space.layout
     fitted = set().union(*(set(np.asarray(r.space.free_names)[robot_part(r.space.free_names)]) for r in results))
     names = [n for n in layout.names if n in fitted]
@@ -297,10 +299,10 @@ def _result_prior(free, units, x, cov, deviations: dict, base: Prior, source: st
                                noise_std=base.noise_std if base.noise_std is not None else noise_std)
 
 
-def result_prior(result, *, base: Prior | None = None, source: str | None = None) -> Prior:
+def result_prior(result, base: Prior, *, source: str | None = None) -> Prior:
     """A unit's previous calibration as the prior of its next one (rad, mm): mean = the previous
     estimate of every robot parameter, covariance = the previous posterior covariance of those it
-    fitted (parameters it did not fit keep ``base``'s σ: default 0.5°, 2 mm); the sensor extras
+    fitted (parameters it did not fit keep ``base``'s σ: the default 0.5°, 2 mm); the sensor extras
     stay out (a new set-up). ``result``: a :class:`~jaxcal.CalibrationResult` with its
     ``uncertainty``.
 
@@ -311,7 +313,7 @@ def result_prior(result, *, base: Prior | None = None, source: str | None = None
     if result.uncertainty is None:
         raise ValueError("the previous result has no posterior covariance (result.uncertainty)")
     return _result_prior(list(result.space.free_names), list(result.space.free_units), np.asarray(result.x),
-                         result.uncertainty.covariance, result.deviations.named(), Prior() if base is None else base,
+                         result.uncertainty.covariance, result.deviations.named(), base,
                          source or f"previous calibration of {result.robot.name}", result.uncertainty.noise_std)
 
 
@@ -336,14 +338,14 @@ def prior_to_dict(prior: Prior) -> dict:
     return to_jsonable(out)
 
 
-def prior_from_dict(d: dict, where: str = "prior") -> Prior:
-    """Inverse of :func:`prior_to_dict`."""
+def prior_from_dict(d: dict, cls: type[Prior], where: str = "prior") -> Prior:
+    """Inverse of :func:`prior_to_dict` (``cls``: :class:`~jaxcal.Prior`)."""
     if not str(d.get("format", "")).startswith("jaxcal-prior/"):
         raise ValueError(f"{where} is not a jaxcal prior file (no 'format': {PRIOR_FORMAT!r} entry)")
     inf = lambda v: math.inf if v is None else float(v)  # noqa: E731
     cov = d.get("covariance")
     try:
-        return Prior(angle_deg=inf(d.get("angle_deg", 0.5)), length_mm=inf(d.get("length_mm", 2.0)),
+        return cls(angle_deg=inf(d.get("angle_deg", 0.5)), length_mm=inf(d.get("length_mm", 2.0)),
                      extras_mm=inf(d.get("extras_mm")), extras_deg=inf(d.get("extras_deg")),
                      noise_std=d.get("noise_std_mm"), strength=float(d.get("strength", 1.0)),
                      overrides=tuple((str(n), float(s)) for n, s in d.get("overrides", ())),
@@ -373,12 +375,12 @@ def _read_json(path) -> dict:
     return d
 
 
-def load_prior(path) -> Prior:
+def load_prior(path, cls: type[Prior]) -> Prior:
     """Read a prior file written by :func:`save_prior`."""
-    return prior_from_dict(_read_json(path), str(path))
+    return prior_from_dict(_read_json(path), cls, str(path))
 
 
-def prior_from_file(path) -> Prior:
+def prior_from_file(path, cls: type[Prior]) -> Prior:
     """A prior file (:func:`save_prior`), or a calibration result file as the prior of the unit's
     next calibration (:func:`result_prior`)."""
     d = _read_json(path)
@@ -390,10 +392,10 @@ def prior_from_file(path) -> Prior:
         units = [d["units"][n] for n in free]
         x = np.asarray([d["free_parameters"][n] for n in free], np.float64)
         spec = d.get("prior_spec")
-        base = prior_from_dict(spec, str(path)) if spec else Prior()
+        base = prior_from_dict(spec, cls, str(path)) if spec else cls()
         if base.covariance:  # the previous fit's own learned prior: keep its generic σ for the rest
             base = dataclasses.replace(base, covariance=(), mean=None, population=None)
         name = (d.get("robot") or {}).get("name", "robot")
         return _result_prior(free, units, x, unc["covariance"], d["deviations"], base,
                              f"previous calibration of {name} ({pathlib.Path(path).name})", unc.get("noise_std_mm"))
-    return prior_from_dict(d, str(path))
+    return prior_from_dict(d, cls, str(path))

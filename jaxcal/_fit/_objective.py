@@ -137,7 +137,7 @@ class Prior:
         if text.lower().endswith(".json"):  # a prior file (jaxcal fleet-prior) or a previous result
             from ._learned_prior import prior_from_file
 
-            return prior_from_file(text)
+            return prior_from_file(text, cls)
         if text.lower() in ("none", "off", ""):
             return None
         if text.lower() == "default":
@@ -244,21 +244,46 @@ class Prior:
         return None if W is None else W.T @ W
 
     @classmethod
-    def from_fleet(cls, results, **kwargs) -> Prior:
-        """The robot model's own prior, learned from calibrated units of it (empirical Bayes):
-        see :func:`jaxcal._fit._learned_prior.fleet_prior` (``results``: :class:`~jaxcal.CalibrationResult`
-        objects, e.g. ``[jaxcal.load_result(f) for f in files]``)."""
+    def from_fleet(cls, results, *, base: Prior | None = None, noise_std: float | None = None, iterations: int = 1000,
+                   tol: float = 1e-7) -> Prior:
+        """The robot model's own prior, learned from calibrated units of it (empirical Bayes).
+
+        Unit ``k``'s robot deviations are modelled as drawn from ``N(μ, Σ)``, its calibration as a
+        Gaussian measurement of them (its own prior divided out); ``μ`` and ``Σ`` maximise the
+        marginal likelihood (expectation–maximisation; Gelman et al., *Bayesian Data Analysis*,
+        ch. 5), so the spread of the estimates is split into the true unit spread and each unit's
+        estimation noise; the correlations are shrunk toward zero (Schäfer & Strimmer 2005) when
+        the units are few; directions no unit's data determine keep ``base``. The result's
+        ``mean`` is ``μ``, its ``covariance`` ``Σ`` plus the uncertainty of ``μ`` (from the number
+        of units), its ``population`` the :class:`~jaxcal.FleetPopulation` (mean, spread and their
+        σ). Sensor extras (anchor, tool point, sensor frame) stay out: they are per unit.
+
+        Args:
+            results: ≥ 3 :class:`~jaxcal.CalibrationResult` of units of one robot model, each with
+                its ``uncertainty``, calibrated under a prior (``objective="measured"``, the CLI's
+                default), e.g. ``[jaxcal.load_result(f) for f in files]``.
+            base: the generic prior (default ``Prior()``: 0.5°, 2 mm): the spread's start, the
+                hyper-prior of the mean, and the σ of parameters no unit fitted.
+            noise_std: the sensor noise σ (mm) the prior is weighed against (default: estimated
+                from each new fit).
+            iterations, tol: the EM budget and its relative tolerance on ``Σ``.
+        """
         from ._learned_prior import fleet_prior
 
-        return fleet_prior(results, **kwargs)
+        return fleet_prior(results, cls() if base is None else base, noise_std=noise_std, iterations=iterations,
+                           tol=tol)
 
     @classmethod
-    def from_result(cls, result, **kwargs) -> Prior:
-        """A unit's previous calibration as the prior of its next one: mean = its estimate,
-        covariance = its posterior (see :func:`jaxcal._fit._learned_prior.result_prior`)."""
+    def from_result(cls, result, *, base: Prior | None = None, source: str | None = None) -> Prior:
+        """A unit's previous calibration as the prior of its next one: mean = its estimate of
+        every robot parameter, covariance = its posterior covariance of those it fitted (the
+        others keep ``base``'s σ, default ``Prior()``); sensor extras stay out; weighed against
+        the previous fit's σ̂ (the unit's sensor) unless ``base.noise_std`` says otherwise.
+        ``result``: a :class:`~jaxcal.CalibrationResult` with its ``uncertainty``. For which
+        parameters moved since, compare two independent calibrations: :func:`jaxcal.drift`."""
         from ._learned_prior import result_prior
 
-        return result_prior(result, **kwargs)
+        return result_prior(result, cls() if base is None else base, source=source)
 
     def save(self, path) -> None:
         """Write the prior as a JSON file (``jaxcal-prior/1``; :meth:`load` reads it back)."""
@@ -271,7 +296,7 @@ class Prior:
         """Read a prior file written by :meth:`save` (or ``jaxcal fleet-prior --out``)."""
         from ._learned_prior import load_prior
 
-        return load_prior(path)
+        return load_prior(path, cls)
 
     def describe(self) -> str:
         if self.covariance:

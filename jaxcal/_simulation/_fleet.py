@@ -33,6 +33,17 @@ class SimulatedFleet(NamedTuple):
     spread: Deviations
     units: list
 
+    def z_scores(self, population) -> tuple[np.ndarray, np.ndarray]:
+        """A learned population (:class:`~jaxcal.FleetPopulation`, e.g. ``prior.population``)
+        against this fleet's truth in units of its stated σ: ``(z_mean, z_spread)``, each ``[k]``
+        over ``population.names`` (``(learned − true) / stated σ``)."""
+        names = self.mean.layout.names
+        mean = dict(zip(names, np.asarray(self.mean._ravel_numpy())))
+        spread = dict(zip(names, np.asarray(self.spread._ravel_numpy())))
+        z_mean = [(m - mean[n]) / s for n, m, s in zip(population.names, population.mean, population.mean_std)]
+        z_spread = [(m - spread[n]) / s for n, m, s in zip(population.names, population.spread, population.spread_std)]
+        return np.asarray(z_mean), np.asarray(z_spread)
+
 
 def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, measurement: MeasurementModel | None
                    = None, noise_std: float = 0.05, spread_angle_deg: float = 0.02, spread_length_mm: float = 0.08,

@@ -64,10 +64,7 @@ def test_learned_population_agrees_with_the_truth(fleet):
     learned prior keeps the generic one: d₂ − d₃ of the parallel axes 2 ∥ 3 is invisible)."""
     _, _, fl, _, _, prior = fleet
     pop = prior.population
-    truth = dict(zip(fl.mean.layout.names, np.asarray(fl.mean._ravel_numpy())))
-    spread = dict(zip(fl.mean.layout.names, np.asarray(fl.spread._ravel_numpy())))
-    z_mean = np.array([(m - truth[n]) / s for n, m, s in zip(pop.names, pop.mean, pop.mean_std)])
-    z_spread = np.array([(m - spread[n]) / s for n, m, s in zip(pop.names, pop.spread, pop.spread_std)])
+    z_mean, z_spread = fl.z_scores(pop)
     seen = np.asarray(pop.data_share) >= 0.8
     assert pop.n_units == N_FLEET and len(pop.names) == 24 and seen.sum() >= 12
     assert np.all(np.abs(z_mean) < 3.5), dict(zip(pop.names, np.round(z_mean, 2)))
