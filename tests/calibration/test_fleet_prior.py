@@ -164,6 +164,19 @@ def test_cli_fleet_prior_and_drift(fleet, tmp_path, capsys):
     direct = Prior.from_fleet(taught[:12])
     np.testing.assert_allclose(np.asarray(from_files.covariance[1]), np.asarray(direct.covariance[1]), rtol=1e-6)
     np.testing.assert_allclose([v for _, v in from_files.mean], [v for _, v in direct.mean], rtol=1e-6, atol=1e-12)
+    # a new unit from 15 poses on the command line, under the learned prior file
+    robot, _, fl, _, _, _ = fleet
+    unit = fl.units[N_FLEET]
+    from jaxcal._calibration._io import save_robot_csv
+
+    save_robot_csv(robot, tmp_path / "robot.csv")
+    jaxcal.save_csv(jaxcal.Dataset(unit.train.q[:15], unit.train.y[:15], unit.train.kind), tmp_path / "new.csv")
+    assert main(["calibrate", str(tmp_path / "new.csv"), "--robot", str(tmp_path / "robot.csv"), "--measurement",
+                 "position", "--prior", str(out), "--test-fraction", "0.0", "--out", str(tmp_path / "new.json")]) == 0
+    printed = capsys.readouterr().out
+    assert "learned Gaussian prior (fleet of 12 units of hsr_jr680)" in printed
+    new = jaxcal.load_result(tmp_path / "new.json")
+    assert new.prior.covariance and new.evaluate(unit.test).rmse < 1.5 * NOISE * math.sqrt(3)
     assert main(["drift", files[0], files[0], "--since", "2026-05-01"]) == 0
     assert "no robot parameter moved beyond its uncertainty since 2026-05-01" in capsys.readouterr().out
     assert main(["fleet-prior", files[0], "--out", str(out)]) == 2
