@@ -626,6 +626,9 @@ def _calibration_steps(
     warn_if_float32(q.dtype, "calibrate")
     checks = Checks() if checks is None else checks
     prior = resolve_prior(prior)
+    learned_from = getattr(getattr(prior, "population", None), "robot", None)
+    if learned_from is not None and learned_from != robot.name:
+        raise ValueError(f"the prior was learned from units of {learned_from!r}, not of robot {robot.name!r}")
     if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
     if init not in ("auto", "none"):

@@ -8,6 +8,7 @@ Every calibration (200 or 15 training poses, padded to one row bucket; ten units
 calibrate_many call) runs one of two compiled programs: the generic prior's, or a learned prior's
 (a full covariance); every simulation one program (70 units)."""
 
+import dataclasses
 import math
 import re
 import warnings
@@ -181,3 +182,20 @@ def test_cli_fleet_prior_and_drift(fleet, tmp_path, capsys):
     assert "no robot parameter moved beyond its uncertainty since 2026-05-01" in capsys.readouterr().out
     assert main(["fleet-prior", files[0], "--out", str(out)]) == 2
     assert "at least 3 calibrated units" in capsys.readouterr().err
+
+
+def test_fleet_prior_bad_input(fleet):
+    """Errors name the problem: too few units, a failed unit, another robot model, a unit without its
+    posterior covariance, a prior learned from another model."""
+    robot, meas, fl, _, taught, prior = fleet
+    with pytest.raises(ValueError, match="at least 3 calibrated units, got 2"):
+        Prior.from_fleet(taught[:2])
+    with pytest.raises(ValueError, match="its calibration failed"):
+        Prior.from_fleet([*taught[:3], None])
+    other = dataclasses.replace(taught[1], robot=jaxcal.robots.ur5())  # also 6 joints: the same layout
+    with pytest.raises(ValueError, match="unit 2 is not the same robot model as unit 1"):
+        Prior.from_fleet([taught[0], other, taught[2]])
+    with pytest.raises(ValueError, match="posterior covariance"):
+        Prior.from_fleet([*taught[:3], dataclasses.replace(taught[3], uncertainty=None)])
+    with pytest.raises(ValueError, match="learned from units of 'hsr_jr680', not of robot 'ur5'"):
+        jaxcal.calibrate(jaxcal.robots.ur5(), meas, fl.units[0].train, "lm", prior=prior)
