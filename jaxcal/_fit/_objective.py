@@ -159,13 +159,18 @@ class Prior:
         return cls(**fields, overrides=tuple(overrides))
 
     def scaled(self, strength: float) -> Prior:
-        """The same prior ``strength`` times stronger (every finite σ divided by ``strength``)."""
+        """The same prior ``strength`` times stronger (every finite σ divided by ``strength``, a
+        learned covariance by ``strength²``)."""
         if not strength > 0:
             raise ValueError(f"prior strength must be > 0, got {strength}")
+        cov = self.covariance
+        if cov:
+            cov = (cov[0], tuple(tuple(v / strength**2 for v in row) for row in cov[1]))
         return dataclasses.replace(
             self, angle_deg=self.angle_deg / strength, length_mm=self.length_mm / strength,
             extras_mm=self.extras_mm / strength, extras_deg=self.extras_deg / strength,
             overrides=tuple((n, s / strength) for n, s in self.overrides), strength=self.strength * strength,
+            covariance=cov,
         )
 
     def std(self, space: ParameterSpace) -> np.ndarray:

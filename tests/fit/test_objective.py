@@ -281,6 +281,7 @@ def test_prior_with_covariance_whitening_files_and_errors(tmp_path):
     Ws = prior.whitening(space, free=sub)[2:6, 2:6]
     np.testing.assert_allclose(Ws.T @ Ws, np.linalg.inv(C[2:6, 2:6]), rtol=1e-9)  # the marginal, not C⁻¹'s block
     assert Prior().whitening(space) is None
+    np.testing.assert_allclose(prior.scaled(2.0).std(space), prior.std(space) / 2.0, rtol=1e-12)
     diag = Prior(covariance=(tuple(names), tuple(map(tuple, np.diag(Prior().std(space) ** 2)))))
     np.testing.assert_allclose(diag.whitening(space), np.diag(1.0 / Prior().std(space)), rtol=1e-12)
     prior.save(tmp_path / "p.json")
