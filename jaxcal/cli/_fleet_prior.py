@@ -33,14 +33,15 @@ def _cmd_fleet_prior(args) -> int:
 
 
 def _file_date(path) -> str:
-    """A result file's ``calibrated_at`` entry, else its modification date (``YYYY-MM-DD``)."""
+    """A result file's ``calibrated_at`` entry (``jaxcal calibrate --out`` writes it), else its
+    modification date (``YYYY-MM-DD``, UTC)."""
     try:
         d = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
         if isinstance(d, dict) and d.get("calibrated_at"):
             return str(d["calibrated_at"])
     except (OSError, ValueError):
         pass
-    return datetime.date.fromtimestamp(pathlib.Path(path).stat().st_mtime).isoformat()
+    return datetime.datetime.fromtimestamp(pathlib.Path(path).stat().st_mtime, datetime.timezone.utc).date().isoformat()
 
 
 def _cmd_drift(args) -> int:

@@ -9,6 +9,7 @@ calibrate_many call) runs one of two compiled programs: the generic prior's, or 
 (a full covariance); every simulation one program (70 units)."""
 
 import dataclasses
+import json
 import math
 import re
 import warnings
@@ -180,6 +181,12 @@ def test_cli_fleet_prior_and_drift(fleet, tmp_path, capsys):
     assert new.prior.covariance and new.evaluate(unit.test).rmse < 1.5 * NOISE * math.sqrt(3)
     assert main(["drift", files[0], files[0], "--since", "2026-05-01"]) == 0
     assert "no robot parameter moved beyond its uncertainty since 2026-05-01" in capsys.readouterr().out
+    # two units as if one: the earlier file named by its calibrated_at date; status 1 exactly when moved
+    stamp = json.loads((tmp_path / "new.json").read_text())["calibrated_at"]
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d", stamp)
+    rc = main(["drift", str(tmp_path / "new.json"), files[1], "--json", str(tmp_path / "drift.json")])
+    assert f"since {stamp} (new.json)" in capsys.readouterr().out
+    assert rc == (1 if json.loads((tmp_path / "drift.json").read_text())["moved"] else 0)
     assert main(["fleet-prior", files[0], "--out", str(out)]) == 2
     assert "at least 3 calibrated units" in capsys.readouterr().err
 
