@@ -58,6 +58,11 @@ __all__ = [
     "calibrate_many",
     "FleetResult",
     "FleetSummary",
+    "FleetPopulation",
+    "DriftReport",
+    "drift",
+    "SimulatedFleet",
+    "simulate_fleet",
     "iterations_to_converge",
     "methods",
     "optim",
@@ -237,6 +242,11 @@ _LAZY = {
     'MEASURED_DEFAULTS': ('_fit._objective', 'MEASURED_DEFAULTS'),
     'Evaluation': ('_calibration._evaluate', 'Evaluation'),
     'evaluate_result': ('_calibration._evaluate', 'evaluate_result'),
+    'FleetPopulation': ('_fit._learned_prior', 'FleetPopulation'),
+    'DriftReport': ('_fit._drift', 'DriftReport'),
+    'drift': ('_fit._drift', 'drift'),
+    'SimulatedFleet': ('_simulation._fleet', 'SimulatedFleet'),
+    'simulate_fleet': ('_simulation._fleet', 'simulate_fleet'),
 }
 
 

@@ -635,6 +635,9 @@ def _calibration_steps(
     warn_if_float32(q.dtype, "calibrate")
     checks = Checks() if checks is None else checks
     prior = resolve_prior(prior)
+    learned_from = getattr(getattr(prior, "population", None), "robot", None)
+    if learned_from is not None and learned_from != robot.name:
+        raise ValueError(f"the prior was learned from units of {learned_from!r}, not of robot {robot.name!r}")
     if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
     if init not in ("auto", "none"):
@@ -691,7 +694,7 @@ def _calibration_steps(
                                    or rounds - first >= 4):
                 break
             noise, scale = new_noise, new_scale
-            objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype)
+            objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype, free=space)
             cal = Calibrator(robot, measurement, meth, cur, prog,
                              None if objective is None or objective.plain_least_squares else objective, report=True,
                              # the identifiability program's Jacobian serves a one-round fit (several rounds
@@ -806,7 +809,9 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     inv = None if prior_std is None else np.where(np.isfinite(prior_std), 1.0 / prior_std, 0.0)
     msgs = []
     try:
-        unc, cond, resid = parameter_uncertainty(problem, x, prior_inv_std=inv, loss=result.loss,
+        info = None if result.prior is None else result.prior.information(space)  # a full prior covariance
+        unc, cond, resid = parameter_uncertainty(problem, x, prior_inv_std=inv, prior_information=info,
+                                                 loss=result.loss,
                                                  loss_scale=result.loss_scale_mm or 1.0, return_residuals=True,
                                                  gram=gram)
     except (np.linalg.LinAlgError, ValueError) as e:  # pragma: no cover - defensive

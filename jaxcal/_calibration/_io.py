@@ -25,6 +25,8 @@ from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._datasets._csvfile import read_table
 from .._fit._diagnostics import Uncertainty
+from .._fit._learned_prior import prior_from_dict, prior_to_dict
+from .._fit._objective import Prior
 from .._fit._result import CalibrationResult, Status
 from .._models._nongeometric import nongeometric_from_dict, nongeometric_to_dict
 from .._models._robot import DHRobot
@@ -321,6 +323,8 @@ def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
             "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
             "rows": np.asarray(result.dh_table()).tolist(),
         }
+    if result.prior is not None:  # the prior itself (its description is under "prior"): a fleet prior divides it out
+        out["prior_spec"] = prior_to_dict(result.prior)
     ident = getattr(result, "identifiability", None)
     if ident is not None:
         out["identifiability"] = ident.to_dict()
@@ -376,7 +380,8 @@ def load_result(path) -> CalibrationResult:
     """Read a result file written by :func:`save_result` (or ``jaxcal calibrate --out``).
 
     The returned :class:`~jaxcal.CalibrationResult` predicts and evaluates like the original;
-    ``compile_time_s``/``wall_time_s`` are the saved values. The identifiability report is kept
+    ``compile_time_s``/``wall_time_s`` are the saved values; the prior it was calibrated under
+    is restored when the file has it (``"prior_spec"``: a fleet prior divides it out). The identifiability report is kept
     as its dict under ``result.identifiability`` (``None`` if absent); the uncertainty (posterior
     σ and covariance of the free parameters, σ̂) is restored as ``result.uncertainty`` when the
     file has it (what :meth:`~jaxcal.CalibrationResult.prediction_std` and the expected RMSE of
@@ -416,6 +421,9 @@ def load_result(path) -> CalibrationResult:
         hyperparameters=dict(d.get("hyperparameters", {})),
         extra=extra,
         predictor=predictor,
+        prior=prior_from_dict(d["prior_spec"], Prior, str(path)) if d.get("prior_spec") else None,
+        loss=str(d.get("loss") or "linear"),
+        loss_scale_mm=d.get("loss_scale_mm"),
     )
     object.__setattr__(result, "identifiability", d.get("identifiability"))
     object.__setattr__(result, "uncertainty", Uncertainty.from_dict(d.get("uncertainty"), space.free_names,

@@ -327,11 +327,14 @@ def _capped_fixed_point(e2: np.ndarray, sq: np.ndarray, cap: float, den: float) 
 
 
 def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear", loss_scale: float = 1.0,
-                          return_residuals: bool = False, gram=None):
+                          return_residuals: bool = False, gram=None, prior_information=None):
     """Posterior covariance of the free parameters at ``x`` ``[p]`` for ``problem`` (training data).
 
     Args:
         prior_inv_std: ``[p]`` ``1/s_j`` of the prior (0 = none).
+        prior_information: ``[p, p]`` the prior's information matrix (inverse covariance, of a
+            prior with a full covariance: :meth:`jaxcal.Prior.information`); replaces
+            ``diag(1/s_j²)``.
         loss, loss_scale: the robust loss of the fit.
 
         return_residuals: also return the residual at ``x`` as NumPy ``[n, m]`` (mm), from the
@@ -373,7 +376,8 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     p_eff = float(p)
     sigma2 = objective_var(max(N - p, 1))
     for _ in range(3):
-        H = A / sigma2 + np.diag(lam / (d * d))
+        H = A / sigma2 + (np.diag(lam / (d * d)) if prior_information is None
+                          else np.asarray(prior_information, np.float64) / np.outer(d, d))
         try:
             ev, V = np.linalg.eigh(H)
         except np.linalg.LinAlgError:

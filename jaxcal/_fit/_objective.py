@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -72,10 +73,19 @@ class Prior:
         extras_deg: σ of the base-frame rotation (degrees).
         noise_std: the measurement noise σ (mm) the prior is weighed against; ``None``: estimated
             from the fit by :func:`jaxcal.calibrate` (a sweep uses its simulated σ).
-        mean: prior means (default: the nominal robot, zero deviations).
+        mean: prior means (default: the nominal robot, zero deviations): :class:`Deviations`, or
+            ``((name, value), ...)`` by parameter name (rad/mm; names not listed: 0).
         overrides: ``((name, σ), ...)`` per-parameter σ by name (rad/mm as the name's unit says:
             ``("d_1", 10.0)``, ``("theta_2", 0.01)``), taking precedence over the groups.
         strength: divides the groups' own default σ (:meth:`scaled` multiplies it).
+        covariance: ``(names, rows)``: a full prior covariance ``[k, k]`` (rad/mm, as the names'
+            units) of the parameters ``names`` (a learned prior: :meth:`from_fleet`,
+            :meth:`from_result`); it replaces the groups' σ of those parameters (an override still
+            wins) and correlates them: the MAP objective's prior residuals are then
+            ``σ·L⁻¹(x − m)`` with ``L Lᵀ`` the covariance of the free parameters (:meth:`whitening`).
+        source: where a learned prior comes from (printed by :meth:`describe`).
+        population: a prior learned from a fleet: the :class:`~jaxcal.FleetPopulation` estimate
+            (population mean and spread with their uncertainties), else ``None``.
     """
 
     angle_deg: float = 0.5
@@ -86,6 +96,9 @@ class Prior:
     mean: Deviations | None = None
     overrides: tuple = ()
     strength: float = 1.0
+    covariance: tuple = ()
+    source: str = ""
+    population: Any = None
 
     def __post_init__(self):
         for name in ("angle_deg", "length_mm", "extras_mm", "extras_deg"):
@@ -97,13 +110,34 @@ class Prior:
         for item in self.overrides:
             if len(item) != 2 or not (item[1] > 0):
                 raise ValueError(f"Prior.overrides entries must be (name, σ > 0), got {item!r}")
+        if self.covariance:
+            names, rows = self.covariance
+            C = np.asarray(rows, np.float64)
+            if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)) or not np.allclose(C, C.T):
+                raise ValueError(f"Prior.covariance must be (names, a symmetric finite [k, k] matrix) with k = "
+                                 f"{len(names)} names, got a matrix of shape {C.shape}")
+            if np.linalg.eigvalsh(C)[0] <= 0:
+                raise ValueError("Prior.covariance must be positive definite")
+            for n in names:
+                group_of(n)  # raises naming an unknown parameter
+        if self.mean is not None and not isinstance(self.mean, Deviations):
+            for item in self.mean:
+                if len(item) != 2 or not math.isfinite(item[1]):
+                    raise ValueError(f"Prior.mean entries must be (name, finite value), got {item!r}")
+                group_of(item[0])
 
     @classmethod
     def parse(cls, text: str) -> Prior | None:
-        """From a command-line string: ``none``, ``default``, or ``key=value`` pairs separated by
+        """From a command-line string: ``none``, ``default``, ``key=value`` pairs separated by
         commas (keys: the attribute names, e.g. ``angle_deg=0.5,length_mm=2,extras_mm=500``;
-        a parameter name sets that parameter's σ, e.g. ``d_1=10``)."""
+        a parameter name sets that parameter's σ, e.g. ``d_1=10``), or a ``.json`` file: a prior
+        file (:meth:`save`, ``jaxcal fleet-prior``) or a previous calibration result of the unit
+        (:meth:`from_result`)."""
         text = text.strip()
+        if text.lower().endswith(".json"):  # a prior file (jaxcal fleet-prior) or a previous result
+            from ._learned_prior import prior_from_file
+
+            return prior_from_file(text, cls)
         if text.lower() in ("none", "off", ""):
             return None
         if text.lower() == "default":
@@ -125,25 +159,38 @@ class Prior:
         return cls(**fields, overrides=tuple(overrides))
 
     def scaled(self, strength: float) -> Prior:
-        """The same prior ``strength`` times stronger (every finite σ divided by ``strength``)."""
+        """The same prior ``strength`` times stronger (every finite σ divided by ``strength``, a
+        learned covariance by ``strength²``)."""
         if not strength > 0:
             raise ValueError(f"prior strength must be > 0, got {strength}")
+        cov = self.covariance
+        if cov:
+            cov = (cov[0], tuple(tuple(v / strength**2 for v in row) for row in cov[1]))
         return dataclasses.replace(
             self, angle_deg=self.angle_deg / strength, length_mm=self.length_mm / strength,
             extras_mm=self.extras_mm / strength, extras_deg=self.extras_deg / strength,
             overrides=tuple((n, s / strength) for n, s in self.overrides), strength=self.strength * strength,
+            covariance=cov,
         )
 
     def std(self, space: ParameterSpace) -> np.ndarray:
-        """σ ``[p]`` of the free parameters in their units (rad, mm); ``inf`` = no prior."""
+        """σ ``[p]`` of the free parameters in their units (rad, mm); ``inf`` = no prior (with a
+        ``covariance``: its marginal σ for the parameters it names)."""
         over = dict(self.overrides)
         unknown = set(over) - set(space.names)
         if unknown:
             raise ValueError(f"prior overrides name unknown parameter(s) {sorted(unknown)}")
+        learned = {}
+        if self.covariance:
+            names, rows = self.covariance
+            learned = dict(zip(names, np.sqrt(np.diag(np.asarray(rows, np.float64)))))
         out = []
         for name, unit in zip(space.free_names, space.free_units):
             if name in over:
                 out.append(float(over[name]))
+                continue
+            if name in learned:
+                out.append(float(learned[name]))
                 continue
             group = space.layout.group(space.layout.group_of(name))
             if group.kind == "extra":
@@ -157,7 +204,111 @@ class Prior:
                 out.append(math.inf)
         return np.asarray(out, dtype=np.float64)
 
+    def mean_vector(self, space: ParameterSpace) -> np.ndarray:
+        """Prior means ``[p]`` of the free parameters (rad, mm)."""
+        if self.mean is None:
+            return np.zeros(space.n_free)
+        if isinstance(self.mean, Deviations):
+            return np.asarray(space.to_vector_numpy(self.mean), np.float64)
+        named = dict(self.mean)
+        return np.asarray([float(named.get(n, 0.0)) for n in space.free_names], np.float64)
+
+    def whitening(self, space: ParameterSpace, free: ParameterSpace | None = None) -> np.ndarray | None:
+        """``W`` ``[p, p]`` (1/rad, 1/mm) with ``WᵀW`` the prior information of the parameters of
+        ``free`` (default: all of ``space``'s) that have a prior: the prior residuals are
+        ``W(x − m)``, ``W = L⁻¹`` for the Cholesky factor ``L`` of their prior covariance (the
+        marginal of :attr:`covariance` and the groups' independent σ), zero rows and columns
+        elsewhere. ``None`` without a :attr:`covariance` (the prior is diagonal: ``1/σ``)."""
+        if not self.covariance:
+            return None
+        std = self.std(space)
+        keep = np.isfinite(std)
+        if free is not None:
+            chosen = set(free.free_names)
+            keep &= np.asarray([n in chosen for n in space.free_names])
+        C = np.diag(np.where(keep, std, 1.0) ** 2)
+        names, rows = self.covariance
+        rows = np.asarray(rows, np.float64)
+        at = {n: i for i, n in enumerate(names)}
+        over = dict(self.overrides)
+        idx = [(j, at[n]) for j, n in enumerate(space.free_names) if n in at and n not in over]
+        for j, a in idx:
+            for k, b in idx:
+                C[j, k] = rows[a, b]
+        W = np.zeros((space.n_free, space.n_free))
+        act = np.flatnonzero(keep)
+        if act.size:
+            L = np.linalg.cholesky(C[np.ix_(act, act)])
+            W[np.ix_(act, act)] = np.linalg.solve(L, np.eye(act.size))
+        return W
+
+    def information(self, space: ParameterSpace) -> np.ndarray | None:
+        """The prior information ``WᵀW`` ``[p, p]`` of the free parameters (see :meth:`whitening`);
+        ``None`` for a diagonal prior (``diag(1/σ²)``)."""
+        W = self.whitening(space)
+        return None if W is None else W.T @ W
+
+    @classmethod
+    def from_fleet(cls, results, *, base: Prior | None = None, noise_std: float | None = None, iterations: int = 1000,
+                   tol: float = 1e-7) -> Prior:
+        """The robot model's own prior, learned from calibrated units of it (empirical Bayes).
+
+        Unit ``k``'s robot deviations are modelled as drawn from ``N(μ, Σ)``, its calibration as a
+        Gaussian measurement of them (its own prior divided out); ``μ`` and ``Σ`` maximise the
+        marginal likelihood (expectation–maximisation; Gelman et al., *Bayesian Data Analysis*,
+        ch. 5), so the spread of the estimates is split into the true unit spread and each unit's
+        estimation noise; the correlations are shrunk toward zero (Schäfer & Strimmer 2005) when
+        the units are few; directions no unit's data determine keep ``base``. The result's
+        ``mean`` is ``μ``, its ``covariance`` ``Σ`` plus the uncertainty of ``μ`` (from the number
+        of units), its ``population`` the :class:`~jaxcal.FleetPopulation` (mean, spread and their
+        σ). Sensor extras (anchor, tool point, sensor frame) stay out: they are per unit.
+
+        Args:
+            results: ≥ 3 :class:`~jaxcal.CalibrationResult` of units of one robot model, each with
+                its ``uncertainty``, calibrated under a prior (``objective="measured"``, the CLI's
+                default), e.g. ``[jaxcal.load_result(f) for f in files]``.
+            base: the generic prior (default ``Prior()``: 0.5°, 2 mm): the spread's start, the
+                hyper-prior of the mean, and the σ of parameters no unit fitted.
+            noise_std: the sensor noise σ (mm) the prior is weighed against (default: estimated
+                from each new fit).
+            iterations, tol: the EM budget and its relative tolerance on ``Σ``.
+        """
+        from ._learned_prior import fleet_prior
+
+        return fleet_prior(results, cls() if base is None else base, noise_std=noise_std, iterations=iterations,
+                           tol=tol)
+
+    @classmethod
+    def from_result(cls, result, *, base: Prior | None = None, source: str | None = None) -> Prior:
+        """A unit's previous calibration as the prior of its next one: mean = its estimate of
+        every robot parameter, covariance = its posterior covariance of those it fitted (the
+        others keep ``base``'s σ, default ``Prior()``); sensor extras stay out; weighed against
+        the previous fit's σ̂ (the unit's sensor) unless ``base.noise_std`` says otherwise.
+        ``result``: a :class:`~jaxcal.CalibrationResult` with its ``uncertainty``. For which
+        parameters moved since, compare two independent calibrations: :func:`jaxcal.drift`."""
+        from ._learned_prior import result_prior
+
+        return result_prior(result, cls() if base is None else base, source=source)
+
+    def save(self, path) -> None:
+        """Write the prior as a JSON file (``jaxcal-prior/1``; :meth:`load` reads it back)."""
+        from ._learned_prior import save_prior
+
+        save_prior(self, path)
+
+    @classmethod
+    def load(cls, path) -> Prior:
+        """Read a prior file written by :meth:`save` (or ``jaxcal fleet-prior --out``)."""
+        from ._learned_prior import load_prior
+
+        return load_prior(path, cls)
+
     def describe(self) -> str:
+        if self.covariance:
+            k = len(self.covariance[0])
+            text = f"learned Gaussian prior ({self.source or 'a learned prior'}): mean and covariance of {k} parameters"
+            return text + (f", the others σ = {self.angle_deg:g}°, {self.length_mm:g} mm toward nominal"
+                           if math.isfinite(self.angle_deg) or math.isfinite(self.length_mm) else "")
         parts = [f"{self.angle_deg:g}°", f"{self.length_mm:g} mm on the robot's geometric deviations"]
         if math.isfinite(self.extras_mm) or math.isfinite(self.extras_deg):
             parts.append(f"extras {self.extras_mm:g} mm / {self.extras_deg:g}°")
@@ -187,6 +338,10 @@ class Objective(eqx.Module):
         loss: ``"linear"``, ``"huber"`` or ``"cauchy"`` (static).
         has_prior: whether any prior is active (static; without one the objective is exactly
             plain least squares, bit for bit).
+        prior_whitening: ``[p, p]`` ``σ_noise·W`` of a prior with a full covariance
+            (:meth:`Prior.whitening`): the prior residuals are then ``prior_whitening·(x −
+            prior_mean)`` (mm), and ``prior_precision`` is its diagonal counterpart ``σ_noise/s_j``
+            (the marginal σ) for the methods that take a diagonal prior (the EKF). ``None``: diagonal.
     """
 
     prior_mean: Float[Array, " p"]
@@ -194,6 +349,7 @@ class Objective(eqx.Module):
     loss_scale: Float[Array, ""]
     loss: str = eqx.field(static=True, default="linear")
     has_prior: bool = eqx.field(static=True, default=False)
+    prior_whitening: Float[Array, "p p"] | None = None
 
     @classmethod
     def plain(cls, p: int, dtype=None) -> Objective:
@@ -202,11 +358,14 @@ class Objective(eqx.Module):
 
     @classmethod
     def build(cls, space: ParameterSpace, prior: Prior | None, noise_std: float | None, loss: str = "linear",
-              loss_scale: float | None = None, dtype=None) -> Objective:
-        """From a :class:`Prior` (or ``None``), the noise σ it is weighed against (mm) and a loss."""
+              loss_scale: float | None = None, dtype=None, free: ParameterSpace | None = None) -> Objective:
+        """From a :class:`Prior` (or ``None``), the noise σ it is weighed against (mm) and a loss.
+        ``free``: the parameters that move when ``space`` is a masked solve's program space (a full
+        prior covariance is whitened over them alone: :meth:`Prior.whitening`)."""
         if loss not in LOSSES:
             raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
         p = space.n_free
+        whitening = None
         if prior is None:
             mean = np.zeros(p)
             precision = np.zeros(p)
@@ -216,13 +375,16 @@ class Objective(eqx.Module):
                 raise ValueError("the prior needs a noise σ (mm): set Prior(noise_std=...) or let calibrate estimate it")
             std = prior.std(space)
             precision = np.where(np.isfinite(std), float(sigma) / std, 0.0)
-            mean = np.zeros(p) if prior.mean is None else np.asarray(space.to_vector(prior.mean), np.float64)
+            mean = prior.mean_vector(space)
+            W = prior.whitening(space, free)
+            whitening = None if W is None else float(sigma) * W
         scale = 1.0 if loss_scale is None else float(loss_scale)
         if loss != "linear" and not (scale > 0 and math.isfinite(scale)):
             raise ValueError(f"robust loss scale must be a finite number > 0 (mm), got {loss_scale!r}")
         has_prior = bool(np.any(precision > 0))
         dt = jnp.result_type(float) if dtype is None else dtype
-        return cls(to_device(mean, dt), to_device(precision, dt), to_device(scale, dt), loss, has_prior)
+        return cls(to_device(mean, dt), to_device(precision, dt), to_device(scale, dt), loss, has_prior,
+                   None if whitening is None else to_device(whitening, dt))
 
     @property
     def plain_least_squares(self) -> bool:

@@ -12,6 +12,10 @@ Subcommands (``jaxcal SUBCOMMAND --help`` explains units and file formats):
   calibrated DH table with ``--dh-out`` where the model is a DH table).
 * ``jaxcal plan --poses N --out poses.csv``: which poses to measure, their observability indices and
   the predicted accuracy, before measuring.
+* ``jaxcal fleet-prior results/*.json --out model.prior.json``: a robot model's prior learned from
+  its calibrated units, for ``jaxcal calibrate ... --prior model.prior.json``.
+* ``jaxcal drift previous.json current.json``: which robot parameters of a unit moved between two
+  calibrations, beyond their uncertainty.
 
 Errors in the input (unknown robot or method, bad CSV, too few samples) print one line on
 stderr and exit with status 2; a failed calibration exits with status 1.

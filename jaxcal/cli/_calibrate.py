@@ -584,7 +584,8 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
         settings = {"data": str(s.path), "n_samples": s.data.n, "n_train": train.n, "n_test": test.n,
                     "seed": args.seed, "test_fraction": first.test_fraction, "method": method, "estimate": extras,
                     "hyperparameters": first.hyper, "prior": args.prior, "loss": first.loss, "fleet": names}
-        save_result(res, out / f"{pathlib.Path(name).stem}.json", settings=settings, metrics_mm=metrics)
+        save_result(res, out / f"{pathlib.Path(name).stem}.json", settings=settings, metrics_mm=metrics,
+                    calibrated_at=_today())
     table = fleet.summary.table()
     print()
     print(table)
@@ -770,7 +771,7 @@ def _cmd_calibrate(args) -> int:
         from .._calibration._io import save_result  # only with --out
 
         save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
-                    rows=per_row, **info)
+                    rows=per_row, calibrated_at=_today(), **info)
         print(f"\nwrote {args.out}")
     if args.verbose:
         t_end = time.perf_counter()
@@ -869,3 +870,10 @@ def _exit_status(res, args, measurement, extras) -> int:
               f"--accept-implausible to accept it, or a stronger --prior{hint}", file=sys.stderr)
         return _EXIT_FAILED
     return 0
+
+
+def _today() -> str:
+    """The UTC date a result is written (``jaxcal drift`` names the earlier calibration by it)."""
+    import datetime
+
+    return datetime.datetime.now(datetime.timezone.utc).date().isoformat()

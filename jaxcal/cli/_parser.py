@@ -8,6 +8,7 @@ import argparse
 from ._calibrate import _cmd_calibrate
 from ._evaluate import _cmd_evaluate
 from ._export import _cmd_export
+from ._fleet_prior import _cmd_drift, _cmd_fleet_prior
 from ._plan import _cmd_plan
 from ._report import _cmd_report
 from ._reproduce import _cmd_reproduce
@@ -85,6 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_evaluate(sub, fmt)
     _add_export(sub, fmt)
     _add_plan(sub, fmt)
+    _add_fleet_prior(sub, fmt)
+    _add_drift(sub, fmt)
     return p
 
 
@@ -200,7 +203,10 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("--prior", default="default", metavar="SPEC",
                    help="Gaussian prior toward the nominal robot (MAP): 'default' (σ 0.5° on angles, 2 mm on DH "
                         "lengths, none on extras; the default), 'none' (plain least squares), or key=value pairs: "
-                        "angle_deg=0.5,length_mm=2,extras_mm=500,noise_std=0.3 or a parameter name, e.g. d_1=10")
+                        "angle_deg=0.5,length_mm=2,extras_mm=500,noise_std=0.3 or a parameter name, e.g. d_1=10; "
+                        "or a .json file: a robot model's prior learned from its fleet (`jaxcal fleet-prior --out "
+                        "MODEL.prior.json`), or the unit's previous RESULT.json (mean = its estimate, covariance = "
+                        "its posterior; then `jaxcal drift` tells what moved)")
     c.add_argument("--loss", default=None, choices=("linear", "huber", "cauchy"),
                    help="huber (the default: with the default prior, the measured-data defaults "
                         "jaxcal.MEASURED_DEFAULTS), cauchy (robust losses against gross outliers) or linear (plain "
@@ -419,3 +425,45 @@ def _add_plan(sub, fmt) -> None:
     pl.add_argument("--out", required=True, metavar="POSES.csv", help="CSV file to write the selected poses to")
     pl.add_argument("--plot", metavar="FILE.png", help="also draw predicted test RMSE vs number of poses (selected vs random)")
     pl.set_defaults(func=_cmd_plan)
+
+
+def _add_fleet_prior(sub, fmt) -> None:
+    """The ``jaxcal fleet-prior`` sub-command's arguments."""
+    f = sub.add_parser(
+        "fleet-prior", formatter_class=fmt, help="learn a robot model's prior from calibrated units (result files)",
+        description="Learn the prior of a robot model from calibrated units of it (empirical Bayes): the "
+                    "population mean deviation of the robot's parameters (the shared systematic error) and their "
+                    "covariance around it (each unit's estimation noise taken out, correlations shrunk when the "
+                    "units are few), plus the mean's own uncertainty from the number of units. Sensor extras "
+                    "(anchor, tool point, sensor frame) stay out: they belong to one unit's set-up. Prints the "
+                    "population (mean ± σ, spread ± σ, degrees for angles) and writes the prior file, used as "
+                    "`jaxcal calibrate DATA.csv --prior MODEL.prior.json` (a new unit then needs far fewer poses).",
+        epilog="the units must be result files of one robot model (`jaxcal calibrate --out`), calibrated under a "
+               "prior (the default), at least 3 of them.",
+    )
+    f.add_argument("results", nargs="+", help="RESULT.json files of calibrated units of one robot model")
+    f.add_argument("--out", required=True, metavar="MODEL.prior.json", help="prior file to write")
+    f.add_argument("--noise-std", type=float, default=None,
+                   help="sensor noise σ in mm the prior is weighed against (default: estimated from each new fit)")
+    f.set_defaults(func=_cmd_fleet_prior)
+
+
+def _add_drift(sub, fmt) -> None:
+    """The ``jaxcal drift`` sub-command's arguments."""
+    d = sub.add_parser(
+        "drift", formatter_class=fmt, help="which robot parameters of a unit moved between two calibrations",
+        description="Compare two calibrations of one unit (result files, e.g. months apart): for every robot "
+                    "parameter both fitted, the change and its σ from the two posterior σ, and whether it moved "
+                    "beyond its uncertainty (|z| above a Bonferroni threshold: a unit that did not change reports "
+                    "a move with probability at most --alpha). Angles in degrees, lengths in mm. Exits with "
+                    "status 1 if a parameter moved. Calibrate the new data independently (the default prior, "
+                    "not --prior PREVIOUS.json, which pulls toward the previous estimate).",
+    )
+    d.add_argument("previous", help="the earlier RESULT.json")
+    d.add_argument("current", help="the later RESULT.json")
+    d.add_argument("--since", metavar="LABEL",
+                   help="how to name the earlier calibration (default: its file's date and name)")
+    d.add_argument("--alpha", type=float, default=0.01,
+                   help="family-wise false-alarm probability (default 0.01)")
+    d.add_argument("--json", metavar="FILE.json", help="also write the report as JSON")
+    d.set_defaults(func=_cmd_drift)

@@ -92,6 +92,9 @@ class ScaledProblem(eqx.Module):
             scale = scale * mask
             if objective is not None:
                 objective = eqx.tree_at(lambda o: o.prior_precision, objective, objective.prior_precision * mask)
+                if objective.prior_whitening is not None:  # no prior rows/columns for a held parameter
+                    objective = eqx.tree_at(lambda o: o.prior_whitening, objective,
+                                            objective.prior_whitening * mask[:, None] * mask[None, :])
         return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask)
 
     @property
@@ -114,10 +117,12 @@ class ScaledProblem(eqx.Module):
         return self.problem.n_residuals + extra
 
     def prior_residual(self, z: Float[Array, " p"]) -> Float[Array, " p"]:
-        """``P·(x − m)`` (mm); zeros without a prior."""
+        """``P·(x − m)`` (mm), ``σ·W(x − m)`` with a full prior covariance; zeros without a prior."""
         ob = self.objective
         if ob is None or not ob.has_prior:
             return jnp.zeros(self.n_free, self.dtype)
+        if ob.prior_whitening is not None:
+            return ob.prior_whitening @ (self.x(z) - ob.prior_mean)
         return ob.prior_precision * (self.x(z) - ob.prior_mean)
 
     def _robust_blocks(self, problem: Problem, x) -> tuple[Array, Array]:

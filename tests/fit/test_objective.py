@@ -229,3 +229,72 @@ def test_uncertainty_without_prior_is_cramer_rao(ex):
     pr_new = Problem(ex.robot, ex.measurement, q_new, ex.test.y[:5], res.space)
     Jn = np.asarray(pr_new.jacobian(jnp.asarray(x)))
     np.testing.assert_allclose(res.prediction_std(q_new), np.sqrt(np.einsum("np,pk,nk->n", Jn, C, Jn)), rtol=1e-3)
+
+
+def _correlated_prior(names, units, seed=0):
+    """A random correlated covariance (σ 0.05°, 0.2 mm scale) and mean over ``names``."""
+    rng = np.random.default_rng(seed)
+    s = np.where(np.asarray(units) == "rad", math.radians(0.05), 0.2)
+    A = rng.normal(size=(len(names), len(names)))
+    R = A @ A.T / len(names) + np.eye(len(names))
+    R = R / np.sqrt(np.outer(np.diag(R), np.diag(R)))
+    C = np.outer(s, s) * R
+    m = 0.5 * s * rng.normal(size=len(names))
+    return C, m
+
+
+def test_lm_with_full_covariance_prior_is_the_map_estimate(ex):
+    """A prior with a full covariance (a learned prior): LM = scipy on [r; σ·L⁻¹(x − m)] written out
+    here (L the Cholesky factor of the covariance), and the posterior covariance is
+    (JᵀJ/σ̂² + C⁻¹)⁻¹ from a finite-difference Jacobian."""
+    space = jaxcal.ParameterSpace.for_robot(ex.robot, measurement=ex.measurement, beta=False)
+    names, units = list(space.free_names), list(space.free_units)
+    C, m = _correlated_prior(names, units)
+    prior = Prior(noise_std=0.5, mean=tuple(zip(names, m)), covariance=(tuple(names), tuple(map(tuple, C))))
+    res = jaxcal.calibrate(ex.robot, ex.measurement, ex.train, "lm", prior=prior, rtol=1e-10, atol=1e-10)
+    assert list(res.space.free_names) == names
+    Linv = np.linalg.inv(np.linalg.cholesky(C))
+    x_ref = _scipy_fit(ex, res.space, lambda x: 0.5 * Linv @ (x - m))
+    assert np.max(np.abs(res.x - x_ref) / res.uncertainty.std) < 1e-3
+    pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, res.space)
+    x0, h = np.asarray(res.x, np.float64), 1e-6
+    J = np.stack([(np.asarray(pr.residual(jnp.asarray(x0 + h * e))) - np.asarray(pr.residual(jnp.asarray(x0 - h * e))))
+                  / (2 * h) for e in np.eye(x0.size)], axis=1)
+    cov = np.linalg.inv(J.T @ J / res.uncertainty.noise_std ** 2 + np.linalg.inv(C))
+    np.testing.assert_allclose(res.uncertainty.std, np.sqrt(np.diag(cov)), rtol=1e-3)
+
+
+def test_prior_with_covariance_whitening_files_and_errors(tmp_path):
+    """Whitening: WᵀW = C⁻¹ over the parameters with a prior, the free set's marginal for a subset;
+    a diagonal covariance is the plain σ prior; save/load round trip; bad covariances are named."""
+    robot = jaxcal.robots.hsr_jr680()
+    space = jaxcal.ParameterSpace.for_robot(robot)
+    names, units = list(space.free_names), list(space.free_units)
+    C, m = _correlated_prior(names[:10], units[:10], seed=1)
+    prior = Prior(mean=tuple(zip(names[:10], m)), covariance=(tuple(names[:10]), tuple(map(tuple, C))))
+    W = prior.whitening(space)
+    np.testing.assert_allclose(W[:10, :10].T @ W[:10, :10], np.linalg.inv(C), rtol=1e-9)
+    np.testing.assert_allclose(np.diag(W)[10:], 1.0 / Prior().std(space)[10:], rtol=1e-12)
+    np.testing.assert_allclose(prior.std(space)[:10], np.sqrt(np.diag(C)), rtol=1e-12)
+    np.testing.assert_allclose(prior.mean_vector(space)[:10], m)
+    sub = jaxcal.ParameterSpace.from_names(space.layout, names[2:6])
+    Ws = prior.whitening(space, free=sub)[2:6, 2:6]
+    np.testing.assert_allclose(Ws.T @ Ws, np.linalg.inv(C[2:6, 2:6]), rtol=1e-9)  # the marginal, not C⁻¹'s block
+    assert Prior().whitening(space) is None
+    np.testing.assert_allclose(prior.scaled(2.0).std(space), prior.std(space) / 2.0, rtol=1e-12)
+    diag = Prior(covariance=(tuple(names), tuple(map(tuple, np.diag(Prior().std(space) ** 2)))))
+    np.testing.assert_allclose(diag.whitening(space), np.diag(1.0 / Prior().std(space)), rtol=1e-12)
+    prior.save(tmp_path / "p.json")
+    back = Prior.load(tmp_path / "p.json")
+    assert back == prior and Prior.parse(str(tmp_path / "p.json")) == prior
+    with pytest.raises(ValueError, match="positive definite"):
+        Prior(covariance=(("d_1", "d_2"), ((1.0, 2.0), (2.0, 1.0))))
+    with pytest.raises(ValueError, match="symmetric finite"):
+        Prior(covariance=(("d_1",), ((1.0, 0.0),)))
+    with pytest.raises(ValueError, match="unknown parameter name 'wings'"):
+        Prior(covariance=(("wings",), ((1.0,),)))
+    (tmp_path / "bad.json").write_text('{"format": "something else"}')
+    with pytest.raises(ValueError, match="not a jaxcal prior file"):
+        Prior.load(tmp_path / "bad.json")
+    with pytest.raises(FileNotFoundError, match="not found"):
+        Prior.parse(str(tmp_path / "missing.json"))
