@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._core import _exported
 from .._core._buckets import BoundedCache, LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows, release_memory
 from .._core._cache import ensure_compilation_cache
 from .._core._metrics import Metrics, compute_metrics
@@ -481,7 +482,9 @@ def _launch(cal: Calibrator, q, y, key):
             ck = None
         compiled = _COMPILED.get(ck) if ck is not None else None
         if compiled is None:
-            compiled = compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
+            # kept on disk (a fresh process skips tracing), else traced and lowered here
+            compiled = (_stored_calibrator(cal, dyn, stat, q, y, key, w) if ck is not None else None) or \
+                compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
             if ck is not None:
                 _COMPILED.put(ck, compiled)
                 # the executable is all a later call needs: drop the trace (jaxpr, lowering) that
@@ -491,6 +494,35 @@ def _launch(cal: Calibrator, q, y, key):
         t1 = time.perf_counter()
         out = compiled(dyn, q, y, key, w)
     return out, t1 - t0, t1
+
+
+def _output_structure(cal: Calibrator):
+    """The pytree structure of ``cal``'s :class:`CalibrationOutput`, known without tracing for a
+    method whose run carries no extra state (``extra=None``; LM): checked against the traced one
+    when a program is stored (:func:`~jaxcal._core._exported.compile_stored`)."""
+    z = 0
+    robust = cal.objective is not None and cal.objective.loss != "linear"  # gram_at's per-sample errors
+    gram = (z, z, z, z, z, z if robust else None) if cal.report else None
+    dev = cal.start if cal.report else None
+    template = CalibrationOutput(z, z, z, z, z, Metrics(*(z for _ in Metrics._fields)), None, gram, dev)
+    return jax.tree_util.tree_structure(template)
+
+
+def _stored_calibrator(cal: Calibrator, dyn, stat, q, y, key, w):
+    """``cal``'s solve as a program kept on disk by :mod:`jaxcal._core._exported` (a fresh process
+    skips tracing and lowering it), or ``None``: a method with extra state or a configuration
+    without a plain description (a user's callable), or the layer turned off."""
+    if not (cal.method.maskable and _exported.enabled()):
+        return None
+    description = _exported.plain_description((stat, cal.space))  # the space with its layout
+    if description is None:
+        return None
+
+    def solve(dyn, q, y, key, w):
+        return eqx.combine(dyn, stat)(q, y, key, w)
+
+    return _exported.compile_stored("calibrate", solve, (dyn, q, y, key, w), description, compile_lowered,
+                                    _output_structure(cal))
 
 
 class _Launched:

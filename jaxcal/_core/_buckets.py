@@ -316,11 +316,36 @@ class LeanJit:
         if compiled is None:
             from ._xla import compile_lowered
 
-            compiled = compile_lowered(self.jitted.lower(**bound.arguments))
+            # kept on disk (a fresh process skips tracing), else traced and lowered here
+            compiled = self._stored(bound.arguments, dyn, compile_lowered) or \
+                compile_lowered(self.jitted.lower(**bound.arguments))
             self.cache.put(key, compiled)
             self.jitted.clear_cache()
             release_memory()
         return compiled(**dyn)
+
+    def _stored(self, arguments: dict, dyn: dict, compile_lowered):
+        """The program as kept on disk by :mod:`jaxcal._core._exported` (a fresh process skips
+        tracing it), called as ``program(**dyn)``; ``None`` when it cannot be kept."""
+        from . import _exported
+
+        if not _exported.enabled():
+            return None
+        static = {k: arguments[k] for k in self.static}
+        description = _exported.plain_description((static, {k: v for k, v in dyn.items() if v is None}))
+        if description is None:
+            return None
+        names = sorted(dyn)
+        jitted = self.jitted
+
+        def fn(*values):
+            return jitted(**static, **dict(zip(names, values)))
+
+        program = _exported.compile_stored(f"{self.__module__}.{self.__qualname__}", fn,
+                                           tuple(dyn[k] for k in names), description, compile_lowered)
+        if program is None:
+            return None
+        return lambda **kw: program(*(kw[k] for k in names))
 
     def clear_cache(self) -> None:
         self.cache.clear()
