@@ -37,7 +37,7 @@ from .._fit._diagnostics import (
     result_findings,
     weak_parameters,
 )
-from .._fit._identifiability import identify_with_residuals
+from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import (
@@ -785,6 +785,20 @@ def _close(a, b, rtol: float = 0.05) -> bool:
     return abs(a - b) <= rtol * abs(b)
 
 
+def _still_message(result: CalibrationResult) -> str:
+    """What the report says about near-still joints (:func:`~jaxcal._fit._identifiability.still_joints`):
+    the parameters only their motion would show, held at their start values."""
+    report = result.identifiability
+    if report is None or not report.still_unseen:
+        return ""
+    joints = ", ".join(f"q{j}" for j in report.still_joints)
+    n = len(report.still_unseen)
+    return (f"joint(s) {joints} barely move in the data (span < {STILL_JOINT_DEG:g}°): {', '.join(report.still_unseen)} "
+            f"would be seen only through that motion and {'are' if n > 1 else 'is'} held at {'their' if n > 1 else 'its'} "
+            f"start value{'s' if n > 1 else ''}, with or without a prior — move the joint(s) to calibrate "
+            f"{'them' if n > 1 else 'it'}")
+
+
 def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
               gram=None, cov=None, reselection=(), noise_std=None, resid_start=None):
     """Uncertainty and the plausibility / conditioning / coverage / outlier findings (``gram``,
@@ -842,6 +856,9 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
                     + (f"; {weak_text}" if weak_text else ""))
     elif weak_text:
         msgs.append(weak_text)
+    still = _still_message(result)
+    if still:
+        msgs.append(still)
     after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
     if len(after_rows):
         shown = ", ".join(str(int(r)) for r in after_rows[:12])
