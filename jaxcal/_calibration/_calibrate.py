@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 import warnings
 from collections.abc import Generator
@@ -26,6 +27,7 @@ from .._fit._diagnostics import (
     Checks,
     Diagnostics,
     coverage,
+    error_dims,
     given_noise_std,
     gram_at,
     implausible_deviations,
@@ -567,7 +569,8 @@ def calibrate(
             ``benchmarks/results/measured_defaults_cpu.md``), ``"least_squares"``. Without it
             (``None``, the default) ``calibrate`` is plain least squares with no prior — the
             paper's experiment, on purpose; pass ``objective="measured"`` for real data.
-        loss_scale: robust-loss scale ``c`` (mm); default ``k·σ̂`` re-estimated from the fit.
+        loss_scale: robust-loss scale ``c`` (mm); default ``k·√m_e·σ̂`` re-estimated from the fit (``k`` the
+            loss's constant, ``m_e`` 1 for a length, 3 for a position or markers; see :mod:`jaxcal._fit._objective`).
         checks: thresholds of the plausibility / conditioning / coverage / outlier checks
             (:class:`jaxcal.Checks`).
         throw: raise :class:`CalibrationError` on divergence/failure instead of warning.
@@ -661,6 +664,8 @@ def _calibration_steps(
         resid_start = residual_blocks_numpy(problem, resid_start)
 
     plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
+    # a robust loss's threshold in units of a clean sample's RMS error (√3 σ for a position's norm)
+    dims = math.sqrt(error_dims(measurement, problem.observed())) if loss != "linear" and loss_scale is None else 1.0
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
     noise = scale = None
     histories = []
@@ -677,7 +682,8 @@ def _calibration_steps(
                 s_hat = robust_scale(observed_entries(problem, resid))  # masked readings left out
                 s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
                 new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
-                new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
+                new_scale = (loss_scale if loss_scale is not None else LOSSES[loss] * dims * s_hat
+                             if loss != "linear" else None)
             if rounds > first and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale))
                                    or rounds - first >= 4):
                 break
