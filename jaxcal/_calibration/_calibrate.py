@@ -615,13 +615,16 @@ def _calibration_steps(
     loss_scale: float | None = None,
     checks: Checks | None = None,
     throw: bool = False,
+    sensor_noise_std: float | None = None,
     **hyperparameters,
 ) -> Generator[tuple, _Launched, CalibrationResult]:
     """:func:`calibrate` as a generator: it yields each solve it needs as ``(Calibrator, q, y, key)``
     and is sent back a :class:`_Launched` (the solve started; ``wait()`` gives its output), so that
     one driver runs one unit's solves one by one (:func:`calibrate`) and another runs the solves of
     many units as one vmapped program (:func:`jaxcal.calibrate_many`). Its warnings name the frame
-    two levels above it (the caller of the driver)."""
+    two levels above it (the caller of the driver). ``sensor_noise_std``: the sensor's noise σ (mm)
+    that σ̂ is checked against when neither the prior nor the data's metadata give one
+    (:func:`~jaxcal._fit._diagnostics.given_noise_std`; :func:`jaxcal.calibrate_many`'s ``noise_std``)."""
     ensure_compilation_cache()  # before the first of this call's programs compiles
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
@@ -771,7 +774,7 @@ def _calibration_steps(
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=3)
     diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection),
-                          given_noise_std(data, prior, measurement), resid_start)
+                          _given_noise(data, prior, measurement, sensor_noise_std), resid_start)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -789,6 +792,13 @@ def _close(a, b, rtol: float = 0.05) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return abs(a - b) <= rtol * abs(b)
+
+
+def _given_noise(data, prior, measurement, sensor_noise_std):
+    """The sensor's given noise σ for the result's checks: the prior's or the data's
+    (:func:`given_noise_std`), else ``sensor_noise_std``."""
+    given = given_noise_std(data, prior, measurement)
+    return given if given is not None else sensor_noise_std
 
 
 def _still_message(result: CalibrationResult) -> str:
