@@ -150,7 +150,7 @@ def table(sets: dict) -> list[str]:
     lines = ["| data set | held out | " + " | ".join(f"{o} / mm" for o in OBJECTIVES)
              + " | defaults ÷ best: mean (worst) |", "|---|---|" + "---:|" * (len(OBJECTIVES) + 1)]
     for set_name, runs in sets.items():
-        for part in runs[0][DEFAULTS]:
+        for part in runs[0][DEFAULTS] if runs else ():
             vals = np.array([[r[o][part] for o in OBJECTIVES] for r in runs])  # [seeds, objectives]
             ratio = vals[:, list(OBJECTIVES).index(DEFAULTS)] / vals.min(axis=1)
             lines.append(f"| {set_name} | {part} | " + " | ".join(f"{v:.4f}" for v in vals.mean(axis=0))
