@@ -530,12 +530,13 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     unseen: tuple[str, ...] = ()
     if still:
         # judged with the near-still joints standing still at their mean reading: what only their
-        # few degrees of motion show is not taken from the data (the same compiled program)
+        # few degrees of motion show is not taken from the data. The same compiled program: the
+        # readings enter the factor only where the Jacobian does not depend on them
         qs = np.asarray(qp).copy()
         cols = [j - 1 for j in still]
         qs[:, cols] = np.mean(np.asarray(q)[:, cols], axis=0)
         moving = sel
-        sel = _select(*_start_factor(robot, measurement, to_device(qs, q.dtype), dev0, space, None, w)[:3], rtol, pref)
+        sel = _select(*_start_factor(robot, measurement, to_device(qs, q.dtype), dev0, space, yp, w)[:3], rtol, pref)
         kept_still = {names[i] for i in sel.keep_idx}
         unseen = tuple(names[i] for i in moving.keep_idx if names[i] not in kept_still)
     norms, Rs, s, rank, keep_idx, drop_idx, deps, cond = (sel.norms, sel.Rs, sel.s, sel.rank, sel.keep_idx,
