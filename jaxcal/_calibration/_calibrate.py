@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 import warnings
 from collections.abc import Generator
@@ -27,6 +28,7 @@ from .._fit._diagnostics import (
     Checks,
     Diagnostics,
     coverage,
+    error_dims,
     given_noise_std,
     gram_at,
     implausible_deviations,
@@ -38,7 +40,7 @@ from .._fit._diagnostics import (
     result_findings,
     weak_parameters,
 )
-from .._fit._identifiability import identify_with_residuals
+from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import (
@@ -608,7 +610,8 @@ def calibrate(
             ``benchmarks/results/measured_defaults_cpu.md``), ``"least_squares"``. Without it
             (``None``, the default) ``calibrate`` is plain least squares with no prior — the
             paper's experiment, on purpose; pass ``objective="measured"`` for real data.
-        loss_scale: robust-loss scale ``c`` (mm); default ``k·σ̂`` re-estimated from the fit.
+        loss_scale: robust-loss scale ``c`` (mm); default ``k·√m_e·σ̂`` re-estimated from the fit (``k`` the
+            loss's constant, ``m_e`` 1 for a length, 3 for a position or markers; see :mod:`jaxcal._fit._objective`).
         checks: thresholds of the plausibility / conditioning / coverage / outlier checks
             (:class:`jaxcal.Checks`).
         throw: raise :class:`CalibrationError` on divergence/failure instead of warning.
@@ -653,13 +656,16 @@ def _calibration_steps(
     loss_scale: float | None = None,
     checks: Checks | None = None,
     throw: bool = False,
+    sensor_noise_std: float | None = None,
     **hyperparameters,
 ) -> Generator[tuple, _Launched, CalibrationResult]:
     """:func:`calibrate` as a generator: it yields each solve it needs as ``(Calibrator, q, y, key)``
     and is sent back a :class:`_Launched` (the solve started; ``wait()`` gives its output), so that
     one driver runs one unit's solves one by one (:func:`calibrate`) and another runs the solves of
     many units as one vmapped program (:func:`jaxcal.calibrate_many`). Its warnings name the frame
-    two levels above it (the caller of the driver)."""
+    two levels above it (the caller of the driver). ``sensor_noise_std``: the sensor's noise σ (mm)
+    that σ̂ is checked against when neither the prior nor the data's metadata give one
+    (:func:`~jaxcal._fit._diagnostics.given_noise_std`; :func:`jaxcal.calibrate_many`'s ``noise_std``)."""
     ensure_compilation_cache()  # before the first of this call's programs compiles
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
@@ -705,6 +711,8 @@ def _calibration_steps(
         resid_start = residual_blocks_numpy(problem, resid_start)
 
     plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
+    # a robust loss's threshold in units of a clean sample's RMS error (√3 σ for a position's norm)
+    dims = math.sqrt(error_dims(measurement, problem.observed())) if loss != "linear" and loss_scale is None else 1.0
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
     noise = scale = None
     histories = []
@@ -721,7 +729,8 @@ def _calibration_steps(
                 s_hat = robust_scale(observed_entries(problem, resid))  # masked readings left out
                 s_hat = s_hat if (s_hat > 0 and np.isfinite(s_hat)) else 1.0
                 new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
-                new_scale = loss_scale if loss_scale is not None else LOSSES[loss] * s_hat if loss != "linear" else None
+                new_scale = (loss_scale if loss_scale is not None else LOSSES[loss] * dims * s_hat
+                             if loss != "linear" else None)
             if rounds > first and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale))
                                    or rounds - first >= 4):
                 break
@@ -809,7 +818,7 @@ def _calibration_steps(
             raise CalibrationError(result.message)
         warnings.warn(result.message, CalibrationWarning, stacklevel=3)
     diag, unc = _diagnose(result, problem, before_rows, checks, extras_msg, rounds, out.gram, cov, tuple(reselection),
-                          given_noise_std(data, prior, measurement), resid_start)
+                          _given_noise(data, prior, measurement, sensor_noise_std), resid_start)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
     for w in diag.warnings:
@@ -827,6 +836,27 @@ def _close(a, b, rtol: float = 0.05) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return abs(a - b) <= rtol * abs(b)
+
+
+def _given_noise(data, prior, measurement, sensor_noise_std):
+    """The sensor's given noise σ for the result's checks: the prior's or the data's
+    (:func:`given_noise_std`), else ``sensor_noise_std``."""
+    given = given_noise_std(data, prior, measurement)
+    return given if given is not None else sensor_noise_std
+
+
+def _still_message(result: CalibrationResult) -> str:
+    """What the report says about near-still joints (:func:`~jaxcal._fit._identifiability.still_joints`):
+    the parameters only their motion would show, held at their start values."""
+    report = result.identifiability
+    if report is None or not report.still_unseen:
+        return ""
+    joints = ", ".join(f"q{j}" for j in report.still_joints)
+    n = len(report.still_unseen)
+    return (f"joint(s) {joints} barely move in the data (span < {STILL_JOINT_DEG:g}°): {', '.join(report.still_unseen)} "
+            f"would be seen only through that motion and {'are' if n > 1 else 'is'} held at {'their' if n > 1 else 'its'} "
+            f"start value{'s' if n > 1 else ''}, with or without a prior — move the joint(s) to calibrate "
+            f"{'them' if n > 1 else 'it'}")
 
 
 def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: Checks, extras_msg, rounds,
@@ -888,6 +918,9 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
                     + (f"; {weak_text}" if weak_text else ""))
     elif weak_text:
         msgs.append(weak_text)
+    still = _still_message(result)
+    if still:
+        msgs.append(still)
     after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
     if len(after_rows):
         shown = ", ".join(str(int(r)) for r in after_rows[:12])

@@ -78,9 +78,12 @@ class UnitRow(NamedTuple):
             the sensor noise ``noise_std`` given to :func:`calibrate_many` and the fit's effective
             parameters; ``None`` without ``noise_std``.
         floor_ratio: ``rmse_mm / floor_mm`` (about 1 for a correct model; ``None`` without a floor).
-        out_of_tolerance: train RMSE above ``tolerance_mm``, or the unit failed / did not converge
-            (``status`` not ``converged`` or ``still_improving``); ``False`` without a tolerance
-            unless failed.
+        plausible: the unit's result passes its plausibility checks (:attr:`CalibrationResult.plausible`:
+            its deviations and the result as a whole — σ̂, extras, not worse than the start —
+            as for :func:`jaxcal.calibrate`); ``False`` for a unit without a result.
+        out_of_tolerance: train RMSE above ``tolerance_mm``, the unit failed / did not converge
+            (``status`` not ``converged`` or ``still_improving``), or its result is not
+            ``plausible``; ``False`` without a tolerance unless failed or implausible.
         warnings: the number of diagnostic warnings of the fit (``result.warnings``).
         error: why the unit has no result (``None`` otherwise).
     """
@@ -93,6 +96,7 @@ class UnitRow(NamedTuple):
     noise_std_mm: float | None
     floor_mm: float | None
     floor_ratio: float | None
+    plausible: bool
     out_of_tolerance: bool
     warnings: int
     error: str | None
@@ -105,8 +109,8 @@ class FleetSummary(NamedTuple):
     tolerance_mm: float | None = None
     noise_std_mm: float | None = None
 
-    HEADERS = ("unit", "n", "status", "RMSE/mm", "MAX/mm", "σ̂/mm", "floor/mm", "RMSE/floor", "out of tolerance",
-               "warnings", "error")
+    HEADERS = ("unit", "n", "status", "RMSE/mm", "MAX/mm", "σ̂/mm", "floor/mm", "RMSE/floor", "plausible",
+               "out of tolerance", "warnings", "error")
 
     @property
     def flagged(self) -> tuple:
@@ -116,11 +120,11 @@ class FleetSummary(NamedTuple):
     def table(self, markdown: bool = False) -> str:
         """The rows as a plain-text (or Markdown) table, with a title line counting the flagged units."""
         tol = "" if self.tolerance_mm is None else f", tolerance {self.tolerance_mm:g} mm train RMSE"
-        title = (f"{len(self.rows)} units, {len(self.flagged)} flagged (failed, not converged{tol}); "
+        title = (f"{len(self.rows)} units, {len(self.flagged)} flagged (failed, not converged, implausible{tol}); "
                  + ("no floor (pass noise_std=)" if self.noise_std_mm is None else
                     f"floor for sensor σ {self.noise_std_mm:g} mm"))
         rows = [(r.unit, r.n, r.status, r.rmse_mm, r.max_mm, r.noise_std_mm, r.floor_mm, r.floor_ratio,
-                 "YES" if r.out_of_tolerance else "no", r.warnings, r.error or "") for r in self.rows]
+                 "yes" if r.plausible else "NO", "YES" if r.out_of_tolerance else "no", r.warnings, r.error or "") for r in self.rows]
         return format_table(rows, self.HEADERS, markdown=markdown, title=title)
 
     def to_csv(self, path) -> None:
@@ -168,7 +172,9 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
             gradient descent, the RBF network) is batched only over units of equal size.
         names: one name per unit for the summary (default ``"1"``, ``"2"``, ...).
         tolerance_mm: flag units whose train RMSE exceeds this (mm) in the summary.
-        noise_std: the sensor's noise σ per reading (mm), for the statistical floor column.
+        noise_std: the sensor's noise σ per reading (mm), for the statistical floor column and the
+            units' plausibility checks (σ̂ against it, as a file's ``# noise_std_mm:`` line does for
+            :func:`jaxcal.calibrate`).
         batching: how the one compiled program runs the units (as :func:`jaxcal.sweep`'s
             ``batching``): ``"vmap"`` (all at once, vectorised: what fills a GPU; a vmapped
             Levenberg–Marquardt batch iterates until its slowest unit converges), ``"map"``
@@ -197,7 +203,10 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
     names = [str(i + 1) for i in range(k)] if names is None else [str(n) for n in names]
     if len(names) != k:
         raise ValueError(f"{len(names)} names for {k} datasets")
-    steps = [_calibration_steps(robot, measurement, d, method, **kwargs) for d in datasets]
+    # every unit's result is checked as a whole as calibrate() checks it (CalibrationResult.plausible), with
+    # noise_std as the sensor's noise σ̂ is compared with; an implausible unit is flagged
+    steps = [_calibration_steps(robot, measurement, d, method, sensor_noise_std=noise_std, **kwargs)
+             for d in datasets]
     pending, results, errors = {}, [None] * k, [None] * k
 
     def advance(i, launched):
@@ -381,7 +390,7 @@ _COMPILED_MANY = BoundedCache(cache_size("calibrate_many", 8))
 def _row(name, data, res: CalibrationResult | None, error, tolerance_mm, noise_std) -> UnitRow:
     n = _data_rows(data)
     if res is None:
-        return UnitRow(name, n, "error", None, None, None, None, None, True, 0, error)
+        return UnitRow(name, n, "error", None, None, None, None, None, False, True, 0, error)
     m = res.train_metrics
     unc = res.uncertainty
     sigma = None if unc is None else float(unc.noise_std)
@@ -393,10 +402,10 @@ def _row(name, data, res: CalibrationResult | None, error, tolerance_mm, noise_s
             ratio = m.rmse / floor
         except ValueError:
             floor = None
-    bad = res.status not in (Status.CONVERGED, Status.STILL_IMPROVING)
+    bad = res.status not in (Status.CONVERGED, Status.STILL_IMPROVING) or not res.plausible
     out = bad or (tolerance_mm is not None and not (m.rmse <= tolerance_mm))
-    return UnitRow(name, n, res.status.name.lower(), float(m.rmse), float(m.max), sigma, floor, ratio, bool(out),
-                   len(res.warnings), None)
+    return UnitRow(name, n, res.status.name.lower(), float(m.rmse), float(m.max), sigma, floor, ratio,
+                   bool(res.plausible), bool(out), len(res.warnings), None)
 
 
 def _data_rows(data) -> int:

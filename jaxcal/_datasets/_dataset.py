@@ -374,7 +374,7 @@ def joint_values(path: str, values: np.ndarray, qcols: list[str], unit: str) -> 
 
 def load_csv(
     path, *, kind: str | None = None, dof: int | None = None, dtype=None, delimiter: str | None = None,
-    strict: bool = False, n_markers: int | None = None,
+    strict: bool = False, n_markers: int | None = None, kind_from: str | None = None,
 ) -> Dataset:
     """Read a CSV data file into a :class:`Dataset`, as :func:`save_csv` or a spreadsheet writes it.
 
@@ -414,6 +414,9 @@ def load_csv(
         delimiter: the column delimiter (one character); default: recognised from the header.
         strict: raise instead of warning when a column is not used.
         n_markers: expected number of markers (marker data); a mismatch raises.
+        kind_from: where ``kind`` comes from, for the error when the file's ``# kind:`` line
+            contradicts it (default: the ``--measurement`` option / the ``kind`` argument; ``jaxcal
+            evaluate`` names the result file, whose kind it takes).
 
     Raises:
         FileNotFoundError: no such file.
@@ -427,9 +430,10 @@ def load_csv(
     path, header, meta = t.path, t.header, dict(t.meta)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
     if kind is not None and meta_kind is not None and meta[meta_kind].strip().lower() != kind:
+        asked = kind_from or f"--measurement {kind} / kind={kind!r}"
         raise ValueError(f"{path}: the file says '# {meta_kind}: {meta[meta_kind]}' but {kind} data were asked for "
-                         f"(--measurement {kind} / kind={kind!r}); ask for the file's kind, or correct its "
-                         f"'# {meta_kind}:' line")
+                         f"({asked}); " + ("use a file of that kind" if kind_from else "ask for the file's kind")
+                         + f", or correct its '# {meta_kind}:' line")
     if kind == "distance" or (kind is None and "distance_mm" in header):  # two poses per row (jaxcal._sensors._contact)
 
         if meta_kind is not None:

@@ -58,6 +58,7 @@ from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
 from .._core._xla import compile_lowered
 from .._datasets._dataset import Dataset
+from .._fit._diagnostics import error_dims
 from .._fit._objective import LOSSES, Objective, resolve_prior
 from .._fit._problem import Problem
 from .._models._robot import DHRobot
@@ -915,7 +916,8 @@ def sweep(
         prior, loss, loss_scale: the objective of every trial, as in :func:`jaxcal.calibrate`,
             with fixed scales (a sweep does not re-estimate them): the prior is weighed against
             ``Prior.noise_std`` or else the sweep's ``noise_std``; the robust loss's scale
-            defaults to its constant (1.345 Huber, 2.385 Cauchy) times that σ.
+            defaults to its constant (1.345 Huber, 2.385 Cauchy) times a clean sample's RMS error
+            (that σ for a length, √3·σ for a position's norm).
 
     Returns:
         :class:`SweepResult`.
@@ -960,7 +962,7 @@ def sweep(
     settings |= sizes
     common["space"] = settings["space"]
     # 3. the plan: compiled units (a method, or a group of grid points vmapped together)
-    objective = _trial_objective(space, prior, loss, loss_scale, noise_std, dtype)
+    objective = _trial_objective(space, prior, loss, loss_scale, noise_std, dtype, measurement)
     mk = functools.partial(_MethodTrial, robot, measurement, start, keep_errors=keep_errors, keep_history=keep_history,
                            objective=objective)
     units = _plan_units(specs, mk, space, dtype, (dlike.split, dlike.k_method), common)
@@ -1221,14 +1223,18 @@ def _free_parameters(robot, measurement, dout, space, start, prior, noise_std, r
                           "identifiability": None if report is None else report.to_dict()}
 
 
-def _trial_objective(space, prior, loss, loss_scale, noise_std, dtype) -> Objective | None:
-    """The objective every trial minimises (``None``: plain least squares), with fixed scales."""
+def _trial_objective(space, prior, loss, loss_scale, noise_std, dtype, measurement=None) -> Objective | None:
+    """The objective every trial minimises (``None``: plain least squares), with fixed scales (a
+    robust loss's default scale: its constant times a clean sample's RMS error,
+    :func:`~jaxcal._fit._diagnostics.error_dims` of ``measurement``, as :func:`jaxcal.calibrate`)."""
     if prior is None and loss == "linear":
         return None
     sigma = prior.noise_std if prior is not None and prior.noise_std is not None else noise_std
     if sigma is None:
         raise ValueError("a prior or robust loss in a sweep of given data needs noise_std (mm) or Prior.noise_std")
-    scale = loss_scale if loss_scale is not None else (LOSSES[loss] * sigma if loss != "linear" else None)
+    dims = 1 if measurement is None or loss == "linear" or loss_scale is not None else error_dims(measurement)
+    scale = loss_scale if loss_scale is not None else (LOSSES[loss] * math.sqrt(dims) * sigma
+                                                        if loss != "linear" else None)
     objective = Objective.build(space, prior, sigma, loss, scale, dtype)
     return None if objective.plain_least_squares else objective
 

@@ -34,7 +34,7 @@ from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows",
-           "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings"]
+           "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings", "error_dims"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,6 +247,21 @@ def _consistency_in_copies(measurement, loss: str, observed, rows: int, copies: 
     return Consistency(loss, np.concatenate(e2), np.concatenate(z2))
 
 
+def error_dims(measurement, observed=None) -> int:
+    """``E[e²]/σ²`` of a clean sample's error ``e`` (:meth:`~jaxcal.MeasurementModel.sample_error`,
+    what a robust loss acts on) under noise σ on every reading, rounded: 1 for a draw-wire length,
+    3 for a position's norm (and an RMS over markers of 3-D errors), 2 for image corners. From
+    :func:`robust_consistency` (``observed``: the data's pattern of masked readings).
+
+    A robust loss's scale is ``c = k·√(error_dims)·σ̂`` (:func:`jaxcal.calibrate`): its constant
+    ``k`` (Huber's 1.345 for 95 % efficiency) is in units of a clean sample's RMS error, as for
+    one reading. Before, ``c = k·σ̂`` on a position's norm capped 61 % of clean tracker rows, not
+    the 18 % of one reading (13 % now); on tracker data whose residuals are mostly unmodelled
+    error it cost the defaults up to 5 % of held-out RMSE against least squares
+    (``benchmarks/results/defaults_vs_alternatives_cpu.md``)."""
+    return max(1, int(round(robust_consistency(measurement, "linear", observed).mean_sq_error)))
+
+
 class RobustNoise:
     """σ̂ under a robust loss: a bounded-influence scale (Huber's Proposal 2, 1981, §6.4, on the
     model's sample errors), consistent for Gaussian noise.
@@ -296,10 +311,11 @@ class RobustNoise:
         e2, sq = np.asarray(e, np.float64)[:n] ** 2, np.sum(rr * rr, axis=1)
         cons = robust_consistency(problem.measurement, loss, problem.observed())
         k = float(np.asarray(loss_scale)) / s
-        # the cap in units of σ on the sample error: k times a clean block's RMS error, so that it
-        # caps the same share of clean blocks for every model (18 % at k = 1.345 for one reading,
-        # 13 % for a position's norm; at k itself, 61 % of positions and σ̂ ~1.4× as variable)
-        cap = k * math.sqrt(cons.mean_sq_error)
+        # the cap in units of σ on the sample error: the loss's own threshold, which is its constant
+        # times a clean block's RMS error (error_dims), so that it caps the same share of clean
+        # blocks for every model (18 % at 1.345 for one reading, 13 % at 1.345·√3 for a
+        # position's norm; at 1.345 itself, 61 % of positions and σ̂ ~1.4× as variable)
+        cap = k
         N = problem.n_observed_residuals
         return cls(_capped_fixed_point(e2, sq, cap, N * cons.capped(cap)), cons(k), N)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -18,7 +19,8 @@ from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
 from ._problem import Problem, value_and_jacfwd
 
-__all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol", "select_free"]
+__all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol", "select_free",
+           "STILL_JOINT_DEG", "still_joints"]
 
 #: Which of a group of (exactly) dependent parameters is kept free: the parameter whose group
 #: comes first here, then the lower joint index / component order, then the earlier entry of the
@@ -43,6 +45,29 @@ KEEP_PREFERENCE: tuple[str, ...] = (
 #: coefficient on that one is at least this large: the swap then keeps the subset about as well
 #: conditioned (the volume of the kept columns shrinks by at most this factor).
 _SWAP_MIN_COEF = 0.1
+
+
+#: a revolute joint whose readings span less than this (degrees) counts as near-still: what only its
+#: motion would show is judged as if it stood still (see :func:`still_joints`).
+STILL_JOINT_DEG = 3.0
+
+
+def still_joints(robot, q, still_deg: float = STILL_JOINT_DEG) -> tuple[int, ...]:
+    """1-based revolute joints whose readings ``q`` ``[n, dof]`` (rad) span less than ``still_deg``
+    degrees: near-still joints.
+
+    A joint that barely moves (a 1.5° span on a real tracker set) still makes the identification
+    Jacobian full rank in exact arithmetic, but what only its motion shows — the parameters of the
+    joint's own link, which otherwise act exactly like the sensor frame — is seen through a few
+    hundredths of a radian of motion: least squares fits the noise and the unmodelled errors with
+    them (a₁ drifted to +94 mm with predictions equal to a fit that held it). Prismatic joints are
+    not judged."""
+    qn = np.asarray(q, np.float64)
+    if qn.shape[0] < 2:
+        return ()
+    units = tuple(robot.joint_units()) if hasattr(robot, "joint_units") else ("rad",) * robot.dof
+    span = np.rad2deg(np.ptp(qn, axis=0))
+    return tuple(j + 1 for j in range(qn.shape[1]) if units[j] == "rad" and span[j] < still_deg)
 
 
 def default_rtol(dtype) -> float:
@@ -106,6 +131,12 @@ class IdentifiabilityReport:
             maximum-a-posteriori fit (``prior_std=``), else empty. Under a prior every one of them
             is free (the prior makes the directions the data cannot see well posed); of the
             others only a subset the data identify on its own is free (:func:`select_free`).
+        still_joints: 1-based joints that barely move in the data (:func:`still_joints`); rank,
+            subset and dependencies are then those of the data with these joints standing still
+            at their mean reading.
+        still_unseen: the names the data would identify only through the near-still joints'
+            motion (identifiable with the readings as they are, not with those joints still):
+            held at their start, with or without a prior.
     """
 
     names: tuple[str, ...]
@@ -118,6 +149,9 @@ class IdentifiabilityReport:
     space: ParameterSpace
     rtol: float
     prior_covered: tuple[str, ...] = ()
+    still_joints: tuple[int, ...] = ()
+    still_unseen: tuple[str, ...] = ()
+
     @property
     def held(self) -> tuple[str, ...]:
         """The candidates held at their start value: neither the data nor a prior determine them."""
@@ -148,6 +182,10 @@ class IdentifiabilityReport:
             lines.append("not identifiable from the data alone, estimated under the prior (maximum a posteriori; "
                          "the prior sets these directions):")
             lines += [describe(n) for n in by_prior]
+        if self.still_joints:
+            lines.append(f"joint(s) {', '.join(str(j) for j in self.still_joints)} barely move in the data: judged as "
+                         "standing still" + (f"; seen only through their motion, held at their start value: "
+                                             f"{', '.join(self.still_unseen)}" if self.still_unseen else ""))
         fixed = [n for n in self.unidentifiable if n in held]
         if fixed:
             lines.append("not identifiable and without a prior (held at their start value):")
@@ -188,6 +226,8 @@ class IdentifiabilityReport:
             "free": list(self.space.free_names),
             "held": list(self.held),
             "prior_covered": list(self.prior_covered),
+            "still_joints": list(self.still_joints),
+            "still_unseen": list(self.still_unseen),
         }
 
 
@@ -392,8 +432,61 @@ def select_free(Rs: np.ndarray, norms: np.ndarray, s0: float, pref: list, prior_
     return free
 
 
+class _Selection(NamedTuple):
+    """The identifiable subset of one pivoted factor (see :func:`identify_with_residuals`)."""
+
+    norms: np.ndarray
+    Rs: np.ndarray
+    Rj: np.ndarray
+    s: np.ndarray
+    rank: int
+    keep_idx: np.ndarray
+    drop_idx: list
+    cond: float
+
+    def deps(self, names) -> dict:
+        """Each left-out column with an effect in the kept ones, by one least-squares solve."""
+        norms, keep_idx = self.norms, self.keep_idx
+        moving = [j for j in self.drop_idx if norms[j] != 0]
+        coefs = np.linalg.lstsq(self.Rj[:, keep_idx], self.Rj[:, moving], rcond=None)[0] if moving else None
+        deps = {}
+        for j in self.drop_idx:
+            if norms[j] == 0:
+                deps[names[j]] = []
+                continue
+            coef = coefs[:, moving.index(j)]
+            # significance judged on the scaled coefficients
+            sig = np.abs(coef * norms[keep_idx] / norms[j]) > 1e-6
+            order = np.argsort(-np.abs(coef * norms[keep_idx]))
+            deps[names[j]] = [(float(coef[k]), names[keep_idx[k]]) for k in order if sig[k]][:6]
+        return deps
+
+
+def _select(norms, R, piv, rtol: float, pref) -> _Selection:
+    """Rank, the preferred identifiable subset (:func:`_prefer`) and its condition number from the
+    column norms and the pivoted triangular factor of :func:`_start_factor`."""
+    # Js = J/norms, Js[:, piv] = Q R with orthonormal Q: Js, J and their column subsets have the
+    # singular values and least-squares solutions of the columns of the small triangular factor,
+    # so the SVDs and least squares run on R (p×p), not on the N×p Jacobian (multithreaded
+    # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
+    norms, R, piv = np.asarray(norms, np.float64), np.asarray(R, np.float64), np.asarray(piv)
+    if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R))):
+        raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
+    scale = np.where(norms > 0, norms, 1.0)
+    Rs = np.zeros((R.shape[0], len(piv)))
+    Rs[:, piv] = R  # Js = Q Rs
+    s = np.linalg.svd(Rs, compute_uv=False)
+    rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
+    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), pref)
+    kept_set = set(keep_idx.tolist())
+    drop_idx = [i for i in range(len(piv)) if i not in kept_set]
+    sv = np.linalg.svd(Rs[:, keep_idx], compute_uv=False) if keep_idx.size else np.array([1.0])
+    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    return _Selection(norms, Rs, Rs * scale, s, rank, keep_idx, drop_idx, cond)
+
+
 def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None,
-                            prior_std=None, n_to=None):
+                            prior_std=None, n_to=None, still_deg=None):
     """:func:`identifiability`, and with measurements ``y`` also their residual blocks ``[n, m]``
     (NumPy, mm) at ``deviations`` and the identification Jacobian ``[N, p]`` there (a device
     array; only where :attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), from the same
@@ -409,16 +502,15 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     (:mod:`jaxcal._core._buckets`; one program per bucket, not per sample count): the report and the
     residuals are the real rows', and the Jacobian carries zero rows for the padding at its end
     (``bucket_size(n)·m`` rows). ``n_to``: pad to this row count instead (a caller with its own
-    bucket, as :func:`jaxcal.sweep`'s padded simulation)."""
+    bucket, as :func:`jaxcal.sweep`'s padded simulation). ``still_deg``: the span (degrees) below
+    which a joint counts as near-still (default :data:`STILL_JOINT_DEG`; see :func:`still_joints`):
+    with such joints, rank, subset and dependencies are those of the data with them standing still,
+    and the report's ``still_unseen`` names what only their motion would show."""
     q = to_device(q)  # not jnp.asarray: a copy program per new shape
     space = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
     if space.n_free == 0:
         raise ValueError("no free parameters to examine")
     dev0 = Deviations.zeros(layout_for(robot, measurement), q.dtype) if deviations is None else deviations.astype(q.dtype)
-    # Js = J/norms, Js[:, piv] = Q R with orthonormal Q: Js, J and their column subsets have the
-    # singular values and least-squares solutions of the columns of the small triangular factor,
-    # so the SVDs and least squares below run on R (p×p), not on the N×p Jacobian (multithreaded
-    # LAPACK on the tall matrices took 0.1–1 s per call on a busy 2-core machine).
     n = int(q.shape[0])
     qp, yp, w = q, y, None
     if buckets_enabled() or n_to is not None:
@@ -428,41 +520,29 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
     if resid is not None and w is not None:
         resid = np.asarray(resid)[:n]
-    norms, R, piv = np.asarray(norms, np.float64), np.asarray(R, np.float64), np.asarray(piv)
-    if not (np.all(np.isfinite(norms)) and np.all(np.isfinite(R))):
-        raise ValueError("identification Jacobian contains NaN/inf (check joint angles and anchor)")
-    scale = np.where(norms > 0, norms, 1.0)
-    Rs = np.zeros((R.shape[0], len(piv)))
-    Rs[:, piv] = np.asarray(R, dtype=np.float64)  # Js = Q Rs
-    s = np.linalg.svd(Rs, compute_uv=False)
     rtol = default_rtol(q.dtype) if rtol is None else float(rtol)
-    rank = int(np.sum(s > rtol * s[0])) if s[0] > 0 else 0
-    Rj = Rs * scale  # J = Q Rj
     names = space.free_names
     # a total order: equal keys (e.g. the same component of two sessions' frames) are ordered by
     # their position, so that no choice is left to the pivots' round-off
     pref = [(*_preference_key(n), i) for i, n in enumerate(names)]
-    keep_idx = _prefer(Rs, sorted(piv[:rank].tolist()), pref)
-    kept_set = set(keep_idx.tolist())
-    drop_idx = [i for i in range(len(names)) if i not in kept_set]
+    sel = _select(norms, R, piv, rtol, pref)
+    still = still_joints(robot, np.asarray(q)) if still_deg is None else still_joints(robot, np.asarray(q), still_deg)
+    unseen: tuple[str, ...] = ()
+    if still:
+        # judged with the near-still joints standing still at their mean reading: what only their
+        # few degrees of motion show is not taken from the data. The same compiled program: the
+        # readings enter the factor only where the Jacobian does not depend on them
+        qs = np.asarray(qp).copy()
+        cols = [j - 1 for j in still]
+        qs[:, cols] = np.mean(np.asarray(q)[:, cols], axis=0)
+        moving = sel
+        sel = _select(*_start_factor(robot, measurement, to_device(qs, q.dtype), dev0, space, yp, w)[:3], rtol, pref)
+        kept_still = {names[i] for i in sel.keep_idx}
+        unseen = tuple(names[i] for i in moving.keep_idx if names[i] not in kept_still)
+    norms, Rs, s, rank, keep_idx, drop_idx, deps, cond = (sel.norms, sel.Rs, sel.s, sel.rank, sel.keep_idx,
+                                                           sel.drop_idx, sel.deps(names), sel.cond)
     keep = np.zeros(len(names), dtype=bool)
     keep[keep_idx] = True
-    # every left-out column with an effect in the kept ones, by one least-squares solve
-    moving = [j for j in drop_idx if norms[j] != 0]
-    coefs = np.linalg.lstsq(Rj[:, keep_idx], Rj[:, moving], rcond=None)[0] if moving else None
-    deps = {}
-    for j in drop_idx:
-        if norms[j] == 0:
-            deps[names[j]] = []
-            continue
-        coef = coefs[:, moving.index(j)]
-        # significance judged on the scaled coefficients
-        sig = np.abs(coef * norms[keep_idx] / norms[j]) > 1e-6
-        order = np.argsort(-np.abs(coef * norms[keep_idx]))
-        deps[names[j]] = [(float(coef[k]), names[keep_idx[k]]) for k in order if sig[k]][:6]
-    sub = Rs[:, keep_idx]
-    sv = np.linalg.svd(sub, compute_uv=False) if keep_idx.size else np.array([1.0])
-    cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
     covered = ()
     if prior_std is not None:
         prior_std = np.asarray(prior_std, np.float64)
@@ -470,6 +550,9 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
             raise ValueError(f"prior_std must have one σ per candidate ({len(names)}), got shape {prior_std.shape}")
         keep = select_free(Rs, norms, float(s[0]), pref, prior_std, rtol)
         covered = tuple(n for n, v in zip(names, prior_std) if np.isfinite(v))
+        # what only a near-still joint's motion shows is held under a prior too: a weak pull of the
+        # noise along it moved a₁ 15 mm (7σ of its prior) on a simulated tracker set
+        keep[[names.index(n) for n in unseen]] = False
     report = IdentifiabilityReport(
         names=names,
         rank=rank,
@@ -481,5 +564,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
         space=space.restrict(keep),
         rtol=rtol,
         prior_covered=covered,
+        still_joints=still,
+        still_unseen=unseen,
     )
     return report, None if resid is None else np.asarray(resid, np.float64), J

@@ -34,7 +34,7 @@ def _cmd_evaluate(args) -> int:
     m = res.measurement
     sessions = hasattr(m, "frame_index")  # a SessionMarkers result: the file's own sessions and marker count
     data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" and not sessions
-                    else None)
+                    else None, kind_from=f"the calibration {src} is of {m.kind} data")
     if data.dof != res.robot.dof:
         raise _Usage(f"{path} has {data.dof} joint columns but the calibrated robot {res.robot.name!r} has "
                      f"{res.robot.dof} joints")

@@ -96,3 +96,16 @@ def test_cli_fleet_writes_results_and_summary(tmp_path, capsys):
     assert csv[0].startswith("unit,n,status") and len(csv) == 3
     # one file, several-file options refused with one error line
     assert main(["calibrate", *files, "--robot", "hsr_jr680", "--out", str(tmp_path / "x.json")]) == 2
+
+
+def test_fleet_flags_an_implausible_unit(units):
+    """A unit whose readings are in metres (lengths 1 000× too small) fails the whole-result checks
+    as calibrate() alone does (issue 35): not plausible, flagged in the summary, its result kept."""
+    robot, meas, (a, b) = units
+    fleet = _quiet(calibrate_many, robot, meas, [a, (a[0], a[1] / 1000.0)], "lm", names=["mm", "m"], noise_std=0.5)
+    rows = {r.unit: r for r in fleet.summary.rows}
+    assert rows["mm"].plausible and not rows["mm"].out_of_tolerance
+    assert not rows["m"].plausible and rows["m"].out_of_tolerance and "m" in fleet.summary.flagged
+    assert fleet.results[1] is not None and not fleet.results[1].plausible
+    assert fleet.results[1].plausible == _quiet(calibrate, robot, meas, (a[0], a[1] / 1000.0), "lm").plausible
+    assert "NO" in fleet.summary.table()

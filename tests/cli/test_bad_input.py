@@ -72,6 +72,23 @@ def test_kind_line_chooses_the_model_and_a_conflict_names_both(tmp_path, capsys)
     assert f"{N} position samples" in capsys.readouterr().out
 
 
+def test_evaluate_kind_conflict_names_the_result(wire, tmp_path, capsys):
+    """`jaxcal evaluate` takes the kind from the result (it has no --measurement): a file of another
+    kind is an error naming the result's kind and the file's '# kind:' line, not an option."""
+    head, rows = wire
+    f = _write(tmp_path / "w.csv", head, rows)
+    out = tmp_path / "r.json"
+    assert main(["calibrate", f, "--robot", "hsr_jr680", "--method", "lm", "--test-fraction", "0",
+                 "--out", str(out)]) in (0, 1)
+    pos = tmp_path / "pos.csv"
+    assert main(["simulate", "--out", str(pos), "--samples", str(N), "--seed", "4", "--measurement", "position"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(out), str(pos)]) == 2
+    err = capsys.readouterr().err
+    assert "'# kind: position'" in err and f"the calibration {out} is of cable data" in err
+    assert "--measurement" not in err
+
+
 def test_likely_cause_from_the_data_alone():
     """The causes as the library names them, on synthetic readings (no fit)."""
     robot = robots.hsr_jr680()
