@@ -67,8 +67,33 @@ _USES = {"cable": {"anchor", "cable_offset", "tool"}, "position": {"base_rotatio
 
 
 # -- relations ------------------------------------------------------------------------------------
+class _Relation:
+    """What every relation shares: the labelled extras it reads (``_labels``: ``(kind, field)``
+    pairs, e.g. ``("point", "point_a")``), its known value and σ (the fields ``_target`` and
+    ``_std``, in mm; ``_angle``: degrees there, radians inside)."""
+
+    _labels: ClassVar[tuple[tuple[str, str], ...]]
+    _target: ClassVar[str]
+    _std: ClassVar[str] = "std_mm"
+    _angle: ClassVar[bool] = False
+
+    @property
+    def labels(self) -> tuple[tuple[str, str], ...]:
+        return tuple((kind, getattr(self, field)) for kind, field in self._labels)
+
+    @property
+    def target(self) -> float:
+        v = float(getattr(self, self._target))
+        return math.radians(v) if self._angle else v
+
+    @property
+    def std(self) -> float:
+        v = float(getattr(self, self._std))
+        return math.radians(v) if self._angle else v
+
+
 @dataclasses.dataclass(frozen=True)
-class KnownDistance:
+class KnownDistance(_Relation):
     """The distance between two labelled fixed points (:class:`~jaxcal.FixedPoint` labels: two
     sockets of a plate, two spheres of an artefact) is ``distance_mm`` ± ``std_mm``.
 
@@ -80,21 +105,12 @@ class KnownDistance:
     distance_mm: float
     std_mm: float = 0.005
     kind: ClassVar[str] = "point_distance"
+    _labels = (("point", "point_a"), ("point", "point_b"))
+    _target = "distance_mm"
 
     def __post_init__(self):
         _check_relation(self, (self.point_a, self.point_b), self.distance_mm, self.std_mm)
 
-    @property
-    def labels(self) -> tuple[tuple[str, str], ...]:
-        return (("point", self.point_a), ("point", self.point_b))
-
-    @property
-    def target(self) -> float:
-        return float(self.distance_mm)
-
-    @property
-    def std(self) -> float:
-        return float(self.std_mm)
 
     def value(self, geo) -> Array:
         ca, cb = geo[("point", self.point_a)], geo[("point", self.point_b)]
@@ -105,7 +121,7 @@ class KnownDistance:
 
 
 @dataclasses.dataclass(frozen=True)
-class PlaneDistance:
+class PlaneDistance(_Relation):
     """Two (nearly) parallel labelled planes (:class:`~jaxcal.PlaneContact` labels: a gauge
     block's faces, a step) are ``distance_mm`` ± ``std_mm`` apart.
 
@@ -118,21 +134,12 @@ class PlaneDistance:
     distance_mm: float
     std_mm: float = 0.005
     kind: ClassVar[str] = "plane_distance"
+    _labels = (("plane", "plane_a"), ("plane", "plane_b"))
+    _target = "distance_mm"
 
     def __post_init__(self):
         _check_relation(self, (self.plane_a, self.plane_b), self.distance_mm, self.std_mm)
 
-    @property
-    def labels(self):
-        return (("plane", self.plane_a), ("plane", self.plane_b))
-
-    @property
-    def target(self) -> float:
-        return float(self.distance_mm)
-
-    @property
-    def std(self) -> float:
-        return float(self.std_mm)
 
     def value(self, geo) -> Array:
         (na, da), (nb, db) = geo[("plane", self.plane_a)], geo[("plane", self.plane_b)]
@@ -143,7 +150,7 @@ class PlaneDistance:
 
 
 @dataclasses.dataclass(frozen=True)
-class PlaneAngle:
+class PlaneAngle(_Relation):
     """The angle between two labelled planes' normals is ``angle_deg`` ± ``std_deg`` (a cube's
     faces: 90°). Value ``atan2(‖n_a × n_b‖, n_a·n_b)`` (rad inside; degrees only here, at the
     edge)."""
@@ -153,6 +160,8 @@ class PlaneAngle:
     angle_deg: float
     std_deg: float = 0.005
     kind: ClassVar[str] = "plane_angle"
+    _labels = (("plane", "plane_a"), ("plane", "plane_b"))
+    _target, _std, _angle = "angle_deg", "std_deg", True
 
     def __post_init__(self):
         _check_relation(self, (self.plane_a, self.plane_b), self.angle_deg, self.std_deg)
@@ -160,17 +169,6 @@ class PlaneAngle:
             raise ValueError(f"PlaneAngle: angle_deg must be strictly between 0 and 180 (the angle is not "
                              f"differentiable at 0/180°; parallel planes: PlaneDistance), got {self.angle_deg}")
 
-    @property
-    def labels(self):
-        return (("plane", self.plane_a), ("plane", self.plane_b))
-
-    @property
-    def target(self) -> float:
-        return math.radians(self.angle_deg)
-
-    @property
-    def std(self) -> float:
-        return math.radians(self.std_deg)
 
     def value(self, geo) -> Array:
         na, nb = geo[("plane", self.plane_a)][0], geo[("plane", self.plane_b)][0]
@@ -181,7 +179,7 @@ class PlaneAngle:
 
 
 @dataclasses.dataclass(frozen=True)
-class PointOnPlane:
+class PointOnPlane(_Relation):
     """A labelled fixed point lies on a labelled plane (± ``std_mm``): residual
     ``(n·c − d)/std_mm``; ``offset_mm`` for a point a known distance above the plane (a ball's
     centre: its radius)."""
@@ -191,21 +189,12 @@ class PointOnPlane:
     std_mm: float = 0.005
     offset_mm: float = 0.0
     kind: ClassVar[str] = "point_on_plane"
+    _labels = (("point", "point"), ("plane", "plane"))
+    _target = "offset_mm"
 
     def __post_init__(self):
         _check_relation(self, (self.point, self.plane), self.offset_mm, self.std_mm, allow_zero=True)
 
-    @property
-    def labels(self):
-        return (("point", self.point), ("plane", self.plane))
-
-    @property
-    def target(self) -> float:
-        return float(self.offset_mm)
-
-    @property
-    def std(self) -> float:
-        return float(self.std_mm)
 
     def value(self, geo) -> Array:
         c = geo[("point", self.point)]
