@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._cache import ensure_compilation_cache
 from .._core._params import Deviations, Layout, layout_for
 from .._core._precision import to_device, warn_if_float32
 from .._datasets._dataset import Dataset, mm_joints_metadata
@@ -173,13 +174,19 @@ def simulate_experiment(
     reach = robot.reach_mm()
     wire_range = (0.05 * reach, 1.2 * reach) if wire_range_mm is None else tuple(map(float, wire_range_mm))
     dtype = jnp.result_type(float)
-    if not _tracing(key):
+    eager = not _tracing(key)
+    if eager:
         warn_if_float32(dtype, "simulate_experiment")
-    return _simulate(
-        key, robot, measurement, true_deviations, noise_std,
-        _Config(n_samples, test_fraction, angle_std_deg, length_std_mm, anchor_std_mm,
-                tool_std_mm, cable_offset_std_mm, coverage, wire_range, min_height_mm, oversample),
-    )
+        ensure_compilation_cache()  # its program takes seconds to compile: kept on disk like calibrate's
+    cfg = _Config(n_samples, test_fraction, angle_std_deg, length_std_mm, anchor_std_mm, tool_std_mm,
+                  cable_offset_std_mm, coverage, wire_range, min_height_mm, oversample, flag_short=eager)
+    out = _simulate(key, robot, measurement, true_deviations, noise_std, cfg)
+    if not eager:  # under jit/vmap: equinox's runtime error checks the workspace filter
+        return out
+    ex, short = out
+    if bool(short):
+        raise ValueError(TOO_FEW_POSES)
+    return ex
 
 
 def _tracing(x) -> bool:
@@ -198,6 +205,11 @@ class _Config(eqx.Module):
     wire_range: tuple[float, float] = eqx.field(static=True)
     min_height_mm: float = eqx.field(static=True)
     oversample: int = eqx.field(static=True)
+    #: report too few poses inside the workspace filter as an output flag, checked on the host by
+    #: the caller, instead of equinox's runtime error: a program with that error holds a host
+    #: callback, and JAX's persistent compilation cache keeps no such program (the simulation then
+    #: compiled again, ~17 s on 2 CPU cores, in every new process)
+    flag_short: bool = eqx.field(static=True, default=False)
 
 
 def noise_on(measurement: MeasurementModel) -> str:
@@ -214,9 +226,15 @@ def noise_on(measurement: MeasurementModel) -> str:
         "data; use jaxcal.simulate_contact (plane, point), simulate_distance or simulate_camera")
 
 
+#: the message of a simulation with too few poses inside the workspace filter
+TOO_FEW_POSES = ("simulate_experiment: too few joint configurations inside the workspace filter; "
+                 "raise `oversample`, widen `wire_range_mm` or lower `min_height_mm`")
+
+
 def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Config, n_real=None):
-    """The experiment's draws before the split: ``(true_deviations, q, y, k_split)`` with
-    ``cfg.n_samples`` rows.
+    """The experiment's draws before the split: ``(true_deviations, q, y, k_split, short)`` with
+    ``cfg.n_samples`` rows; ``short`` (with ``cfg.flag_short``, else ``None``) is whether too few
+    poses passed the workspace filter, for the caller to check (else equinox's runtime error).
 
     ``n_real`` (a traced int ``≤ cfg.n_samples``; shape buckets, :func:`simulate_padded`): only the
     first ``n_real·oversample`` candidate poses may be picked, and the first ``n_real`` rows equal
@@ -243,11 +261,9 @@ def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Co
         need = n_real
     (idx,) = jnp.nonzero(ok, size=cfg.n_samples, fill_value=0)
     n_ok = jnp.sum(ok)
-    idx = eqx.error_if(
-        idx, n_ok < need,
-        "simulate_experiment: too few joint configurations inside the workspace filter; "
-        "raise `oversample`, widen `wire_range_mm` or lower `min_height_mm`",
-    )
+    short = n_ok < need  # with cfg.flag_short returned for the caller to check on the host
+    if not cfg.flag_short:
+        idx = eqx.error_if(idx, short, TOO_FEW_POSES)
     q = cand[idx]
     y_true = measurement.predict(robot, true_deviations, q)
     sigma = jnp.asarray(noise_std, dtype)
@@ -256,12 +272,13 @@ def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Co
         y = y_true.at[:, :3, 3].add(noise)
     else:
         y = y_true + sigma * jax.random.normal(k_noise, y_true.shape, dtype)
-    return true_deviations, q, y, k_split
+    return true_deviations, q, y, k_split, (short if cfg.flag_short else None)
 
 
 @eqx.filter_jit
-def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config) -> Experiment:
-    true_deviations, q, y, k_split = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg)
+def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config):
+    """The :class:`Experiment`; with ``cfg.flag_short`` the pair ``(experiment, too_few_poses)``."""
+    true_deviations, q, y, k_split, short = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg)
     dtype = jnp.result_type(float)
     data = Dataset(q, y, measurement.kind, {"source": "simulate_experiment", "robot": robot.name,
                                             **mm_joints_metadata(robot)})
@@ -269,7 +286,8 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
     perm = jax.random.permutation(k_split, cfg.n_samples)
     train = data.subset(perm[n_test:])
     test = data.subset(perm[:n_test])
-    return Experiment(robot, measurement, true_deviations, train, test, jnp.asarray(noise_std, dtype))
+    ex = Experiment(robot, measurement, true_deviations, train, test, jnp.asarray(noise_std, dtype))
+    return (ex, short) if cfg.flag_short else ex
 
 
 # ---------------------------------------------------------------------------------------------
@@ -330,7 +348,7 @@ def simulate_padded(key, robot, measurement, true_deviations, noise_std, cfg: _C
     ``simulate_experiment(key, n_samples=n_real)``, in the same order, and the rest has weight 0.
     One compiled program serves every sample count of the bucket (:mod:`jaxcal._core._buckets`)."""
     n_real, n_test, n_rounds = (jnp.asarray(v).astype(jnp.result_type(int)) for v in (n_real, n_test, n_rounds))
-    true_deviations, q, y, k_split = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg,
+    true_deviations, q, y, k_split, _ = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg,
                                                     n_real)
     cap_train, cap_test = padded_split_sizes(cfg.n_samples, cfg.test_fraction)
     perm = masked_permutation(k_split, cfg.n_samples, n_real, n_rounds)

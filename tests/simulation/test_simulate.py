@@ -103,7 +103,7 @@ def test_bad_arguments():
         simulate_experiment(jax.random.PRNGKey(0), noise_std=-1.0)
     with pytest.raises(ValueError, match="test_fraction"):
         simulate_experiment(jax.random.PRNGKey(0), test_fraction=1.5)
-    with pytest.raises(Exception, match="too few joint configurations"):
+    with pytest.raises(ValueError, match="too few joint configurations"):
         simulate_experiment(jax.random.PRNGKey(0), n_samples=50, wire_range_mm=(10.0, 20.0))
 
 
