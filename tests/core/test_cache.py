@@ -61,29 +61,22 @@ def test_cache_dir_setting(monkeypatch, tmp_path):
     assert _cache.cache_dir() == pathlib.Path.home() / ".cache" / "jaxcal" / "jax"
 
 
-def test_library_calibrate_reuses_programs_across_processes(tmp_path):
-    """A library user (no CLI) gets the persistent cache: the second process loads what the
-    first compiled, with the same result."""
+def test_programs_are_reused_across_processes_checked_and_rebuilt(tmp_path):
+    """A library user (no CLI) gets the persistent cache: the second process loads what the first
+    compiled. The solve and the identifiability program are also kept as ``jax.export``
+    serialisations: the second process loads them (no tracing) and gets the first's parameters bit
+    for bit; a corrupt entry is rejected and written again; ``JAXCAL_EXPORT=off`` gives the same
+    numbers without them."""
     path = tmp_path / "cache"
     first = _run({"JAXCAL_CACHE_DIR": str(path)})
     assert first["dir"] == str(path) and any(path.iterdir())
-    second = _run({"JAXCAL_CACHE_DIR": str(path)})
-    # the simulation, the identifiability program and the solve (kept by jax.export too: without
-    # tracing, no small eager programs are left to load)
-    assert second["hits"] >= 3, second
-    assert second["rmse"] == first["rmse"]
-
-
-def test_exported_programs_are_loaded_checked_and_rebuilt(tmp_path):
-    """The solve and the identifiability program are kept as ``jax.export`` serialisations: a
-    second process loads them (no tracing) and gets the first's parameters bit for bit; a corrupt
-    entry is rejected and written again; ``JAXCAL_EXPORT=off`` gives the same numbers without it."""
-    path = tmp_path / "cache"
-    first = _run({"JAXCAL_CACHE_DIR": str(path)})
     assert first["exported"]["stored"] >= 2 and first["exported"]["loaded"] == 0, first["exported"]
     stored = sorted((path / "exported").glob("*.jaxexport"))
     assert len(stored) == first["exported"]["stored"]
     second = _run({"JAXCAL_CACHE_DIR": str(path)})
+    # the simulation, the identifiability program and the solve (without tracing, no small eager
+    # programs are left to load)
+    assert second["hits"] >= 3, second
     assert second["exported"] == {"stored": 0, "loaded": len(stored), "rejected": 0}
     assert second["x"] == first["x"]
     blob = stored[0].read_bytes()
