@@ -50,8 +50,9 @@ def cache_dir() -> pathlib.Path | None:
 
 def disable_compilation_cache() -> None:
     """Do not turn JAX's persistent compilation cache on in this process (``jaxcal --no-cache``);
-    a cache jaxcal already turned on stays on."""
-    _STATE["done"] = True
+    a cache jaxcal already turned on stays on. Programs are then not kept as ``jax.export``
+    serialisations either (:mod:`jaxcal._core._exported`)."""
+    _STATE["done"] = _STATE["disabled"] = True
 
 
 def ensure_compilation_cache() -> str | None:

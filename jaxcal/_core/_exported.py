@@ -17,10 +17,11 @@ simply not stored), and the shapes and dtypes of the array arguments. The entry'
 records the SHA-256 of the serialisation and the output structure; a corrupt, truncated or stale
 entry (or one whose shapes do not match) is ignored and written again, never trusted.
 
-Where: the folder ``exported/`` inside jaxcal's cache directory (:func:`~jaxcal._core._cache.cache_dir`;
-``JAXCAL_CACHE_DIR=off`` turns this off with the compilation cache). ``JAXCAL_EXPORT=off`` turns
-off only this layer. Serialisation needs the ``flatbuffers`` package (a dependency of jaxcal; the
-layer is off where it is missing).
+Where: the folder ``exported/`` inside jaxcal's cache directory
+(:func:`~jaxcal._core._cache.cache_dir`; ``JAXCAL_CACHE_DIR=off`` and ``jaxcal --no-cache`` turn
+this off with the compilation cache). ``JAXCAL_EXPORT=off`` turns off only this layer.
+Serialisation needs the ``flatbuffers`` package (a dependency of jaxcal; the layer is off where it
+is missing).
 """
 
 from __future__ import annotations
@@ -44,9 +45,9 @@ STATS = {"stored": 0, "loaded": 0, "rejected": 0}
 
 
 def _directory() -> pathlib.Path | None:
-    from ._cache import cache_dir
+    from ._cache import _STATE, cache_dir
 
-    base = cache_dir()
+    base = None if _STATE.get("disabled") else cache_dir()
     return None if base is None else base / "exported"
 
 
