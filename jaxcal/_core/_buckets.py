@@ -332,7 +332,7 @@ class LeanJit:
         if not _exported.enabled():
             return None
         static = {k: arguments[k] for k in self.static}
-        description = _exported.plain_description((static, {k: v for k, v in dyn.items() if v is None}))
+        description = _exported.plain_description(static)  # which dynamic argument is None: the in_tree
         if description is None:
             return None
         names = sorted(dyn)

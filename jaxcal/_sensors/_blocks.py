@@ -76,6 +76,12 @@ class _Relation:
     _target: ClassVar[str]
     _std: ClassVar[str] = "std_mm"
     _angle: ClassVar[bool] = False
+    #: whether the known value may be 0 (a point on a plane), else it must be > 0
+    _allow_zero: ClassVar[bool] = False
+
+    def __post_init__(self):
+        _check_relation(self, tuple(getattr(self, f) for _, f in self._labels), getattr(self, self._target),
+                        getattr(self, self._std), allow_zero=self._allow_zero)
 
     @property
     def labels(self) -> tuple[tuple[str, str], ...]:
@@ -108,10 +114,6 @@ class KnownDistance(_Relation):
     _labels = (("point", "point_a"), ("point", "point_b"))
     _target = "distance_mm"
 
-    def __post_init__(self):
-        _check_relation(self, (self.point_a, self.point_b), self.distance_mm, self.std_mm)
-
-
     def value(self, geo) -> Array:
         ca, cb = geo[("point", self.point_a)], geo[("point", self.point_b)]
         return jnp.sqrt(jnp.sum((ca - cb) ** 2))
@@ -137,10 +139,6 @@ class PlaneDistance(_Relation):
     _labels = (("plane", "plane_a"), ("plane", "plane_b"))
     _target = "distance_mm"
 
-    def __post_init__(self):
-        _check_relation(self, (self.plane_a, self.plane_b), self.distance_mm, self.std_mm)
-
-
     def value(self, geo) -> Array:
         (na, da), (nb, db) = geo[("plane", self.plane_a)], geo[("plane", self.plane_b)]
         return jnp.abs(jnp.dot(na, nb) * db - da)
@@ -164,7 +162,7 @@ class PlaneAngle(_Relation):
     _target, _std, _angle = "angle_deg", "std_deg", True
 
     def __post_init__(self):
-        _check_relation(self, (self.plane_a, self.plane_b), self.angle_deg, self.std_deg)
+        super().__post_init__()
         if not 0.0 < self.angle_deg < 180.0:
             raise ValueError(f"PlaneAngle: angle_deg must be strictly between 0 and 180 (the angle is not "
                              f"differentiable at 0/180°; parallel planes: PlaneDistance), got {self.angle_deg}")
@@ -191,10 +189,7 @@ class PointOnPlane(_Relation):
     kind: ClassVar[str] = "point_on_plane"
     _labels = (("point", "point"), ("plane", "plane"))
     _target = "offset_mm"
-
-    def __post_init__(self):
-        _check_relation(self, (self.point, self.plane), self.offset_mm, self.std_mm, allow_zero=True)
-
+    _allow_zero = True
 
     def value(self, geo) -> Array:
         c = geo[("point", self.point)]
