@@ -37,7 +37,6 @@ __all__ = ["ENV_VAR", "enabled", "plain_description", "describe", "source_hash",
 #: environment variable: ``off`` (``0``, ``false``, ``no``, ``none``) turns the layer off.
 ENV_VAR = "JAXCAL_EXPORT"
 
-_OFF = ("off", "none", "0", "false", "no")
 _PLAIN = (bool, int, float, str, type(None))
 
 #: ``{"stored": n, "loaded": n, "rejected": n}`` of this process (tests and benchmarks read it).
@@ -53,6 +52,8 @@ def _directory() -> pathlib.Path | None:
 
 def enabled() -> bool:
     """Whether programs are kept and looked up on disk in this process."""
+    from ._cache import _OFF
+
     if os.environ.get(ENV_VAR, "on").strip().lower() in _OFF or _directory() is None:
         return False
     try:
