@@ -31,6 +31,7 @@ from .._fit._diagnostics import (
     error_dims,
     given_noise_std,
     gram_at,
+    gram_from_jacobian,
     implausible_deviations,
     joint_units,
     narrow_joints,
@@ -134,15 +135,24 @@ class Calibrator(eqx.Module):
         problem = self.problem(q, y, weight)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
             scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian,
-                                         mask=self.free)
+                                         mask=self.free, keep_jacobian=self.report,
+                                         defer_scale=self.method.scales_itself)
             raw = self.method.run(scaled, key)
+            if raw.scale is not None:  # computed by the method from the start's Jacobian
+                scaled = eqx.tree_at(lambda s: s.scale, scaled, raw.scale)
             x = scaled.x(raw.z)
             metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra), problem.weight)
             gram = deviations = None
             if self.report:
                 ob = self.objective
                 loss, scale = ("linear", 1.0) if ob is None else (ob.loss, ob.loss_scale)
-                gram = gram_at(problem, x, loss, jnp.asarray(scale, problem.dtype))
+                scale = jnp.asarray(scale, problem.dtype)
+                if raw.data_jacobian is None:
+                    gram = gram_at(problem, x, loss, scale)
+                else:  # the solve's own final Jacobian, ∂r/∂z = ∂r/∂x·diag(scale); held columns are 0
+                    s = scaled.scale
+                    J = raw.data_jacobian / jnp.where(s != 0, s, 1.0)
+                    gram = gram_from_jacobian(problem, problem.residual(x), J, loss, scale)
                 deviations = problem.deviations(x)
         its = iterations_to_converge(raw.history, raw.n_iterations)
         status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING

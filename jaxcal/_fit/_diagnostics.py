@@ -148,6 +148,12 @@ def gram_at(problem, x, loss: str, loss_scale):
     :func:`parameter_uncertainty` otherwise compiles it alone. The N×p Jacobian stays inside XLA;
     the host only factorises p×p matrices."""
     r, J = value_and_jacfwd(problem.residual, x, problem.q)
+    return gram_from_jacobian(problem, r, J, loss, loss_scale)
+
+
+def gram_from_jacobian(problem, r, J, loss: str, loss_scale):
+    """:func:`gram_at` from the data residuals ``r`` ``[N]`` and their Jacobian ``J`` ``[N, p]``
+    when the caller holds them (a least-squares solve keeps its final Jacobian)."""
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     Js = J / jnp.where(d > 0, d, 1.0)
     G = Js.T @ Js

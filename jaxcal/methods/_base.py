@@ -59,11 +59,20 @@ class ScaledProblem(eqx.Module):
     start_jacobian: Float[Array, "N p"] | None = None
     #: ``[p]`` 1 for a parameter that moves, 0 for one held at ``x_start`` (``None``: all move).
     mask: Float[Array, " p"] | None = None
+    #: the least-squares methods return the data Jacobian at their solution
+    #: (:attr:`RawRun.data_jacobian`), so a caller that needs it (``Calibrator(report=True)``)
+    #: does not differentiate the kinematics once more in its program (static).
+    keep_jacobian: bool = eqx.field(static=True, default=False)
+    #: ``scale`` is a placeholder that the method's ``run`` computes from the start's Jacobian
+    #: itself and returns (:attr:`RawRun.scale`; :attr:`Method.scales_itself` methods only): the
+    #: least-squares loop then differentiates the kinematics at one place in its program (static).
+    scale_pending: bool = eqx.field(static=True, default=False)
 
     @classmethod
     def build(cls, problem: Problem, x_start: Float[Array, " p"] | None = None,
               objective: Objective | None = None, jacobian: Float[Array, "N p"] | None = None,
-              mask: Float[Array, " p"] | None = None) -> ScaledProblem:
+              mask: Float[Array, " p"] | None = None, keep_jacobian: bool = False,
+              defer_scale: bool = False) -> ScaledProblem:
         """Scales from the Jacobian ``problem.jacobian(x_start)`` (``x_start`` default
         ``problem.x0()``), or from ``jacobian`` when the caller has computed it (it is then kept
         as ``start_jacobian`` for the least-squares methods' first step).
@@ -71,31 +80,45 @@ class ScaledProblem(eqx.Module):
         ``mask`` ``[p]`` (0/1, run-time data): the free set inside ``problem.space``. A masked
         parameter gets scale 0 (its column of ``∂r/∂z`` is zero, so no step moves it and ``x`` keeps
         its start value) and no prior term, so one compiled program serves every free set of a
-        parameter space (:attr:`Method.maskable` methods; the others see ``mask=None``)."""
+        parameter space (:attr:`Method.maskable` methods; the others see ``mask=None``).
+
+        ``defer_scale`` (and no ``jacobian``): the scales are left to the method's ``run``
+        (:attr:`scale_pending`), which computes the start's Jacobian in its own loop."""
         if objective is not None and objective.plain_least_squares:
             objective = None
         x_start = problem.x0() if x_start is None else jnp.asarray(x_start, problem.dtype)
         if jacobian is not None and jacobian.shape != (problem.n_residuals, problem.space.n_free):
             raise ValueError(f"start Jacobian has shape {jacobian.shape}, expected "
                              f"{(problem.n_residuals, problem.space.n_free)} (residuals × free parameters)")
-        J = problem.jacobian(x_start) if jacobian is None else jnp.asarray(jacobian, problem.dtype)
+        pending = defer_scale and jacobian is None
+        if mask is not None:
+            mask = jnp.asarray(mask, problem.dtype)
+        if pending:
+            J, scale = None, jnp.ones_like(x_start)
+        else:
+            J = problem.jacobian(x_start) if jacobian is None else jnp.asarray(jacobian, problem.dtype)
+            scale = cls.scale_from_jacobian(problem, J, mask)
+        if objective is not None:
+            objective = jax.tree.map(lambda a: jnp.asarray(a, problem.dtype), objective)
+        if mask is not None:
+            if objective is not None:
+                objective = eqx.tree_at(lambda o: o.prior_precision, objective, objective.prior_precision * mask)
+                if objective.prior_whitening is not None:  # no prior rows/columns for a held parameter
+                    objective = eqx.tree_at(lambda o: o.prior_whitening, objective,
+                                            objective.prior_whitening * mask[:, None] * mask[None, :])
+        return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask, keep_jacobian, pending)
+
+    @staticmethod
+    def scale_from_jacobian(problem: Problem, J: Float[Array, "N p"], mask: Float[Array, " p"] | None = None
+                            ) -> Float[Array, " p"]:
+        """``scale_j = sqrt(N)/‖J_j‖`` (1 for a zero column; 0 where ``mask`` holds a parameter)."""
         # sqrt(sum(J²)) rather than jnp.linalg.norm: the latter's column reduction is ~10x
         # slower on XLA:CPU for a [N, p] Jacobian (measured, JAX 0.10)
         norms = jnp.sqrt(jnp.sum(J * J, axis=0))
         # sqrt(N) of the real residuals (padding rows of a bucketed problem have zero Jacobian rows)
         root_n = math.sqrt(J.shape[0]) if problem.weight is None else jnp.sqrt(problem.n_real_residuals)
         scale = jnp.where(norms > 0, root_n / jnp.where(norms > 0, norms, 1.0), 1.0)
-        if objective is not None:
-            objective = jax.tree.map(lambda a: jnp.asarray(a, problem.dtype), objective)
-        if mask is not None:
-            mask = jnp.asarray(mask, problem.dtype)
-            scale = scale * mask
-            if objective is not None:
-                objective = eqx.tree_at(lambda o: o.prior_precision, objective, objective.prior_precision * mask)
-                if objective.prior_whitening is not None:  # no prior rows/columns for a held parameter
-                    objective = eqx.tree_at(lambda o: o.prior_whitening, objective,
-                                            objective.prior_whitening * mask[:, None] * mask[None, :])
-        return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask)
+        return scale if mask is None else scale * mask
 
     @property
     def n_prior_residuals(self):
@@ -141,20 +164,47 @@ class ScaledProblem(eqx.Module):
         """What least squares minimises: robust-scaled data residuals ``[N]`` followed, with a
         prior, by the ``p`` prior residuals (mm)."""
         pr = self.problem if problem is None else problem
-        if self.objective is None:
-            return pr.residual(self.x(z))
-        r, _ = self._robust_blocks(pr, self.x(z))
-        r = r.reshape(-1)
-        if self.objective.has_prior:
+        r = self._robust_data(pr, pr.residual(self.x(z)))
+        if self.objective is not None and self.objective.has_prior:
             r = jnp.concatenate([r, self.prior_residual(z)])
         return r
 
     def objective_residual_and_jacobian(self, z: Float[Array, " p"], problem: Problem | None = None):
-        """``(objective_residual [M], ∂/∂z [M, p])`` from one ``jax.jacfwd`` pass."""
+        """``(objective_residual [M], ∂/∂z [M, p])`` from one ``jax.jacfwd`` pass through the
+        kinematics (:meth:`residual_and_jacobian`) and :meth:`objective_from_data`."""
+        r, J = self.residual_and_jacobian(z, problem)
         if self.objective is None:
-            return self.residual_and_jacobian(z, problem)
+            return r, J
+        return self.objective_from_data(z, r, J, problem)
+
+    def objective_from_data(self, z: Float[Array, " p"], r: Float[Array, " N"], J: Float[Array, "N p"],
+                            problem: Problem | None = None):
+        """``(objective_residual [M], ∂/∂z [M, p])`` at ``z`` from the data residual ``r`` and its
+        Jacobian ``J = ∂r/∂z`` there: the chain rule through the robust scaling (a JVP per column
+        of ``J`` through a per-sample function, no kinematics) and the prior rows (linear in
+        ``z``). The same values as ``jax.jacfwd`` of :meth:`objective_residual`, with the kinematic
+        chain differentiated once, so a program that already holds ``J`` (the start's, from the
+        identifiability check) compiles no second derivative of it."""
         pr = self.problem if problem is None else problem
-        return value_and_jacfwd(lambda z: self.objective_residual(z, problem), z, pr.q)
+        if self.objective is None:
+            return r, J
+        if self.objective.loss != "linear":
+            r, scaled = jax.linearize(lambda r: self._robust_data(pr, r), r)
+            J = jax.vmap(scaled, in_axes=1, out_axes=1)(J)
+        if self.objective.has_prior:
+            r = jnp.concatenate([r, self.prior_residual(z)])
+            J = jnp.concatenate([J, jax.jacfwd(self.prior_residual)(z)])
+        return r, J
+
+    def _robust_data(self, problem: Problem, r: Float[Array, " N"]) -> Float[Array, " N"]:
+        """The flat data residuals ``r`` (padding rows zero) with each sample's block scaled by
+        the robust factor of its error (``r`` itself for plain least squares / the linear loss)."""
+        ob = self.objective
+        if ob is None or ob.loss == "linear":
+            return r
+        blocks = r.reshape(problem.n_samples, problem.measurement.size)
+        e = problem.measurement.sample_error(blocks)
+        return (blocks * robust_factor(ob.loss, e * e, ob.loss_scale)[:, None]).reshape(-1)
 
     @property
     def n_free(self) -> int:
@@ -266,6 +316,10 @@ class RawRun(NamedTuple):
         n_iterations: iterations run.
         status: :class:`~jaxcal.Status` code.
         extra: method-specific pytree (or ``None``).
+        data_jacobian: ``∂residual/∂z`` ``[N, p]`` of the data at ``z`` when the method has it
+            (the least-squares methods under :attr:`ScaledProblem.keep_jacobian`), else ``None``.
+        scale: ``[p]`` the scales ``z`` is in when the method computed them
+            (:attr:`ScaledProblem.scale_pending`), else ``None`` (the problem's own).
     """
 
     z: Float[Array, " p"]
@@ -273,6 +327,8 @@ class RawRun(NamedTuple):
     n_iterations: Int[Array, ""]
     status: Int[Array, ""]
     extra: Any = None
+    data_jacobian: Float[Array, "N p"] | None = None
+    scale: Float[Array, " p"] | None = None
 
 
 def finish_history(history: Array, n_iterations: Array) -> Array:
@@ -316,6 +372,10 @@ class Method(eqx.Module):
     #: free parameters alone to round-off (LM: a zero column of the damped normal equations gives
     #: a zero step); random search and decoupled weight decay would act on the masked coordinates.
     maskable: ClassVar[bool] = False
+
+    #: whether ``run`` accepts a :attr:`ScaledProblem.scale_pending` problem: it computes the
+    #: start's Jacobian and the scales itself and returns them (:attr:`RawRun.scale`).
+    scales_itself: ClassVar[bool] = False
 
     @property
     def paddable(self) -> bool:

@@ -28,6 +28,7 @@ import lineax as lx
 import optimistix as optx
 from optimistix._misc import cauchy_termination as optx_cauchy_termination
 
+from .._fit._problem import value_and_jacfwd
 from .._fit._result import Status
 from .._sensors._measurement import Pose
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, finish_history, register_method
@@ -120,17 +121,23 @@ def _rmse_from_residual(problem: ScaledProblem, z, r):
 
 
 def _start_residual_and_jacobian(problem: ScaledProblem):
-    """``(r, ∂r/∂z)`` at ``z = 0``. For plain least squares the Jacobian is ``J_x·diag(scale)``
-    with ``J_x = problem.problem.jacobian(x_start)``, the very computation
-    :meth:`ScaledProblem.build` made for the column scales (XLA merges the two; or the one it was
-    given, ``start_jacobian``), so the start costs no second ``jacfwd``; equal to ``jacfwd`` in
-    ``z`` up to round-off."""
+    """``(r, ∂r/∂z, ∂r_data/∂z)`` at ``z = 0``: the objective's residual and Jacobian, and the
+    data residuals' Jacobian (the same array for plain least squares), or ``(r, None, None)``
+    when the scales are pending (the loop's first step computes the Jacobian). The data Jacobian
+    is ``J_x·diag(scale)`` with ``J_x`` the one :meth:`ScaledProblem.build` computed for the
+    column scales or was given (``start_jacobian``), and the objective's follows from it
+    (:meth:`ScaledProblem.objective_from_data`), so the start costs no second ``jacfwd``."""
     z0 = jnp.zeros(problem.n_free, problem.dtype)
+    r0 = problem.problem.residual(problem.x_start)
+    if not problem.plain:
+        r0 = problem.objective_residual(z0)
+    if problem.scale_pending:
+        return r0, None, None
+    Jx = problem.start_jacobian if problem.start_jacobian is not None else problem.problem.jacobian(problem.x_start)
+    Jd = Jx * problem.scale
     if problem.plain:
-        r0 = problem.problem.residual(problem.x_start)
-        Jx = problem.start_jacobian if problem.start_jacobian is not None else problem.problem.jacobian(problem.x_start)
-        return r0, Jx * problem.scale
-    return problem.objective_residual_and_jacobian(z0)
+        return r0, Jd, Jd
+    return r0, problem.objective_from_data(z0, problem.problem.residual(problem.x_start), Jd)[1], Jd
 
 
 def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
@@ -150,6 +157,11 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     history ``[max_steps + 1]``. Pure and vmappable (under ``vmap`` the loop runs until the
     slowest member terminates; finished members do not move, and the conditional Jacobian is
     computed for every member).
+
+    With ``problem.keep_jacobian`` the final point's Jacobian is computed in the loop too and
+    returned as :attr:`RawRun.data_jacobian` (the data residuals' ``∂r/∂z``): a caller that needs
+    it (the posterior covariance) then holds the kinematics' derivative once in its program,
+    not twice.
     """
     pr = problem.problem
     if (pr.weight is not None or problem.mask is not None) and isinstance(solver.search, RoundoffAwareTrustRegion):
@@ -159,36 +171,69 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
                              is_leaf=lambda v: v is None)
     search, descent = solver.search, solver.descent
     z0 = jnp.zeros(problem.n_free, problem.dtype)
-    r0, J0 = _start_residual_and_jacobian(problem)
-    info_struct = jax.eval_shape(lambda: optx.FunctionInfo.ResidualJac(r0, lx.MatrixLinearOperator(J0)))
-    f_info0 = optx.FunctionInfo.ResidualJac(jnp.zeros_like(r0), lx.MatrixLinearOperator(jnp.zeros_like(J0)))
+    r0, J0, Jd0 = _start_residual_and_jacobian(problem)
+    keep, pending, plain = problem.keep_jacobian, problem.scale_pending, problem.plain
+    # the data Jacobian of the accepted point is carried apart from the objective's only where the
+    # two differ (a prior or a robust loss) and the caller asked for it
+    carry_data = keep and not plain
+    n_obj = r0.shape[0]
+    jac_struct = jax.ShapeDtypeStruct((n_obj, problem.n_free), problem.dtype)
+    info_struct = optx.FunctionInfo.ResidualJac(jax.ShapeDtypeStruct(r0.shape, r0.dtype),
+                                                lx.MatrixLinearOperator(jac_struct))
+    f_info0 = optx.FunctionInfo.ResidualJac(jnp.zeros_like(r0), lx.MatrixLinearOperator(jnp.zeros(jac_struct.shape,
+                                                                                                    jac_struct.dtype)))
     search_state0 = search.init(z0, info_struct)
     descent_state0 = descent.init(z0, info_struct)
     rmse0 = _rmse_from_residual(problem, z0, r0)  # from the start residual: no extra FK pass
     hist0 = jnp.full(max_steps + 1, jnp.nan, problem.dtype).at[0].set(rmse0)
+    n_data = problem.problem.n_residuals
 
-    def jacobian_at(z):
-        return problem.objective_residual_and_jacobian(z)[1]
+    def scaled_by(scale):
+        return eqx.tree_at(lambda p: p.scale, problem, scale) if pending else problem
+
+    def jacobians_at(args):
+        """``(objective Jacobian, data Jacobian or (), scale)`` at ``z``: the one place of the
+        program that differentiates the kinematics (at the start too when the scales are pending:
+        they come from this Jacobian)."""
+        z, scale, first = args
+        pb = scaled_by(scale)
+        r, Jx = value_and_jacfwd(pb.problem.residual, pb.x(z), pb.problem.q)
+        if pending:
+            scale = jnp.where(first, ScaledProblem.scale_from_jacobian(pb.problem, Jx, pb.mask), scale)
+            pb = scaled_by(scale)
+        Jd = Jx * scale
+        Jo = Jd if plain else pb.objective_from_data(z, r, Jd)[1]
+        return Jo, (Jd if carry_data else ()), scale
 
     def cond(c):
-        k, done, result = c[3], c[-3], c[-2]
+        k, done, result = c[3], c[-5], c[-4]
         return (~done) & (result == optx.RESULTS.successful) & (k < max_steps)
 
     def body(c):
-        z, z_eval, first, k, f_info, s_state, d_state, _, _, hist = c
-        r_eval = jax.lax.cond(first, lambda _: r0, lambda z: problem.objective_residual(z), z_eval)
+        z, z_eval, first, k, f_info, s_state, d_state, _, _, hist, jd, scale = c
+        pb = scaled_by(scale)
+        r_eval = jax.lax.cond(first, lambda _: r0, lambda z: pb.objective_residual(z), z_eval)
         # the search reads only the loss at the candidate (and the accepted point's Jacobian)
         probe = optx.FunctionInfo.ResidualJac(r_eval, f_info.jac)
         step_size, accept, search_result, s_state = search.step(first, z, z_eval, f_info, probe, s_state)
         terminate = accept & optx_cauchy_termination(
             solver.rtol, solver.atol, solver.norm, z_eval, z_eval - z, r_eval, r_eval - f_info.residual
         )
-        need_jac = accept & ~terminate & ~first
-        J_eval = jax.lax.cond(need_jac, jacobian_at, lambda _: jnp.where(first, J0, f_info.jac.matrix), z_eval)
+        # the final point's Jacobian only when the caller keeps it; the start's when pending
+        need_jac = accept & (~first | pending) if keep else accept & ~terminate & (~first | pending)
+        if pending:  # the start's Jacobian (for the scales) even where the start is already final
+            need_jac = need_jac | first
+        J_eval, jd_eval, scale = jax.lax.cond(
+            need_jac, jacobians_at,
+            lambda a: (f_info.jac.matrix if pending else jnp.where(first, J0, f_info.jac.matrix),
+                       jd if pending else jax.tree.map(lambda v: jnp.where(first, Jd0, v), jd), a[1]),
+            (z_eval, scale, first),
+        )
         eval_info = optx.FunctionInfo.ResidualJac(r_eval, lx.MatrixLinearOperator(J_eval))
         d_state = jax.lax.cond(accept, lambda d: descent.query(z_eval, eval_info, d), lambda d: d, d_state)
         z_acc = jnp.where(accept, z_eval, z)
         f_info = jax.tree.map(lambda a, b: jnp.where(accept, a, b), eval_info, f_info)
+        jd = jax.tree.map(lambda a, b: jnp.where(accept, a, b), jd_eval, jd)
         # the step from a point where the solve terminates is never taken: skip its linear solve
         y_descent, descent_result = jax.lax.cond(
             terminate,
@@ -200,13 +245,14 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         z_next = z_acc + y_descent
         finite = jnp.all(jnp.isfinite(z_acc))  # as optimistix: the accepted point, not the candidate
         result = optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
-        rmse = _rmse_from_residual(problem, z_acc, f_info.residual)
+        rmse = _rmse_from_residual(scaled_by(scale), z_acc, f_info.residual)
         return (z_acc, z_next, jnp.asarray(False), k + 1, f_info, s_state, d_state, terminate, result,
-                hist.at[k + 1].set(rmse))
+                hist.at[k + 1].set(rmse), jd, scale)
 
+    jd0 = jnp.zeros((n_data, problem.n_free), problem.dtype) if carry_data else ()
     carry0 = (z0, z0, jnp.asarray(True), jnp.asarray(0), f_info0, search_state0, descent_state0,
-              jnp.asarray(False), optx.RESULTS.successful, hist0)
-    z, _, _, k, _, _, _, done, result, hist = jax.lax.while_loop(cond, body, carry0)
+              jnp.asarray(False), optx.RESULTS.successful, hist0, jd0, problem.scale)
+    z, _, _, k, f_info, _, _, done, result, hist, jd, scale = jax.lax.while_loop(cond, body, carry0)
     hist = finish_history(hist, k)
     finite = jnp.all(jnp.isfinite(hist[: max_steps + 1])) & jnp.all(jnp.isfinite(z))
     exploded = hist[k] > DIVERGENCE_FACTOR * rmse0
@@ -219,8 +265,15 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
             jnp.where(done, int(Status.CONVERGED), int(Status.MAX_STEPS)),
         ),
     )
-    z = jnp.where(jnp.all(jnp.isfinite(z)), z, z0)
-    return RawRun(z, hist, k, status)
+    z_finite = jnp.all(jnp.isfinite(z))
+    z = jnp.where(z_finite, z, z0)
+    data_jacobian = None
+    if keep:
+        # at the returned z; a dropped non-finite point returns the start (a diverged solve's
+        # covariance is not reported, but it must be a matrix of numbers)
+        J = jd if carry_data else f_info.jac.matrix
+        data_jacobian = jnp.where(z_finite, J, 0.0 if Jd0 is None else Jd0)
+    return RawRun(z, hist, k, status, data_jacobian=data_jacobian, scale=scale if pending else None)
 
 
 #: Least-squares termination tolerances are at least this in float32 (see ``_OptimistixMethod``).
@@ -270,6 +323,8 @@ class _OptimistixMethod(Method):
         if isinstance(solver.search, optx.ClassicalTrustRegion):  # LM
             solver = eqx.tree_at(lambda s: s.search, solver, RoundoffAwareTrustRegion())
         return solver
+
+    scales_itself: ClassVar[bool] = True
 
     def run(self, problem: ScaledProblem, key) -> RawRun:
         del key  # deterministic
