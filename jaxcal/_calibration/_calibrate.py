@@ -141,7 +141,11 @@ class Calibrator(eqx.Module):
             if raw.scale is not None:  # computed by the method from the start's Jacobian
                 scaled = eqx.tree_at(lambda s: s.scale, scaled, raw.scale)
             x = scaled.x(raw.z)
-            metrics = compute_metrics(self.method.sample_errors(problem, x, raw.extra), problem.weight)
+            if raw.data_residual is None:
+                errors = self.method.sample_errors(problem, x, raw.extra)
+            else:  # the solve's own residual at x: no further kinematics in the program
+                errors = problem.sample_errors_from_residual(raw.data_residual)
+            metrics = compute_metrics(errors, problem.weight)
             gram = deviations = None
             if self.report:
                 ob = self.objective
@@ -152,7 +156,7 @@ class Calibrator(eqx.Module):
                 else:  # the solve's own final Jacobian, ∂r/∂z = ∂r/∂x·diag(scale); held columns are 0
                     s = scaled.scale
                     J = raw.data_jacobian / jnp.where(s != 0, s, 1.0)
-                    gram = gram_from_jacobian(problem, problem.residual(x), J, loss, scale)
+                    gram = gram_from_jacobian(problem, raw.data_residual, J, loss, scale)
                 deviations = problem.deviations(x)
         its = iterations_to_converge(raw.history, raw.n_iterations)
         status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING

@@ -138,6 +138,10 @@ class Problem(eqx.Module):
         r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
         return self.weighted_blocks(self.measurement.sample_error(r))
 
+    def sample_errors_from_residual(self, r: Float[Array, " n*m"]) -> Float[Array, " n"]:
+        """:meth:`sample_errors` from the flat residual :meth:`residual` gave (padding rows 0)."""
+        return self.measurement.sample_error(r.reshape(self.n_samples, self.measurement.size))
+
     def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
         """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
         return value_and_jacfwd(self.residual, x, self.q)[1]

@@ -164,7 +164,13 @@ class ScaledProblem(eqx.Module):
         """What least squares minimises: robust-scaled data residuals ``[N]`` followed, with a
         prior, by the ``p`` prior residuals (mm)."""
         pr = self.problem if problem is None else problem
-        r = self._robust_data(pr, pr.residual(self.x(z)))
+        return self.objective_from_residual(z, pr.residual(self.x(z)), pr)
+
+    def objective_from_residual(self, z: Float[Array, " p"], r: Float[Array, " N"],
+                                problem: Problem | None = None) -> Float[Array, " M"]:
+        """:meth:`objective_residual` at ``z`` from the data residual ``r`` there."""
+        pr = self.problem if problem is None else problem
+        r = self._robust_data(pr, r)
         if self.objective is not None and self.objective.has_prior:
             r = jnp.concatenate([r, self.prior_residual(z)])
         return r
@@ -316,6 +322,8 @@ class RawRun(NamedTuple):
         n_iterations: iterations run.
         status: :class:`~jaxcal.Status` code.
         extra: method-specific pytree (or ``None``).
+        data_residual: ``[N]`` the data residuals at ``z`` when the method has them (as
+            ``data_jacobian``), else ``None``.
         data_jacobian: ``∂residual/∂z`` ``[N, p]`` of the data at ``z`` when the method has it
             (the least-squares methods under :attr:`ScaledProblem.keep_jacobian`), else ``None``.
         scale: ``[p]`` the scales ``z`` is in when the method computed them
@@ -327,6 +335,7 @@ class RawRun(NamedTuple):
     n_iterations: Int[Array, ""]
     status: Int[Array, ""]
     extra: Any = None
+    data_residual: Float[Array, " N"] | None = None
     data_jacobian: Float[Array, "N p"] | None = None
     scale: Float[Array, " p"] | None = None
 

@@ -120,24 +120,21 @@ def _rmse_from_residual(problem: ScaledProblem, z, r):
     return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_real_residuals)
 
 
-def _start_residual_and_jacobian(problem: ScaledProblem):
-    """``(r, ∂r/∂z, ∂r_data/∂z)`` at ``z = 0``: the objective's residual and Jacobian, and the
-    data residuals' Jacobian (the same array for plain least squares), or ``(r, None, None)``
-    when the scales are pending (the loop's first step computes the Jacobian). The data Jacobian
-    is ``J_x·diag(scale)`` with ``J_x`` the one :meth:`ScaledProblem.build` computed for the
-    column scales or was given (``start_jacobian``), and the objective's follows from it
+def _start_jacobians(problem: ScaledProblem):
+    """``(∂r/∂z, ∂r_data/∂z)`` at ``z = 0``: the objective's Jacobian and the data residuals'
+    (the same array for plain least squares), or ``(None, None)`` when the scales are pending (the
+    loop's first step computes them). The data Jacobian is ``J_x·diag(scale)`` with ``J_x`` the
+    one :meth:`ScaledProblem.build` computed for the column scales or was given
+    (``start_jacobian``); the objective's follows from it
     (:meth:`ScaledProblem.objective_from_data`), so the start costs no second ``jacfwd``."""
-    z0 = jnp.zeros(problem.n_free, problem.dtype)
-    r0 = problem.problem.residual(problem.x_start)
-    if not problem.plain:
-        r0 = problem.objective_residual(z0)
     if problem.scale_pending:
-        return r0, None, None
+        return None, None
+    z0 = jnp.zeros(problem.n_free, problem.dtype)
     Jx = problem.start_jacobian if problem.start_jacobian is not None else problem.problem.jacobian(problem.x_start)
     Jd = Jx * problem.scale
     if problem.plain:
-        return r0, Jd, Jd
-    return r0, problem.objective_from_data(z0, problem.problem.residual(problem.x_start), Jd)[1], Jd
+        return Jd, Jd
+    return problem.objective_from_data(z0, problem.problem.residual(problem.x_start), Jd)[1], Jd
 
 
 def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
@@ -171,22 +168,19 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
                              is_leaf=lambda v: v is None)
     search, descent = solver.search, solver.descent
     z0 = jnp.zeros(problem.n_free, problem.dtype)
-    r0, J0, Jd0 = _start_residual_and_jacobian(problem)
+    J0, Jd0 = _start_jacobians(problem)
     keep, pending, plain = problem.keep_jacobian, problem.scale_pending, problem.plain
-    # the data Jacobian of the accepted point is carried apart from the objective's only where the
-    # two differ (a prior or a robust loss) and the caller asked for it
+    # the data residual and Jacobian of the accepted point are carried apart from the objective's
+    # only where the two differ (a prior or a robust loss) and the caller asked for them
     carry_data = keep and not plain
-    n_obj = r0.shape[0]
-    jac_struct = jax.ShapeDtypeStruct((n_obj, problem.n_free), problem.dtype)
-    info_struct = optx.FunctionInfo.ResidualJac(jax.ShapeDtypeStruct(r0.shape, r0.dtype),
-                                                lx.MatrixLinearOperator(jac_struct))
-    f_info0 = optx.FunctionInfo.ResidualJac(jnp.zeros_like(r0), lx.MatrixLinearOperator(jnp.zeros(jac_struct.shape,
-                                                                                                    jac_struct.dtype)))
+    n_data = problem.problem.n_residuals
+    r_struct = jax.ShapeDtypeStruct((problem.n_objective_residuals,), problem.dtype)
+    jac_struct = jax.ShapeDtypeStruct((problem.n_objective_residuals, problem.n_free), problem.dtype)
+    info_struct = optx.FunctionInfo.ResidualJac(r_struct, lx.MatrixLinearOperator(jac_struct))
+    f_info0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), info_struct)
     search_state0 = search.init(z0, info_struct)
     descent_state0 = descent.init(z0, info_struct)
-    rmse0 = _rmse_from_residual(problem, z0, r0)  # from the start residual: no extra FK pass
-    hist0 = jnp.full(max_steps + 1, jnp.nan, problem.dtype).at[0].set(rmse0)
-    n_data = problem.problem.n_residuals
+    hist0 = jnp.full(max_steps + 1, jnp.nan, problem.dtype)
 
     def scaled_by(scale):
         return eqx.tree_at(lambda p: p.scale, problem, scale) if pending else problem
@@ -206,13 +200,15 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         return Jo, (Jd if carry_data else ()), scale
 
     def cond(c):
-        k, done, result = c[3], c[-5], c[-4]
+        k, done, result = c[3], c[-6], c[-5]
         return (~done) & (result == optx.RESULTS.successful) & (k < max_steps)
 
     def body(c):
-        z, z_eval, first, k, f_info, s_state, d_state, _, _, hist, jd, scale = c
+        z, z_eval, first, k, f_info, s_state, d_state, _, _, hist, data, data_start, scale = c
         pb = scaled_by(scale)
-        r_eval = jax.lax.cond(first, lambda _: r0, lambda z: pb.objective_residual(z), z_eval)
+        # the candidate's residual (the start's at the first step: z_eval = 0)
+        rd_eval = pb.problem.residual(pb.x(z_eval))
+        r_eval = rd_eval if plain else pb.objective_from_residual(z_eval, rd_eval)
         # the search reads only the loss at the candidate (and the accepted point's Jacobian)
         probe = optx.FunctionInfo.ResidualJac(r_eval, f_info.jac)
         step_size, accept, search_result, s_state = search.step(first, z, z_eval, f_info, probe, s_state)
@@ -226,14 +222,17 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         J_eval, jd_eval, scale = jax.lax.cond(
             need_jac, jacobians_at,
             lambda a: (f_info.jac.matrix if pending else jnp.where(first, J0, f_info.jac.matrix),
-                       jd if pending else jax.tree.map(lambda v: jnp.where(first, Jd0, v), jd), a[1]),
+                       data[1] if pending or not carry_data else jnp.where(first, Jd0, data[1]), a[1]),
             (z_eval, scale, first),
         )
         eval_info = optx.FunctionInfo.ResidualJac(r_eval, lx.MatrixLinearOperator(J_eval))
         d_state = jax.lax.cond(accept, lambda d: descent.query(z_eval, eval_info, d), lambda d: d, d_state)
         z_acc = jnp.where(accept, z_eval, z)
         f_info = jax.tree.map(lambda a, b: jnp.where(accept, a, b), eval_info, f_info)
-        jd = jax.tree.map(lambda a, b: jnp.where(accept, a, b), jd_eval, jd)
+        if carry_data:
+            data = jax.tree.map(lambda a, b: jnp.where(accept, a, b), (rd_eval, jd_eval), data)
+        if keep:  # the start's data residual, returned where a non-finite point is dropped
+            data_start = jnp.where(first, rd_eval, data_start)
         # the step from a point where the solve terminates is never taken: skip its linear solve
         y_descent, descent_result = jax.lax.cond(
             terminate,
@@ -246,13 +245,18 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         finite = jnp.all(jnp.isfinite(z_acc))  # as optimistix: the accepted point, not the candidate
         result = optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
         rmse = _rmse_from_residual(scaled_by(scale), z_acc, f_info.residual)
+        hist = hist.at[k + 1].set(rmse)
+        hist = jnp.where(first, hist.at[0].set(rmse), hist)  # the first step accepts the start (z = 0)
         return (z_acc, z_next, jnp.asarray(False), k + 1, f_info, s_state, d_state, terminate, result,
-                hist.at[k + 1].set(rmse), jd, scale)
+                hist, data, data_start, scale)
 
-    jd0 = jnp.zeros((n_data, problem.n_free), problem.dtype) if carry_data else ()
+    data0 = (jnp.zeros(n_data, problem.dtype), jnp.zeros((n_data, problem.n_free), problem.dtype)) if carry_data \
+        else ((), ())
     carry0 = (z0, z0, jnp.asarray(True), jnp.asarray(0), f_info0, search_state0, descent_state0,
-              jnp.asarray(False), optx.RESULTS.successful, hist0, jd0, problem.scale)
-    z, _, _, k, f_info, _, _, done, result, hist, jd, scale = jax.lax.while_loop(cond, body, carry0)
+              jnp.asarray(False), optx.RESULTS.successful, hist0, data0,
+              jnp.zeros(n_data, problem.dtype) if keep else (), problem.scale)
+    z, _, _, k, f_info, _, _, done, result, hist, data, data_start, scale = jax.lax.while_loop(cond, body, carry0)
+    rmse0 = hist[0]
     hist = finish_history(hist, k)
     finite = jnp.all(jnp.isfinite(hist[: max_steps + 1])) & jnp.all(jnp.isfinite(z))
     exploded = hist[k] > DIVERGENCE_FACTOR * rmse0
@@ -267,13 +271,15 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     )
     z_finite = jnp.all(jnp.isfinite(z))
     z = jnp.where(z_finite, z, z0)
-    data_jacobian = None
+    data_residual = data_jacobian = None
     if keep:
         # at the returned z; a dropped non-finite point returns the start (a diverged solve's
         # covariance is not reported, but it must be a matrix of numbers)
-        J = jd if carry_data else f_info.jac.matrix
+        r, J = data if carry_data else (f_info.residual, f_info.jac.matrix)
+        data_residual = jnp.where(z_finite, r, data_start)
         data_jacobian = jnp.where(z_finite, J, 0.0 if Jd0 is None else Jd0)
-    return RawRun(z, hist, k, status, data_jacobian=data_jacobian, scale=scale if pending else None)
+    return RawRun(z, hist, k, status, data_residual=data_residual, data_jacobian=data_jacobian,
+                  scale=scale if pending else None)
 
 
 #: Least-squares termination tolerances are at least this in float32 (see ``_OptimistixMethod``).
