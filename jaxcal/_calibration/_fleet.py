@@ -27,14 +27,14 @@ inside the program):
 
 Each unit's result equals :func:`jaxcal.calibrate` on that unit alone to round-off (the
 padded, batched program sums in another order: tests/calibration/test_fleet.py; at most 1e-10 relative
-over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``, 100 units ×
-1 000 samples on the busy 2-core CPU): with ``"map"`` the compiled solves take about as long as
-in a loop of warm ``calibrate`` calls, vectorised 3–5× longer (a vmapped Levenberg–Marquardt
-batch iterates until its slowest unit converges); the per-unit host steps are the same as
-``calibrate``'s, so a warm ``calibrate_many`` took 1.5× (plain least squares) to 0.9×
-(``objective="measured"``) the time of a warm loop — no real speed-up on a CPU. What it gives there is one
-compilation per fleet (bucket and free set), one call with per-unit failures contained, and the
-summary table; the vectorised program is what fills a GPU.
+over 100 units in the benchmark). On a CPU the units run in chunks (:func:`default_chunk_size`),
+pipelined: a chunk's batched solves run in a worker thread while the host steps of the next
+chunk run beside them. Speed (``benchmarks/results/fleet_speed_cpu.md``, 100 units × 1 000
+samples, plain LM, the busy 2-core CPU): a warm ``calibrate_many`` was 1.1–1.3× faster than a
+loop of warm ``calibrate`` calls. That is no real speed-up, and host batching cannot give one here:
+each unit's own identifiability and solve programs alone take 57 % of the loop's CPU time. What
+it gives there is one compilation per fleet (bucket and free set), one call with per-unit failures
+contained, and the summary table; the vectorised program is what fills a GPU.
 """
 
 from __future__ import annotations
