@@ -121,10 +121,11 @@ def test_joint_fit_population_within_its_uncertainty(fleet):
     assert joint.converged and 1 <= joint.rounds <= 3 and joint.shifts[-1] <= 0.05, joint.shifts
     pop = joint.population
     assert pop.n_units == k and len(pop.names) == 24
-    z_mean, _ = fl.z_scores(pop)
+    z_mean, z_spread = fl.z_scores(pop)
     assert np.all(np.abs(z_mean) < 3.5), dict(zip(pop.names, np.round(z_mean, 2)))
     assert all("members' prior" in r.prior.source for r in joint.results)
     seen = [n for n, s in zip(pop.names, pop.data_share) if s >= 0.8]
+    assert len(seen) >= 10 and np.all(np.abs(z_spread[np.asarray(pop.data_share) >= 0.8]) < 3.5)
 
     def scatter(results):  # per-parameter σ of the units' estimates, over the seen parameters
         xs = [dict(zip(r.space.free_names, np.asarray(r.x))) for r in results]
