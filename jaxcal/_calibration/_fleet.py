@@ -253,9 +253,9 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
             if c > 0:
                 for i in chunk:  # host steps beside the previous chunk's solves
                     advance(i, None)
-            pipe.start([i for i in chunk if i in pending])
-            pipe.collect(keep=1)  # the previous chunk's results (and next rounds) while this one solves
-        pipe.collect(keep=0)
+            current = pipe.start([i for i in chunk if i in pending])
+            pipe.collect(before=current)  # the earlier chunks' results (and next rounds) while this one solves
+        pipe.collect()
     rows = tuple(_row(names[i], datasets[i], results[i], errors[i], tolerance_mm, noise_std) for i in range(k))
     return FleetResult(results, FleetSummary(rows, tolerance_mm, noise_std), pipe.compile_s, pipe.solve_s)
 
@@ -279,17 +279,21 @@ class _Pipeline:
         self.flight: deque = deque()
         self.compile_s = self.solve_s = 0.0
 
-    def start(self, units) -> None:
+    def start(self, units) -> list:
+        """Launch the pending requests of ``units``; the batches launched."""
         if not units:
-            return
-        for batch in _batches({i: self.pending[i] for i in units}, self.size, self.sequential):
+            return []
+        batches = _batches({i: self.pending[i] for i in units}, self.size, self.sequential)
+        for batch in batches:
             batch.launch(self.worker)
             self.compile_s += batch.compile_s
             self.flight.append(batch)
+        return batches
 
-    def collect(self, keep: int) -> None:
-        """Advance the units of all but the newest ``keep`` batches in flight (oldest first)."""
-        while len(self.flight) > keep:
+    def collect(self, before=()) -> None:
+        """Advance the units of the batches in flight, oldest first (the worker runs them in that
+        order), up to the first of ``before`` (default: all)."""
+        while self.flight and not any(self.flight[0] is b for b in before):
             batch = self.flight.popleft()
             for j, i in enumerate(batch.units):
                 self.advance(i, _Share(batch, j), stacklevel=4)  # advance ← collect ← calibrate_many

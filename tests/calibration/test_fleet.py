@@ -67,13 +67,14 @@ def test_fleet_equals_single_and_failures_stay_local(units):
 def test_fleet_equals_single_measured_objective(units):
     """The measured-data objective (default prior + Huber, noise σ and loss scale re-estimated
     over rounds), the units vectorised (``batching="vmap"``; the test above runs the CPU default,
-    ``"map"``): the units' rounds run batched and each unit equals calibrate() alone, rounds
-    included; one compiled program serves every round."""
+    ``"map"``), one unit per chunk (pipelined: a unit's next rounds queue behind the other's): the
+    units' rounds run batched and each unit equals calibrate() alone, rounds included; one compiled
+    program serves every chunk and round."""
     robot, meas, (a, b) = units
     b = (b[0], b[1].copy())
     b[1][3] += 30.0  # a gross outlier in one unit only: its robust scale is its own
     n_before = len(_fleet._COMPILED_MANY)
-    fleet = _quiet(calibrate_many, robot, meas, [a, b], "lm", objective="measured", batching="vmap")
+    fleet = _quiet(calibrate_many, robot, meas, [a, b], "lm", objective="measured", batching="vmap", chunk_size=1)
     assert len(_fleet._COMPILED_MANY) - n_before == 1
     for got, data in zip(fleet.results, (a, b)):
         single = _quiet(calibrate, robot, meas, data, "lm", objective="measured")
