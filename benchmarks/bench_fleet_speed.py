@@ -60,7 +60,7 @@ def _timed(fn):
     return out, time.perf_counter() - t, time.process_time() - c
 
 
-def _compiled_floor(robot, meas, datas):
+def _compiled_floor(robot, meas, datas, kw):
     """CPU seconds of the compiled programs alone (identifiability, solve) of a loop over ``datas``,
     replayed with the arguments the loop gave them."""
     import jax
@@ -83,7 +83,7 @@ def _compiled_floor(robot, meas, datas):
     ident._start_factor, C._launch = spy_factor, spy_launch
     try:
         for d in datas:
-            jaxcal.calibrate(robot, meas, d, "lm")
+            jaxcal.calibrate(robot, meas, d, "lm", **kw)
     finally:
         ident._start_factor, C._launch = factor, launch
     out = {}
@@ -96,27 +96,28 @@ def _compiled_floor(robot, meas, datas):
     return out
 
 
-def run(units: int, samples: int, repeats: int) -> dict:
+def run(units: int, samples: int, repeats: int, objective: str | None = None) -> dict:
     import numpy as np
 
     import jaxcal
 
     robot, meas, datas = _units(units, samples)
+    kw = {} if objective is None else {"objective": objective}
     load0 = os.getloadavg()
     rows = {"loop": [], "fleet": [], "fleet, one chunk": []}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        _, first_single, _ = _timed(lambda: jaxcal.calibrate(robot, meas, datas[0], "lm"))
-        _, cold, _ = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm"))
-        _, cold1, _ = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm", chunk_size=units))
+        _, first_single, _ = _timed(lambda: jaxcal.calibrate(robot, meas, datas[0], "lm", **kw))
+        _, cold, _ = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm", **kw))
+        _, cold1, _ = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm", chunk_size=units, **kw))
         for _ in range(repeats):  # interleaved: the load drifts alike over the three
-            singles, w, c = _timed(lambda: [jaxcal.calibrate(robot, meas, d, "lm") for d in datas])
+            singles, w, c = _timed(lambda: [jaxcal.calibrate(robot, meas, d, "lm", **kw) for d in datas])
             rows["loop"].append((w, c))
-            fleet, w, c = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm"))
+            fleet, w, c = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm", **kw))
             rows["fleet"].append((w, c))
-            one, w, c = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm", chunk_size=units))
+            one, w, c = _timed(lambda: jaxcal.calibrate_many(robot, meas, datas, "lm", chunk_size=units, **kw))
             rows["fleet, one chunk"].append((w, c))
-        floor = _compiled_floor(robot, meas, datas)
+        floor = _compiled_floor(robot, meas, datas, kw)
     same = all(a is not None and a.space.free_names == b.space.free_names and a.status == b.status
                for r in (fleet, one) for a, b in zip(r.results, singles))
     d_abs = max(float(np.max(np.abs(a.x - b.x))) for r in (fleet, one) for a, b in zip(r.results, singles))
@@ -167,13 +168,14 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--thousand", action="store_true", help="also 1 000 units in one call (a fresh process)")
     ap.add_argument("--thousand-only", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--objective", default=None, help="e.g. measured (default: plain least squares)")
     ap.add_argument("--no-write", action="store_true")
     ap.add_argument("--out", default=str(HERE / "results" / "fleet_speed_cpu.md"))
     args = ap.parse_args()
     if args.thousand_only:
         print(json.dumps(thousand(args.samples)))
         return
-    r = run(args.units, args.samples, args.repeats)
+    r = run(args.units, args.samples, args.repeats, args.objective)
     big = None
     if args.thousand:
         p = subprocess.run([sys.executable, __file__, "--thousand-only", "--samples", str(args.samples)],
@@ -182,12 +184,14 @@ def main() -> None:
     from _common import machine
 
     nproc = subprocess.run(["nproc"], capture_output=True, text=True).stdout.strip()
+    obj = f" --objective {args.objective}" if args.objective else ""
     md = ["# Fleet speed: warm `calibrate_many` vs a loop of warm `calibrate` (issue 37)", "",
           f"Machine: {machine()}; `nproc` = {nproc}; float64; shared with other jobs: load average "
           f"{r['load0'][0]:.2f} / {r['load0'][1]:.2f} / {r['load0'][2]:.2f} (1/5/15 min) at the start, "
           f"{r['load1'][0]:.2f} / {r['load1'][1]:.2f} / {r['load1'][2]:.2f} at the end. "
-          f"`python benchmarks/bench_fleet_speed.py{' --thousand' if big else ''}`: {r['units']} simulated HSR-JR680 units × "
-          f"{r['samples']} samples (draw-wire, σ = 0.5 mm), `method='lm'`, the defaults; medians of {r['repeats']} "
+          f"`python benchmarks/bench_fleet_speed.py{' --thousand' if big else ''}{obj}`: {r['units']} simulated HSR-JR680 units × "
+          f"{r['samples']} samples (draw-wire, σ = 0.5 mm), `method='lm'`, "
+          f"{'objective=' + repr(args.objective) if args.objective else 'the defaults'}; medians of {r['repeats']} "
           f"interleaved repeats; CPU = the process's user + system seconds (all threads).", "",
           *table(r), "",
           f"Default chunks: {r['chunk']} units (pipelined). Cold: `calibrate_many` {r['cold']:.1f} s (default "
