@@ -453,19 +453,21 @@ def _signature(tree) -> tuple:
                           for leaf in leaves)
 
 
-def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None):
+def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None, host: bool = False):
     """``(cal, q, y, weight)``: the data padded with zero-weight rows to their bucket size
     (:func:`~jaxcal._core._buckets.bucket_size`) when the method allows it (:attr:`Method.paddable`;
     weights all 1 at a bucket size exactly), the measurement model's per-row arrays
     (:meth:`MeasurementModel.pad_rows`) and the start Jacobian (if any) padded to match;
     unchanged with ``weight=None`` otherwise. ``n_to``: pad to this row count instead (a paddable
-    method; :func:`jaxcal.calibrate_many` pads every unit to one size)."""
+    method; :func:`jaxcal.calibrate_many` pads every unit to one size). ``host``: ``q``, ``y``,
+    ``weight`` and a padded start Jacobian as NumPy arrays (a caller that stacks units on the
+    host first)."""
     n = int(q.shape[0])
     pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
     n_to = n if not pad else bucket_size(n) if n_to is None else n_to
     w = None
     if pad:
-        q, y, w = pad_rows(q, y, n_to)
+        q, y, w = pad_rows(q, y, n_to, host=host)
         if n_to != n:
             cal = eqx.tree_at(lambda c: c.measurement, cal, cal.measurement.pad_rows(n, n_to))
     J = cal.start_jacobian
@@ -476,7 +478,7 @@ def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None):
         Jn = np.asarray(J)[: n * m]
         if n_to != n:
             Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
-        cal = eqx.tree_at(lambda c: c.start_jacobian, cal, jax.device_put(Jn))
+        cal = eqx.tree_at(lambda c: c.start_jacobian, cal, Jn if host else jax.device_put(Jn))
     return cal, q, y, w
 
 

@@ -27,14 +27,14 @@ inside the program):
 
 Each unit's result equals :func:`jaxcal.calibrate` on that unit alone to round-off (the
 padded, batched program sums in another order: tests/calibration/test_fleet.py; at most 1e-10 relative
-over 100 units in the benchmark). Speed (``benchmarks/results/fleet_cpu.md``, 100 units ×
-1 000 samples on the busy 2-core CPU): with ``"map"`` the compiled solves take about as long as
-in a loop of warm ``calibrate`` calls, vectorised 3–5× longer (a vmapped Levenberg–Marquardt
-batch iterates until its slowest unit converges); the per-unit host steps are the same as
-``calibrate``'s, so a warm ``calibrate_many`` took 1.5× (plain least squares) to 0.9×
-(``objective="measured"``) the time of a warm loop — no real speed-up on a CPU. What it gives there is one
-compilation per fleet (bucket and free set), one call with per-unit failures contained, and the
-summary table; the vectorised program is what fills a GPU.
+over 100 units in the benchmark). On a CPU the units run in chunks (:func:`default_chunk_size`),
+pipelined: a chunk's batched solves run in a worker thread while the host steps of the next
+chunk run beside them. Speed (``benchmarks/results/fleet_speed_cpu.md``, 100 units × 1 000
+samples, plain LM, the busy 2-core CPU): a warm ``calibrate_many`` was 1.1–1.3× faster than a
+loop of warm ``calibrate`` calls. That is no real speed-up, and host batching cannot give one here:
+each unit's own identifiability and solve programs alone take 57 % of the loop's CPU time. What
+it gives there is one compilation per fleet (bucket and free set), one call with per-unit failures
+contained, and the summary table; the vectorised program is what fills a GPU.
 """
 
 from __future__ import annotations
@@ -42,6 +42,8 @@ from __future__ import annotations
 import functools
 import time
 import warnings
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import equinox as eqx
@@ -159,7 +161,8 @@ class FleetResult(NamedTuple):
 
 
 def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tolerance_mm: float | None = None,
-                   noise_std: float | None = None, batching: str = "auto", **kwargs) -> FleetResult:
+                   noise_std: float | None = None, batching: str = "auto", chunk_size: int | None = None,
+                   **kwargs) -> FleetResult:
     """Calibrate many units of one robot model, their solves as one compiled program.
 
     Args:
@@ -180,6 +183,12 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
             Levenberg–Marquardt batch iterates until its slowest unit converges), ``"map"``
             (``jax.lax.map``: one unit after the other inside the program, each as long as it
             needs), or ``"auto"`` (default): ``"map"`` on a CPU, else ``"vmap"``.
+        chunk_size: units per batched program (default :func:`default_chunk_size`: a quarter of
+            the fleet on a CPU, at least 16; the whole fleet with ``"vmap"``). The chunks are
+            pipelined: while one chunk's compiled solves run (in a worker thread), the host steps
+            of the next chunk — data checks, identifiability, diagnostics — run beside them, so
+            a 2-core CPU computes both at once. Every chunk (and every round) runs the same
+            compiled program; results do not depend on it.
         **kwargs: every other keyword of :func:`jaxcal.calibrate` (``key``, ``extras``,
             ``prior``, ``loss``, ``objective``, ``free``, ``fix``, ``checks``, the method's
             hyperparameters, ...), the same for every unit. ``throw`` is not accepted: a unit's
@@ -203,13 +212,17 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
     names = [str(i + 1) for i in range(k)] if names is None else [str(n) for n in names]
     if len(names) != k:
         raise ValueError(f"{len(names)} names for {k} datasets")
+    size = default_chunk_size(k, sequential) if chunk_size is None else int(chunk_size)
+    if size < 1:
+        raise ValueError(f"chunk_size must be at least 1, got {chunk_size!r}")
+    size = min(size, k)
     # every unit's result is checked as a whole as calibrate() checks it (CalibrationResult.plausible), with
     # noise_std as the sensor's noise σ̂ is compared with; an implausible unit is flagged
     steps = [_calibration_steps(robot, measurement, d, method, sensor_noise_std=noise_std, **kwargs)
              for d in datasets]
     pending, results, errors = {}, [None] * k, [None] * k
 
-    def advance(i, launched):
+    def advance(i, launched, stacklevel=3):  # warnings point at calibrate_many's caller
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
@@ -221,25 +234,71 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
                 errors[i] = f"{type(e).__name__}: {e}"
                 pending.pop(i, None)
         for w in caught:
-            warnings.warn(f"unit {names[i]}: {w.message}", w.category, stacklevel=3)
+            warnings.warn(f"unit {names[i]}: {w.message}", w.category, stacklevel=stacklevel)
 
-    for i in range(k):
+    chunks = [range(s, min(s + size, k)) for s in range(0, k, size)]
+    for i in chunks[0]:
         advance(i, None)
-    if not any(r is not None for r in results) and not pending and len(set(errors)) == 1:
-        # every unit failed alike before any solve: a usage error (an unknown method, extra, ...)
-        raise ValueError(f"every unit failed: {errors[0]}")
-    compile_s = solve_s = 0.0
-    while pending:
-        batches = _batches(pending, k, sequential)
-        for batch in batches:
-            batch.launch()
-            compile_s += batch.compile_s
-        for batch in batches:
-            for j, i in enumerate(batch.units):
-                advance(i, _Share(batch, j))
-            solve_s += batch.run_s or 0.0
+    if not pending and all(e is not None for e in errors[:size]) and len(set(errors[:size])) == 1:
+        for c in chunks[1:]:  # the first chunk failed alike before any solve: does every unit?
+            for i in c:
+                advance(i, None)
+        if not pending and len(set(errors)) == 1:
+            # every unit failed alike before any solve: a usage error (an unknown method, extra, ...)
+            raise ValueError(f"every unit failed: {errors[0]}")
+        chunks = [range(0, k)]  # all advanced
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcal-fleet") as worker:
+        pipe = _Pipeline(worker, size, sequential, advance, pending)
+        for c, chunk in enumerate(chunks):
+            if c > 0:
+                for i in chunk:  # host steps beside the previous chunk's solves
+                    advance(i, None)
+            current = pipe.start([i for i in chunk if i in pending])
+            pipe.collect(before=current)  # the earlier chunks' results (and next rounds) while this one solves
+        pipe.collect()
     rows = tuple(_row(names[i], datasets[i], results[i], errors[i], tolerance_mm, noise_std) for i in range(k))
-    return FleetResult(results, FleetSummary(rows, tolerance_mm, noise_std), compile_s, solve_s)
+    return FleetResult(results, FleetSummary(rows, tolerance_mm, noise_std), pipe.compile_s, pipe.solve_s)
+
+
+def default_chunk_size(k: int, sequential: bool) -> int:
+    """Units per batched program of :func:`calibrate_many` for ``k`` units: with ``sequential``
+    (``batching="map"``, a CPU) a quarter of the fleet, at least 16 (four chunks pipeline the
+    host steps of one beside the solves of another; smaller chunks add launches); vectorised
+    (``"vmap"``, what fills a GPU) the whole fleet."""
+    return k if not sequential else min(k, max(16, -(-k // 4)))
+
+
+class _Pipeline:
+    """The batches in flight of :func:`calibrate_many`: :meth:`start` groups units' pending
+    requests into :class:`_Batch` es and launches them in ``worker`` (a thread: the compiled
+    solves run beside the host steps of other units); :meth:`collect` waits for the oldest
+    batches and advances their units, launching the next round of those still iterating."""
+
+    def __init__(self, worker, size, sequential, advance, pending):
+        self.worker, self.size, self.sequential, self.advance, self.pending = worker, size, sequential, advance, pending
+        self.flight: deque = deque()
+        self.compile_s = self.solve_s = 0.0
+
+    def start(self, units) -> list:
+        """Launch the pending requests of ``units``; the batches launched."""
+        if not units:
+            return []
+        batches = _batches({i: self.pending[i] for i in units}, self.size, self.sequential)
+        for batch in batches:
+            batch.launch(self.worker)
+            self.compile_s += batch.compile_s
+            self.flight.append(batch)
+        return batches
+
+    def collect(self, before=()) -> None:
+        """Advance the units of the batches in flight, oldest first (the worker runs them in that
+        order), up to the first of ``before`` (default: all)."""
+        while self.flight and not any(self.flight[0] is b for b in before):
+            batch = self.flight.popleft()
+            for j, i in enumerate(batch.units):
+                self.advance(i, _Share(batch, j), stacklevel=4)  # advance ← collect ← calibrate_many
+            self.solve_s += batch.run_s or 0.0
+            self.start([i for i in batch.units if i in self.pending])
 
 
 def _n_rows(q) -> int:
@@ -250,16 +309,18 @@ class _Batch:
     """The pending solves of several units with one static part and one set of shapes, run as one
     compiled program (vmapped or mapped). Leaves every unit shares (the same object: the robot, the
     key) are passed once, unbatched; the others are stacked along a new leading axis, padded to
-    ``size`` units by repeating the first (one program for every round, however many units are
-    still iterating)."""
+    ``size`` units by repeating the first (one program for every chunk and round, however many
+    units are still iterating)."""
 
     def __init__(self, units, static, treedef, leaves_per_unit, own, size, sequential):
         self.units, self.static, self.treedef, self.size, self.sequential = units, static, treedef, size, sequential
         self.leaves_per_unit, self.own = leaves_per_unit, own
-        self.out = self.host = None
+        self.future = self.host = None
         self.compile_s = self.run_s = 0.0
 
-    def launch(self):
+    def launch(self, worker=None):
+        """Compile (cached) and start the batch: in ``worker`` (a thread pool; the host goes on
+        meanwhile), or here and now without one."""
         first = self.leaves_per_unit[0]
         axes, leaves = [], []
         for j, leaf in enumerate(first):
@@ -288,19 +349,29 @@ class _Batch:
             release_memory()
         t1 = time.perf_counter()
         self.compile_s = t1 - t0
-        self.out = compiled(tuple(leaves), active)
+        self.leaves_per_unit = None  # the stacked copies are all the solve needs
         self.t_started = t1
+
+        def run():
+            # on the host as NumPy: what calibrate's host steps read (status, x, history, metrics,
+            # the Jacobian products); timed here, where the program runs
+            t = time.perf_counter()
+            out = jax.block_until_ready(compiled(tuple(leaves), active))
+            host = jax.tree_util.tree_map(
+                lambda a: a if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key) else np.asarray(a), out)
+            return host, time.perf_counter() - t
+
+        if worker is None:
+            self.host, self.run_s = run()
+        else:
+            self.future = worker.submit(run)
 
     def result(self, j: int) -> CalibrationOutput:
         """Unit ``j``'s output (blocks on the batch the first time)."""
         if self.host is None:
-            out = jax.block_until_ready(self.out)
-            self.run_s = time.perf_counter() - self.t_started
-            self.host = jax.tree_util.tree_map(
-                lambda a: a if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key) else np.asarray(a), out)
-        # host slices: what calibrate's host steps read (status, x, history, metrics, the Jacobian
-        # products); only the deviations, the next round's start and the result's, go back to the
-        # device (a device_put costs ~0.2 ms per leaf on the 2-core CPU)
+            self.host, self.run_s = self.future.result()
+        # only the deviations, the next round's start and the result's, go back to the device
+        # (a device_put costs ~0.2 ms per leaf on the 2-core CPU)
         out = jax.tree_util.tree_map(lambda a: a[j], self.host)
         return out._replace(deviations=jax.device_put(out.deviations))
 
@@ -319,9 +390,9 @@ class _Share(_Launched):
 
 
 def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
-    """The pending requests ``{unit: (cal, q, y, key)}`` grouped into :class:`_Batch` es: padded
-    to one row count (the bucket of the largest unit; methods that cannot pad keep theirs), then
-    grouped by static part and leaf shapes."""
+    """The pending requests ``{unit: (cal, q, y, key)}`` grouped into :class:`_Batch` es of at most
+    ``size`` units: padded to one row count (the bucket of the largest unit; methods that cannot
+    pad keep theirs) on the host, then grouped by static part and leaf shapes."""
     # the process's bucket rule (a later round of fewer units reuses the bucket of the first);
     # with buckets off still one padded size per batch (the fine grid)
     n_rows = max(_n_rows(r[1]) for r in pending.values())
@@ -329,7 +400,7 @@ def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
     groups: dict = {}
     for i, (cal, q, y, key) in pending.items():
         with dtype_scope(q.dtype):
-            cal, q, y, w = _pad_to_bucket(cal, q, y, n_to if cal.method.paddable else None)
+            cal, q, y, w = _pad_to_bucket(cal, q, y, n_to if cal.method.paddable else None, host=True)
             dyn, static = eqx.partition(cal, eqx.is_array)
             dyn = cast_floating(dyn, q.dtype)
         paths, treedef = jax.tree_util.tree_flatten_with_path((dyn, q, y, key, w))
@@ -339,7 +410,11 @@ def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
             groups[gk] = ([], static, treedef, [], tuple(_own(path) for path, _ in paths))
         groups[gk][0].append(i)
         groups[gk][3].append(leaves)
-    return [_Batch(*g, size, sequential) for g in groups.values()]
+    out = []
+    for units, static, treedef, leaves, own in groups.values():
+        for s in range(0, len(units), size):
+            out.append(_Batch(units[s:s + size], static, treedef, leaves[s:s + size], own, size, sequential))
+    return out
 
 
 #: the :class:`~jaxcal.Calibrator` fields that belong to one unit (always batched, even where two

@@ -161,29 +161,30 @@ def bucket_size(n: int, minimum: int | None = None) -> int:
     return size
 
 
-def pad_rows(q, y, n_to: int):
+def pad_rows(q, y, n_to: int, host: bool = False):
     """``(q, y, weight)`` padded to ``n_to`` rows on the host (NumPy; no device program per
     shape): the extra rows repeat row 0 and ``weight`` is 1 for the real rows, 0 for the padding
     (``y`` may be ``None``). At ``n_to`` equal to the row count, ``q`` and ``y`` as given and
     weights all 1: one program serves every count of a bucket, the bucket size included.
-    ``weight`` is ``None`` (and ``q``, ``y`` are returned as given) when ``n_to`` equals the
-    row count."""
+    ``host``: return the padded arrays (and the weights) as NumPy arrays, not device arrays (a
+    caller that stacks many units on the host first, :func:`jaxcal.calibrate_many`)."""
     import jax
 
+    put = (lambda a: a) if host else jax.device_put
     n = int(q.shape[0])
     if n_to == n:  # a bucket size exactly: weights all 1 (the same program as the padded counts)
-        return q, y, jax.device_put(np.ones(n, np.asarray(q).dtype))
+        return q, y, put(np.ones(n, np.asarray(q).dtype))
     if n_to < n:
         raise ValueError(f"cannot pad {n} rows to {n_to}")
 
     # jax.device_put, not jnp.asarray: the latter compiles a small copy program per shape
     def pad(a):
         a = np.asarray(a)
-        return jax.device_put(np.concatenate([a, np.broadcast_to(a[:1], (n_to - n, *a.shape[1:]))]))
+        return put(np.concatenate([a, np.broadcast_to(a[:1], (n_to - n, *a.shape[1:]))]))
 
     w = np.zeros(n_to, np.asarray(q).dtype)
     w[:n] = 1.0
-    return pad(q), None if y is None else pad(y), jax.device_put(w)
+    return pad(q), None if y is None else pad(y), put(w)
 
 
 class BoundedCache:

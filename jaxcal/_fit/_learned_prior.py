@@ -190,7 +190,7 @@ def _correlation_shrinkage(samples: np.ndarray) -> float:
 
 
 def fleet_prior(results, base: Prior, *, noise_std: float | None = None, iterations: int = 1000,
-                tol: float = 1e-7) -> Prior:
+                tol: float = 1e-7, members: bool = False) -> Prior:
     """The robot model's prior learned from calibrated units of it (empirical Bayes; see the module
     docstring): a :class:`~jaxcal.Prior` with the population mean as its ``mean`` and the
     population covariance plus the mean's uncertainty as its ``covariance``; its ``population``
@@ -209,6 +209,9 @@ def fleet_prior(results, base: Prior, *, noise_std: float | None = None, iterati
         noise_std: the sensor noise σ (mm) the prior is weighed against (default: estimated from
             each new fit, see ``Prior.noise_std``).
         iterations, tol: expectation–maximisation's budget and relative tolerance on ``Σ``.
+        members: the prior of the units it was learned from, ``N(μ, Σ)`` (the E step's: what
+            :func:`jaxcal.calibrate_fleet_jointly` refits them under), not a new unit's
+            ``N(μ, Σ + M)``; ``population`` is the same either way.
     """
     results = [r for r in results]
     if any(r is None for r in results):
@@ -272,7 +275,7 @@ def fleet_prior(results, base: Prior, *, noise_std: float | None = None, iterati
     spread = np.sqrt(var)
     spread_std = np.sqrt(2.0 / (K - 1)) * (var + est_var) / (2.0 * spread)
     share = np.clip(1.0 - est_var / var, 0.0, 1.0)
-    cov = Sigma + M
+    cov = Sigma if members else Sigma + M
     cov = 0.5 * (cov + cov.T)
     robot = results[0].robot.name
     population = FleetPopulation(robot, K, tuple(names), tuple(units), tuple(map(float, mu)),
@@ -281,7 +284,7 @@ def fleet_prior(results, base: Prior, *, noise_std: float | None = None, iterati
     return dataclasses.replace(
         base, mean=tuple(zip(names, map(float, mu))), covariance=(tuple(names), tuple(map(tuple, cov.tolist()))),
         noise_std=noise_std if noise_std is not None else base.noise_std,
-        source=f"fleet of {K} units of {robot}", population=population)
+        source=f"fleet of {K} units of {robot}" + (" (the members' prior)" if members else ""), population=population)
 
 
 def _result_prior(free, units, x, cov, deviations: dict, base: Prior, source: str, noise_std=None) -> Prior:

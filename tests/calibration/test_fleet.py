@@ -29,14 +29,18 @@ def _quiet(f, *a, **kw):
 
 def test_fleet_equals_single_and_failures_stay_local(units):
     """Plain least squares (the default objective): each unit — 300 and 260 samples, padded to
-    one bucket in one vmapped program — equals calibrate() alone; a unit with a NaN reading and a
-    unit with too few samples fail with their own errors while the others succeed."""
+    one bucket in one mapped program — equals calibrate() alone; a unit with a NaN reading and a
+    unit with too few samples fail with their own errors while the others succeed. In chunks of
+    two units (pipelined: the second chunk's host steps run while the first one's solves do),
+    one compiled program for both chunks."""
     robot, meas, (a, b) = units
     y_nan = a[1].copy()
     y_nan[17] = np.nan
     tiny = (a[0][:5], a[1][:5])
+    n_before = len(_fleet._COMPILED_MANY)
     fleet = _quiet(calibrate_many, robot, meas, [a, (a[0], y_nan), b, tiny], "lm", names=["A", "nan", "B", "tiny"],
-                   tolerance_mm=0.49, noise_std=0.5)
+                   tolerance_mm=0.49, noise_std=0.5, chunk_size=2)
+    assert len(_fleet._COMPILED_MANY) - n_before <= 1  # none if an earlier test compiled it
     res, summary = fleet.results, fleet.summary
     assert res[1] is None and res[3] is None
     for got, data in ((res[0], a), (res[2], b)):
@@ -53,18 +57,24 @@ def test_fleet_equals_single_and_failures_stay_local(units):
         assert 0.85 < rows[u].floor_ratio < 1.15
     assert {"nan", "tiny"} <= set(summary.flagged)
     assert "tiny" in summary.table() and "| unit" in summary.table(markdown=True)
+    # every unit failing alike before any solve is a usage error, whatever the chunks
+    with pytest.raises(ValueError, match="every unit failed: ValueError: unknown loss"):
+        calibrate_many(robot, meas, [a, b, a], "lm", loss="nope", chunk_size=1)
+    with pytest.raises(ValueError, match="chunk_size"):
+        calibrate_many(robot, meas, [a], "lm", chunk_size=0)
 
 
 def test_fleet_equals_single_measured_objective(units):
     """The measured-data objective (default prior + Huber, noise σ and loss scale re-estimated
     over rounds), the units vectorised (``batching="vmap"``; the test above runs the CPU default,
-    ``"map"``): the units' rounds run batched and each unit equals calibrate() alone, rounds
-    included; one compiled program serves every round."""
+    ``"map"``), one unit per chunk (pipelined: a unit's next rounds queue behind the other's): the
+    units' rounds run batched and each unit equals calibrate() alone, rounds included; one compiled
+    program serves every chunk and round."""
     robot, meas, (a, b) = units
     b = (b[0], b[1].copy())
     b[1][3] += 30.0  # a gross outlier in one unit only: its robust scale is its own
     n_before = len(_fleet._COMPILED_MANY)
-    fleet = _quiet(calibrate_many, robot, meas, [a, b], "lm", objective="measured", batching="vmap")
+    fleet = _quiet(calibrate_many, robot, meas, [a, b], "lm", objective="measured", batching="vmap", chunk_size=1)
     assert len(_fleet._COMPILED_MANY) - n_before == 1
     for got, data in zip(fleet.results, (a, b)):
         single = _quiet(calibrate, robot, meas, data, "lm", objective="measured")

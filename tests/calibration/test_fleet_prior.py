@@ -107,6 +107,37 @@ def test_new_units_from_15_poses_under_the_learned_prior(fleet):
     assert 0.85 < math.sqrt(np.mean(z2)) < 1.15, math.sqrt(np.mean(z2))
 
 
+def test_joint_fit_population_within_its_uncertainty(fleet):
+    """The joint fit (calibrate_fleet_jointly) of 20 taught units, started from their generic-prior
+    results: converges (the mean moves < 5 % of its σ in a round), its population mean is within
+    its stated σ of the truth for every parameter (|z| < 3.5), the units are refit under the
+    members' prior N(μ, Σ) and sit closer together than fitted one by one (shrunk toward μ), and
+    the prior for a new unit adds the mean's uncertainty to Σ. Batches of ten units: the compiled
+    program of the learned prior above."""
+    robot, meas, fl, _, taught, _ = fleet
+    k = 20
+    joint = _quiet(jaxcal.calibrate_fleet_jointly, robot, meas, [u.train for u in fl.units[:k]], "lm",
+                   initial=taught[:k], chunk_size=10)
+    assert joint.converged and 1 <= joint.rounds <= 3 and joint.shifts[-1] <= 0.05, joint.shifts
+    pop = joint.population
+    assert pop.n_units == k and len(pop.names) == 24
+    z_mean, z_spread = fl.z_scores(pop)
+    assert np.all(np.abs(z_mean) < 3.5), dict(zip(pop.names, np.round(z_mean, 2)))
+    assert all("members' prior" in r.prior.source for r in joint.results)
+    seen = [n for n, s in zip(pop.names, pop.data_share) if s >= 0.8]
+    assert len(seen) >= 10 and np.all(np.abs(z_spread[np.asarray(pop.data_share) >= 0.8]) < 3.5)
+
+    def scatter(results):  # per-parameter σ of the units' estimates, over the seen parameters
+        xs = [dict(zip(r.space.free_names, np.asarray(r.x))) for r in results]
+        return np.asarray([np.std([x[n] for x in xs]) for n in seen])
+
+    assert np.mean(scatter(joint.results) / scatter(taught[:k])) < 1.0
+    members = np.diag(np.asarray(joint.results[0].prior.covariance[1]))
+    assert np.all(np.diag(np.asarray(joint.prior.covariance[1])) > members)
+    with pytest.raises(TypeError, match="base="):
+        jaxcal.calibrate_fleet_jointly(robot, meas, [], prior="default")
+
+
 def test_drift_found_when_there_rare_when_not(fleet):
     """20 of the taught units measured again at new poses: unchanged, at most 1 of them (≤ 5 %)
     reports a move (family-wise α = 1 %; 50 units in benchmarks/bench_fleet_prior.py); with joint
