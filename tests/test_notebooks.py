@@ -37,17 +37,12 @@ def test_committed_notebook_matches_source_and_has_outputs(name):
     assert not errors, f"{name} was committed with errors"
 
 
-@pytest.fixture(scope="session")
-def xla_cache(tmp_path_factory):
-    """A persistent compilation cache shared by the notebooks' kernels (they compile some of
-    the same functions; compilation dominates their run time)."""
-    return tmp_path_factory.mktemp("xla-cache")
-
-
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_NOTEBOOKS else n for n in NAMES])
-def test_notebook_runs_quick(name, monkeypatch, xla_cache):
+def test_notebook_runs_quick(name, monkeypatch):
+    """The kernels inherit ``JAXCAL_CACHE_DIR`` (conftest: the test run's cache, shared by both
+    xdist workers and every other test), so jaxcal's programs that a test or another notebook
+    compiled already are loaded, not compiled again (compilation dominates their run time)."""
     monkeypatch.setenv("JAXCAL_NB_QUICK", "1")
-    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(xla_cache))
     monkeypatch.setenv("PYTHONPATH", str(NOTEBOOKS.parent) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     nb = _make.build(name)
     client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
