@@ -18,7 +18,7 @@ from jaxtyping import Array, Float, Int
 
 from .._core import _exported
 from .._core._buckets import BoundedCache, LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows, release_memory
-from .._core._cache import ensure_compilation_cache
+from .._core._cache import ensure_compilation_cache, switched_off
 from .._core._metrics import Metrics, compute_metrics
 from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
@@ -430,9 +430,7 @@ def _mask_output(out: CalibrationOutput, columns: np.ndarray) -> CalibrationOutp
 def _masked(meth) -> bool:
     """Whether :func:`calibrate` runs ``meth`` with the free set as a run-time mask
     (``$JAXCAL_FREE_MASK=off`` turns it off: one program per free set, as before)."""
-    import os
-
-    return meth.maskable and os.environ.get("JAXCAL_FREE_MASK", "on").strip().lower() not in ("off", "0", "false", "no")
+    return meth.maskable and not switched_off("JAXCAL_FREE_MASK")
 
 
 #: ``J[:, columns]`` as one compiled call (eager indexing costs ~0.5 ms of Python per call)

@@ -43,6 +43,8 @@ import weakref
 
 import numpy as np
 
+from ._cache import OFF_WORDS
+
 __all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "clear_compiled", "ENV_VAR",
            "REUSE_FACTOR", "FINE_STEPS"]
 
@@ -71,7 +73,7 @@ def _parse_setting() -> tuple[int | None, bool]:
         return 256, True
     if text in ("",):
         return 256, False  # on by default
-    if text in ("off", "none", "false", "0", "no"):
+    if text in OFF_WORDS:
         return None, False
     try:
         v = int(text)

@@ -31,7 +31,13 @@ __all__ = ["ENV_VAR", "cache_dir", "ensure_compilation_cache", "disable_compilat
 #: environment variable: the cache directory, or ``off`` to turn the cache off.
 ENV_VAR = "JAXCAL_CACHE_DIR"
 
-_OFF = ("off", "none", "0", "false", "no")
+#: the words that turn a jaxcal switch (an environment variable) off, in any case.
+OFF_WORDS = ("off", "none", "0", "false", "no")
+
+
+def switched_off(var: str) -> bool:
+    """Whether the environment variable ``var`` says :data:`OFF_WORDS` (unset: not off)."""
+    return os.environ.get(var, "").strip().lower() in OFF_WORDS
 
 #: ``{"done": True}`` once :func:`ensure_compilation_cache` has decided for this process.
 _STATE: dict = {}
@@ -40,7 +46,7 @@ _STATE: dict = {}
 def cache_dir() -> pathlib.Path | None:
     """The directory jaxcal keeps compiled programs in, or ``None`` when turned off."""
     env = os.environ.get(ENV_VAR, "").strip()
-    if env.lower() in _OFF:
+    if switched_off(ENV_VAR):
         return None
     if env:
         return pathlib.Path(env).expanduser()

@@ -52,9 +52,9 @@ def _directory() -> pathlib.Path | None:
 
 def enabled() -> bool:
     """Whether programs are kept and looked up on disk in this process."""
-    from ._cache import _OFF
+    from ._cache import switched_off
 
-    if os.environ.get(ENV_VAR, "on").strip().lower() in _OFF or _directory() is None:
+    if switched_off(ENV_VAR) or _directory() is None:
         return False
     try:
         import flatbuffers  # noqa: F401  (jax.export's serialisation needs it)
