@@ -18,14 +18,14 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._core._params import STANDARD_EXTRAS, Deviations, layout_for
+from .._core._buckets import LeanJit
+from .._core._params import STANDARD_EXTRAS, Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import Dataset, mm_joints_metadata
-from .._fit._problem import Problem
+from .._fit._problem import Problem, value_and_jacfwd
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
@@ -110,51 +110,77 @@ def combined_floor(n_params: int, n_residuals: int):
     return statistical_floor(1.0, n_params, n_residuals, 1)
 
 
-@eqx.filter_jit
-def _jacobian_and_blocks(problem: Problem):
-    x = problem.x0()
-    dev = problem.deviations(x)
-    m = problem.measurement
-    return problem.jacobian(x), m.residual(problem.robot, dev, problem.q, problem.y), \
-        tuple(m.block_residuals(problem.robot, dev, problem.q, problem.y))
+def _block_grams(problem: Problem, observed):
+    """The whitened residual ``[N, m]`` and each block's information matrix ``J_bᵀJ_b``
+    ``[B, p, p]`` (``J_b`` its rows of the whitened Jacobian, masked entries zeroed) at
+    ``problem.x0()``, in one compiled program: the ``N×p`` Jacobian stays on the device."""
+    r, J = value_and_jacfwd(problem.residual, problem.x0(), problem.q)
+    model = problem.measurement
+    n, m = problem.q.shape[0], model.size
+    J = J.reshape(n, m, -1) * observed[:, :, None].astype(J.dtype)
+    grams = jnp.stack([jnp.einsum("imp,imq->pq", Jb, Jb) for Jb in model._rows(J, n)])
+    return r.reshape(n, m), grams
+
+
+#: one program per combined model and row count: the space is every parameter of the layout, so
+#: the variance-component rounds (whose free sets may differ) share it
+_block_grams = LeanJit(_block_grams, maxsize=4)
+
+
+def block_information(result, model: Combined, q, y):
+    """Each block's information matrix of the free parameters at a combined fit's solution.
+
+    Args:
+        result: a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``.
+        model: the :class:`~jaxcal._sensors._blocks.Combined` model; q ``[N, dof]`` rad; y ``[N, W]``.
+
+    Returns:
+        ``(r [N, m], grams [B, p, p])``: the whitened residual (unitless) and per block
+        ``J_bᵀJ_b`` of the whitened Jacobian over ``result.space``'s free parameters
+        (``p = n_free``; units 1/unit_i·1/unit_j of the parameters); masked entries count nowhere.
+    """
+    q = to_device(np.asarray(q, np.float64))
+    y = np.asarray(y, np.float64)
+    full = ParameterSpace.from_names(result.space.layout, result.space.layout.names)
+    problem = Problem(result.robot, model, q, to_device(y), full, result.deviations.astype(q.dtype))
+    obs = model.observed(y)
+    obs = np.ones((q.shape[0], model.size), bool) if obs is None else obs
+    r, grams = _block_grams(problem, to_device(obs))
+    idx = result.space.free_index
+    return np.asarray(r, np.float64), np.asarray(grams, np.float64)[:, idx][:, :, idx]
 
 
 def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) -> tuple[BlockStats, ...]:
-    """Per-block σ̂ (variance components), redundancy and RMSE of a combined fit ``result``
-    (a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``)."""
-    q = to_device(np.asarray(q, np.float64))
-    problem = Problem(result.robot, model, q, to_device(np.asarray(y, np.float64)), result.space,
-                      result.deviations.astype(q.dtype))
-    J, r, parts = _jacobian_and_blocks(problem)
-    J, r = np.asarray(J, np.float64), np.asarray(r, np.float64)
-    p = J.shape[1]
+    """Per-block σ̂ (variance components), redundancy, RMSE and information shares of a combined
+    fit ``result`` (a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``). Each block's
+    redundancy is ``r_b = n_b − tr(A⁺ J_bᵀJ_b)`` (``n_b`` its real residual entries, ``A`` the
+    whitened information ``Σ_b J_bᵀJ_b + Λ``, ``Λ`` the prior's precision): the sum of ``1 − h_ii``
+    over its entries."""
+    r, grams = block_information(result, model, q, y)
+    p = grams.shape[1]
     lam = np.zeros(p)
     if result.prior is not None:
         s = result.prior.std(result.space)
         lam = np.where(np.isfinite(s), (prior_noise / s) ** 2, 0.0)
-    A = J.T @ J + np.diag(lam)
-    h = np.einsum("ip,ip->i", J @ np.linalg.pinv(A), J)  # diagonal of the hat matrix
+    total = grams.sum(0)
+    A_inv = np.linalg.pinv(total + np.diag(lam))
     obs = model.observed(np.asarray(y))
     obs = np.ones(r.shape, bool) if obs is None else obs
-    h = h.reshape(r.shape)
-    col = np.sum(J**2, axis=0)
-    Jr = (J**2).reshape(*r.shape, p)
-    out, s0 = [], 0
+    col = np.diag(total)
+    out = []
     sigma = np.asarray(model.sigma, np.float64)
-    for b, (name, n, mod) in enumerate(zip(model.names, model.counts, model.models)):
-        rows = slice(s0, s0 + n)
-        s0 += n
-        ob = obs[rows]
-        rw, hb = r[rows][ob], h[rows][ob]
-        red = float(np.sum(1.0 - hb))
-        raw = np.asarray(parts[b], np.float64)  # its own unit
-        rss = float(np.sum(rw**2)) * sigma[b] ** 2
+    for b, (name, mod, rb, ob) in enumerate(zip(model.names, model.models, model._rows(r, r.shape[0]),
+                                               model._rows(obs, r.shape[0]))):
+        red = float(ob.sum() - np.sum(A_inv * grams[b]))  # Σ (1 − h_ii) = n_b − tr(A⁻¹ J_bᵀJ_b)
+        raw = rb[:, : mod.size] * sigma[b]  # its own unit
+        ob = ob[:, : mod.size]
+        rss = float(np.sum(raw[ob] ** 2))
         sig_hat = math.sqrt(rss / red) if red > 0 else float("nan")
         err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
         unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
-        share = np.sum(Jr[rows][ob], axis=0) / np.where(col > 0, col, 1.0)
-        out.append(BlockStats(name, mod.kind, unit, n, int(ob.sum()), float(sigma[b]), False, sig_hat, red,
-                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob[:, : raw.shape[1]]] ** 2))),
+        share = np.diag(grams[b]) / np.where(col > 0, col, 1.0)
+        out.append(BlockStats(name, mod.kind, unit, rb.shape[0], int(ob.sum()), float(sigma[b]), False, sig_hat, red,
+                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob] ** 2))),
                               float(np.mean(np.abs(err))), float(np.max(np.abs(err))),
                               dict(zip(result.space.free_names, share.tolist()))))
     return tuple(out)
