@@ -29,7 +29,8 @@ from .._fit._problem import Problem, value_and_jacfwd
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
-__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor", "block_result", "who_sees_what"]
+__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_information", "block_directions",
+           "combined_floor", "block_result", "who_sees_what"]
 
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
@@ -59,6 +60,14 @@ class BlockStats:
             information at the solution, ``Σ_{i∈b} J_ij² / Σ_i J_ij²`` of the whitened Jacobian
             (1: only this block sees the parameter; 0: it does not see it at all). Shares of one
             parameter sum to 1 over the blocks; a prior's information is not counted.
+        directions: the directions of the free parameters that (nearly) only this block
+            determines (:func:`block_directions`): ``((share, ((coefficient, name), ...)), ...)``,
+            ``share`` the block's share of the information along the direction (≥ 0.99),
+            the coefficients those of the unit direction in column-scaled parameters (largest
+            first). A direction of one parameter alone is left out (``information`` has it).
+        rank_without: the rank of the data's information matrix without this block's rows
+            (compare :attr:`rank`): what becomes unidentifiable when the block is removed.
+        rank: the rank with every block (the same in each block's stats).
     """
 
     name: str
@@ -75,6 +84,9 @@ class BlockStats:
     mean: float = float("nan")
     max: float = float("nan")
     information: dict = dataclasses.field(default_factory=dict, repr=False)
+    directions: tuple = dataclasses.field(default=(), repr=False)
+    rank_without: int = -1
+    rank: int = -1
 
     def line(self) -> str:
         given = "given" if self.sigma_given else "estimated"
@@ -83,15 +95,98 @@ class BlockStats:
                 f"RMSE {self.rmse:.4g} {self.unit}")
 
 
+#: relative eigenvalue of the column-scaled information matrix below which a direction counts as
+#: unseen by the data (a singular value 1e-6 of the largest: the noise-level curvature a scale
+#: direction of plane data keeps away from exact contacts is above it)
+_UNSEEN_RTOL = 1e-12
+
+
+def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEEN_RTOL):
+    """Which block alone determines which direction of the free parameters.
+
+    The shares along a direction ``v`` are ``vᵀG_b v / vᵀG v`` (``G_b`` block ``b``'s information
+    matrix, ``G = Σ_b G_b``); the directions where block ``b``'s share is largest are the
+    generalised eigenvectors of ``(G_b, G)`` on the span the data see. A share of 1 means the other
+    blocks do not see the direction at all: without block ``b`` it is unidentifiable (e.g. the
+    length scale of plane data and a known distance; a plane's offset against ``d_1`` where only a
+    tracker tells them apart).
+
+    Args:
+        grams: ``[B, p, p]`` the blocks' information matrices (:func:`block_information`).
+        names: the ``p`` free parameters' names.
+        share_min: the smallest share reported.
+        rtol: eigenvalues of the column-scaled ``G`` below ``rtol·max`` are directions no block sees.
+
+    Returns:
+        ``(rank, ranks_without [B], directions [B])``: the numerical rank of the column-scaled
+        ``G``, of ``G − G_b`` for each block, and per block its directions
+        ``((share, ((coefficient, name), ...)), ...)`` (share ≥ ``share_min``, largest first;
+        each unit direction in column-scaled parameters, its entries ≥ 0.2 of the largest, at
+        most 6; the parameters lying in that span alone are left out: the shares of
+        :attr:`BlockStats.information` name them).
+    """
+    grams = np.asarray(grams, np.float64)
+    total = grams.sum(0)
+    d = np.sqrt(np.clip(np.diag(total), 0.0, None))
+    inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Gs = grams * inv[None, :, None] * inv[None, None, :]
+    T = Gs.sum(0)
+    lam, U = np.linalg.eigh(T)
+    cut = rtol * max(lam[-1], 0.0)
+
+    def rank(M):
+        return int(np.sum(np.linalg.eigvalsh(M) > cut)) if lam[-1] > 0 else 0
+
+    keep = lam > cut
+    W = U[:, keep] / np.sqrt(lam[keep])  # Wᵀ T W = I on the seen span
+    ranks_without, directions = [], []
+    for Gb in Gs:
+        ranks_without.append(rank(T - Gb))
+        mu, Z = np.linalg.eigh(W.T @ Gb @ W)
+        V = W @ Z[:, mu >= share_min]  # the span where the block's share is ≥ share_min
+        found = []
+        if V.shape[1]:
+            # a canonical basis of that span (its eigenvectors mix where shares tie, e.g. at 1): the
+            # parameters lying in it alone first (the information shares name those), then the rest
+            Q = np.linalg.svd(V, full_matrices=False)[0]
+            alone = np.linalg.norm(Q, axis=1) > 0.95
+            rest = np.where(alone[:, None], 0.0, Q)
+            u, sv, _ = np.linalg.svd(rest, full_matrices=False)
+            for v in u[:, sv > 0.5].T:
+                share = float(v @ Gb @ v / (v @ T @ v))
+                if share < share_min:
+                    continue
+                order = np.argsort(-np.abs(v))
+                big = [i for i in order[:6] if abs(v[i]) >= 0.2 * abs(v[order[0]])]
+                sign = np.sign(v[order[0]])
+                found.append((min(share, 1.0), tuple((float(sign * v[i]), names[i]) for i in big)))
+        found.sort(key=lambda f: -f[0])
+        directions.append(tuple(found))
+    return rank(T), ranks_without, directions
+
+
+def _direction(terms) -> str:
+    return " ".join(f"{c:+.2f}·{n}" for c, n in terms)
+
+
 def who_sees_what(stats, threshold: float = 0.9) -> tuple[str, ...]:
     """Lines naming, per block, the free parameters it alone (nearly) determines (information share
-    ≥ ``threshold``, :attr:`BlockStats.information`) and the parameters no block dominates."""
+    ≥ ``threshold``, :attr:`BlockStats.information`), the directions of several parameters only it
+    determines (:attr:`BlockStats.directions`), what removing it leaves unidentifiable, and the
+    parameters no block dominates."""
     lines, seen = [], set()
     for s in stats:
         own = [n for n, v in s.information.items() if v >= threshold]
         seen |= set(own)
         if own:
             lines.append(f"{s.name} alone determines: {', '.join(own)}")
+        for share, terms in s.directions:
+            lines.append(f"{s.name} alone determines the direction ({_direction(terms)}) "
+                         f"({share:.1%} of its information)")
+        if 0 <= s.rank_without < s.rank:
+            lost = s.rank - s.rank_without
+            lines.append(f"without {s.name}: {lost} direction{'s' if lost > 1 else ''} not identifiable "
+                         f"(rank {s.rank_without} of {s.rank})")
     if stats:
         shared = [n for n in stats[0].information if n not in seen]
         if shared:
@@ -167,6 +262,7 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
     obs = model.observed(np.asarray(y))
     obs = np.ones(r.shape, bool) if obs is None else obs
     col = np.diag(total)
+    rank, ranks_without, directions = block_directions(grams, result.space.free_names)
     out = []
     sigma = np.asarray(model.sigma, np.float64)
     for b, (name, mod, rb, ob) in enumerate(zip(model.names, model.models, model._rows(r, r.shape[0]),
@@ -182,7 +278,8 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
         out.append(BlockStats(name, mod.kind, unit, rb.shape[0], int(ob.sum()), float(sigma[b]), False, sig_hat, red,
                               float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob] ** 2))),
                               float(np.mean(np.abs(err))), float(np.max(np.abs(err))),
-                              dict(zip(result.space.free_names, share.tolist()))))
+                              dict(zip(result.space.free_names, share.tolist())), directions[b], ranks_without[b],
+                              rank))
     return tuple(out)
 
 
