@@ -101,7 +101,13 @@ class BlockStats:
 _UNSEEN_RTOL = 1e-12
 
 
-def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEEN_RTOL):
+#: a direction the other blocks give less than this share of its information counts as lost without
+#: the block: its posterior σ would grow more than 100-fold
+_LOST_SHARE = 1e-4
+
+
+def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEEN_RTOL,
+                     lost_share: float = _LOST_SHARE):
     """Which block alone determines which direction of the free parameters.
 
     The shares along a direction ``v`` are ``vᵀG_b v / vᵀG v`` (``G_b`` block ``b``'s information
@@ -116,10 +122,15 @@ def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEE
         names: the ``p`` free parameters' names.
         share_min: the smallest share reported.
         rtol: eigenvalues of the column-scaled ``G`` below ``rtol·max`` are directions no block sees.
+        lost_share: a direction where the other blocks give less than this share of the
+            information is lost without the block (its σ would grow more than 100-fold). Not an
+            eigenvalue threshold of ``G − G_b``: away from exact data a blind block keeps a
+            noise-level curvature (plane contact along the length scale: ~1e-6 of a known
+            distance's), which a rank would count.
 
     Returns:
         ``(rank, ranks_without [B], directions [B])``: the numerical rank of the column-scaled
-        ``G``, of ``G − G_b`` for each block, and per block its directions
+        ``G``, that rank less the directions lost without each block, and per block its directions
         ``((share, ((coefficient, name), ...)), ...)`` (share ≥ ``share_min``, largest first;
         each unit direction in column-scaled parameters, its entries ≥ 0.2 of the largest, at
         most 6; the parameters lying in that span alone are left out: the shares of
@@ -134,15 +145,12 @@ def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEE
     lam, U = np.linalg.eigh(T)
     cut = rtol * max(lam[-1], 0.0)
 
-    def rank(M):
-        return int(np.sum(np.linalg.eigvalsh(M) > cut)) if lam[-1] > 0 else 0
-
-    keep = lam > cut
+    keep = lam > cut if lam[-1] > 0 else np.zeros(lam.shape, bool)
     W = U[:, keep] / np.sqrt(lam[keep])  # Wᵀ T W = I on the seen span
     ranks_without, directions = [], []
     for Gb in Gs:
-        ranks_without.append(rank(T - Gb))
         mu, Z = np.linalg.eigh(W.T @ Gb @ W)
+        ranks_without.append(int(W.shape[1] - np.sum(mu >= 1.0 - lost_share)))
         V = W @ Z[:, mu >= share_min]  # the span where the block's share is ≥ share_min
         found = []
         if V.shape[1]:
@@ -162,25 +170,28 @@ def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEE
                 found.append((min(share, 1.0), tuple((float(sign * v[i]), names[i]) for i in big)))
         found.sort(key=lambda f: -f[0])
         directions.append(tuple(found))
-    return rank(T), ranks_without, directions
+    return int(keep.sum()), ranks_without, directions
 
 
 def _direction(terms) -> str:
     return " ".join(f"{c:+.2f}·{n}" for c, n in terms)
 
 
-def who_sees_what(stats, threshold: float = 0.9) -> tuple[str, ...]:
+def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3) -> tuple[str, ...]:
     """Lines naming, per block, the free parameters it alone (nearly) determines (information share
     ≥ ``threshold``, :attr:`BlockStats.information`), the directions of several parameters only it
-    determines (:attr:`BlockStats.directions`), what removing it leaves unidentifiable, and the
-    parameters no block dominates."""
+    determines (:attr:`BlockStats.directions`; more than ``max_directions`` are counted, not listed:
+    a block that carries nearly all the information determines most directions alone), what
+    removing it leaves unidentifiable, and the parameters no block dominates."""
     lines, seen = [], set()
     for s in stats:
         own = [n for n, v in s.information.items() if v >= threshold]
         seen |= set(own)
         if own:
             lines.append(f"{s.name} alone determines: {', '.join(own)}")
-        for share, terms in s.directions:
+        if len(s.directions) > max_directions:
+            lines.append(f"{s.name} alone determines {len(s.directions)} directions of several parameters")
+        for share, terms in s.directions if len(s.directions) <= max_directions else ():
             lines.append(f"{s.name} alone determines the direction ({_direction(terms)}) "
                          f"({share:.1%} of its information)")
         if 0 <= s.rank_without < s.rank:
