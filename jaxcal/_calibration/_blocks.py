@@ -30,7 +30,8 @@ from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
 __all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_information", "block_directions",
-           "combined_floor", "block_result", "who_sees_what"]
+           "combined_floor", "block_result", "who_sees_what", "CombinedResult", "combined_result_to_dict",
+           "save_combined_result", "load_combined_result", "COMBINED_FORMAT"]
 
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
@@ -477,3 +478,120 @@ def block_result(result, name: str):
     object.__setattr__(out, "identifiability", None)
     object.__setattr__(out, "diagnostics", getattr(result, "diagnostics", None))
     return out
+
+
+# -- one JSON for a combined result ---------------------------------------------------------------
+#: the format tag of :func:`save_combined_result` files
+COMBINED_FORMAT = "jaxcal-combined/2"
+
+
+def _stats_to_dict(s: BlockStats) -> dict:
+    return {f.name: getattr(s, f.name) for f in dataclasses.fields(BlockStats)}
+
+
+def _stats_from_dict(d: dict) -> BlockStats:
+    from .._core._json import from_json_number
+
+    names = {f.name for f in dataclasses.fields(BlockStats)}
+    kw = {k: v for k, v in d.items() if k in names}
+    for k in ("sigma", "sigma_hat", "redundancy", "rmse", "rms", "mean", "max"):
+        if k in kw:
+            kw[k] = from_json_number(kw[k])
+    kw["directions"] = tuple((float(share), tuple((float(c), str(n)) for c, n in terms))
+                             for share, terms in kw.get("directions", ()))
+    return BlockStats(**kw)
+
+
+def combined_result_to_dict(result, **info) -> dict:
+    """A :func:`calibrate_blocks` result as one JSON-friendly object: per block its statistics
+    (:class:`BlockStats`) and, for each data block, its one-sensor result
+    (:func:`block_result` as :func:`jaxcal.save_result` writes it: the robot, the block's extras
+    under their own names, its measurement model, posterior covariance); the relations (kind and
+    fields), each block's σ, the free parameters, every deviation (rad, mm) and the who-sees-what
+    lines; plus ``info`` entries (e.g. ``settings=``) under their names."""
+    from .._core._json import to_jsonable
+    from ._io import result_to_dict
+
+    model = result.measurement
+    if not isinstance(model, Combined) or not hasattr(result, "blocks"):
+        raise TypeError("combined_result_to_dict takes a result of jaxcal.calibrate_blocks")
+    blocks = []
+    for s in result.blocks:
+        entry = _stats_to_dict(s)
+        if model.views[model.block_index(s.name)] is not None:
+            entry["result"] = result_to_dict(block_result(result, s.name))
+        blocks.append(entry)
+    rel = model.relations
+    out = {"format": COMBINED_FORMAT, "robot": result.robot.name, "status": result.status.name.lower(),
+           "method": result.method, "blocks": blocks, "sigma": result.sigma,
+           "relations": [] if rel is None else [{"kind": r.kind, **dataclasses.asdict(r)} for r in rel.relations],
+           "free_names": list(result.space.free_names), "deviations": result.deviations.named(),
+           "variance_rounds": result.variance_rounds, "who_sees_what": list(result.block_report),
+           "train_metrics_whitened": result.train_metrics._asdict()}
+    return to_jsonable(out | info)
+
+
+def save_combined_result(result, path, **info) -> None:
+    """Write a :func:`calibrate_blocks` result as one JSON file (:func:`combined_result_to_dict`);
+    :func:`load_combined_result` reads it back."""
+    import json
+    import pathlib
+
+    text = json.dumps(combined_result_to_dict(result, **info), indent=1, allow_nan=False)
+    pathlib.Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+@dataclasses.dataclass(frozen=True)
+class CombinedResult:
+    """A combined result read back by :func:`load_combined_result`.
+
+    Attributes:
+        results: ``{block: CalibrationResult}`` of the data blocks (each as :func:`block_result`
+            made it: predicts, evaluates and saves like a one-sensor result).
+        blocks: the blocks' :class:`BlockStats` (the relations last, if any).
+        relations: the relation objects (:class:`jaxcal.KnownDistance`...).
+        sigma: ``{block: σ}`` of the final fit (each block's unit).
+        deviations: ``{name: value}`` every deviation of the combined layout (rad, mm).
+        free_names: the combined fit's free parameters.
+        block_report: the who-sees-what lines (:func:`who_sees_what`).
+        raw: the whole JSON object (status, method, rounds, ``info`` entries).
+    """
+
+    results: dict
+    blocks: tuple
+    relations: tuple
+    sigma: dict
+    deviations: dict
+    free_names: tuple
+    block_report: tuple
+    raw: dict = dataclasses.field(repr=False)
+
+
+def load_combined_result(path) -> CombinedResult:
+    """Read a file of :func:`save_combined_result` (``jaxcal calibrate --combine``'s
+    ``combined.json``). Raises ``ValueError`` naming the file if it is not one."""
+    import json
+    import pathlib
+
+    from .._sensors._blocks import RELATIONS
+    from ._io import result_from_dict
+
+    try:
+        d = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not a JSON file: {e}") from None
+    if not isinstance(d, dict) or d.get("format") != COMBINED_FORMAT:
+        raise ValueError(f"{path} is not a jaxcal combined result (no 'format': {COMBINED_FORMAT!r} entry)")
+    kinds = {c.kind: c for c in RELATIONS}
+    relations = []
+    for r in d.get("relations", []):
+        r = dict(r)
+        cls = kinds.get(r.pop("kind", None))
+        if cls is None:
+            raise ValueError(f"{path}: unknown relation {r!r}")
+        relations.append(cls(**r))
+    results = {b["name"]: result_from_dict(b["result"], f"{path}, block {b['name']!r}")
+               for b in d["blocks"] if "result" in b}
+    return CombinedResult(results, tuple(_stats_from_dict(b) for b in d["blocks"]), tuple(relations),
+                          dict(d["sigma"]), dict(d["deviations"]), tuple(d["free_names"]),
+                          tuple(d.get("who_sees_what", ())), d)

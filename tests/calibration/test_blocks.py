@@ -275,6 +275,19 @@ def test_cli_combine_with_relations_and_evaluate_new_labels(robot, sockets, tmp_
     assert "sockets (point)" in text and "relations (relations): 4 rows" in text
     summary = json.loads((out / "combined.json").read_text())
     assert [b["name"] for b in summary["blocks"]] == ["sockets", "relations"]
+    # one JSON for the combined result: every block's stats and result, the relations, read back
+    saved = jaxcal.load_combined_result(out / "combined.json")
+    assert saved.relations == tuple(KnownDistance(f"a{k}", f"b{k}", 50.0, 0.005) for k in range(4))
+    assert [s.name for s in saved.blocks] == ["sockets", "relations"] and set(saved.results) == {"sockets"}
+    sock = saved.blocks[0]
+    assert sock.unit == "mm" and sock.n_residuals == 960 and saved.sigma["sockets"] == sock.sigma
+    assert saved.blocks[1].rank_without == saved.blocks[1].rank - 1 and saved.blocks[1].directions
+    alone = jaxcal.load_result(out / "sockets.json")
+    assert np.allclose(np.asarray(saved.results["sockets"].predict(test.q)), np.asarray(alone.predict(test.q)))
+    assert saved.results["sockets"].uncertainty is not None
+    assert any("relations alone determines the direction" in line for line in saved.block_report)
+    with pytest.raises(ValueError, match="not a jaxcal combined result"):
+        jaxcal.load_combined_result(out / "sockets.json")
     rc = jaxcal.cli.main(["evaluate", str(out / "sockets.json"), str(tmp_path / "held_out.csv"),
                           "--out", str(tmp_path / "ev.json")])
     text = capsys.readouterr().out
