@@ -436,7 +436,8 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     """`jaxcal calibrate a.csv b.csv ... --combine --out-dir DIR [--relations FILE]`: the files are
     blocks of one robot (:func:`jaxcal.calibrate_blocks`): one fit, each block's σ estimated; one
     result JSON per block (:func:`~jaxcal._calibration._blocks.block_result`, read by `jaxcal
-    evaluate`) and ``combined.json`` (per-block statistics, relations, free parameters)."""
+    evaluate`) and ``combined.json`` (:func:`jaxcal.save_combined_result`: every block's statistics and result, the
+    relations, σ, the deviations)."""
 
     from .._calibration._blocks import block_result, calibrate_blocks, save_combined_result
     from .._calibration._calibrate import CalibrationWarning
