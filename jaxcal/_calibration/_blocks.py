@@ -18,18 +18,20 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .._core._params import STANDARD_EXTRAS, Deviations, layout_for
+from .._core._buckets import LeanJit
+from .._core._params import STANDARD_EXTRAS, Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import Dataset, mm_joints_metadata
-from .._fit._problem import Problem
+from .._fit._problem import Problem, value_and_jacfwd
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
-__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "combined_floor", "block_result", "who_sees_what"]
+__all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_information", "block_directions",
+           "combined_floor", "block_result", "who_sees_what", "CombinedResult", "combined_result_to_dict",
+           "save_combined_result", "load_combined_result", "COMBINED_FORMAT"]
 
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
@@ -59,6 +61,14 @@ class BlockStats:
             information at the solution, ``Σ_{i∈b} J_ij² / Σ_i J_ij²`` of the whitened Jacobian
             (1: only this block sees the parameter; 0: it does not see it at all). Shares of one
             parameter sum to 1 over the blocks; a prior's information is not counted.
+        directions: the directions of the free parameters that (nearly) only this block
+            determines (:func:`block_directions`): ``((share, ((coefficient, name), ...)), ...)``,
+            ``share`` the block's share of the information along the direction (≥ 0.99),
+            the coefficients those of the unit direction in column-scaled parameters (largest
+            first). A direction of one parameter alone is left out (``information`` has it).
+        rank_without: the rank of the data's information matrix without this block's rows
+            (compare :attr:`rank`): what becomes unidentifiable when the block is removed.
+        rank: the rank with every block (the same in each block's stats).
     """
 
     name: str
@@ -75,6 +85,9 @@ class BlockStats:
     mean: float = float("nan")
     max: float = float("nan")
     information: dict = dataclasses.field(default_factory=dict, repr=False)
+    directions: tuple = dataclasses.field(default=(), repr=False)
+    rank_without: int = -1
+    rank: int = -1
 
     def line(self) -> str:
         given = "given" if self.sigma_given else "estimated"
@@ -83,15 +96,109 @@ class BlockStats:
                 f"RMSE {self.rmse:.4g} {self.unit}")
 
 
-def who_sees_what(stats, threshold: float = 0.9) -> tuple[str, ...]:
+#: relative eigenvalue of the column-scaled information matrix below which a direction counts as
+#: unseen by the data (a singular value 1e-6 of the largest: the noise-level curvature a scale
+#: direction of plane data keeps away from exact contacts is above it)
+_UNSEEN_RTOL = 1e-12
+
+
+#: a direction the other blocks give less than this share of its information counts as lost without
+#: the block: its posterior σ would grow more than 100-fold
+_LOST_SHARE = 1e-4
+
+
+def block_directions(grams, names, share_min: float = 0.99, rtol: float = _UNSEEN_RTOL,
+                     lost_share: float = _LOST_SHARE):
+    """Which block alone determines which direction of the free parameters.
+
+    The shares along a direction ``v`` are ``vᵀG_b v / vᵀG v`` (``G_b`` block ``b``'s information
+    matrix, ``G = Σ_b G_b``); the directions where block ``b``'s share is largest are the
+    generalised eigenvectors of ``(G_b, G)`` on the span the data see. A share of 1 means the other
+    blocks do not see the direction at all: without block ``b`` it is unidentifiable (e.g. the
+    length scale of plane data and a known distance; a plane's offset against ``d_1`` where only a
+    tracker tells them apart).
+
+    Args:
+        grams: ``[B, p, p]`` the blocks' information matrices (:func:`block_information`).
+        names: the ``p`` free parameters' names.
+        share_min: the smallest share reported.
+        rtol: eigenvalues of the column-scaled ``G`` below ``rtol·max`` are directions no block sees.
+        lost_share: a direction where the other blocks give less than this share of the
+            information is lost without the block (its σ would grow more than 100-fold). Not an
+            eigenvalue threshold of ``G − G_b``: away from exact data a blind block keeps a
+            noise-level curvature (plane contact along the length scale: ~1e-6 of a known
+            distance's), which a rank would count.
+
+    Returns:
+        ``(rank, ranks_without [B], directions [B])``: the numerical rank of the column-scaled
+        ``G``, that rank less the directions lost without each block, and per block its directions
+        ``((share, ((coefficient, name), ...)), ...)`` (share ≥ ``share_min``, largest first;
+        each unit direction in column-scaled parameters, its entries ≥ 0.2 of the largest, at
+        most 6; the parameters lying in that span alone are left out: the shares of
+        :attr:`BlockStats.information` name them).
+    """
+    grams = np.asarray(grams, np.float64)
+    total = grams.sum(0)
+    d = np.sqrt(np.clip(np.diag(total), 0.0, None))
+    inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Gs = grams * inv[None, :, None] * inv[None, None, :]
+    T = Gs.sum(0)
+    lam, U = np.linalg.eigh(T)
+    cut = rtol * max(lam[-1], 0.0)
+
+    keep = lam > cut if lam[-1] > 0 else np.zeros(lam.shape, bool)
+    W = U[:, keep] / np.sqrt(lam[keep])  # Wᵀ T W = I on the seen span
+    ranks_without, directions = [], []
+    for Gb in Gs:
+        mu, Z = np.linalg.eigh(W.T @ Gb @ W)
+        ranks_without.append(int(W.shape[1] - np.sum(mu >= 1.0 - lost_share)))
+        V = W @ Z[:, mu >= share_min]  # the span where the block's share is ≥ share_min
+        found = []
+        if V.shape[1]:
+            # a canonical basis of that span (its eigenvectors mix where shares tie, e.g. at 1): the
+            # parameters lying in it alone first (the information shares name those), then the rest
+            Q = np.linalg.svd(V, full_matrices=False)[0]
+            alone = np.linalg.norm(Q, axis=1) > 0.95
+            rest = np.where(alone[:, None], 0.0, Q)
+            u, sv, _ = np.linalg.svd(rest, full_matrices=False)
+            for v in u[:, sv > 0.5].T:
+                share = float(v @ Gb @ v / (v @ T @ v))
+                if share < share_min:
+                    continue
+                order = np.argsort(-np.abs(v))
+                big = [i for i in order[:6] if abs(v[i]) >= 0.2 * abs(v[order[0]])]
+                sign = np.sign(v[order[0]])
+                found.append((min(share, 1.0), tuple((float(sign * v[i]), names[i]) for i in big)))
+        found.sort(key=lambda f: -f[0])
+        directions.append(tuple(found))
+    return int(keep.sum()), ranks_without, directions
+
+
+def _direction(terms) -> str:
+    return " ".join(f"{c:+.2f}·{n}" for c, n in terms)
+
+
+def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3) -> tuple[str, ...]:
     """Lines naming, per block, the free parameters it alone (nearly) determines (information share
-    ≥ ``threshold``, :attr:`BlockStats.information`) and the parameters no block dominates."""
+    ≥ ``threshold``, :attr:`BlockStats.information`), the directions of several parameters only it
+    determines (:attr:`BlockStats.directions`; more than ``max_directions`` are counted, not listed:
+    a block that carries nearly all the information determines most directions alone), what
+    removing it leaves unidentifiable, and the parameters no block dominates."""
     lines, seen = [], set()
     for s in stats:
         own = [n for n, v in s.information.items() if v >= threshold]
         seen |= set(own)
         if own:
             lines.append(f"{s.name} alone determines: {', '.join(own)}")
+        if len(s.directions) > max_directions:
+            lines.append(f"{s.name} alone determines {len(s.directions)} directions of several parameters")
+        for share, terms in s.directions if len(s.directions) <= max_directions else ():
+            lines.append(f"{s.name} alone determines the direction ({_direction(terms)}) "
+                         f"({share:.1%} of its information)")
+        if 0 <= s.rank_without < s.rank:
+            lost = s.rank - s.rank_without
+            lines.append(f"without {s.name}: {lost} direction{'s' if lost > 1 else ''} not identifiable "
+                         f"(rank {s.rank_without} of {s.rank})")
     if stats:
         shared = [n for n in stats[0].information if n not in seen]
         if shared:
@@ -110,53 +217,81 @@ def combined_floor(n_params: int, n_residuals: int):
     return statistical_floor(1.0, n_params, n_residuals, 1)
 
 
-@eqx.filter_jit
-def _jacobian_and_blocks(problem: Problem):
-    x = problem.x0()
-    dev = problem.deviations(x)
-    m = problem.measurement
-    return problem.jacobian(x), m.residual(problem.robot, dev, problem.q, problem.y), \
-        tuple(m.block_residuals(problem.robot, dev, problem.q, problem.y))
+def _block_grams(problem: Problem, observed):
+    """The whitened residual ``[N, m]`` and each block's information matrix ``J_bᵀJ_b``
+    ``[B, p, p]`` (``J_b`` its rows of the whitened Jacobian, masked entries zeroed) at
+    ``problem.x0()``, in one compiled program: the ``N×p`` Jacobian stays on the device."""
+    r, J = value_and_jacfwd(problem.residual, problem.x0(), problem.q)
+    model = problem.measurement
+    n, m = problem.q.shape[0], model.size
+    J = J.reshape(n, m, -1) * observed[:, :, None].astype(J.dtype)
+    grams = jnp.stack([jnp.einsum("imp,imq->pq", Jb, Jb) for Jb in model._rows(J, n)])
+    return r.reshape(n, m), grams
+
+
+#: one program per combined model and row count: the space is every parameter of the layout, so
+#: the variance-component rounds (whose free sets may differ) share it
+_block_grams = LeanJit(_block_grams, maxsize=4)
+
+
+def block_information(result, model: Combined, q, y):
+    """Each block's information matrix of the free parameters at a combined fit's solution.
+
+    Args:
+        result: a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``.
+        model: the :class:`~jaxcal._sensors._blocks.Combined` model; q ``[N, dof]`` rad; y ``[N, W]``.
+
+    Returns:
+        ``(r [N, m], grams [B, p, p])``: the whitened residual (unitless) and per block
+        ``J_bᵀJ_b`` of the whitened Jacobian over ``result.space``'s free parameters
+        (``p = n_free``; units 1/unit_i·1/unit_j of the parameters); masked entries count nowhere.
+    """
+    q = to_device(np.asarray(q, np.float64))
+    y = np.asarray(y, np.float64)
+    full = ParameterSpace.from_names(result.space.layout, result.space.layout.names)
+    problem = Problem(result.robot, model, q, to_device(y), full, result.deviations.astype(q.dtype))
+    obs = model.observed(y)
+    obs = np.ones((q.shape[0], model.size), bool) if obs is None else obs
+    r, grams = _block_grams(problem, to_device(obs))
+    idx = result.space.free_index
+    return np.asarray(r, np.float64), np.asarray(grams, np.float64)[:, idx][:, :, idx]
 
 
 def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) -> tuple[BlockStats, ...]:
-    """Per-block σ̂ (variance components), redundancy and RMSE of a combined fit ``result``
-    (a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``)."""
-    q = to_device(np.asarray(q, np.float64))
-    problem = Problem(result.robot, model, q, to_device(np.asarray(y, np.float64)), result.space,
-                      result.deviations.astype(q.dtype))
-    J, r, parts = _jacobian_and_blocks(problem)
-    J, r = np.asarray(J, np.float64), np.asarray(r, np.float64)
-    p = J.shape[1]
+    """Per-block σ̂ (variance components), redundancy, RMSE and information shares of a combined
+    fit ``result`` (a :class:`jaxcal.CalibrationResult` of ``model`` on ``(q, y)``). Each block's
+    redundancy is ``r_b = n_b − tr(A⁺ J_bᵀJ_b)`` (``n_b`` its real residual entries, ``A`` the
+    whitened information ``Σ_b J_bᵀJ_b + Λ``, ``Λ`` the prior's precision): the sum of ``1 − h_ii``
+    over its entries."""
+    r, grams = block_information(result, model, q, y)
+    p = grams.shape[1]
     lam = np.zeros(p)
     if result.prior is not None:
         s = result.prior.std(result.space)
         lam = np.where(np.isfinite(s), (prior_noise / s) ** 2, 0.0)
-    A = J.T @ J + np.diag(lam)
-    h = np.einsum("ip,ip->i", J @ np.linalg.pinv(A), J)  # diagonal of the hat matrix
+    total = grams.sum(0)
+    A_inv = np.linalg.pinv(total + np.diag(lam))
     obs = model.observed(np.asarray(y))
     obs = np.ones(r.shape, bool) if obs is None else obs
-    h = h.reshape(r.shape)
-    col = np.sum(J**2, axis=0)
-    Jr = (J**2).reshape(*r.shape, p)
-    out, s0 = [], 0
+    col = np.diag(total)
+    rank, ranks_without, directions = block_directions(grams, result.space.free_names)
+    out = []
     sigma = np.asarray(model.sigma, np.float64)
-    for b, (name, n, mod) in enumerate(zip(model.names, model.counts, model.models)):
-        rows = slice(s0, s0 + n)
-        s0 += n
-        ob = obs[rows]
-        rw, hb = r[rows][ob], h[rows][ob]
-        red = float(np.sum(1.0 - hb))
-        raw = np.asarray(parts[b], np.float64)  # its own unit
-        rss = float(np.sum(rw**2)) * sigma[b] ** 2
+    for b, (name, mod, rb, ob) in enumerate(zip(model.names, model.models, model._rows(r, r.shape[0]),
+                                               model._rows(obs, r.shape[0]))):
+        red = float(ob.sum() - np.sum(A_inv * grams[b]))  # Σ (1 − h_ii) = n_b − tr(A⁻¹ J_bᵀJ_b)
+        raw = rb[:, : mod.size] * sigma[b]  # its own unit
+        ob = ob[:, : mod.size]
+        rss = float(np.sum(raw[ob] ** 2))
         sig_hat = math.sqrt(rss / red) if red > 0 else float("nan")
         err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
         unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
-        share = np.sum(Jr[rows][ob], axis=0) / np.where(col > 0, col, 1.0)
-        out.append(BlockStats(name, mod.kind, unit, n, int(ob.sum()), float(sigma[b]), False, sig_hat, red,
-                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob[:, : raw.shape[1]]] ** 2))),
+        share = np.diag(grams[b]) / np.where(col > 0, col, 1.0)
+        out.append(BlockStats(name, mod.kind, unit, rb.shape[0], int(ob.sum()), float(sigma[b]), False, sig_hat, red,
+                              float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob] ** 2))),
                               float(np.mean(np.abs(err))), float(np.max(np.abs(err))),
-                              dict(zip(result.space.free_names, share.tolist()))))
+                              dict(zip(result.space.free_names, share.tolist())), directions[b], ranks_without[b],
+                              rank))
     return tuple(out)
 
 
@@ -343,3 +478,120 @@ def block_result(result, name: str):
     object.__setattr__(out, "identifiability", None)
     object.__setattr__(out, "diagnostics", getattr(result, "diagnostics", None))
     return out
+
+
+# -- one JSON for a combined result ---------------------------------------------------------------
+#: the format tag of :func:`save_combined_result` files
+COMBINED_FORMAT = "jaxcal-combined/2"
+
+
+def _stats_to_dict(s: BlockStats) -> dict:
+    return {f.name: getattr(s, f.name) for f in dataclasses.fields(BlockStats)}
+
+
+def _stats_from_dict(d: dict) -> BlockStats:
+    from .._core._json import from_json_number
+
+    names = {f.name for f in dataclasses.fields(BlockStats)}
+    kw = {k: v for k, v in d.items() if k in names}
+    for k in ("sigma", "sigma_hat", "redundancy", "rmse", "rms", "mean", "max"):
+        if k in kw:
+            kw[k] = from_json_number(kw[k])
+    kw["directions"] = tuple((float(share), tuple((float(c), str(n)) for c, n in terms))
+                             for share, terms in kw.get("directions", ()))
+    return BlockStats(**kw)
+
+
+def combined_result_to_dict(result, **info) -> dict:
+    """A :func:`calibrate_blocks` result as one JSON-friendly object: per block its statistics
+    (:class:`BlockStats`) and, for each data block, its one-sensor result
+    (:func:`block_result` as :func:`jaxcal.save_result` writes it: the robot, the block's extras
+    under their own names, its measurement model, posterior covariance); the relations (kind and
+    fields), each block's σ, the free parameters, every deviation (rad, mm) and the who-sees-what
+    lines; plus ``info`` entries (e.g. ``settings=``) under their names."""
+    from .._core._json import to_jsonable
+    from ._io import result_to_dict
+
+    model = result.measurement
+    if not isinstance(model, Combined) or not hasattr(result, "blocks"):
+        raise TypeError("combined_result_to_dict takes a result of jaxcal.calibrate_blocks")
+    blocks = []
+    for s in result.blocks:
+        entry = _stats_to_dict(s)
+        if model.views[model.block_index(s.name)] is not None:
+            entry["result"] = result_to_dict(block_result(result, s.name))
+        blocks.append(entry)
+    rel = model.relations
+    out = {"format": COMBINED_FORMAT, "robot": result.robot.name, "status": result.status.name.lower(),
+           "method": result.method, "blocks": blocks, "sigma": result.sigma,
+           "relations": [] if rel is None else [{"kind": r.kind, **dataclasses.asdict(r)} for r in rel.relations],
+           "free_names": list(result.space.free_names), "deviations": result.deviations.named(),
+           "variance_rounds": result.variance_rounds, "who_sees_what": list(result.block_report),
+           "train_metrics_whitened": result.train_metrics._asdict()}
+    return to_jsonable(out | info)
+
+
+def save_combined_result(result, path, **info) -> None:
+    """Write a :func:`calibrate_blocks` result as one JSON file (:func:`combined_result_to_dict`);
+    :func:`load_combined_result` reads it back."""
+    import json
+    import pathlib
+
+    text = json.dumps(combined_result_to_dict(result, **info), indent=1, allow_nan=False)
+    pathlib.Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+@dataclasses.dataclass(frozen=True)
+class CombinedResult:
+    """A combined result read back by :func:`load_combined_result`.
+
+    Attributes:
+        results: ``{block: CalibrationResult}`` of the data blocks (each as :func:`block_result`
+            made it: predicts, evaluates and saves like a one-sensor result).
+        blocks: the blocks' :class:`BlockStats` (the relations last, if any).
+        relations: the relation objects (:class:`jaxcal.KnownDistance`...).
+        sigma: ``{block: σ}`` of the final fit (each block's unit).
+        deviations: ``{name: value}`` every deviation of the combined layout (rad, mm).
+        free_names: the combined fit's free parameters.
+        block_report: the who-sees-what lines (:func:`who_sees_what`).
+        raw: the whole JSON object (status, method, rounds, ``info`` entries).
+    """
+
+    results: dict
+    blocks: tuple
+    relations: tuple
+    sigma: dict
+    deviations: dict
+    free_names: tuple
+    block_report: tuple
+    raw: dict = dataclasses.field(repr=False)
+
+
+def load_combined_result(path) -> CombinedResult:
+    """Read a file of :func:`save_combined_result` (``jaxcal calibrate --combine``'s
+    ``combined.json``). Raises ``ValueError`` naming the file if it is not one."""
+    import json
+    import pathlib
+
+    from .._sensors._blocks import RELATIONS
+    from ._io import result_from_dict
+
+    try:
+        d = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not a JSON file: {e}") from None
+    if not isinstance(d, dict) or d.get("format") != COMBINED_FORMAT:
+        raise ValueError(f"{path} is not a jaxcal combined result (no 'format': {COMBINED_FORMAT!r} entry)")
+    kinds = {c.kind: c for c in RELATIONS}
+    relations = []
+    for r in d.get("relations", []):
+        r = dict(r)
+        cls = kinds.get(r.pop("kind", None))
+        if cls is None:
+            raise ValueError(f"{path}: unknown relation {r!r}")
+        relations.append(cls(**r))
+    results = {b["name"]: result_from_dict(b["result"], f"{path}, block {b['name']!r}")
+               for b in d["blocks"] if "result" in b}
+    return CombinedResult(results, tuple(_stats_from_dict(b) for b in d["blocks"]), tuple(relations),
+                          dict(d["sigma"]), dict(d["deviations"]), tuple(d["free_names"]),
+                          tuple(d.get("who_sees_what", ())), d)

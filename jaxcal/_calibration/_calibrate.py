@@ -778,7 +778,11 @@ def _calibration_steps(
         free_extras = any(group_kind(n) == "extra" for n in space.free_names)
         if not free_extras:  # the robot's groups are judged at their start: nothing else moved
             break
-        new = _resolve_candidates(cand, robot, measurement, q, None, _extras_moved(start, cur), None, prior)[1]
+        # with the readings, as at the start: the report does not depend on them (the sample is the
+        # prediction, or the readings where the Jacobian is free of them), and the start's compiled
+        # program serves (without them, a second program of the same size compiled: ~11 s for a camera)
+        new = _resolve_candidates(cand, robot, measurement, q, None, _extras_moved(start, cur), y, prior,
+                                  jacobian=False)[1]
         added = [n for n in new.space.free_names if n not in set(space.free_names)]
         if not added:
             break

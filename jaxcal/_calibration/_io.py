@@ -388,7 +388,11 @@ def load_result(path) -> CalibrationResult:
     :func:`jaxcal.evaluate_result` need); the saved diagnostics stay in the file
     (``load_result_dict``).
     """
-    d = load_result_dict(path)
+    return result_from_dict(load_result_dict(path), path)
+
+
+def result_from_dict(d: dict, path="result") -> CalibrationResult:
+    """:func:`load_result` of a result's JSON object ``d`` (``path`` names it in errors)."""
     robot = robot_from_dict(d["robot"])
     measurement = measurement_from_dict(d["measurement"])
     layout = layout_for(robot, measurement)

@@ -436,13 +436,12 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     """`jaxcal calibrate a.csv b.csv ... --combine --out-dir DIR [--relations FILE]`: the files are
     blocks of one robot (:func:`jaxcal.calibrate_blocks`): one fit, each block's σ estimated; one
     result JSON per block (:func:`~jaxcal._calibration._blocks.block_result`, read by `jaxcal
-    evaluate`) and ``combined.json`` (per-block statistics, relations, free parameters)."""
-    import json
+    evaluate`) and ``combined.json`` (:func:`jaxcal.save_combined_result`: every block's statistics and result, the
+    relations, σ, the deviations)."""
 
-    from .._calibration._blocks import block_result, calibrate_blocks
+    from .._calibration._blocks import block_result, calibrate_blocks, save_combined_result
     from .._calibration._calibrate import CalibrationWarning
     from .._calibration._io import save_result
-    from .._core._json import to_jsonable
     from .._sensors._blocks import Block, load_relations
 
     if not args.combine:
@@ -499,13 +498,9 @@ def _cmd_calibrate_combined(args, method: str) -> int:
                     "prior": args.prior, "loss": first.loss, "combined": names,
                     "relations": None if not args.relations else str(args.relations)}
         save_result(br, out / f"{n}.json", settings=settings, metrics_mm={"train, after": br.train_metrics._asdict()})
-    summary = {"format": "jaxcal-combined/1", "robot": first.robot.name, "status": res.status.name.lower(),
-               "blocks": [st.__dict__ for st in res.blocks], "sigma": res.sigma,
-               "relations": [r.describe() for r in relations], "free_names": list(res.space.free_names),
-               "deviations": res.deviations.named(), "variance_rounds": res.variance_rounds,
-               "who_sees_what": list(res.block_report)}
-    (out / "combined.json").write_text(json.dumps(to_jsonable(summary), indent=1, allow_nan=False) + "\n",
-                                       encoding="utf-8")
+    save_combined_result(res, out / "combined.json",
+                         settings={"data": [str(s.path) for s in setups], "method": method, "prior": args.prior,
+                                   "loss": first.loss, "relations": None if not args.relations else str(args.relations)})
     print(f"wrote {len(names)} block result(s) and combined.json to {out}")
     return 0 if res.status.name not in ("DIVERGED", "FAILED") else _EXIT_FAILED
 
