@@ -34,19 +34,14 @@ HERE = pathlib.Path(__file__).resolve().parent
 
 
 def run(units: int, new: int, noise: float, seed: int = 3) -> dict:
-    import jax
     import numpy as np
-    from bench_fleet_prior import _fit
+    from bench_fleet_prior import _fit, simulated_fleet
 
     import jaxcal
     from jaxcal._fit._problem import predict_jit
 
-    jaxcal.enable_x64()
-    robot = jaxcal.robots.hsr_jr680(tool_mm=(60.0, 0.0, 120.0))
-    sim = dict(n_units=units + new, n_samples=400, noise_std=noise, spread_angle_deg=0.005, spread_length_mm=0.02)
     t0 = time.perf_counter()
-    fl = jaxcal.simulate_fleet(jax.random.key(seed), robot, **sim)
-    meas = fl.units[0].measurement
+    robot, fl, meas, sim = simulated_fleet(units, new, noise, seed)
     fresh = fl.units[units:]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

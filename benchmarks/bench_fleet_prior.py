@@ -40,6 +40,20 @@ def _fit(robot, meas, datasets, **kw):
     return out
 
 
+def simulated_fleet(units: int, new: int, noise: float, seed: int):
+    """``(robot, fleet, measurement, sim settings)``: the benchmark's fleet of ``units + new``
+    units of the HSR-JR680 with a tool (400 tracker samples each)."""
+    import jax
+
+    import jaxcal
+
+    jaxcal.enable_x64()
+    robot = jaxcal.robots.hsr_jr680(tool_mm=(60.0, 0.0, 120.0))
+    sim = dict(n_units=units + new, n_samples=400, noise_std=noise, spread_angle_deg=0.005, spread_length_mm=0.02)
+    fl = jaxcal.simulate_fleet(jax.random.key(seed), robot, **sim)
+    return robot, fl, fl.units[0].measurement, sim
+
+
 def run(units: int, new: int, noise: float, seed: int = 3) -> dict:
     import jax
     import numpy as np
@@ -47,12 +61,8 @@ def run(units: int, new: int, noise: float, seed: int = 3) -> dict:
     import jaxcal
     from jaxcal._fit._problem import predict_jit
 
-    jaxcal.enable_x64()
-    robot = jaxcal.robots.hsr_jr680(tool_mm=(60.0, 0.0, 120.0))
-    sim = dict(n_units=units + new, n_samples=400, noise_std=noise, spread_angle_deg=0.005, spread_length_mm=0.02)
     t0 = time.perf_counter()
-    fl = jaxcal.simulate_fleet(jax.random.key(seed), robot, **sim)
-    meas = fl.units[0].measurement
+    robot, fl, meas, sim = simulated_fleet(units, new, noise, seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         taught = _fit(robot, meas, [u.train for u in fl.units[:units]])
