@@ -467,7 +467,7 @@ def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
         noise = unc.noise_std ** 2 * max(0.0, 1.0 - p_e / max(n_entries, 1))
         value = math.sqrt(c * noise + mean_var * c / coords)
         return value if math.isfinite(value) else None
-    var = result.prediction_std(data.q) ** 2
+    var = result.prediction_std(data.q, data.y) ** 2  # the readings pick a contact row's plane / point
     value = math.sqrt(c * unc.noise_std ** 2 + float(np.mean(var)) * c / coords)
     return value if math.isfinite(value) else None
 
