@@ -182,9 +182,17 @@ def test_csv_round_trip_and_relabel(robot, tmp_path):
 
 def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
     """Bar data: at the floor; θ_1 and d_1 (the base frame) have no effect on any distance."""
-    res, ratio, _ = _cli_at_floor(robot, "distance", tmp_path)
+    res, ratio, truth = _cli_at_floor(robot, "distance", tmp_path)
     print("distance: test RMSE / floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
+    # evaluate on hidden bar rows: the tool was estimated (part of the robot, kept), nothing to register;
+    # the expectation counts each row's own second pose and length
+    hidden = simulate_distance(jax.random.key(4), robot, n_samples=60, noise_std=SIGMA, test_fraction=0.0,
+                               true_deviations=truth).train
+    ev = jaxcal.evaluate_result(res, hidden)
+    assert ev.extras == "none" and ev.kept == ("tool",) and "no sensor extras were estimated" not in ev.message
+    assert "tool from the result" in ev.table() and "nothing estimated" not in ev.table()
+    assert not ev.worse_than_expected and ev.expected_rmse == pytest.approx(ev.after.rmse, rel=0.25)
     deps = res.identifiability["dependencies"]
     assert {"theta_1", "d_1"} <= set(res.identifiability["unidentifiable"])
     assert deps.get("theta_1") in ([], None, {}) and deps.get("d_1") in ([], None, {})
