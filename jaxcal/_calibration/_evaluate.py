@@ -244,7 +244,8 @@ class Evaluation:
             ``"result"`` (taken from the calibration) or ``"none"`` (no extras were estimated).
         registered: the groups re-registered (empty unless ``extras == "registered"``).
         kept: extras the calibration estimated that are not a sensor set-up (a tool point, a
-            camera's intrinsics): taken from the result before and after.
+            camera's intrinsics): taken from the result for the calibrated robot (and for the
+            nominal one where no set-up extras are registered: nothing else to compare).
         unit: the unit of the errors and metrics (the model's ``unit``: ``"mm"``, ``"px"``).
         message: one line saying where the extras came from.
         outlier_rows: rows (0-based) whose after-residual exceeds 5 robust σ; ``outlier_scale_mm``
@@ -330,11 +331,10 @@ class Evaluation:
         if self.extras != "none" and self.raw_nominal is not None:
             out.append(("raw nominal (guessed extras, nothing estimated)", self.raw_nominal))
         kept = f"{', '.join(self.kept)} from the result" if self.kept else ""
-        lab = ("extras from the data" + (f", {kept}" if kept else "") if self.extras != "none"
-               else kept or "nothing estimated")
+        lab = "extras from the data" if self.extras != "none" else kept or "nothing estimated"
         out.append((f"before: nominal robot, {lab}", self.before))
         lab = {"registered": "extras re-registered", "result": "extras from the result",
-               "none": kept or "no extras"}[self.extras]
+               "none": kept or "no extras"}[self.extras] + (f", {kept}" if kept and self.extras != "none" else "")
         out.append((f"after: calibrated robot, {lab}", self.after))
         return out
 
@@ -520,17 +520,17 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     # robot / the sensor here, taken from the result before and after
     kept = tuple(g for g in dict.fromkeys(layout.group_of(n) for n in result.space.free_names)
                  if g not in groups and all(group_kind(n) == "extra" for n in layout.group(g).names))
-    held = (f"; {', '.join(kept)} (estimated with the robot, not a new set-up) taken from the calibration for "
-            "the nominal and the calibrated robot alike" if kept else "")
-    zero_kept = _extras_of(kept, result.deviations, zero)
+    what = f"; {', '.join(kept)} (estimated with the robot, not a new set-up) taken from the calibration for "
+    held = f"{what}the nominal and the calibrated robot alike" if kept else ""
     if not groups:
-        dev_b, dev_a = zero_kept, result.deviations
+        dev_b, dev_a = _extras_of(kept, result.deviations, zero), result.deviations
         source, registered = "none", ()
         msg = ("no sensor set-up extras to register (none estimated in the calibration); the saved sensor model is "
                f"used before and after{held}" if not kept else
                f"no sensor set-up extras to register{held}")
     else:
-        dev_b, msg_b = register_extras(robot, m, data, zero_kept, groups)
+        dev_b, msg_b = register_extras(robot, m, data, zero, groups)  # the nominal robot, its nominal tool
+        held = f"{what}the calibrated robot (the nominal robot keeps its nominal one)" if kept else ""
         if mode == "register":
             keep = _extras_of(groups, zero, result.deviations)  # extras back to the guess, robot calibrated
             dev_a, _ = register_extras(robot, m, data, keep, groups)

@@ -244,7 +244,8 @@ def test_evaluate_expects_the_floor_and_flags_a_remounted_probe(robot, tmp_path,
                               true_deviations=truth).train
     same = jaxcal.evaluate_result(res, hidden, extras="result")
     print(f"same set-up: measured {same.after.rmse:.4f} mm, expected {same.expected_rmse:.4f} mm")
-    assert not same.worse_than_expected and same.expected_rmse == pytest.approx(same.after.rmse, rel=0.35)
+    # 24 rows: their RMSE scatters by ~15 % (1 sd); the old expectation was ~20× the measured one
+    assert not same.worse_than_expected and 1 / 1.6 < same.expected_rmse / same.after.rmse < 1.6
     assert same.kept == ("tool",) and "tool from the result" in same.table()
     remounted = truth.replace(tool=truth.values["tool"] + jnp.array([0.0, 0.0, 2.0]))
     new = simulate_contact(jax.random.key(5), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
