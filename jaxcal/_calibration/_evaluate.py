@@ -40,7 +40,9 @@ __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_obj
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
                 "base_translation": "base", "marker": "markers",
-                "plane": "plane", "point": "point", "radius": "point"}  # contact set-ups (jaxcal._sensors._contact)
+                "plane": "plane", "point": "point", "radius": "point",  # contact set-ups (jaxcal._sensors._contact)
+                "handeye_rotation": "handeye", "handeye_translation": "handeye",  # a camera mounted again
+                "target_rotation": "target", "target_translation": "target"}
 
 
 # -- extras --------------------------------------------------------------------------------------------
@@ -51,7 +53,9 @@ def _family(group: str) -> str:
 
 def registrable_extras(result) -> tuple[str, ...]:
     """The groups of ``result``'s free extras a new sensor set-up changes (anchor, cable offset,
-    sensor frame, marker positions); a tool point counts as part of the robot and is kept."""
+    sensor frame, marker positions, contact planes / points, a camera's hand-eye transform and
+    target pose); a tool point and a camera's intrinsics count as part of the robot / the sensor
+    itself and are kept."""
     layout = result.space.layout
     groups = dict.fromkeys(layout.group_of(n) for n in result.space.free_names if group_kind(n) == "extra")
     return tuple(g for g in groups if _family(g) in _REGISTRABLE)
@@ -107,6 +111,18 @@ def relabelled_result(result, labels):
                           unc.effective_parameters, unc.n_residuals)
     object.__setattr__(out, "uncertainty", unc)
     return out
+
+
+def has_guessed_extras(measurement) -> bool:
+    """Whether the measurement model's own extras are a guess worth a "raw nominal" line: not for a
+    camera whose hand-eye and target are the identity (no guess given: the target passes through
+    the camera's centre and the reprojection errors are meaningless, ~1e8 px)."""
+    if getattr(measurement, "kind", None) != "camera":
+        return True
+    frames = (measurement.handeye_rotation, measurement.handeye_translation, measurement.target_rotation,
+              measurement.target_translation)
+    eye = (np.eye(3), np.zeros(3), np.eye(3), np.zeros(3))
+    return not all(np.allclose(np.asarray(a, np.float64), b) for a, b in zip(frames, eye))
 
 
 def _extras_of(groups, source: Deviations, into: Deviations) -> Deviations:
@@ -220,12 +236,17 @@ class Evaluation:
             taken from the result, still estimated from the new data (the best case for nominal).
         after: of the calibrated robot, its extras registered the same way or taken from the result.
         raw_nominal: of the nominal robot with the measurement model's guessed extras (nothing
-            estimated): shown for reference only.
-        before_errors, after_errors: ``[n]`` per-row errors (mm).
+            estimated): shown for reference only; ``None`` where the model has no guess (a
+            camera's identity hand-eye and target: the target through the camera's centre).
+        before_errors, after_errors: ``[n]`` per-row errors (:attr:`unit`: mm; px for a camera).
         q: ``[n, dof]`` the rows' joint angles (rad).
         extras: ``"registered"`` (re-estimated on the new rows: a new day's frame/anchor),
             ``"result"`` (taken from the calibration) or ``"none"`` (no extras were estimated).
         registered: the groups re-registered (empty unless ``extras == "registered"``).
+        kept: extras the calibration estimated that are not a sensor set-up (a tool point, a
+            camera's intrinsics): taken from the result for the calibrated robot (and for the
+            nominal one where no set-up extras are registered: nothing else to compare).
+        unit: the unit of the errors and metrics (the model's ``unit``: ``"mm"``, ``"px"``).
         message: one line saying where the extras came from.
         outlier_rows: rows (0-based) whose after-residual exceeds 5 robust σ; ``outlier_scale_mm``
             that σ.
@@ -243,7 +264,7 @@ class Evaluation:
 
     before: Metrics
     after: Metrics
-    raw_nominal: Metrics
+    raw_nominal: Metrics | None
     before_errors: np.ndarray
     after_errors: np.ndarray
     q: np.ndarray
@@ -257,6 +278,8 @@ class Evaluation:
     objective: str | None = None
     q_file: np.ndarray | None = None
     expected_rmse: float | None = None
+    kept: tuple[str, ...] = ()
+    unit: str = "mm"
 
     @property
     def worse_than_expected(self) -> bool:
@@ -271,10 +294,11 @@ class Evaluation:
         what does not apply. Printed by ``str()``, ``jaxcal evaluate`` and ``jaxcal calibrate --test``."""
         if self.expected_rmse is None:
             return None, None
+        u = self.unit
         line = (f"expected from the calibration (its σ̂ and parameter uncertainty at these poses): RMSE "
-                f"{self.expected_rmse:.3g} mm; measured {self.after.rmse:.3g} mm")
+                f"{self.expected_rmse:.3g} {u}; measured {self.after.rmse:.3g} {u}")
         warning = (f"{self.after.rmse / self.expected_rmse:.1f}× worse than the calibration predicts (RMSE "
-                   f"{self.after.rmse:.4g} vs {self.expected_rmse:.4g} mm): has the set-up changed since (tool, "
+                   f"{self.after.rmse:.4g} vs {self.expected_rmse:.4g} {u}): has the set-up changed since (tool, "
                    "sensor, a collision), do these poses lie outside the calibrated workspace, or is the noise "
                    "larger today?") if self.worse_than_expected else None
         return line, warning
@@ -301,26 +325,29 @@ class Evaluation:
         return not (self.after.rmse <= self.before.rmse)
 
     def rows(self) -> list[tuple[str, Metrics]]:
-        """``[(label, Metrics)]``: raw nominal (when extras were estimated), before, after."""
+        """``[(label, Metrics)]``: raw nominal (when extras were estimated and the model has a
+        guess), before, after."""
         out = []
-        if self.extras != "none":
+        if self.extras != "none" and self.raw_nominal is not None:
             out.append(("raw nominal (guessed extras, nothing estimated)", self.raw_nominal))
-        lab = "extras from the data" if self.extras != "none" else "nothing estimated"
+        kept = f"{', '.join(self.kept)} from the result" if self.kept else ""
+        lab = "extras from the data" if self.extras != "none" else kept or "nothing estimated"
         out.append((f"before: nominal robot, {lab}", self.before))
         lab = {"registered": "extras re-registered", "result": "extras from the result",
-               "none": "no extras"}[self.extras]
+               "none": kept or "no extras"}[self.extras] + (f", {kept}" if kept and self.extras != "none" else "")
         out.append((f"after: calibrated robot, {lab}", self.after))
         return out
 
     def table(self) -> str:
         rows = [[name, m.rmse, m.mean, m.max] for name, m in self.rows()]
-        return format_table(rows, ["data", "RMSE/mm", "MEAN/mm", "MAX/mm"],
+        u = self.unit
+        return format_table(rows, ["data", f"RMSE/{u}", f"MEAN/{u}", f"MAX/{u}"],
                             title=f"Accuracy on {self.n} new rows before/after calibration")
 
     def __str__(self) -> str:
         lines = [self.message, self.table()]
         if self.outlier_rows:
-            lines.append(f"outlier rows (residual > 5 × {self.outlier_scale_mm:.3g} mm, the robust σ after calibration; 1-based): "
+            lines.append(f"outlier rows (residual > 5 × {self.outlier_scale_mm:.3g} {self.unit}, the robust σ after calibration; 1-based): "
                          + ", ".join(str(r + 1) for r in self.outlier_rows[:30])
                          + (" …" if len(self.outlier_rows) > 30 else ""))
         verdict = ("WORSE than the nominal robot" if self.worse else
@@ -337,9 +364,11 @@ class Evaluation:
         per-row errors and joint angles (degrees)."""
         return {
             "metrics_mm": {"before": self.before._asdict(), "after": self.after._asdict(),
-                           "raw_nominal": self.raw_nominal._asdict()},
+                           **({} if self.raw_nominal is None else {"raw_nominal": self.raw_nominal._asdict()})},
+            "unit": self.unit,
             "worse": self.worse,
-            "extras": {"source": self.extras, "registered": list(self.registered), "message": self.message},
+            "extras": {"source": self.extras, "registered": list(self.registered), "kept": list(self.kept),
+                       "message": self.message},
             "objective": self.objective,
             "expected_rmse_mm": self.expected_rmse,
             "worse_than_expected": self.worse_than_expected,
@@ -438,7 +467,7 @@ def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
         noise = unc.noise_std ** 2 * max(0.0, 1.0 - p_e / max(n_entries, 1))
         value = math.sqrt(c * noise + mean_var * c / coords)
         return value if math.isfinite(value) else None
-    var = result.prediction_std(data.q) ** 2
+    var = result.prediction_std(data.q, data.y) ** 2  # the readings pick a contact row's plane / point
     value = math.sqrt(c * unc.noise_std ** 2 + float(np.mean(var)) * c / coords)
     return value if math.isfinite(value) else None
 
@@ -486,28 +515,33 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         why = f" ({data.n} rows are too few to register them again)"
     dtype = np.asarray(data.q).dtype
     zero = Deviations.zeros(layout, dtype)
-    raw = _metrics(sample_errors(robot, m, zero, data))
+    raw = _metrics(sample_errors(robot, m, zero, data)) if has_guessed_extras(m) else None
+    # estimated extras that are no sensor set-up (a tool point, a camera's intrinsics): part of the
+    # robot / the sensor here, taken from the result before and after
+    kept = tuple(g for g in dict.fromkeys(layout.group_of(n) for n in result.space.free_names)
+                 if g not in groups and all(group_kind(n) == "extra" for n in layout.group(g).names))
+    what = f"; {', '.join(kept)} (estimated with the robot, not a new set-up) taken from the calibration for "
+    held = f"{what}the nominal and the calibrated robot alike" if kept else ""
     if not groups:
-        dev_b, dev_a = zero, result.deviations
-        other = [g for g in dict.fromkeys(layout.group_of(n) for n in result.space.free_names)
-                 if all(group_kind(n) == "extra" for n in layout.group(g).names)]
-        if other:  # e.g. a tool point: part of the robot here
-            dev_b = _extras_of(other, result.deviations, zero)
+        dev_b, dev_a = _extras_of(kept, result.deviations, zero), result.deviations
         source, registered = "none", ()
-        msg = "no sensor extras were estimated in the calibration: the saved sensor model is used before and after"
+        msg = ("no sensor set-up extras to register (none estimated in the calibration); the saved sensor model is "
+               f"used before and after{held}" if not kept else
+               f"no sensor set-up extras to register{held}")
     else:
-        dev_b, msg_b = register_extras(robot, m, data, zero, groups)
+        dev_b, msg_b = register_extras(robot, m, data, zero, groups)  # the nominal robot, its nominal tool
+        held = f"{what}the calibrated robot (the nominal robot keeps its nominal one)" if kept else ""
         if mode == "register":
             keep = _extras_of(groups, zero, result.deviations)  # extras back to the guess, robot calibrated
             dev_a, _ = register_extras(robot, m, data, keep, groups)
             source, registered = "registered", groups
             msg = (f"extras re-registered on the new data (a new set-up: {', '.join(groups)}), robot fixed, for the "
-                   "nominal and the calibrated robot alike (closed form, then a fit of the extras only)")
+                   f"nominal and the calibrated robot alike (closed form, then a fit of the extras only){held}")
         else:
             dev_a = result.deviations
             source, registered = "result", ()
             msg = (f"extras taken from the calibration result ({', '.join(groups)}: the same set-up as the training "
-                   f"data{why}); the nominal robot's extras estimated from the new data")
+                   f"data{why}); the nominal robot's extras estimated from the new data{held}")
     eb = sample_errors(robot, m, dev_b, data)
     ea = sample_errors(robot, m, dev_a, data)
     rows, scale = _outliers(robot, m, dev_a, data)
@@ -518,6 +552,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         deviations_before=dev_b, deviations_after=dev_a, objective=objective,
         q_file=joints_to_file_units(robot, data.q),
         expected_rmse=expected_rmse(result, data, registered, dev_a if registered else None),
+        kept=kept, unit=getattr(m, "unit", "mm"),
     )
 
 

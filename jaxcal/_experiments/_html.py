@@ -69,9 +69,9 @@ def _png(fig) -> str:
     return f'<img alt="figure" src="data:image/png;base64,{data}"/>'
 
 
-def _metrics_table(metrics: dict) -> str:
+def _metrics_table(metrics: dict, unit: str = "mm") -> str:
     rows = [[name, _num(m.get("rmse")), _num(m.get("mean")), _num(m.get("max"))] for name, m in metrics.items()]
-    return _table(["data", "RMSE / mm", "MEAN / mm", "MAX / mm"], rows)
+    return _table(["data", f"RMSE / {unit}", f"MEAN / {unit}", f"MAX / {unit}"], rows)
 
 
 def _points(robot_dict, q_deg) -> np.ndarray | None:
@@ -260,21 +260,22 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
             f"{meas.get('kind', '?')} measurements"
     title = ("Evaluation of a calibration on new data" if is_eval else "Calibration report") + f": {robot.get('name', '')}"
     body = [f"<h1>{_e(title)}</h1>", _provenance(source, inputs, created), "<h2>Summary</h2>"]
+    unit = d.get("unit") or ("px" if meas.get("kind") == "camera" else "mm")  # the errors' unit
     if is_eval:
         m = d["metrics_mm"]
         verdict = (f'<p class="bad">The calibrated robot predicts these data WORSE than the nominal robot '
-                   f'(RMSE {_num(m["after"]["rmse"])} vs {_num(m["before"]["rmse"])} mm).</p>' if d.get("worse") else
-                   f'<p class="ok">The calibrated robot predicts these data with {_num(m["after"]["rmse"])} mm RMSE, '
-                   f'the nominal robot with {_num(m["before"]["rmse"])} mm.</p>')
+                   f'(RMSE {_num(m["after"]["rmse"])} vs {_num(m["before"]["rmse"])} {unit}).</p>' if d.get("worse") else
+                   f'<p class="ok">The calibrated robot predicts these data with {_num(m["after"]["rmse"])} {unit} RMSE, '
+                   f'the nominal robot with {_num(m["before"]["rmse"])} {unit}.</p>')
         exp = d.get("expected_rmse_mm")
         if exp is not None:
             from .._calibration._evaluate import EXPECTED_FACTOR
 
-            verdict += (f'<p class="bad">{_num(m["after"]["rmse"])} mm is more than {EXPECTED_FACTOR:g}× the {_num(exp)} mm the '
+            verdict += (f'<p class="bad">{_num(m["after"]["rmse"])} {unit} is more than {EXPECTED_FACTOR:g}× the {_num(exp)} {unit} the '
                         "calibration expects of itself here (its σ̂ and parameter uncertainty at these poses): "
                         "has the set-up changed since, or do these poses lie outside the calibrated workspace?</p>"
                         if d.get("worse_than_expected") else
-                        f'<p class="ok">The calibration expected {_num(exp)} mm here (its σ̂ and parameter '
+                        f'<p class="ok">The calibration expected {_num(exp)} {unit} here (its σ̂ and parameter '
                         "uncertainty at these poses).</p>")
         body += [verdict, _summary([("calibration", d.get("result")), ("new data", f"{d.get('data')}: "
                                                                                      f"{d.get('n_samples')} rows"),
@@ -285,9 +286,9 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
                   "before": "before: nominal robot, extras from the data",
                   "after": "after: calibrated robot, extras "
                            + {"registered": "re-registered", "result": "from the result",
-                              "none": "(none estimated)"}.get(d.get("extras", {}).get("source"), "")}
+                              "none": "(no set-up extras to register)"}.get(d.get("extras", {}).get("source"), "")}
         order = [k for k in ("raw_nominal", "before", "after") if k in m]
-        body += ["<h2>Before / after</h2>", _metrics_table({labels[k]: m[k] for k in order})]
+        body += ["<h2>Before / after</h2>", _metrics_table({labels[k]: m[k] for k in order}, unit)]
         parts_rows = {"new data": d["rows"]} if d.get("rows") else {}
         flagged = {"new data": d.get("outlier_rows", [])}
         res_d = result or {}
@@ -312,7 +313,7 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
                            ("status", status), ("sensor extras", diag.get("extras")),
                            ("test-file extras", (d.get("test_extras") or {}).get("message"))])]
         body += ["<h2>Before / after</h2>",
-                 _metrics_table(d.get("metrics_mm") or {"train, after": d.get("train_metrics_mm", {})}),
+                 _metrics_table(d.get("metrics_mm") or {"train, after": d.get("train_metrics_mm", {})}, unit),
                  '<p class="small">before = the nominal robot with the sensor extras estimated from the data '
                  "(closed-form start); raw nominal = the guessed extras, nothing estimated.</p>"]
         parts_rows = d.get("rows") or {}

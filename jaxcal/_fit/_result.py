@@ -269,18 +269,23 @@ class CalibrationResult:
         """The diagnostics' warnings (empty if none)."""
         return () if self.diagnostics is None else self.diagnostics.warnings
 
-    def prediction_std(self, q) -> np.ndarray:
+    def prediction_std(self, q, y=None) -> np.ndarray:
         """Standard deviation (mm) of the calibrated model's predicted reading at joint angles
         ``q`` ``[n, dof]`` from the parameter uncertainty (``sqrt(diag(J·Cov·Jᵀ))``, summed over
         a sample's coordinates for position data; position part for poses). Add the sensor noise
-        (``uncertainty.noise_std``) in quadrature for the expected error of a new reading."""
+        (``uncertainty.noise_std``) in quadrature for the expected error of a new reading.
+
+        ``y``: the rows' readings ``[n, …]`` where the model's prediction depends on them (the
+        plane / point label of a contact row, a distance bar's second pose and length): without
+        them every contact row counts as touching the first plane / point."""
         if self.uncertainty is None:
             raise ValueError("this result has no uncertainty (computed by jaxcal.calibrate)")
         from .._core._precision import to_device
         from ._problem import Problem, prediction_variance_at
 
         q = to_device(q)
-        y = jnp.zeros((q.shape[0], *self.measurement.sample_shape), q.dtype)
+        y = (jnp.zeros((q.shape[0], *self.measurement.sample_shape), q.dtype) if y is None
+             else to_device(np.asarray(y, np.float64), q.dtype))
         pr = Problem(self.robot, self.measurement, q, y, self.space, self.deviations.astype(q.dtype))
         C = to_device(np.asarray(self.uncertainty.covariance, np.float64), q.dtype)
         var = np.asarray(prediction_variance_at(pr, pr.x0(), C), np.float64)

@@ -603,6 +603,7 @@ def _cmd_calibrate(args) -> int:
     from .._calibration._evaluate import (
         describe_objective,
         evaluate_result,
+        has_guessed_extras,
         joints_to_file_units,
         nominal_with_extras,
         sample_errors,
@@ -693,7 +694,9 @@ def _cmd_calibrate(args) -> int:
     # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start)
     dev_before = nominal_with_extras(res)
     zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
-    estimated = any(group_kind(n) == "extra" for n in res.space.free_names)
+    # the raw nominal row (the guessed extras) where extras were estimated and the model has a guess
+    # (a camera's identity hand-eye and target are none: their reprojection errors mean nothing)
+    show_raw = any(group_kind(n) == "extra" for n in res.space.free_names) and has_guessed_extras(measurement)
     per_row = {}
 
     # the per-row errors of the table, before (and raw nominal) and after, for train and test
@@ -702,7 +705,7 @@ def _cmd_calibrate(args) -> int:
     sets = {"train": (train, measurement)}
     if test_file is None and test.n:
         sets["test"] = (test, measurement if full is None else full.take(test_idx))
-    devs = (dev_before, res.deviations, zero) if estimated else (dev_before, res.deviations)
+    devs = (dev_before, res.deviations, zero) if show_raw else (dev_before, res.deviations)
     errors = {}
     for m in {id(m): m for _, m in sets.values()}.values():
         names = [n for n, (_, m_n) in sets.items() if m_n is m]
@@ -711,17 +714,17 @@ def _cmd_calibrate(args) -> int:
     def part(name, ds, rows_1based, ev=None):
         if ev is not None:
             eb, ea = ev.before_errors, ev.after_errors
-            raw = sample_errors(robot, measurement, zero, ds) if estimated else None
+            raw = sample_errors(robot, measurement, zero, ds) if show_raw else None
         else:
             m = sets[name][1]
             eb, ea = errors[name][0], errors[name][1]
-            raw = errors[name][2] if estimated else None
+            raw = errors[name][2] if show_raw else None
             if m is measurement and res.predictor is not None:  # a learned correction (RBF) of the model
                 ea = np.asarray(res.sample_errors(ds), np.float64)
         per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
-        if estimated:
+        if show_raw:
             out.append((f"{name}, raw nominal", metrics_numpy(raw)))
         return out + [(f"{name}, before", metrics_numpy(eb)),
                       (f"{name}, after", metrics_numpy(ea))]
@@ -739,7 +742,7 @@ def _cmd_calibrate(args) -> int:
                        title=f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
                              f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
     print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
-          + ("; raw nominal = the guessed extras, nothing estimated" if estimated else "")
+          + ("; raw nominal = the guessed extras, nothing estimated" if show_raw else "")
           + ("" if evaluation is None else f"\ntest file: {evaluation.message}"))
     line, warning = (None, None) if evaluation is None else evaluation.expectation()
     if line is not None:

@@ -10,6 +10,10 @@ from ._common import _EXIT_FAILED, _Usage
 
 __all__ = ["EVALUATION_FORMAT"]
 
+#: exit status of ``jaxcal evaluate`` when the calibrated robot beats the nominal one but fits the
+#: new rows far worse than the calibration predicts (a remounted tool, a moved sensor)
+_EXIT_UNEXPECTED = 3
+
 
 #: ``"format"`` of the files ``jaxcal evaluate --out`` writes.
 EVALUATION_FORMAT = "jaxcal-evaluation/1"
@@ -65,10 +69,13 @@ def _cmd_evaluate(args) -> int:
                                           encoding="utf-8")
         print(f"\nwrote {args.out}")
     warning = ev.expectation()[1]
-    if warning is not None:
-        print(f"jaxcal: warning: {path}: {warning}", file=sys.stderr)
     if ev.worse:
+        if warning is not None:
+            print(f"jaxcal: warning: {path}: {warning}", file=sys.stderr)
         print(f"jaxcal: the calibrated robot predicts {path} worse than the nominal robot (RMSE {ev.after.rmse:.4g} "
-              f"vs {ev.before.rmse:.4g} mm); exit status 1", file=sys.stderr)
+              f"vs {ev.before.rmse:.4g} {ev.unit}); exit status 1", file=sys.stderr)
         return _EXIT_FAILED
+    if warning is not None:  # better than nominal, but far worse than the calibration predicts
+        print(f"jaxcal: warning: {path}: {warning}; exit status {_EXIT_UNEXPECTED}", file=sys.stderr)
+        return _EXIT_UNEXPECTED
     return 0

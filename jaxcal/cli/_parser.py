@@ -335,19 +335,26 @@ def _add_evaluate(sub, fmt) -> None:
     ev = sub.add_parser(
         "evaluate", formatter_class=fmt, help="check a saved calibration on new measurements (before/after)",
         description="Check a calibration (`jaxcal calibrate --out RESULT.json`) on new measurements DATA.csv (e.g. "
-                    "the next day's): RMSE/MEAN/MAX (mm) of the nominal robot ('before') and the calibrated robot "
-                    "('after'), each with the sensor extras (draw-wire anchor and cable offset, tracker / mocap "
-                    "frame, marker positions) registered again on the new rows with the robot fixed (closed form, "
-                    "then a fit of the extras only) — a new day's set-up — or, with --keep-extras, the calibrated "
-                    "robot with the result's extras. The raw nominal line uses the guessed extras. Prints which "
+                    "the next day's): RMSE/MEAN/MAX (mm; px for a camera) of the nominal robot ('before') and the "
+                    "calibrated robot ('after'), each with the sensor extras (draw-wire anchor and cable offset, "
+                    "tracker / mocap frame, marker positions, contact planes / points, a camera's hand-eye transform "
+                    "and target pose) registered again on the new rows with the robot fixed (closed form, then a fit "
+                    "of the extras only) — a new day's set-up — or, with --keep-extras, the calibrated robot with the "
+                    "result's extras. A tool point and a camera's intrinsics belong to the robot / the camera: taken "
+                    "from the result for both. The raw nominal line uses the guessed extras (none for a camera "
+                    "without a guessed hand-eye and target). Also prints the RMSE the calibration expects of itself "
+                    "on these rows and warns when the rows fit far worse. Prints which "
                     "extras were registered, the rows that are outliers after calibration (> 5 robust σ, 1-based), "
                     "and writes per-row errors to --out (EVAL.json: metrics_mm.before/after with rmse, mean, max).",
         epilog=_DATA_FORMAT + "\n\nThe data file's kind comes from the result (cable, position, pose, markers, camera, "
                "plane, point, distance; a block result of `calibrate --combine` is its block's kind). A plane/point "
                "file may name planes/points the result does not have (another table, a new plate placement): they "
                "are registered on its rows with the robot fixed.\n\n"
-               "exit status: 0 the calibrated robot predicts the new data at least as well as the nominal one, "
-               "1 worse, 2 bad input.",
+               "exit status: 0 the calibrated robot predicts the new data at least as well as the nominal one "
+               "and about as well as the calibration expects of itself, 1 worse than the nominal robot, 2 bad "
+               "input, 3 better than nominal but more than 1.5× worse than the calibration predicts (its σ̂ and "
+               "parameter uncertainty at these poses): the set-up changed since (a remounted tool or probe, a "
+               "moved camera with --keep-extras) or the rows lie outside the calibrated workspace.",
     )
     ev.add_argument("result", help="RESULT.json written by `jaxcal calibrate --out`")
     ev.add_argument("data", help="CSV data file with new measurements (same robot and sensor kind)")

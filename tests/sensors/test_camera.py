@@ -113,14 +113,22 @@ def _camera_in_target(camera, robot, dev, q):
     return (p - tB) @ RB
 
 
-def test_calibrated_camera_positions_within_3_sigma():
-    """≥ 15 views, 0.3 px noise, deviated DH, hand-eye and target started from the data: at held-out
-    poses the calibrated camera positions lie within 3 posterior σ (per coordinate) of the truth."""
+@pytest.fixture(scope="module")
+def calibrated():
+    """20 of 30 simulated views calibrated (deviated DH, hand-eye and target started from the data,
+    0.3 px noise, 5 % of the corners undetected); the other 10 held out."""
     robot = robots.hsr_jr680()
     q, y, cam, truth = simulate_camera(jax.random.key(0), robot, _camera(), n_views=30, noise_px=0.3, missing=0.05)
     nominal = Camera(cam.points, cam.intrinsics, cam.mount, image_size=cam.image_size)  # hand-eye, target unknown
-    tr, te = slice(0, 20), slice(20, 30)
-    res = jaxcal.calibrate(robot, nominal, (q[tr], y[tr]), "lm")
+    res = jaxcal.calibrate(robot, nominal, (q[:20], y[:20]), "lm")
+    return robot, q, y, cam, truth, nominal, res
+
+
+def test_calibrated_camera_positions_within_3_sigma(calibrated):
+    """≥ 15 views, 0.3 px noise, deviated DH, hand-eye and target started from the data: at held-out
+    poses the calibrated camera positions lie within 3 posterior σ (per coordinate) of the truth."""
+    robot, q, y, cam, truth, nominal, res = calibrated
+    te = slice(20, 30)
     assert res.ok
     space = res.space
 
@@ -138,6 +146,35 @@ def test_calibrated_camera_positions_within_3_sigma():
     assert np.abs(err).max() < 1.0  # mm; the start (nominal DH) was several mm off
 
 
+def test_evaluate_registers_a_moved_camera(calibrated):
+    """`evaluate` on held-out views re-registers the hand-eye transform and the target pose (robot
+    fixed), reports px and no raw nominal line (the identity hand-eye is no guess); a camera
+    remounted 2–3 mm and ~0.6° off is absorbed by the registration (the robot is fine), and judged
+    with the result's stale hand-eye (extras="result") it is flagged as far worse than expected."""
+    robot, q, y, cam, truth, nominal, res = calibrated
+    te = slice(20, 30)
+    held = Dataset(q[te], y[te], "camera")
+    ev = jaxcal.evaluate_result(res, held)
+    assert ev.extras == "registered" and set(ev.registered) == {
+        "handeye_rotation", "handeye_translation", "target_rotation", "target_translation"}
+    assert ev.unit == "px" and ev.raw_nominal is None and ev.to_dict()["unit"] == "px"
+    text = str(ev)
+    assert "RMSE/px" in text and "mm" not in text.split("Accuracy")[1].split("expected")[0]
+    assert "no sensor" not in text and "raw nominal" not in text and "handeye_rotation" in ev.message
+    assert not ev.worse_than_expected and ev.after.rmse == pytest.approx(ev.expected_rmse, rel=0.25)
+    moved = truth.replace(handeye_translation=truth.values["handeye_translation"] + jnp.array([2.0, -1.0, 1.5]),
+                          handeye_rotation=truth.values["handeye_rotation"] + jnp.array([0.01, 0.0, -0.01]))
+    ym = cam.predict(robot, moved, q[te]) + 0.3 * jax.random.normal(jax.random.key(9), y[te].shape)
+    new = Dataset(q[te], jnp.where(jnp.isnan(y[te]), jnp.nan, ym), "camera")
+    again = jaxcal.evaluate_result(res, new)
+    print(f"moved camera: registered {again.after.rmse:.3f} px (expected {again.expected_rmse:.3f})")
+    assert not again.worse_than_expected and again.after.rmse < 1.5 * ev.after.rmse
+    stale = jaxcal.evaluate_result(res, new, extras="result")
+    print(f"moved camera, the result's hand-eye: {stale.after.rmse:.2f} px (expected {stale.expected_rmse:.3f})")
+    assert stale.worse_than_expected and stale.after.rmse > 10 * stale.expected_rmse
+    assert "worse than the calibration predicts" in str(stale) and "px" in stale.expectation()[1]
+
+
 @pytest.mark.slow  # default-run time: test_calibrated_camera_positions_within_3_sigma covers the fit
 def test_cli_camera_reaches_floor(tmp_path, capsys):
     """`jaxcal simulate --measurement camera` then `jaxcal calibrate` (deviated DH, hand-eye and target
@@ -153,6 +190,7 @@ def test_cli_camera_reaches_floor(tmp_path, capsys):
                  "--loss", "linear", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "not detected (empty cells)" in text and "RMSE/px" in text
+    assert "raw nominal" not in text  # the identity hand-eye and target are no guess: no ~1e8 px row
     res = json.loads(out.read_text())
     loaded = jaxcal.load_csv(data)
     train_rows = np.asarray(res["rows"]["train"]["row"]) - 1

@@ -182,9 +182,17 @@ def test_csv_round_trip_and_relabel(robot, tmp_path):
 
 def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
     """Bar data: at the floor; θ_1 and d_1 (the base frame) have no effect on any distance."""
-    res, ratio, _ = _cli_at_floor(robot, "distance", tmp_path)
+    res, ratio, truth = _cli_at_floor(robot, "distance", tmp_path)
     print("distance: test RMSE / floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
+    # evaluate on hidden bar rows: the tool was estimated (part of the robot, kept), nothing to register;
+    # the expectation counts each row's own second pose and length
+    hidden = simulate_distance(jax.random.key(4), robot, n_samples=60, noise_std=SIGMA, test_fraction=0.0,
+                               true_deviations=truth).train
+    ev = jaxcal.evaluate_result(res, hidden)
+    assert ev.extras == "none" and ev.kept == ("tool",) and "no sensor extras were estimated" not in ev.message
+    assert "tool from the result" in ev.table() and "nothing estimated" not in ev.table()
+    assert not ev.worse_than_expected and ev.expected_rmse == pytest.approx(ev.after.rmse, rel=0.25)
     deps = res.identifiability["dependencies"]
     assert {"theta_1", "d_1"} <= set(res.identifiability["unidentifiable"])
     assert deps.get("theta_1") in ([], None, {}) and deps.get("d_1") in ([], None, {})
@@ -218,3 +226,36 @@ def test_sphere_start_and_robust_fit_with_an_outlier(robot):
     assert hub.evaluate(big).rmse < 1.1 * floor
     assert lin.evaluate(big).rmse > 2 * floor
     assert np.all(np.isfinite(hub.uncertainty.std[[i for i, n in enumerate(hub.space.free_names) if "@" in n]]))
+
+
+def test_evaluate_expects_the_floor_and_flags_a_remounted_probe(robot, tmp_path, capsys):
+    """`evaluate` of a plane-contact calibration on hidden rows: with the result's planes the RMSE
+    it expects is near the measured one (each row counted on its own plane: with every row on the
+    first plane it expected ~20× too much), and a probe remounted 2 mm longer is flagged by the
+    library and by `jaxcal evaluate` (a warning naming the ratio, exit status 3)."""
+    m = default_setup("plane", robot)
+    ex = simulate_contact(jax.random.key(3), robot, m, n_samples=90, noise_std=SIGMA, test_fraction=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = jaxcal.calibrate(robot, PlaneContact.from_dataset(ex.train), ex.train, "lm", extras=["tool"],
+                               objective="measured")
+    truth = ex.true_deviations
+    hidden = simulate_contact(jax.random.key(4), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
+                              true_deviations=truth).train
+    same = jaxcal.evaluate_result(res, hidden, extras="result")
+    print(f"same set-up: measured {same.after.rmse:.4f} mm, expected {same.expected_rmse:.4f} mm")
+    # 24 rows: their RMSE scatters by ~15 % (1 sd); the old expectation was ~20× the measured one
+    assert not same.worse_than_expected and 1 / 1.6 < same.expected_rmse / same.after.rmse < 1.6
+    assert same.kept == ("tool",) and "tool from the result" in same.table()
+    remounted = truth.replace(tool=truth.values["tool"] + jnp.array([0.0, 0.0, 2.0]))
+    new = simulate_contact(jax.random.key(5), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
+                           true_deviations=remounted).train
+    ev = jaxcal.evaluate_result(res, new)  # the planes registered again: the tool is part of the robot
+    print(f"probe 2 mm longer: measured {ev.after.rmse:.4f} mm, expected {ev.expected_rmse:.4f} mm")
+    assert ev.extras == "registered" and ev.worse_than_expected and ev.after.rmse > 5 * ev.expected_rmse
+    jaxcal.save_result(res, tmp_path / "r.json")
+    new.to_csv(tmp_path / "new.csv")
+    capsys.readouterr()
+    assert jaxcal.cli.main(["evaluate", str(tmp_path / "r.json"), str(tmp_path / "new.csv")]) == 3
+    err = capsys.readouterr().err
+    assert "worse than the calibration predicts" in err and "exit status 3" in err
