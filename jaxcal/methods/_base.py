@@ -148,17 +148,22 @@ class ScaledProblem(eqx.Module):
             return ob.prior_whitening @ (self.x(z) - ob.prior_mean)
         return ob.prior_precision * (self.x(z) - ob.prior_mean)
 
-    def _robust_blocks(self, problem: Problem, x) -> tuple[Array, Array]:
-        """Residual blocks ``[n, m]`` scaled by the robust factor, and the scaled per-sample
-        errors ``[n]`` (what the metrics measure, e.g. the position part of a pose)."""
-        pr = problem
-        r = pr.measurement.residual(pr.robot, pr.deviations(x), pr.q, pr.y)
-        e = pr.measurement.sample_error(r)
+    @property
+    def robust(self) -> bool:
+        """Whether the objective has a robust (non-linear) loss."""
+        return self.objective is not None and self.objective.loss != "linear"
+
+    def _robust_factor(self, e: Float[Array, " n"]) -> Float[Array, " n"]:
+        """The robust loss's factor of each sample with error ``e`` (:attr:`robust` only)."""
         ob = self.objective
-        if ob is None or ob.loss == "linear":
-            return pr.weighted_blocks(r), pr.weighted_blocks(e)
-        f = robust_factor(ob.loss, e * e, ob.loss_scale)
-        return problem.weighted_blocks(r * f[:, None]), problem.weighted_blocks(e * f)
+        return robust_factor(ob.loss, e * e, ob.loss_scale)
+
+    def _robust_errors(self, problem: Problem, x) -> Array:
+        """The per-sample errors ``[n]`` (what the metrics measure, e.g. the position part of a
+        pose) scaled by the robust factor."""
+        pr = problem
+        e = pr.measurement.sample_error(pr.measurement.residual(pr.robot, pr.deviations(x), pr.q, pr.y))
+        return pr.weighted_blocks(e * self._robust_factor(e) if self.robust else e)
 
     def objective_residual(self, z: Float[Array, " p"], problem: Problem | None = None) -> Float[Array, " M"]:
         """What least squares minimises: robust-scaled data residuals ``[N]`` followed, with a
@@ -194,7 +199,7 @@ class ScaledProblem(eqx.Module):
         pr = self.problem if problem is None else problem
         if self.objective is None:
             return r, J
-        if self.objective.loss != "linear":
+        if self.robust:
             r, scaled = jax.linearize(lambda r: self._robust_data(pr, r), r)
             J = jax.vmap(scaled, in_axes=1, out_axes=1)(J)
         if self.objective.has_prior:
@@ -205,12 +210,10 @@ class ScaledProblem(eqx.Module):
     def _robust_data(self, problem: Problem, r: Float[Array, " N"]) -> Float[Array, " N"]:
         """The flat data residuals ``r`` (padding rows zero) with each sample's block scaled by
         the robust factor of its error (``r`` itself for plain least squares / the linear loss)."""
-        ob = self.objective
-        if ob is None or ob.loss == "linear":
+        if not self.robust:
             return r
         blocks = r.reshape(problem.n_samples, problem.measurement.size)
-        e = problem.measurement.sample_error(blocks)
-        return (blocks * robust_factor(ob.loss, e * e, ob.loss_scale)[:, None]).reshape(-1)
+        return (blocks * self._robust_factor(problem.measurement.sample_error(blocks))[:, None]).reshape(-1)
 
     @property
     def n_free(self) -> int:
@@ -238,7 +241,7 @@ class ScaledProblem(eqx.Module):
         if self.objective is None:
             e = pr.sample_errors(self.x(z))
             return jnp.sqrt(jnp.mean(e * e) if pr.weight is None else jnp.sum(e * e) / pr.n_real)
-        _, e = self._robust_blocks(pr, self.x(z))
+        e = self._robust_errors(pr, self.x(z))
         pz = self.prior_residual(z)
         if pr.weight is None:
             return jnp.sqrt(jnp.mean(e * e) + jnp.sum(pz * pz) / e.shape[0])
@@ -288,7 +291,7 @@ class ScaledProblem(eqx.Module):
                 e = jax.vmap(lambda z: self.problem.sample_errors(self.x(z)))(Z)  # [P, n]
                 r = jnp.sqrt((e * e) @ mw.astype(e.dtype))
             else:
-                e = jax.vmap(lambda z: self._robust_blocks(self.problem, self.x(z))[1])(Z)  # [P, n]
+                e = jax.vmap(lambda z: self._robust_errors(self.problem, self.x(z)))(Z)  # [P, n]
                 n = e.shape[-1] if self.problem.weight is None else self.problem.n_real
                 pz = jax.vmap(self.prior_residual)(Z)
                 r = jnp.sqrt((e * e) @ mw.astype(e.dtype) + jnp.sum(pz * pz, axis=-1) / n)

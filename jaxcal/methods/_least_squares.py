@@ -215,8 +215,8 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         terminate = accept & optx_cauchy_termination(
             solver.rtol, solver.atol, solver.norm, z_eval, z_eval - z, r_eval, r_eval - f_info.residual
         )
-        # the final point's Jacobian only when the caller keeps it; the start's when pending
-        need_jac = accept & (~first | pending) if keep else accept & ~terminate & (~first | pending)
+        # the final point's Jacobian only when the caller keeps it
+        need_jac = accept & ~first if keep else accept & ~terminate & ~first
         if pending:  # the start's Jacobian (for the scales) even where the start is already final
             need_jac = need_jac | first
         J_eval, jd_eval, scale = jax.lax.cond(
