@@ -22,7 +22,7 @@ from .._core._cache import ensure_compilation_cache, switched_off
 from .._core._metrics import Metrics, compute_metrics
 from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
-from .._core._xla import compile_lowered
+from .._core._xla import compile_lowered, target_platform
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._fit._diagnostics import (
     Checks,
@@ -492,7 +492,7 @@ def _launch(cal: Calibrator, q, y, key):
         dyn = cast_floating(dyn, q.dtype)
         t0 = time.perf_counter()
         try:
-            ck = (stat, _signature((dyn, q, y, key, w)), jax.default_backend(), jax.config.jax_enable_x64)
+            ck = (stat, _signature((dyn, q, y, key, w)), target_platform(), jax.config.jax_enable_x64)
             hash(ck)
         except TypeError:  # unhashable static part: no cache
             ck = None

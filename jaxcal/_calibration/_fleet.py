@@ -53,7 +53,7 @@ import numpy as np
 from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory
 from .._core._metrics import format_table, statistical_floor
 from .._core._precision import cast_floating, dtype_scope
-from .._core._xla import compile_lowered
+from .._core._xla import compile_lowered, target_platform
 from .._fit._result import CalibrationResult, Status
 from ._calibrate import (
     CalibrationOutput,
@@ -339,7 +339,7 @@ class _Batch:
         active = jax.device_put(np.arange(self.size) < len(self.units))
         t0 = time.perf_counter()
         ck = (self.static, self.treedef, axes, self.sequential, tuple((tuple(x.shape), str(x.dtype)) for x in leaves),
-              jax.default_backend(), jax.config.jax_enable_x64)
+              target_platform(), jax.config.jax_enable_x64)
         compiled = _COMPILED_MANY.get(ck)
         if compiled is None:
             compiled = compile_lowered(_run_batched.lower(self.static, self.treedef, axes, self.sequential,

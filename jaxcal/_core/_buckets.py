@@ -309,8 +309,10 @@ class LeanJit:
         dyn = {k: v for k, v in bound.arguments.items() if k not in self.static}
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(dyn)):
             return self.jitted(*args, **kwargs)
+        from ._xla import target_platform
+
         try:
-            key = (tuple((k, bound.arguments[k]) for k in self.static), signature(dyn), jax.default_backend(),
+            key = (tuple((k, bound.arguments[k]) for k in self.static), signature(dyn), target_platform(),
                    jax.config.jax_enable_x64)
             hash(key)
         except TypeError:

@@ -125,8 +125,10 @@ def _key(name: str, description: str, leaves) -> str:
     import jax
     import jaxlib
 
-    dev = jax.devices()[0]
-    parts = ["jaxcal-exported/1", name, source_hash(), jax.__version__, jaxlib.__version__, jax.default_backend(),
+    from ._xla import export_platform, target_device
+
+    dev = target_device()
+    parts = ["jaxcal-exported/1", name, source_hash(), jax.__version__, jaxlib.__version__, export_platform(),
              getattr(dev, "device_kind", ""), str(jax.config.jax_enable_x64), description, *_avals(leaves)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
@@ -203,6 +205,8 @@ def compile_stored(name: str, fn, args: tuple, description: str, compile_lowered
     import jax
     from jax import export
 
+    from ._xla import export_platform
+
     leaves, in_tree = jax.tree_util.tree_flatten(args)
     key = _key(name, description + "|" + str(in_tree), leaves)
     if key in _UNSTORABLE:
@@ -220,7 +224,7 @@ def compile_stored(name: str, fn, args: tuple, description: str, compile_lowered
             return tuple(out_leaves)
 
         try:
-            exp = export.export(jax.jit(flat), platforms=[jax.default_backend()])(*leaves)
+            exp = export.export(jax.jit(flat), platforms=[export_platform()])(*leaves)
             if out_tree is not None and traced["tree"] != out_tree:
                 raise ValueError("output structure")
             blob = bytes(exp.serialize())

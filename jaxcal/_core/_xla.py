@@ -73,16 +73,41 @@ def compiler_options(platform: str) -> dict[str, object] | None:
     return opts or None
 
 
+def target_device():
+    """The device a program jitted now over uncommitted arguments runs on: the one set by
+    ``jax.default_device`` (a context or ``jax.config``) when set, else JAX's first device. Keys of
+    compiled programs name its platform, not :func:`jax.default_backend`, so that a program built
+    for the host CPU inside ``jax.default_device(cpu)`` on a GPU machine is kept apart from the
+    GPU's."""
+    import jax
+
+    dev = jax.config.jax_default_device
+    if dev is None:
+        return jax.devices()[0]
+    return jax.devices(dev)[0] if isinstance(dev, str) else dev
+
+
+def target_platform() -> str:
+    """The platform (``"cpu"``, ``"gpu"``, ``"tpu"``) of :func:`target_device`."""
+    return target_device().platform
+
+
+def export_platform() -> str:
+    """:func:`target_platform` as :mod:`jax.export` names it (``"cuda"``/``"rocm"`` for ``"gpu"``)."""
+    from jax import export
+
+    platform = target_platform()
+    return export.default_export_platform() if platform == "gpu" else platform
+
+
 def compile_lowered(lowered, platform: str | None = None):
-    """``lowered.compile(...)`` with :func:`compiler_options` for ``platform`` (default: JAX's
-    default backend), with jaxcal's persistent compilation cache on
+    """``lowered.compile(...)`` with :func:`compiler_options` for ``platform`` (default:
+    :func:`target_platform`), with jaxcal's persistent compilation cache on
     (:func:`~jaxcal._core._cache.ensure_compilation_cache`)."""
     from ._cache import ensure_compilation_cache
 
     ensure_compilation_cache()
     if platform is None:
-        import jax
-
-        platform = jax.default_backend()
+        platform = target_platform()
     opts = compiler_options(platform)
     return lowered.compile() if opts is None else lowered.compile(opts)

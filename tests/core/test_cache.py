@@ -105,3 +105,21 @@ def test_plain_description_is_complete_or_none():
     assert _exported.plain_description((1, "a", None, 2.5)) is not None
     assert _exported.describe(np.arange(3)) != _exported.describe(np.arange(3.0))
     assert _exported.describe(object()) is None
+
+
+def test_program_keys_name_the_device_the_program_runs_on():
+    """A program built inside ``jax.default_device(cpu)`` (what ``sweep`` does on a GPU machine to
+    choose the free set on the host) is keyed and exported for the CPU, not for JAX's default
+    backend; jax.export's platform names (``cuda``) are used for exporting."""
+    import jax
+
+    from jaxcal._core import _xla
+
+    cpu = jax.devices("cpu")[0]
+    with jax.default_device(cpu):
+        assert _xla.target_device() == cpu
+        assert _xla.target_platform() == "cpu" and _xla.export_platform() == "cpu"
+    with jax.default_device("cpu"):
+        assert _xla.target_platform() == "cpu"
+    assert _xla.target_device() == jax.devices()[0]
+    assert _xla.export_platform() in {"cpu", "cuda", "rocm", "tpu"}
