@@ -12,6 +12,7 @@ import abc
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -135,6 +136,8 @@ def _check_frame(rotation, translation):
         raise ValueError(f"rotation must be a [3, 3] rotation matrix (sensor <- base), got shape {R.shape}")
     if t.shape != (3,):
         raise ValueError(f"translation must be a [3] vector in mm, got shape {t.shape}")
+    if isinstance(R, jax.core.Tracer):  # built inside a traced function: its values are not known yet
+        return R, t
     Rn = np.asarray(R, dtype=np.float64)
     if not (np.allclose(Rn.T @ Rn, np.eye(3), atol=1e-6) and np.linalg.det(Rn) > 0):
         raise ValueError("rotation must be a proper rotation matrix (RᵀR = I, det R = +1)")

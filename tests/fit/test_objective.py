@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.optimize
+from conftest import central_differences
 
 import jaxcal
 from jaxcal import Prior
@@ -55,8 +56,7 @@ def test_lm_with_prior_is_the_map_estimate(ex):
     # by central differences here
     pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, res.space)
     x0, h = np.asarray(res.x, np.float64), 1e-6
-    J = np.stack([(np.asarray(pr.residual(jnp.asarray(x0 + h * e))) - np.asarray(pr.residual(jnp.asarray(x0 - h * e))))
-                  / (2 * h) for e in np.eye(x0.size)], axis=1)
+    J = central_differences(pr.residual, x0, h)
     d = np.linalg.norm(J, axis=0)
     blind = d < 1e-6 * d.max()  # columns the distance data cannot see at all (zero, unscaled)
     J[:, blind], d[blind] = 0.0, 1.0
@@ -258,8 +258,7 @@ def test_lm_with_full_covariance_prior_is_the_map_estimate(ex):
     assert np.max(np.abs(res.x - x_ref) / res.uncertainty.std) < 1e-3
     pr = Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, res.space)
     x0, h = np.asarray(res.x, np.float64), 1e-6
-    J = np.stack([(np.asarray(pr.residual(jnp.asarray(x0 + h * e))) - np.asarray(pr.residual(jnp.asarray(x0 - h * e))))
-                  / (2 * h) for e in np.eye(x0.size)], axis=1)
+    J = central_differences(pr.residual, x0, h)
     cov = np.linalg.inv(J.T @ J / res.uncertainty.noise_std ** 2 + np.linalg.inv(C))
     np.testing.assert_allclose(res.uncertainty.std, np.sqrt(np.diag(cov)), rtol=1e-3)
 

@@ -10,10 +10,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import central_differences
 from test_chain import URDFS, numpy_urdf_fk
 
 import jaxcal
 from jaxcal import SerialChain, chain_from_dh, export_urdf, load_urdf, robots
+from jaxcal._calibration._calibrate import candidate_space
 from jaxcal._core._params import Deviations, ParameterSpace, layout_for
 from jaxcal._models._chain import GEOMETRIC_GROUPS, TIP_GROUPS
 from jaxcal._models._kinematics import rotvec_to_matrix
@@ -125,9 +127,9 @@ def test_tip_groups_names_units_prior_and_preference():
     assert entries["tip_dy"] == (-0.25, "mm") and entries["tip_drz"] == (pytest.approx(0.3), "deg")
     assert entries["offset_1"] == (0.0, "deg")  # a group the deviations lack reads 0
     # free=/fix= select them by "tip"
-    cand = jaxcal._calibration._calibrate.candidate_space(chain, jaxcal.Position(), fix="tip")
+    cand = candidate_space(chain, jaxcal.Position(), fix="tip")
     assert not set(TIP_NAMES) & set(cand.free_names)
-    assert jaxcal._calibration._calibrate.candidate_space(chain, jaxcal.Position(), free="tip").free_names == TIP_NAMES
+    assert candidate_space(chain, jaxcal.Position(), free="tip").free_names == TIP_NAMES
 
 
 # ---------------------------------------------------------------- FK and Jacobian
@@ -196,7 +198,7 @@ def test_tip_jacobian_matches_finite_differences(key):
     x0 = jnp.concatenate([base["tip_translation"], base["tip_rotation"]])
     J = np.asarray(jax.jacfwd(f)(x0))
     h = 1e-6
-    Jfd = np.stack([(f(x0.at[k].add(h)) - f(x0.at[k].add(-h))) / (2 * h) for k in range(6)], 1)
+    Jfd = central_differences(f, x0, h)
     np.testing.assert_allclose(J, Jfd, rtol=1e-6, atol=1e-5)
     # the tip translation moves every point by its own amount in the last joint frame: |∂p/∂tip_d·| = 1
     n = q.shape[0]

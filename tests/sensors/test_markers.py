@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import central_differences
 
 import jaxcal
 from jaxcal import Dataset, Deviations, Markers, ParameterSpace, Problem, load_csv, robots
@@ -81,9 +82,7 @@ def test_jacobian_matches_finite_differences():
     pr = Problem(robot, m, q, y, space, start)
     J = np.asarray(pr.jacobian(pr.x0() + x))
     h = 1e-6
-    E = np.eye(space.n_free)
-    fd = np.stack([(np.asarray(pr.residual(pr.x0() + x + h * E[i])) - np.asarray(pr.residual(pr.x0() + x - h * E[i])))
-                   / (2 * h) for i in range(space.n_free)], axis=1)
+    fd = central_differences(pr.residual, pr.x0() + x, h)
     assert J.shape == (12 * 9, space.n_free)
     np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
 
