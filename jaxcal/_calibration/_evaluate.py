@@ -35,7 +35,7 @@ from .._sensors._initialise import _residual, _sample_error
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
-    "evaluate_sessions", "relabelled_result"]
+    "evaluate_sessions", "relabelled_result", "match_labels"]
 
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
@@ -472,6 +472,25 @@ def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def match_labels(result, data):
+    """``(result, data, new)`` for a contact result (plane / point) and a contact
+    :class:`~jaxcal.Dataset` whose ``plane_labels``/``point_labels`` metadata name its labels: the
+    result relabelled to the data's labels (:func:`relabelled_result`: labels it has not seen,
+    ``new``, get zero values, to be registered on the data) and the data's label indices
+    renumbered to the result's label order. Anything else comes back unchanged (``new`` empty)."""
+    from .._datasets._dataset import Dataset, dataset_labels, label_metadata_key, relabel
+    from .._sensors._contact import FixedPoint, PlaneContact
+
+    m = result.measurement
+    if not (isinstance(data, Dataset) and isinstance(m, (PlaneContact, FixedPoint)) and data.kind == m.kind
+            and data.meta.get(label_metadata_key(data.kind))):
+        return result, data, ()
+    labels = dataset_labels(data)
+    new = tuple(s for s in labels if s not in m.labels)
+    result = relabelled_result(result, labels)
+    return result, relabel(data, result.measurement.labels), new
+
+
 def evaluate_result(result, data, *, extras: str = "auto", objective: str | None = None) -> Evaluation:
     """Check ``result`` (a :class:`~jaxcal.CalibrationResult`, e.g. from :func:`jaxcal.load_result`)
     on new ``data`` (a :class:`~jaxcal.Dataset` of the same kind).
@@ -499,6 +518,8 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     if not isinstance(data, Dataset):
         q, y = _as_arrays(data, m, robot)
         data = Dataset(q, y, m.kind)
+    result, data, _ = match_labels(result, data)  # the data's plane / point labels, new ones included
+    m = result.measurement
     _as_arrays(data, m, robot)  # kind, shapes, joint limits
     if extras not in ("auto", "register", "result"):
         raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")

@@ -45,15 +45,12 @@ def _cmd_evaluate(args) -> int:
     if data.labels and not sessions:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
     if data.kind in ("plane", "point"):
-        from .._calibration._evaluate import relabelled_result
-        from .._datasets._dataset import dataset_labels, relabel
+        from .._calibration._evaluate import match_labels
 
-        new = [s for s in dataset_labels(data) if s not in m.labels]
+        res, data, new = match_labels(res, data)
+        m = res.measurement
         if new:  # a new set-up (another plate placement, another table): its planes/points registered here
-            res = relabelled_result(res, dataset_labels(data))
-            m = res.measurement
             print(f"new {data.kind} labels in {path}: {', '.join(new)} — registered on its rows (robot fixed)")
-        data = relabel(data, m.labels)
     objective = raw.get("settings", {}).get("objective") or (
         f"objective: {raw.get('loss', 'linear')} loss; {raw.get('prior') or 'no prior'}")
     ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective)

@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 
 import jaxcal
-from jaxcal import Block, DistanceBar, FixedPoint, KnownDistance, calibrate_blocks, combined_floor
+from jaxcal import (
+    Block,
+    DistanceBar,
+    FixedPoint,
+    KnownDistance,
+    block_result,
+    calibrate_blocks,
+    combined_floor,
+    evaluate_result,
+)
 from jaxcal._core._params import Deviations, layout_for
 from jaxcal._sensors._blocks import combine
 from jaxcal._sensors._contact import default_setup
@@ -161,6 +170,11 @@ def test_ball_in_socket_known_distance_sets_the_scale(robot, sockets):
                                    objective="measured")
         c, rms = _register(robot, res, m_test, test)
         err = np.linalg.norm(c[1::2] - c[::2], axis=1) - SOCKETS_MM
+        if name == "with":  # the library's evaluate registers the held-out file's own labels by name
+            ev = evaluate_result(block_result(res, "sockets"), test)
+            assert set(ev.registered) == {f"point@{s}" for s in test_labels}
+            got = np.stack([np.asarray(ev.deviations_after.values[f"point@{s}"]) for s in test_labels])
+            np.testing.assert_allclose(got, c, atol=2e-3)  # least squares vs the rows' mean: both the pivot
         n_test, K = test.q.shape[0], len(test_labels)
         floor = SIGMA_BALL * np.sqrt(1 - K / n_test)  # per entry, the centres registered
         out[name] = (err, rms / floor, res)
