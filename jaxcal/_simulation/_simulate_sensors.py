@@ -25,7 +25,7 @@ def _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, lengt
     from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, draw_deviations
 
     if true_deviations is None:
-        dh = draw_deviations(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
+        dh = eqx.filter_jit(draw_deviations)(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
                              length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
                              tool_std_mm=tool_std_mm, dtype=dtype)
         true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
@@ -41,6 +41,23 @@ def _row_constraint(robot, dev, m, qi, k):
     if not m.sphere:
         return p - c[k]
     return jnp.atleast_1d(jnp.linalg.norm(p - c[k]) - r[k])
+
+
+@eqx.filter_jit
+def _candidates(robot, dev, m, key, n: int):
+    """``n`` random joint-angle rows ``[n, dof]``, their labels in turn ``[n]`` and each row's
+    distance to its label's constraint ``[n]``, in one compiled program (op by op, this was
+    hundreds of small programs)."""
+    q = _sample_q(key, robot, n)
+    labels = jnp.arange(n) % len(m.labels)
+    g = jax.vmap(lambda qi, ki: _row_constraint(robot, dev, m, qi, ki))(q, labels)
+    return q, labels, jnp.linalg.norm(g, axis=1)
+
+
+@eqx.filter_jit
+def _tool_points(robot, dev, q):
+    """Tool points ``[n, 3]`` (mm) of the rows ``q``, compiled."""
+    return jnp.stack(tool_point_soa(robot, dev, q), -1)
 
 
 @eqx.filter_jit
@@ -84,10 +101,8 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
                                        tool_std_mm, dtype)
     K = len(m.labels)
     n_cand = n_samples * oversample
-    cand = _sample_q(k_q, robot, n_cand * K)
-    lab_all = jnp.arange(n_cand * K) % K
-    g0 = jax.vmap(lambda qi, ki: _row_constraint(robot, true_deviations, m, qi, ki))(cand, lab_all)
-    score = np.asarray(jnp.linalg.norm(g0, axis=1), np.float64)
+    cand, lab_all, score = _candidates(robot, true_deviations, m, k_q, n_cand * K)
+    score = np.asarray(score, np.float64)
     lab_np = np.asarray(lab_all)
     picks = []
     for k in range(K):  # per label the candidates nearest to it
@@ -182,8 +197,8 @@ def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.
     n_try = tries * n_samples
     qa = _sample_q(k_a, robot, n_try)
     pool = _sample_q(k_b, robot, min(8 * n_try, 8192))
-    pa = np.asarray(jnp.stack(tool_point_soa(robot, true_deviations, qa), -1))
-    pp = np.asarray(jnp.stack(tool_point_soa(robot, true_deviations, pool), -1))
+    pa = np.asarray(_tool_points(robot, true_deviations, qa))
+    pp = np.asarray(_tool_points(robot, true_deviations, pool))
     L = np.resize(np.asarray(lengths_mm, np.float64), n_try)
     best = np.empty(n_try, int)
     for i in range(0, n_try, 256):  # the pool pose nearest to a bar length away, in blocks (memory)
