@@ -155,6 +155,14 @@ def test_choosing_parameters_and_settings(data_csv, capsys):
     _one_error_line(capsys, 2, ["calibrate", d, "--robot", "hsr_jr680", "--fix", "wings"], "unknown parameter or group")
 
 
+def test_simulate_help_describes_what_it_writes(capsys):
+    """``jaxcal simulate --help`` lists the formats it writes, not marker data it cannot make."""
+    assert main(["simulate", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "what it writes" in out and "u_1_px" in out and "distance_mm" in out
+    assert "marker_1_x_mm" not in out and "makes no marker" in out
+
+
 def test_import_and_help_do_not_import_jax():
     """``import jaxcal`` and ``jaxcal --help`` import neither JAX nor a jaxcal module beyond the
     package and the command line (start-up: 0.05 s of CPU instead of 1.3 s); every public name
