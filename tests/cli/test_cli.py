@@ -195,12 +195,12 @@ def test_seed_split_on_the_host_is_jax_bit_for_bit():
     (one and two shuffle rounds, 64-bit seeds); fails if JAX changes its PRNG."""
     import jax
 
-    from jaxcal.cli._calibrate import _seed_split_numpy, _seed_split_program
+    from jaxcal._datasets._split import seed_split_numpy, seed_split_program
 
     for seed in (0, 3, 2**32 + 5, 2**63 - 1):
         for n in (1, 400, 1625, 2000):
-            key, perm = _seed_split_numpy(seed, n)
-            key_ref, perm_ref = _seed_split_program()(seed, n)
+            key, perm = seed_split_numpy(seed, n)
+            key_ref, perm_ref = seed_split_program()(seed, n)
             np.testing.assert_array_equal(perm, np.asarray(perm_ref))
             np.testing.assert_array_equal(jax.random.key_data(key), jax.random.key_data(key_ref))
             assert key.dtype == key_ref.dtype
