@@ -497,16 +497,14 @@ def _cmd_calibrate(args) -> int:
 
     from .._calibration._calibrate import CalibrationWarning, calibrate
     from .._calibration._evaluate import (
+        before_after_errors,
         describe_objective,
         evaluate_result,
-        has_guessed_extras,
         joints_to_file_units,
-        nominal_with_extras,
         sample_errors,
-        sample_errors_many,
     )
     from .._core._metrics import format_table, metrics_numpy
-    from .._core._params import Deviations, group_kind
+    from .._core._params import Deviations
     from .._datasets._split import seed_split
     from ..methods._stages import check_method_name
 
@@ -588,36 +586,22 @@ def _cmd_calibrate(args) -> int:
     if res.diagnostics.extras:
         print(res.diagnostics.extras)
 
-    # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start)
-    dev_before = nominal_with_extras(res)
-    zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
+    # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start);
     # the raw nominal row (the guessed extras) where extras were estimated and the model has a guess
     # (a camera's identity hand-eye and target are none: their reprojection errors mean nothing)
-    show_raw = any(group_kind(n) == "extra" for n in res.space.free_names) and has_guessed_extras(measurement)
-    per_row = {}
-
-    # the per-row errors of the table, before (and raw nominal) and after, for train and test
-    # together: one compiled program per measurement model (sample_errors_many), not one per
-    # deviations and part, each of which a start loads from the compilation cache
     sets = {"train": (train, measurement)}
     if test_file is None and test.n:
         sets["test"] = (test, measurement if full is None else full.take(test_idx))
-    devs = (dev_before, res.deviations, zero) if show_raw else (dev_before, res.deviations)
-    errors = {}
-    for m in {id(m): m for _, m in sets.values()}.values():
-        names = [n for n, (_, m_n) in sets.items() if m_n is m]
-        errors.update(zip(names, sample_errors_many(robot, m, devs, [sets[n][0] for n in names])))
+    show_raw, errors = before_after_errors(res, robot, measurement, sets)
+    per_row = {}
 
     def part(name, ds, rows_1based, ev=None):
         if ev is not None:
             eb, ea = ev.before_errors, ev.after_errors
+            zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
             raw = sample_errors(robot, measurement, zero, ds) if show_raw else None
         else:
-            m = sets[name][1]
-            eb, ea = errors[name][0], errors[name][1]
-            raw = errors[name][2] if show_raw else None
-            if m is measurement and res.predictor is not None:  # a learned correction (RBF) of the model
-                ea = np.asarray(res.sample_errors(ds), np.float64)
+            eb, ea, raw = errors[name]
         per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []
