@@ -35,7 +35,7 @@ from .._sensors._initialise import _residual, _sample_error
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
-    "evaluate_sessions", "relabelled_result", "before_after_errors"]
+    "evaluate_sessions", "relabelled_result"]
 
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
