@@ -58,7 +58,7 @@ def _compiled_trials(n: int, n_samples: int):
 
     from jaxcal import Deviations
     from jaxcal._core._xla import compile_lowered
-    from jaxcal._experiments._sweep import _MethodTrial, _Split
+    from jaxcal._experiments._sweep_trials import _MethodTrial, _Split
     from jaxcal.methods import make_method
 
     robot, m, space, split, k_method = simulate(n_samples, n)

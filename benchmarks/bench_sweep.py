@@ -1,7 +1,7 @@
 """Sweep throughput: trials per second, vmapped chunks vs a Python loop over seeds.
 
 What is measured: one *trial* = calibrate one simulated experiment and evaluate it on its
-held-out split — the per-trial function of ``jaxcal._experiments._sweep`` (``_MethodTrial``). The data of
+held-out split — the per-trial function of ``jaxcal._experiments._sweep_trials`` (``_MethodTrial``). The data of
 all trials is simulated beforehand (not timed).
 
 * **vmapped**: ``jax.jit(jax.vmap(trial))`` over ``n`` seeds, compiled ahead of time
@@ -50,7 +50,7 @@ import jax
 import numpy as np
 
 import jaxcal
-from jaxcal._experiments._sweep import _DataTrial, _MethodTrial, trial_keys
+from jaxcal._experiments._sweep_trials import _DataTrial, _MethodTrial, trial_keys
 from jaxcal.methods import make_method
 
 jaxcal.enable_x64()
@@ -84,7 +84,7 @@ def simulate(n_samples: int, n: int):
     """Data of trials 0..n-1 (one vmapped simulation), as the sweep's data unit makes it."""
     robot = jaxcal.robots.hsr_jr680()
     from jaxcal import CableLength, Deviations, ParameterSpace
-    from jaxcal._experiments._sweep import _Simulated, _simulation_options
+    from jaxcal._experiments._sweep_trials import _Simulated, _simulation_options
     from jaxcal._simulation._simulate import default_anchor
 
     m = CableLength(default_anchor(robot))
@@ -100,7 +100,7 @@ def sweep_vs_compiled(name: str, n_samples: int, n: int, robot, m, space, hyper:
     """``(sweep wall, simulation wall, trials wall)`` in s for ``n`` trials: a warm
     ``jaxcal.sweep`` against the same work as two bare compiled ``lax.map`` functions."""
     from jaxcal import Deviations, ParameterSpace
-    from jaxcal._experiments._sweep import _Simulated, _simulation_options
+    from jaxcal._experiments._sweep_trials import _Simulated, _simulation_options
 
     opts = _simulation_options(robot, n_samples, 0.5, 0.2, {})
     src = _Simulated(robot, m, None, tuple(sorted(opts.items())))

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ._experiments._sweep import PAPER_METHODS, SweepResult, SweepRun
+from ._experiments._sweep_results import PAPER_METHODS, SweepResult, SweepRun
 from .report import batching_label, paper_label
 
 __all__ = ["fig2_accuracy", "fig3_training", "fig4_positioning", "grid_figure", "save_figures", "method_color",

@@ -22,7 +22,7 @@ import numpy as np
 
 from ._core._json import to_jsonable
 from ._core._metrics import format_table
-from ._experiments._sweep import PAPER_METHODS, SweepResult, _mean_std
+from ._experiments._sweep_results import PAPER_METHODS, SweepResult, _mean_std
 from ._fit._result import Status
 
 __all__ = [

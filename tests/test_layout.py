@@ -1,12 +1,10 @@
-"""The package's import graph, read from the source with ``ast``: no import circles, and (in the
-layout with subpackages) no floor imports a higher floor.
+"""The package's import graph, read from the source with ``ast``: no import circles, and no floor
+imports a higher floor.
 
 Every import counts: module level and inside functions, relative and absolute, ``from . import x``
 of a submodule, and the packages a submodule import runs (``import jaxcal.a.b`` runs
 ``jaxcal/a/__init__.py``). Imports under ``if TYPE_CHECKING:`` run only for type checkers and are
-left out. The graph is built by walking ``jaxcal/`` on disk, so the test reads the flat layout
-(``jaxcal/_calibrate.py``...) and the one with subpackages (``jaxcal/_fit/_calibrate.py``...)
-alike; module names (the last dotted part) are the same in both.
+left out. The graph is built by walking ``jaxcal/`` on disk.
 """
 
 from __future__ import annotations
@@ -18,7 +16,7 @@ PKG = pathlib.Path(__file__).resolve().parents[1] / "jaxcal"
 while not (PKG / "__init__.py").exists():  # tests moved into a subfolder: look one level further up
     PKG = PKG.parents[1] / "jaxcal"
 
-#: Floors of the layout with subpackages, lowest first: a module may import its own floor and
+#: Floors of the layout, lowest first: a module may import its own floor and
 #: the floors below, never a higher one. Keyed by the first name below ``jaxcal``: a private
 #: subpackage (``_fit``) or a public module/package (``methods``, ``report``...).
 FLOORS = {
@@ -35,28 +33,9 @@ FLOORS = {
 }
 
 #: Upward imports kept on purpose, by module name (importer, imported) and why. Each must exist
-#: (the test fails on a stale entry).
-KEPT = {
-    ("_result", "_evaluate"): "CalibrationResult.evaluate(data, extras=...) delegates to evaluate_result, which "
-                              "registers the extras again with calibrate; removing it changes the public API",
-}
-
-#: Circles of the flat layout that ``relayout.py`` breaks by moving definitions (it runs after the
-#: other branches are merged, so the files they edit are not rearranged here). Flat layout only;
-#: an entry may be absent (it belongs to a branch not merged yet).
-FLAT_ONLY = {
-    ("_sessions", "_calibrate"): "session hold-outs move to _experiments/_holdout.py",
-    ("_initialise", "_sessions"): "the initial_extras dispatcher moves to _sensors/_initial_extras.py",
-    ("_initialise", "_contact"): "the initial_extras dispatcher moves to _sensors/_initial_extras.py",
-    ("_initialise", "_camera"): "the initial_extras dispatcher moves to _sensors/_initial_extras.py",
-    ("_dataset", "_contact"): "the contact CSV columns move to _datasets/_dataset.py",
-    ("_dataset", "_camera"): "the camera CSV columns move to _datasets/_dataset.py",
-    ("_contact", "_simulate"): "simulate_contact/simulate_distance move to _simulation/_simulate_sensors.py",
-    ("_camera", "_simulate"): "simulate_camera moves to _simulation/_simulate_sensors.py",
-    # the sessions branch (issue 24), once merged
-    ("_dataset", "_sessions"): "marker_gaps (checks marker cells) moves to _datasets/_dataset.py",
-    ("_sessions", "_evaluate"): "evaluate_sessions moves to _calibration/_evaluate.py",
-}
+#: (the test fails on a stale entry). None is left: ``CalibrationResult.evaluate(data, extras=...)``
+#: (floor 5) reaches ``evaluate_result`` (floor 7) through a hook the calibration package sets.
+KEPT: dict[tuple[str, str], str] = {}
 
 
 def _is_type_checking(node: ast.If) -> bool:
@@ -181,15 +160,6 @@ def cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
     return out
 
 
-def _flat(graph) -> bool:
-    """The flat layout: the calibration module sits right below the package."""
-    return any(m.count(".") == 1 and _short(m) == "_calibrate" for m in graph)
-
-
-def _allowed(graph) -> dict[tuple[str, str], str]:
-    return KEPT | (FLAT_ONLY if _flat(graph) else {})
-
-
 def _is_allowed(m: str, t: str, imports, allowed) -> bool:
     """Whether the import ``m → t`` is a kept exception (or the package of one: importing
     ``jaxcal._calibration._evaluate`` also runs ``jaxcal._calibration``)."""
@@ -199,7 +169,7 @@ def _is_allowed(m: str, t: str, imports, allowed) -> bool:
 
 
 def _without_allowed(graph):
-    allowed = _allowed(graph)
+    allowed = KEPT
     return {m: {t: line for t, line in ts.items() if not _is_allowed(m, t, ts, allowed)} for m, ts in graph.items()}
 
 
@@ -222,11 +192,8 @@ def test_kept_upward_imports_exist():
 
 
 def test_floors():
-    """A lower floor never imports a higher one (layout with subpackages; the flat layout has no
-    floors to check: every module sits in jaxcal/ itself)."""
+    """A lower floor never imports a higher one."""
     graph = import_graph()
-    if _flat(graph):
-        return
     room = lambda m: m.split(".")[1] if m.count(".") else None  # noqa: E731
     unknown = sorted({room(m) for m in graph if room(m) is not None and room(m) not in FLOORS})
     assert not unknown, f"modules outside the floor map (add them to FLOORS): {unknown}"
@@ -254,3 +221,12 @@ def test_the_graph_sees_every_kind_of_import(tmp_path):
     assert g["jaxcal.sub._c"] == {"jaxcal._a": 2}
     (circle,) = cycles(g)
     assert circle[0] == circle[-1] and set(circle) >= {"jaxcal._a", "jaxcal._b", "jaxcal.sub._c"}
+
+
+def test_result_evaluate_with_extras_is_set_by_the_calibration_package():
+    """``CalibrationResult.evaluate(data, extras=...)`` (floor 5) calls ``evaluate_result`` (floor 7)
+    through the hook the calibration package sets on import (no upward import)."""
+    import jaxcal._calibration as calibration
+    from jaxcal._fit import _result
+
+    assert _result._extras_evaluator is calibration._evaluate_result

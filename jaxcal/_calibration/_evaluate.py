@@ -203,6 +203,37 @@ def _sample_errors_many_fn(robot, measurement, deviations, qs, ys):
 _sample_errors_many = LeanJit(_sample_errors_many_fn, maxsize=8)
 
 
+def before_after_errors(result, robot, measurement, sets) -> tuple[bool, dict]:
+    """The per-row errors of a calibration's accuracy table (``jaxcal calibrate``'s before/after
+    table and result file): ``(show_raw, {name: (before, after, raw)})`` for every ``name: (data,
+    model)`` of ``sets`` (e.g. ``{"train": (train, measurement), "test": (test, model)}``), arrays
+    ``[n]`` in the model's unit.
+
+    *before* is the nominal robot with the sensor extras estimated from the data
+    (:func:`nominal_with_extras`), *after* the calibrated robot (with its learned correction, an
+    RBF network, on data of ``measurement``: the model ``result`` was fitted with), *raw* the
+    nominal robot with the model's guessed extras (nothing estimated) — only where extras were
+    estimated and the model has a guess (``show_raw``; else ``None``). One compiled program per
+    model (:func:`sample_errors_many`), not one per deviations and part."""
+    dev_before = nominal_with_extras(result)
+    first = next(iter(sets.values()))[0]
+    zero = Deviations.zeros(result.space.layout, np.asarray(first.q).dtype)
+    show_raw = (any(group_kind(n) == "extra" for n in result.space.free_names)
+                and has_guessed_extras(measurement))
+    devs = (dev_before, result.deviations, zero) if show_raw else (dev_before, result.deviations)
+    errors = {}
+    for m in {id(m): m for _, m in sets.values()}.values():
+        names = [n for n, (_, m_n) in sets.items() if m_n is m]
+        errors.update(zip(names, sample_errors_many(robot, m, devs, [sets[n][0] for n in names])))
+    out = {}
+    for name, (ds, m) in sets.items():
+        eb, ea = errors[name][0], errors[name][1]
+        if m is measurement and result.predictor is not None:  # a learned correction (RBF) of the model
+            ea = np.asarray(result.sample_errors(ds), np.float64)
+        out[name] = (eb, ea, errors[name][2] if show_raw else None)
+    return show_raw, out
+
+
 def joints_to_file_units(robot, q) -> np.ndarray:
     """Joint readings ``[n, dof]`` (rad, mm at prismatic joints) in the files' units: degrees, mm."""
     from .._fit._diagnostics import joint_units

@@ -7,8 +7,8 @@ table (degrees, mm), the history, the status, metrics and the identifiability re
 :func:`load_result` turns it back into a :class:`~jaxcal.CalibrationResult` whose ``predict``,
 ``evaluate`` and ``dh_table`` work as on the original (the RBF network of ``"rbfnn"`` included).
 
-A sweep's output directory is read back by :func:`jaxcal._experiments._sweep.load_sweep` (next to the code
-that writes it).
+A sweep's output directory is read back by :func:`jaxcal._experiments._sweep_results.load_sweep` (beside the
+sweep's results; ``jaxcal._experiments._sweep_chunks`` writes the chunk files).
 """
 
 from __future__ import annotations

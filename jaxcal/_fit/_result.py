@@ -30,6 +30,21 @@ FINAL_FRACTION = 0.1
 STILL_IMPROVING_ATOL = 1e-3
 
 
+#: What ``CalibrationResult.evaluate(data, extras=...)`` delegates to: the evaluation on new data
+#: with the sensor extras registered again (:func:`jaxcal.evaluate_result`). Registering the extras
+#: is a calibration of them (``calibrate``, two floors above this module), so the calibration
+#: package sets this when it is imported (:func:`set_extras_evaluator`); every result the library
+#: makes (``calibrate``, ``load_result``, the block fits) comes from that package.
+_extras_evaluator = None
+
+
+def set_extras_evaluator(evaluate) -> None:
+    """Set what ``CalibrationResult.evaluate(data, extras=...)`` calls: ``evaluate(result, data,
+    extras=...)`` (:mod:`jaxcal._calibration` sets :func:`jaxcal.evaluate_result`)."""
+    global _extras_evaluator
+    _extras_evaluator = evaluate
+
+
 class Status(enum.IntEnum):
     """Outcome of a calibration run."""
 
@@ -321,9 +336,10 @@ class CalibrationResult:
         ``rmse``/``mean``/``max`` are the after numbers); see :func:`jaxcal.evaluate_result`.
         """
         if extras is not None:
-            from .._calibration._evaluate import evaluate_result
-
-            return evaluate_result(self, data, extras=extras)
+            if _extras_evaluator is None:  # only a result built by hand, jaxcal._calibration never imported
+                raise RuntimeError("evaluate(extras=...) registers the sensor extras with a calibration: "
+                                   "import jaxcal._calibration (or call jaxcal.evaluate_result) first")
+            return _extras_evaluator(self, data, extras=extras)
         return metrics_numpy(self.sample_errors(data))
 
     def dh_table(self) -> DHTable:

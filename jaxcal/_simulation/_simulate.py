@@ -15,6 +15,7 @@ from .._core._cache import ensure_compilation_cache
 from .._core._params import Deviations, Layout, layout_for
 from .._core._precision import to_device, warn_if_float32
 from .._datasets._dataset import Dataset, mm_joints_metadata
+from .._datasets._split import permutation_rounds
 from .._models._kinematics import tool_point_soa
 from .._models._robot import DHRobot, sample_joint_angles
 from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
@@ -292,12 +293,6 @@ def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config)
 
 # ---------------------------------------------------------------------------------------------
 # padded to a shape bucket (jaxcal.sweep over many sample counts)
-
-
-def permutation_rounds(n: int) -> int:
-    """How many sort rounds ``jax.random.permutation`` makes for ``n`` elements (its heuristic:
-    ``ceil(3·ln n / ln(2³²−1))``; 1 up to 1 625 elements, 2 up to ~2.6 million)."""
-    return int(np.ceil(3 * np.log(max(1, int(n))) / np.log(np.iinfo(np.uint32).max)))
 
 
 def masked_permutation(key, n_cap: int, n_real, n_rounds) -> Array:

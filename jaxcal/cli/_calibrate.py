@@ -72,86 +72,6 @@ def _metrics_rows(pairs):
     return [[name, m.rmse, m.mean, m.max] for name, m in pairs]
 
 
-def _seed_split(seed: int, n: int, test_fraction: float):
-    """``(k_method, train_idx, test_idx)``: ``k_split, k_method = jax.random.split(jax.random.key(seed))``
-    and the row indices (0-based, into the file's data rows) of :meth:`Dataset.split`'s train/test
-    parts drawn with ``k_split``. Computed on the host by :func:`_seed_split_numpy` (JAX's
-    threefry bits and sort-based shuffle, bit for bit) under JAX's default PRNG settings, else by
-    one compiled program (which a start loads from the compilation cache: ~0.1 s on 2 cores)."""
-    import numpy as np
-
-    host = _seed_split_numpy(seed, n)
-    if host is not None:
-        k_method, perm = host
-    else:
-        k_method, perm = _seed_split_program()(seed, n)
-        perm = np.asarray(perm)
-    n_test = int(round(n * test_fraction))
-    return k_method, perm[n_test:], perm[:n_test]
-
-
-def _threefry2x32_numpy(k1, k2, x1, x2):
-    """JAX's Threefry-2x32 hash (``jax._src.random.threefry2x32``) of uint32 arrays, in NumPy."""
-    import numpy as np
-
-    rotations = ((13, 15, 26, 6), (17, 29, 16, 24))
-    ks = (k1, k2, k1 ^ k2 ^ np.uint32(0x1BD11BDA))
-    a, b = x1 + ks[0], x2 + ks[1]
-    for i in range(5):
-        for r in rotations[i % 2]:
-            a = a + b
-            b = (b << np.uint32(r)) | (b >> np.uint32(32 - r))
-            b = a ^ b
-        a, b = a + ks[(i + 1) % 3], b + ks[(i + 2) % 3] + np.uint32(i + 1)
-    return a, b
-
-
-def _seed_split_numpy(seed: int, n: int):
-    """``(k_method, permutation of range(n))`` of :func:`_seed_split` in NumPy: the same bits as
-    ``jax.random.key``/``split`` (partitionable threefry) and ``jax.random.permutation`` (rounds of
-    stable sorts by 32 random bits), checked against JAX in ``tests/cli``; ``None`` where JAX's
-    settings differ from those (another PRNG, ``jax_threefry_partitionable`` off, no x64) or the
-    seed is outside ``[0, 2**63)``."""
-    import jax
-    import numpy as np
-
-    from .._simulation._simulate import permutation_rounds
-
-    cfg = jax.config
-    if not (cfg.jax_default_prng_impl == "threefry2x32" and cfg.jax_threefry_partitionable
-            and cfg.jax_enable_x64 and 0 <= int(seed) < 2 ** 63 and n >= 1):
-        return None
-    seed = int(seed)
-    key = np.asarray([seed >> 32, seed & 0xFFFFFFFF], np.uint32)  # jax.random.key(seed)
-
-    def split(key):  # jax.random.split(key): counts (0, 0), (0, 1)
-        b1, b2 = _threefry2x32_numpy(key[0], key[1], np.zeros(2, np.uint32), np.arange(2, dtype=np.uint32))
-        return np.stack([b1, b2], axis=1)
-
-    k_split, k_method = split(key)
-    x = np.arange(n)
-    for _ in range(permutation_rounds(n)):  # as jax.random.permutation
-        k_split, sub = split(k_split)
-        b1, b2 = _threefry2x32_numpy(sub[0], sub[1], np.zeros(n, np.uint32), np.arange(n, dtype=np.uint32))
-        x = x[np.argsort(b1 ^ b2, kind="stable")]  # lax.sort_key_val: a stable sort
-    return jax.random.wrap_key_data(k_method), x
-
-
-def _seed_split_program():
-    import functools
-
-    import jax
-
-    @functools.partial(jax.jit, static_argnums=1)
-    def program(seed, n):
-        k_split, k_method = jax.random.split(jax.random.key(seed))
-        return k_method, jax.random.permutation(k_split, n)
-
-    global _seed_split_program
-    _seed_split_program = lambda: program  # noqa: E731  (built once, on first use: jax imported lazily)
-    return program
-
-
 def _rows(text: str | None) -> list[int]:
     if not text:
         return []
@@ -269,10 +189,10 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     the loaded data, the measurement model, the extras to estimate, the objective, the checks and the
     method's settings (raises :class:`_Usage` on bad input)."""
     from .._calibration._evaluate import MEASURED_DEFAULTS
+    from .._calibration._setup import measured_extras
     from .._datasets._dataset import load_csv
     from .._fit._diagnostics import Checks
     from .._fit._objective import LOSSES, Prior
-    from .._sensors._contact import length_reference_note
 
     robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
     path = pathlib.Path(data_file)
@@ -296,20 +216,14 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
                      "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
-    notes = []
+    # the extras asked for are checked here; measured_extras adds the ones the kind of data needs
     if kind == "camera":
         if estimate - {"intrinsics"}:
             raise _Usage(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the target "
                          f"pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
         estimate = set()  # intrinsics: a group of the camera model (--estimate read again below)
-    if kind == "distance":
-        if "base" in estimate:
-            raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
-        if "tool" not in estimate:
-            estimate.add("tool")
-            notes.append("distance data: the tool point is estimated (from its nominal value); distances never see "
-                         "the robot's base frame (d_1, theta_1 and the base's position and orientation stay at "
-                         "nominal or are set by the prior)")
+    if kind == "distance" and "base" in estimate:
+        raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
     sphere = kind == "point" and (args.radius_mm is not None or "radius" in estimate
                                               or "radius_mm" in data.meta)
     radius_mm = args.radius_mm
@@ -319,19 +233,9 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     estimate.discard("radius")
     if (args.radius_mm is not None or estimate_radius) and kind != "point":
         raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
-    if sphere:
-        notes.append("point data as spheres: residual = distance to the centre minus the radius, "
-                     + ("radius unknown: estimated per point (sphere fit to the data, then the joint fit)"
-                        if estimate_radius else f"radius {radius_mm:g} mm (known)"))
-    if kind in ("plane", "point"):
-        if "base" in estimate:
-            raise _Usage(f"--estimate base does not apply to {kind} data: the {kind}s are "
-                         "in the robot base frame and carry any base-frame error")
-        if "tool" not in estimate:
-            estimate.add("tool")
-            notes.append(f"{kind} data: the {kind}s and the tool point are estimated "
-                         "(closed-form start from the data, then the joint fit); "
-                         + length_reference_note(kind, known_radius=sphere and not estimate_radius))
+    if kind in ("plane", "point") and "base" in estimate:
+        raise _Usage(f"--estimate base does not apply to {kind} data: the {kind}s are "
+                     "in the robot base frame and carry any base-frame error")
     bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
     if bad:
         raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
@@ -339,21 +243,12 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         raise _Usage("--estimate anchor/offset apply to --measurement cable only")
     if kind == "cable" and "base" in estimate:
         raise _Usage("--estimate base applies to --measurement position only")
-    if anchor is None and kind == "cable":
-        if "anchor_mm" in data.meta:
-            anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
-        else:
-            # nothing known about the anchor: estimate it (and the cable offset) from the data
-            estimate |= {"anchor", "offset"}
-            notes.append("no --anchor given and none in the file: the anchor and the cable offset are estimated "
-                         "from the data (multilateration on the nominal robot, then the joint fit)")
-    if kind == "markers":
-        if "base" not in estimate and not data.labels:  # sessions: every session frame is always estimated
-            estimate.add("base")
-            notes.append("marker data: the motion-capture frame (base extras) and the marker positions on the flange "
-                         "are estimated (closed-form Kabsch start from the data, then the joint fit)")
-        if "tool" in estimate:
-            raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
+    if anchor is None and kind == "cable" and "anchor_mm" in data.meta:
+        anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
+    if kind == "markers" and "tool" in estimate:
+        raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
+    estimate, notes = measured_extras(kind, estimate, anchor_known=anchor is not None, sessions=bool(data.labels),
+                                      sphere=sphere, estimate_radius=estimate_radius, radius_mm=radius_mm)
     if kind == "camera":
         from .._sensors._camera import masked_corners
 
@@ -515,6 +410,7 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
     from .._calibration._fleet import calibrate_many
     from .._calibration._io import save_result
     from .._core._metrics import metrics_numpy
+    from .._datasets._split import seed_split
 
     for given, flag in ((args.out, "--out"), (args.test, "--test"), (args.exclude_rows, "--exclude-rows"),
                         (args.exclude_outliers, "--exclude-outliers")):
@@ -544,7 +440,7 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
     trains, tests = [], []
     k_method = None
     for s in setups:
-        k, train_idx, test_idx = _seed_split(args.seed, s.data.n, first.test_fraction)
+        k, train_idx, test_idx = seed_split(args.seed, s.data.n, first.test_fraction)
         k_method = k if k_method is None else k_method  # one key for every unit (same seed)
         trains.append(s.data.subset(train_idx))
         tests.append(s.data.subset(test_idx))
@@ -601,16 +497,15 @@ def _cmd_calibrate(args) -> int:
 
     from .._calibration._calibrate import CalibrationWarning, calibrate
     from .._calibration._evaluate import (
+        before_after_errors,
         describe_objective,
         evaluate_result,
-        has_guessed_extras,
         joints_to_file_units,
-        nominal_with_extras,
         sample_errors,
-        sample_errors_many,
     )
     from .._core._metrics import format_table, metrics_numpy
-    from .._core._params import Deviations, group_kind
+    from .._core._params import Deviations
+    from .._datasets._split import seed_split
     from ..methods._stages import check_method_name
 
     try:
@@ -633,7 +528,7 @@ def _cmd_calibrate(args) -> int:
     if excluded:
         notes.append(f"excluded data rows (your choice): {', '.join(map(str, excluded))}")
     data = data.subset(kept_rows)
-    k_method, train_idx, test_idx = _seed_split(args.seed, data.n, test_fraction)
+    k_method, train_idx, test_idx = seed_split(args.seed, data.n, test_fraction)
     if test_file is not None:  # a separate test file: every row trains, in file order
         train_idx = np.arange(data.n)
     train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
@@ -691,36 +586,22 @@ def _cmd_calibrate(args) -> int:
     if res.diagnostics.extras:
         print(res.diagnostics.extras)
 
-    # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start)
-    dev_before = nominal_with_extras(res)
-    zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
+    # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start);
     # the raw nominal row (the guessed extras) where extras were estimated and the model has a guess
     # (a camera's identity hand-eye and target are none: their reprojection errors mean nothing)
-    show_raw = any(group_kind(n) == "extra" for n in res.space.free_names) and has_guessed_extras(measurement)
-    per_row = {}
-
-    # the per-row errors of the table, before (and raw nominal) and after, for train and test
-    # together: one compiled program per measurement model (sample_errors_many), not one per
-    # deviations and part, each of which a start loads from the compilation cache
     sets = {"train": (train, measurement)}
     if test_file is None and test.n:
         sets["test"] = (test, measurement if full is None else full.take(test_idx))
-    devs = (dev_before, res.deviations, zero) if show_raw else (dev_before, res.deviations)
-    errors = {}
-    for m in {id(m): m for _, m in sets.values()}.values():
-        names = [n for n, (_, m_n) in sets.items() if m_n is m]
-        errors.update(zip(names, sample_errors_many(robot, m, devs, [sets[n][0] for n in names])))
+    show_raw, errors = before_after_errors(res, robot, measurement, sets)
+    per_row = {}
 
     def part(name, ds, rows_1based, ev=None):
         if ev is not None:
             eb, ea = ev.before_errors, ev.after_errors
+            zero = Deviations.zeros(res.space.layout, np.asarray(train.q).dtype)
             raw = sample_errors(robot, measurement, zero, ds) if show_raw else None
         else:
-            m = sets[name][1]
-            eb, ea = errors[name][0], errors[name][1]
-            raw = errors[name][2] if show_raw else None
-            if m is measurement and res.predictor is not None:  # a learned correction (RBF) of the model
-                ea = np.asarray(res.sample_errors(ds), np.float64)
+            eb, ea, raw = errors[name]
         per_row[name] = {"row": rows_1based, "q_deg": joints_to_file_units(robot, ds.q).tolist(),
                          "before_mm": eb.tolist(), "after_mm": ea.tolist()}
         out = []

@@ -263,13 +263,32 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("--verbose", action="store_true", help="print where the time went (imports, data, fit, output)")
     c.set_defaults(func=_cmd_calibrate)
 
+_SIMULATE_FORMAT = """\
+what it writes (CSV, read by `calibrate`): '# key: value' lines (source, robot, seed, noise σ, the
+set-up), a header row, then one row per sample: q1_deg … qN_deg (q<j>_mm at a prismatic joint),
+then per --measurement:
+  cable     length_mm; the known anchor as '# anchor_mm: x,y,z' (--unknown-anchor: '# true_anchor_mm:'
+            and '# true_cable_offset_mm:' lines instead, which calibrate does not read)
+  position  x_mm,y_mm,z_mm (the tool point in the robot base frame)
+  pose      x_mm,y_mm,z_mm,rx_deg,ry_deg,rz_deg (the tool point and a rotation vector)
+  camera    u_1_px,v_1_px … u_54_px,v_54_px (one row per image, the checkerboard's corners; both cells
+            empty where a corner is undetected, --missing-corners) and '# target:',
+            '# camera_intrinsics:', '# mount:' lines
+  plane     a text column `plane` (three planes), no value columns
+  point     a text column `point` (two fixed points; --radius-mm: spheres, a '# radius_mm: R' line)
+  distance  q1a_deg … qNa_deg, q1b_deg … qNb_deg, distance_mm (bar lengths 150 and 300 mm)
+One recording session per file. It makes no marker (motion-capture) data: `jaxcal calibrate --help`
+describes every format calibrate reads, marker data and several sessions in one file included."""
+
+
 def _add_simulate(sub, fmt) -> None:
     """The ``jaxcal simulate`` sub-command's arguments."""
     s = sub.add_parser(
         "simulate", formatter_class=fmt, help="write a simulated data set (CSV) to try `calibrate` on",
         description="Simulate the paper's experiment: a 'true' robot = nominal + random DH deviations (~0.2°, "
-                    "~0.6 mm), joint angles uniform within the limits, readings with Gaussian noise σ (mm).",
-        epilog=_DATA_FORMAT + "\n\n" + _ROBOT_FORMAT,
+                    "~0.6 mm), joint angles uniform within the limits, readings with Gaussian noise σ (mm; px "
+                    "for a camera).",
+        epilog=_SIMULATE_FORMAT + "\n\n" + _ROBOT_FORMAT,
     )
     s.add_argument("--out", required=True, help="CSV file to write")
     s.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")

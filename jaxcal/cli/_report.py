@@ -9,7 +9,7 @@ from ._common import _Usage, _write_outputs
 
 
 def _cmd_report(args) -> int:
-    from .._experiments._sweep import load_sweep
+    from .._experiments._sweep_results import load_sweep
 
     src = pathlib.Path(args.sweep_dir)
     if src.suffix.lower() == ".json" or args.html:

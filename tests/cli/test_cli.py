@@ -155,6 +155,14 @@ def test_choosing_parameters_and_settings(data_csv, capsys):
     _one_error_line(capsys, 2, ["calibrate", d, "--robot", "hsr_jr680", "--fix", "wings"], "unknown parameter or group")
 
 
+def test_simulate_help_describes_what_it_writes(capsys):
+    """``jaxcal simulate --help`` lists the formats it writes, not marker data it cannot make."""
+    assert main(["simulate", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "what it writes" in out and "u_1_px" in out and "distance_mm" in out
+    assert "marker_1_x_mm" not in out and "makes no marker" in out
+
+
 def test_import_and_help_do_not_import_jax():
     """``import jaxcal`` and ``jaxcal --help`` import neither JAX nor a jaxcal module beyond the
     package and the command line (start-up: 0.05 s of CPU instead of 1.3 s); every public name
@@ -187,12 +195,12 @@ def test_seed_split_on_the_host_is_jax_bit_for_bit():
     (one and two shuffle rounds, 64-bit seeds); fails if JAX changes its PRNG."""
     import jax
 
-    from jaxcal.cli._calibrate import _seed_split_numpy, _seed_split_program
+    from jaxcal._datasets._split import seed_split_numpy, seed_split_program
 
     for seed in (0, 3, 2**32 + 5, 2**63 - 1):
         for n in (1, 400, 1625, 2000):
-            key, perm = _seed_split_numpy(seed, n)
-            key_ref, perm_ref = _seed_split_program()(seed, n)
+            key, perm = seed_split_numpy(seed, n)
+            key_ref, perm_ref = seed_split_program()(seed, n)
             np.testing.assert_array_equal(perm, np.asarray(perm_ref))
             np.testing.assert_array_equal(jax.random.key_data(key), jax.random.key_data(key_ref))
             assert key.dtype == key_ref.dtype

@@ -13,7 +13,8 @@ import pytest
 
 import jaxcal
 from jaxcal import Dataset, Problem, calibrate, simulate_experiment, statistical_floor
-from jaxcal._experiments._sweep import PAPER_METHODS, _chunking, load_sweep, sweep, trial_keys
+from jaxcal._experiments._sweep import PAPER_METHODS, load_sweep, sweep, trial_keys
+from jaxcal._experiments._sweep_chunks import _chunking
 from jaxcal.methods import METHODS
 from jaxcal.report import (
     accuracy_rows,
@@ -95,7 +96,7 @@ def test_trial_equals_its_own_simulation_and_calibration(swept):
 
 def test_resume_loads_finished_chunks(swept, monkeypatch):
     res, out = swept
-    import jaxcal._experiments._sweep as sw
+    import jaxcal._experiments._sweep_chunks as sw
 
     calls = []
     real = sw._Runner.__call__

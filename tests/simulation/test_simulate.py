@@ -137,7 +137,7 @@ def test_masked_permutation_is_jax_permutation():
 def test_padded_simulation_has_the_unpadded_rows(kind):
     """``simulate_padded`` of n samples in a larger bucket: its real rows are exactly
     ``simulate_experiment(n_samples=n)``'s (same key), in order; the filler has weight 0."""
-    from jaxcal._experiments._sweep import _CONFIG_FIELDS, _simulation_options
+    from jaxcal._experiments._sweep_trials import _CONFIG_FIELDS, _simulation_options
     from jaxcal._simulation import _simulate as S
     from jaxcal.robots import hsr_jr680
 
