@@ -20,7 +20,7 @@ import re
 from pathlib import Path
 
 from mkdocs.plugins import event_priority
-from mkdocs.structure.files import File, Files
+from mkdocs.structure.files import File, Files, InclusionLevel
 
 ROOT = Path(__file__).resolve().parents[2]
 MOUNTED = ("PERF_NOTES.md", "notebooks/*.ipynb", "benchmarks/results/*.md", "benchmarks/results/*.png",
@@ -61,15 +61,12 @@ def cli_reference() -> str:
 
 
 def on_config(config):
-    """The nav's ``Benchmarks: benchmarks.md`` becomes a section with every results page after it
-    (titles from their first heading), and a notebook missing from the ``Notebooks`` section is
-    appended to it, so a new results file or notebook appears without editing mkdocs.yml (and
-    does not fail ``--strict`` as a page left out of the nav)."""
-    results = [p.relative_to(ROOT).as_posix() for p in sorted(ROOT.glob("benchmarks/results/*.md"))]
+    """A notebook missing from the nav's ``Notebooks`` section is appended to it, so a new notebook
+    appears without editing mkdocs.yml (and does not fail ``--strict`` as a page left out of the
+    nav). The results files are not in the nav: ``benchmarks.md`` links the headline ones and lists
+    every one."""
     notebooks = [p.relative_to(ROOT).as_posix() for p in sorted(ROOT.glob("notebooks/*.ipynb"))]
-    for i, item in enumerate(config["nav"] or []):
-        if isinstance(item, dict) and item.get("Benchmarks") == "benchmarks.md":
-            config["nav"][i] = {"Benchmarks": ["benchmarks.md", *results]}
+    for item in config["nav"] or []:
         if isinstance(item, dict) and isinstance(item.get("Notebooks"), list):
             listed = {v for entry in item["Notebooks"] for v in (entry.values() if isinstance(entry, dict) else [entry])}
             item["Notebooks"] += [nb for nb in notebooks if nb not in listed]
@@ -82,8 +79,11 @@ def on_files(files: Files, config) -> Files:
         for path in sorted(ROOT.glob(pattern)):
             rel = path.relative_to(ROOT).as_posix()
             if files.get_file_from_path(rel) is None:
+                # results files and the performance log are reached through benchmarks.md's
+                # links, not the nav (NOT_IN_NAV: no "omitted from the nav" warning)
+                inclusion = InclusionLevel.UNDEFINED if rel.startswith("notebooks/") else InclusionLevel.NOT_IN_NAV
                 files.append(File(rel, src_dir=str(ROOT), dest_dir=config["site_dir"],
-                                  use_directory_urls=config["use_directory_urls"]))
+                                  use_directory_urls=config["use_directory_urls"], inclusion=inclusion))
     files.append(File.generated(config, "reference/cli.md", content=cli_reference()))
     return files
 
