@@ -130,7 +130,7 @@ class Calibrator(eqx.Module):
 
     def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array, weight: Array | None = None
                  ) -> CalibrationOutput:
-        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._core._buckets`);
+        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (shape buckets);
         the output then equals the unpadded run's to round-off."""
         problem = self.problem(q, y, weight)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
@@ -440,7 +440,7 @@ _take_columns = LeanJit(lambda J, columns: jnp.take(J, columns, axis=1), maxsize
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
 #: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores). A
 #: least-recently-used cache of at most 16 programs (``$JAXCAL_CALIBRATE_CACHE``): with shape
-#: buckets (:mod:`jaxcal._core._buckets`) one model and method need one program per bucket, and memory
+#: buckets (shape buckets) one model and method need one program per bucket, and memory
 #: stays flat however many sample counts a session calibrates.
 _COMPILED = BoundedCache(cache_size("calibrate", 16))
 

@@ -67,7 +67,7 @@ class Prior:
     prior on that group. The defaults are the size of real manufacturing errors of industrial
     arms (tenths of a degree, a few mm), wide enough not to bias a well-determined parameter.
     Robot groups in other units (a compliance in rad/(N·m)...) take their group's own default
-    σ (:attr:`jaxcal._core._params.Group.prior_std`, divided by ``strength``), or no prior if the
+    σ (the group's default prior σ, divided by ``strength``), or no prior if the
     group has none.
 
     Attributes:
