@@ -440,7 +440,7 @@ _take_columns = LeanJit(lambda J, columns: jnp.take(J, columns, axis=1), maxsize
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
 #: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores). A
 #: least-recently-used cache of at most 16 programs (``$JAXCAL_CALIBRATE_CACHE``): with shape
-#: buckets (shape buckets) one model and method need one program per bucket, and memory
+#: buckets one model and method need one program per bucket, and memory
 #: stays flat however many sample counts a session calibrates.
 _COMPILED = BoundedCache(cache_size("calibrate", 16))
 
