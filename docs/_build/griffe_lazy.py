@@ -55,7 +55,7 @@ def _split_grouped_args(text: str) -> str:
             names = [n.strip() for n in g.group(2).split(",")]
             out.append(f"{g.group(1)}{names[0]}:{g.group(3)}")
             follow = [f"{g.group(1)}{n}: as for ``{names[0]}``." for n in names[1:]]
-            out.append(("\x00" + "\n".join(follow)))  # placed after the first entry's continuation lines
+            out.append("\x00" + "\n".join(follow))  # placed after the first entry's continuation lines
             continue
         out.append(line)
     # move each placeholder past the continuation lines (indented deeper) of the entry above it
