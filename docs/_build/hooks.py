@@ -3,6 +3,8 @@
 * ``notebooks/*.ipynb`` (executed and committed), ``benchmarks/results/*`` and ``PERF_NOTES.md`` are mounted into
   the site at the same paths (``notebooks/...``, ``benchmarks/results/...``): mkdocs-jupyter
   renders the notebooks without running them, the results files are rendered as they are.
+  The results files and ``PERF_NOTES.md`` are not in the nav: ``benchmarks.md`` holds the
+  headline tables, links each row's results file and ends with a generated list of them all.
 * A page may link to a mounted file by its path in the repository (``../../notebooks/x.ipynb``
   from ``docs/howto/``), so the link also works on GitHub; the link is rewritten to the mounted
   copy's place in the site.
