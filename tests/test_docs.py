@@ -71,7 +71,8 @@ def test_docs_links_resolve_in_the_repository():
 # numbers of this project (a page says what is true now, not when it changed). Raw benchmark
 # results (benchmarks/results/) are records of a run and are not checked.
 
-_OUTSIDE = re.compile(r"DESIGN\.md|\.\./shared\b|(?<![\w.:/~-])/(?:work|home|tmp|root|Users|mnt)/", re.I)
+_OUTSIDE = re.compile(r"DESIGN\.md|design notes|\.\./shared\b|(?<![\w.:/~-])/(?:work|home|tmp|root|Users|mnt)/",
+                      re.I)
 _PRIVATE = re.compile(r"\bjaxcal\._[A-Za-z]")
 _ISSUE = re.compile(r"\bissues?\s+#?\d+", re.I)
 
