@@ -9,7 +9,7 @@
 * :func:`grid_figure` — test RMSE over a two-axis hyperparameter grid (the ablation).
 * :func:`save_figures` — all of them as PNG and PDF.
 
-One calibration (the HTML page of ``jaxcal report RESULT.json --html``, :mod:`jaxcal._experiments._html`):
+One calibration (the figures of the HTML page of ``jaxcal report RESULT.json --html``):
 :func:`residual_histogram`, :func:`residuals_vs_joints`, :func:`workspace_errors`,
 :func:`correlation_heatmap`.
 

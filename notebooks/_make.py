@@ -25,7 +25,7 @@ def setup(stdlib=(), third=(), first=()) -> str:
     return head + """
 
 QUICK = os.environ.get("JAXCAL_NB_QUICK", "0") == "1"  # small settings for the test suite
-jaxcal.enable_x64()  # calibration wants float64 (see jaxcal._core._precision)
+jaxcal.enable_x64()  # calibration wants float64 (jaxcal.enable_x64 says why)
 
 
 def show(fig, dpi=80):
@@ -436,7 +436,7 @@ bitwise the same results as one device computing that batch with `batching="vmap
 Why not `jax.shard_map`? Inside `shard_map` (and `pmap`, which is built on it in JAX 0.10)
 every traced value carries a manual-axis sharding in its type, and lineax compares a vector's
 `ShapeDtypeStruct` (with that sharding) to an operator's (without): optimistix's LM fails with
-*"Vector and operator structures do not match"* (lineax issue #185). Sharded inputs under plain
+*"Vector and operator structures do not match"* (lineax#185 upstream). Sharded inputs under plain
 `jit` avoid it.
 
 On a multi-GPU machine nothing changes; on several hosts call `jax.distributed.initialize()`
@@ -544,6 +544,13 @@ ax = cv.plot()
 ax.figure.tight_layout()
 show(ax.figure)
 plt.close(ax.figure)
+"""),
+        md("""
+In the run shown the chosen strength, 16, is the strongest on the grid, so the best value may
+lie beyond it: the table cannot show where the held-out RMSE turns up again. Before relying on the choice, extend the grid (for example
+`strengths=(4.0, 16.0, 64.0, 256.0)`) and check that the chosen strength is then inside it. A
+strength far beyond the grid pins the deviations at nominal, which the training RMSE shows as it
+rises.
 """),
         md("""
 ## 4 · Outliers: named, and harmless with a robust loss

@@ -62,3 +62,52 @@ def test_docs_links_resolve_in_the_repository():
             if target and not (page.parent / target).exists() and not target.endswith("reference/cli.md"):
                 missing.append(f"{page.relative_to(ROOT)} -> {target}")
     assert missing == []
+
+
+# --- user-facing pages read as a library's documentation -------------------------------------
+# The pages a user reads (docs/**/*.md, README.md, the notebooks' markdown cells) cite nothing a
+# user cannot open (files outside the repository, absolute paths of some machine), name no private
+# module (``jaxcal._x`` moves without notice: the public name or words instead) and no issue
+# numbers of this project (a page says what is true now, not when it changed). Raw benchmark
+# results (benchmarks/results/) are records of a run and are not checked.
+
+_OUTSIDE = re.compile(r"DESIGN\.md|design notes|\.\./shared\b|(?<![\w.:/~-])/(?:work|home|tmp|root|Users|mnt)/",
+                      re.I)
+_PRIVATE = re.compile(r"\bjaxcal\._[A-Za-z]")
+_ISSUE = re.compile(r"\bissues?\s+#?\d+", re.I)
+
+
+def _user_pages():
+    """``[(name, text)]``: every user-facing page; a notebook contributes its markdown cells."""
+    import json
+
+    pages = [p for p in sorted((ROOT / "docs").rglob("*.md")) if "_build" not in p.parts]
+    found = [(p.relative_to(ROOT).as_posix(), p.read_text(encoding="utf-8")) for p in pages]
+    found.append(("README.md", (ROOT / "README.md").read_text(encoding="utf-8")))
+    for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
+        cells = json.loads(nb.read_text(encoding="utf-8"))["cells"]
+        for i, cell in enumerate(cells):
+            if cell["cell_type"] == "markdown":
+                found.append((f"{nb.relative_to(ROOT).as_posix()} cell {i}", "".join(cell["source"])))
+    return found
+
+
+def _offences(pattern: re.Pattern) -> list[str]:
+    out = []
+    for name, text in _user_pages():
+        for n, line in enumerate(text.splitlines(), 1):
+            for m in pattern.finditer(line):
+                out.append(f"{name}:{n}: {line[max(0, m.start() - 30):m.end() + 30]!r}")
+    return out
+
+
+def test_pages_cite_no_file_outside_the_repository():
+    assert _offences(_OUTSIDE) == [], "a user cannot open these (say what they hold instead)"
+
+
+def test_pages_name_no_private_module():
+    assert _offences(_PRIVATE) == [], "private paths move without notice: name the public API or say it in words"
+
+
+def test_pages_cite_no_issue_numbers():
+    assert _offences(_ISSUE) == [], "say what is true now; the history is in git"

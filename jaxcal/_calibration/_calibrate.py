@@ -130,7 +130,7 @@ class Calibrator(eqx.Module):
 
     def __call__(self, q: Float[Array, "n dof"], y: Array, key: Array, weight: Array | None = None
                  ) -> CalibrationOutput:
-        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._core._buckets`);
+        """``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (shape buckets);
         the output then equals the unpadded run's to round-off."""
         problem = self.problem(q, y, weight)
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
@@ -440,7 +440,7 @@ _take_columns = LeanJit(lambda J, columns: jnp.take(J, columns, axis=1), maxsize
 #: compiled calibrators by (static part, dynamic shapes/dtypes): a warm ``calibrate`` call skips
 #: tracing and lowering (``jit.lower`` re-traces on every call; ~10–30 ms on 2 CPU cores). A
 #: least-recently-used cache of at most 16 programs (``$JAXCAL_CALIBRATE_CACHE``): with shape
-#: buckets (:mod:`jaxcal._core._buckets`) one model and method need one program per bucket, and memory
+#: buckets one model and method need one program per bucket, and memory
 #: stays flat however many sample counts a session calibrates.
 _COMPILED = BoundedCache(cache_size("calibrate", 16))
 
@@ -598,14 +598,16 @@ def calibrate(
         extras: sensor/setup unknowns to estimate with the robot: ``"anchor"``,
             ``"cable_offset"`` (draw-wire), ``"tool"`` (tool point), ``"base"`` (position/pose
             sensor frame, 6 parameters), as a list or a comma-separated string.
-        free, fix: choose the candidate parameters by group (``"dh"``, ``"alpha"``, ``"a"``, ``"d"``,
+        free: the candidate parameters, by group (``"dh"``, ``"alpha"``, ``"a"``, ``"d"``,
             ``"theta"``, ``"beta"``, ``"anchor"``, ``"cable_offset"``, ``"tool"``, ``"base"``,
             ``"extras"``; a generic chain's ``"tip"`` = ``tip_translation`` + ``tip_rotation``, or
-            any group of its layout) or name (``"d_6"``, ``"tip_dx"``): ``free`` replaces the default DH candidates (all DH
-            deviations; the ``extras`` stay; extras named in ``free`` are estimated too, e.g.
-            ``free="anchor,cable_offset"`` fits the sensor with the DH table fixed), ``fix``
-            removes some. The identifiable
-            subset of the candidates is then freed (``space`` default).
+            any group of its layout) or by name (``"d_6"``, ``"tip_dx"``), as a list or a
+            comma-separated string. They replace the default DH candidates (all DH deviations);
+            the ``extras`` stay, and extras named here are estimated too
+            (``free="anchor,cable_offset"`` fits the sensor with the DH table fixed). ``None``
+            (default): the default candidates. The identifiable subset of the candidates is then
+            freed (``space`` default).
+        fix: groups or names, as for ``free``, removed from the candidates. Default: none.
         init: ``"auto"`` (default): when anchor, cable offset, tool point or base frame are
             estimated, start them from the data in closed form (:func:`jaxcal.initial_extras`:
             multilateration, Kabsch, the tool point jointly with the frame or anchor, on the
@@ -616,7 +618,8 @@ def calibrate(
             :class:`jaxcal.Prior`, or a ``"key=value,..."`` string. The prior's noise σ is
             estimated from the fit unless given (see ``Prior.noise_std``).
         loss: ``"linear"`` (least squares; the default unless ``objective`` gives another),
-            ``"huber"`` or ``"cauchy"`` (robust against gross outliers; see :mod:`jaxcal._fit._objective`).
+            ``"huber"`` or ``"cauchy"`` (robust against gross outliers: a residual's weight falls
+            beyond the scale ``loss_scale``).
         objective: a named preset of ``prior`` and ``loss`` filling in those not given:
             ``"measured"`` = :data:`jaxcal.MEASURED_DEFAULTS` (the default prior + the Huber
             loss: the defaults for measured data, used by the CLI, :func:`jaxcal.holdout_session`
@@ -625,7 +628,8 @@ def calibrate(
             (``None``, the default) ``calibrate`` is plain least squares with no prior — the
             paper's experiment, on purpose; pass ``objective="measured"`` for real data.
         loss_scale: robust-loss scale ``c`` (mm); default ``k·√m_e·σ̂`` re-estimated from the fit (``k`` the
-            loss's constant, ``m_e`` 1 for a length, 3 for a position or markers; see :mod:`jaxcal._fit._objective`).
+            loss's constant: 1.345 for Huber, 2.385 for Cauchy; ``m_e`` 1 for a length, 3 for a position
+            or markers, 2 for image corners).
         checks: thresholds of the plausibility / conditioning / coverage / outlier checks
             (:class:`jaxcal.Checks`).
         throw: raise :class:`CalibrationError` on divergence/failure instead of warning.

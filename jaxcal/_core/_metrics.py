@@ -54,7 +54,7 @@ class Metrics(NamedTuple):
 def compute_metrics(errors: Float[Array, " n"], weight: Float[Array, " n"] | None = None) -> Metrics:
     """RMSE/MEAN/MAX of per-sample errors ``[n]`` (e.g. ``measurement.sample_error``). Jittable.
 
-    ``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (:mod:`jaxcal._core._buckets`); the
+    ``weight``: ``[n]`` 1 for a real sample, 0 for a padding row (shape buckets); the
     metrics are then those of the real rows alone."""
     if weight is None:
         return Metrics(rmse(errors), mean_abs_error(errors), max_abs_error(errors))

@@ -82,7 +82,7 @@ class Dataset(eqx.Module):
             :class:`jaxcal.Camera`; for ``"markers"`` NaN in x, y and z is a missing marker,
             masked by :class:`jaxcal.SessionMarkers`); ``[n]`` label indices for ``"plane"`` / ``"point"`` (names in
             the ``plane_labels`` / ``point_labels`` metadata) and ``[n, dof + 1]`` (pose b in rad,
-            bar length in mm) for ``"distance"`` (see :mod:`jaxcal._sensors._contact`).
+            bar length in mm) for ``"distance"`` (see the contact sensors how-to).
         kind: ``"cable"``, ``"position"``, ``"pose"``, ``"markers"``, ``"camera"``, ``"plane"``,
             ``"point"`` or ``"distance"`` (static).
         metadata: ``((key, value), ...)`` strings kept with the data and in CSV headers (static).

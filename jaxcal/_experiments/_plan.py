@@ -83,8 +83,8 @@ class ObservabilityIndices:
     * ``o5`` = ``1/Σ_i(1/σ_i)`` — Sun & Hollerbach (2008), related to A-optimality. Larger is
       better.
 
-    (Issue 12 called O5 "inverse condition" and O2 "condition number"; the literature's O2 is
-    the inverse condition number — both are reported, as ``o2`` and ``condition_number``.)
+    (Some texts call O2 the "condition number"; in the literature it is the inverse condition
+    number. Both are reported, as ``o2`` and ``condition_number``.)
 
     Attributes:
         singular_values: ``[p]`` descending.
@@ -260,7 +260,7 @@ def candidate_poses(
     """``[n, dof]`` candidate joint angles (rad), uniform over the joint limits (the central
     ``coverage`` fraction), kept where the nominal tool point is reachable by the sensor.
 
-    Sensors without a tracker (issue 23) constrain the pose itself, so their candidates are made
+    Sensors without a tracker (contact sensors, cameras) constrain the pose itself, so their candidates are made
     to satisfy the constraint on the nominal robot (IK-free: random joint configurations, the
     ones nearest to the constraint moved onto it by minimum-norm Newton steps, as the
     simulations do; rows that leave the joint limits or do not converge are dropped):

@@ -332,7 +332,7 @@ def _start_factor(robot, measurement, q, deviations, space, y=None, weight=None)
     first; the kinematics are shared) and, where it does not depend on the readings
     (:attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`), the Jacobian ``[N, p]`` itself (the
     start Jacobian of the fit); else ``None`` for each. ``weight``: ``[n]`` 0 on padding rows
-    (:mod:`jaxcal._core._buckets`), whose Jacobian rows are then zero (the factor is the real rows')."""
+    (shape buckets), whose Jacobian rows are then zero (the factor is the real rows')."""
     # the measured sample only enters a pose residual's orientation part (δθ from R_mᵀR_p): take
     # the prediction itself, not zeros (a zero "rotation" would hide the orientation entirely);
     # where the Jacobian does not depend on the readings, take the readings (the residual there
@@ -499,7 +499,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
 
 
     The compiled program runs on the samples padded to their shape bucket
-    (:mod:`jaxcal._core._buckets`; one program per bucket, not per sample count): the report and the
+    (shape buckets; one program per bucket, not per sample count): the report and the
     residuals are the real rows', and the Jacobian carries zero rows for the padding at its end
     (``bucket_size(n)·m`` rows). ``n_to``: pad to this row count instead (a caller with its own
     bucket, as :func:`jaxcal.sweep`'s padded simulation). ``still_deg``: the span (degrees) below

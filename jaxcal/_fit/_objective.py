@@ -21,8 +21,8 @@ matter:
   square of a clean sample's error in units of σ² (:func:`~jaxcal._fit._diagnostics.error_dims`:
   1 for a length, 3 for a position's norm or an RMS over markers, 2 for image corners), so that
   ``k`` means what it means for one reading; :func:`jaxcal.calibrate` re-estimates it from the fit
-  (a few rounds, each warm-started). (Until issue 35 ``c = k·σ̂`` on a position's norm capped 61 %
-  of clean tracker rows instead of 13 %.)
+  (a few rounds, each warm-started). (``c = k·σ̂`` without ``√m_e`` would cap 61 % of clean
+  tracker rows on a position's norm instead of 13 %.)
 
 :data:`MEASURED_DEFAULTS` is the objective for measured data: the default prior toward the
 nominal robot plus the Huber loss (``calibrate(..., objective="measured")``, the CLI,
@@ -67,7 +67,7 @@ class Prior:
     prior on that group. The defaults are the size of real manufacturing errors of industrial
     arms (tenths of a degree, a few mm), wide enough not to bias a well-determined parameter.
     Robot groups in other units (a compliance in rad/(N·m)...) take their group's own default
-    σ (:attr:`jaxcal._core._params.Group.prior_std`, divided by ``strength``), or no prior if the
+    σ (the group's default prior σ, divided by ``strength``), or no prior if the
     group has none.
 
     Attributes:

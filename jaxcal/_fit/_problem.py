@@ -44,7 +44,7 @@ class Problem(eqx.Module):
         space: free parameters (static).
         base: values of the deviations that are not free (zeros = nominal).
         weight: ``[n]`` row weights, 1 for a real sample and 0 for a padding row
-            (:mod:`jaxcal._core._buckets`), or ``None`` (every row real). Padding rows contribute
+            (shape buckets), or ``None`` (every row real). Padding rows contribute
             nothing: :meth:`residual` and :meth:`sample_errors` are 0 there, and every mean divides
             by :attr:`n_real` (a traced count), so a padded problem gives the unpadded one's
             values to round-off.

@@ -262,7 +262,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
         dh: ``(convention, alpha, a, d, theta, beta, beta_joints)`` of the DH table the chain was
             built from (static, rad / mm), or ``None``.
         nongeometric: joint compliance / harmonic transmission-error models
-            (:meth:`with_compliance`, :meth:`with_harmonics`; :mod:`jaxcal._models._nongeometric`), or ``None``.
+            (:meth:`with_compliance`, :meth:`with_harmonics`), or ``None``.
     """
 
     origin_R: Float[Array, "dof 3 3"]

@@ -149,8 +149,8 @@ class DHRobot(NonGeometricMixin, eqx.Module):
 
     def error_groups(self) -> tuple:
         """The robot's calibratable groups: DH deviations α, a, d, θ, β (``[dof]`` each), then
-        any non-geometric groups (``compliance``, ``h1s``...; see :mod:`jaxcal._models._nongeometric`
-        and :func:`jaxcal._core._params.layout_for` for the full layout with the sensor extras)."""
+        any non-geometric groups (``compliance``, ``h1s``...; see :meth:`with_compliance` and
+        :meth:`with_harmonics`). A measurement model adds its sensor extras after these."""
         from .._core._params import Layout
 
         return Layout.dh(self.dof).groups[:5] + nongeometric_groups(self)

@@ -406,7 +406,7 @@ class Combined(MeasurementModel):
         names: the block names (static); counts: their rows; widths: their flattened reading sizes.
         views: per block, ``(its own layout, ((its group, the combined group), ...))`` (static).
         groups: the extra groups the blocks add to the layout (static).
-        pad: padding rows at the end (copies of row 0, a block-0 row: :mod:`jaxcal._core._buckets`).
+        pad: padding rows at the end (copies of row 0, a block-0 row: shape buckets).
     """
 
     models: tuple

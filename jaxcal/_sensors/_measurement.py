@@ -44,7 +44,7 @@ class MeasurementModel(eqx.Module):
 
     def pad_rows(self, n: int, n_to: int) -> MeasurementModel:
         """The model for data of ``n`` rows padded to ``n_to`` rows that repeat row 0
-        (:mod:`jaxcal._core._buckets`): itself, unless the model holds per-row arrays (e.g.
+        (shape buckets): itself, unless the model holds per-row arrays (e.g.
         :class:`~jaxcal.SessionMarkers`' frame and placement of every row)."""
         del n, n_to
         return self

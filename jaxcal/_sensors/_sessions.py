@@ -218,7 +218,7 @@ class SessionMarkers(MarkerModel):
                               markers=self.markers)
 
     def pad_rows(self, n: int, n_to: int) -> SessionMarkers:
-        """The model of the rows padded to ``n_to`` by repeating row 0 (:mod:`jaxcal._core._buckets`)."""
+        """The model of the rows padded to ``n_to`` by repeating row 0 (shape buckets)."""
         if n_to == n:
             return self
         return self.take(np.concatenate([np.arange(n), np.zeros(n_to - n, int)]))

@@ -341,7 +341,7 @@ def simulate_padded(key, robot, measurement, true_deviations, noise_std, cfg: _C
     ``round(n_real·test_fraction)`` and :func:`permutation_rounds` ``n_rounds``) inside arrays of
     the bucket ``cfg.n_samples``: the real rows of each split are exactly those of
     ``simulate_experiment(key, n_samples=n_real)``, in the same order, and the rest has weight 0.
-    One compiled program serves every sample count of the bucket (:mod:`jaxcal._core._buckets`)."""
+    One compiled program serves every sample count of the bucket (shape buckets)."""
     n_real, n_test, n_rounds = (jnp.asarray(v).astype(jnp.result_type(int)) for v in (n_real, n_test, n_rounds))
     true_deviations, q, y, k_split, _ = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg,
                                                     n_real)

@@ -391,7 +391,7 @@ class Method(eqx.Module):
 
     @property
     def paddable(self) -> bool:
-        """Whether a run on data padded with zero-weight rows (:mod:`jaxcal._core._buckets`) equals the
+        """Whether a run on data padded with zero-weight rows (shape buckets) equals the
         unpadded run to round-off. Methods whose result depends on the rows themselves (random
         mini-batches, RBF centres) say ``False``; :func:`jaxcal.calibrate` then does not pad."""
         return True

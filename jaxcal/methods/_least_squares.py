@@ -89,7 +89,7 @@ class RoundoffAwareTrustRegion(optx.ClassicalTrustRegion):
     solve.
 
     ``n_residuals``: the count ``N`` of real residuals when the residual vector carries padding
-    rows (:mod:`jaxcal._core._buckets`), so the threshold is the unpadded one; ``None``: its length.
+    rows (shape buckets), so the threshold is the unpadded one; ``None``: its length.
     """
 
     n_residuals: object = None
