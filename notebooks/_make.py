@@ -959,6 +959,7 @@ for i, name in enumerate(names):
     ax.bar(np.arange(2) + 0.38 * i, np.abs(errors[name]), width=0.36, label=name)
 ax.set_xticks(np.arange(2) + 0.19, ["placement 4", "placement 5"])
 ax.set_yscale("log")
+ax.set_ylim(1e-3, 30)  # room above the bars for the legend
 ax.set_ylabel("|socket distance error| (mm)")
 ax.legend(loc="upper left")
 ax.set_title("held-out socket distance against the machined 50.00 mm")
