@@ -22,7 +22,7 @@ from .._core._cache import ensure_compilation_cache, switched_off
 from .._core._metrics import Metrics, compute_metrics
 from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
-from .._core._xla import compile_lowered, target_platform
+from .._core._xla import compile_lowered, jit, target_platform
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._fit._diagnostics import (
     Checks,
@@ -163,7 +163,7 @@ class Calibrator(eqx.Module):
         return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra, gram, deviations)
 
 
-@functools.partial(jax.jit, static_argnums=1)
+@functools.partial(jit, static_argnums=1)
 def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutput:
     """The jitted core of :func:`calibrate` (module level, so compilations are cached)."""
     return eqx.combine(dynamic, static)(q, y, key, weight)

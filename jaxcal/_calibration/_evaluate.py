@@ -30,6 +30,7 @@ from .._core._buckets import LeanJit
 from .._core._metrics import Metrics, compute_metrics, format_table
 from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
 from .._core._precision import to_device
+from .._core._xla import filter_jit
 from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
 from .._sensors._initialise import _residual, _sample_error
 
@@ -431,9 +432,8 @@ EXPECTED_FACTOR = 1.5
 
 @functools.lru_cache(maxsize=1)
 def _jacobian_program():
-    import equinox as eqx
 
-    return eqx.filter_jit(lambda problem: problem.jacobian(problem.x0()))
+    return filter_jit(lambda problem: problem.jacobian(problem.x0()))
 
 
 def _registered_terms(result, data, registered, deviations):

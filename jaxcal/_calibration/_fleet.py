@@ -53,7 +53,7 @@ import numpy as np
 from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory
 from .._core._metrics import format_table, statistical_floor
 from .._core._precision import cast_floating, dtype_scope
-from .._core._xla import compile_lowered, target_platform
+from .._core._xla import compile_lowered, jit, target_platform
 from .._fit._result import CalibrationResult, Status
 from ._calibrate import (
     CalibrationOutput,
@@ -431,7 +431,7 @@ def _own(path) -> bool:
     return top == 0 and len(path) > 1 and getattr(path[1], "name", None) in _UNIT_FIELDS
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+@functools.partial(jit, static_argnums=(0, 1, 2, 3))
 def _run_batched(static, treedef, axes, sequential: bool, leaves, active) -> CalibrationOutput:
     """The :class:`~jaxcal.Calibrator` over the units of a :class:`_Batch`: ``jax.vmap``-ed, or
     with ``sequential`` ``jax.lax.map``-ed (one unit after the other inside the program, each

@@ -293,9 +293,9 @@ class LeanJit:
         import functools
         import inspect
 
-        import jax
+        from ._xla import jit
 
-        self.jitted = jax.jit(fn, static_argnames=static_argnames)
+        self.jitted = jit(fn, static_argnames=static_argnames)
         self.static = tuple(static_argnames)
         self.cache = BoundedCache(maxsize)
         self._sig = inspect.signature(fn)

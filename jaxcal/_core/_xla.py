@@ -1,13 +1,24 @@
-"""XLA compiler options for jaxcal's own compilations (sweep chunks and :func:`jaxcal.calibrate`).
+"""XLA compiler options for jaxcal's own compilations.
 
-On a GPU, XLA autotunes the kernels of every fusion it compiles. For jaxcal's programs (long
+**CPU.** XLA:CPU's newer MLIR fusion emitters compile jaxcal's programs markedly slower than its
+classic emitters, for the same run speed: the simulation program of the paper's experiment
+compiled in 11.2 s with the defaults and in 8.9 s with ``xla_cpu_use_fusion_emitters=false``
+(bit-identical data), and three of the test suite's modules ran in 348 s instead of 550 s
+(2-core CPU, JAX 0.10.2; ``benchmarks/results/compile_cpu.md``). So jaxcal compiles its own
+programs on the CPU with that option.
+
+**GPU.** XLA autotunes the kernels of every fusion it compiles. For jaxcal's programs (long
 ``while_loop``/``scan`` bodies of small reductions over the samples) that step dominates: on an
 H100 (JAX 0.11.2) the vmapped chunk of 1 000 LM trials compiled in more than 2 minutes with the
 default flags, almost all of it autotuning reduction fusions ("Compiling module
 input_reduce_fusion… very slow compile"), and in 4.3 s with ``--xla_gpu_autotune_level=0``.
 So jaxcal compiles its own programs on GPUs with ``xla_gpu_autotune_level=0``.
-The option is passed per compilation (``jax.stages.Lowered.compile(compiler_options)``), not
-through the process-wide ``XLA_FLAGS``, so the user's other JAX programs are untouched.
+
+The options are passed per compilation (``jax.stages.Lowered.compile(compiler_options)`` for the
+programs jaxcal compiles itself, ``jax.jit(..., compiler_options=...)`` for its jitted functions,
+:func:`jit` and :func:`filter_jit`), not through the process-wide ``XLA_FLAGS``, so the user's
+other JAX programs are untouched. A jitted function gets the options of every platform (each
+platform ignores the other's), decided when jaxcal's module is imported.
 
 Overriding: set ``JAXCAL_XLA_OPTIONS`` to a comma-separated list of ``name=value`` XLA debug
 options (e.g. ``JAXCAL_XLA_OPTIONS=xla_gpu_autotune_level=4``) to replace the defaults on every
@@ -19,10 +30,13 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["ENV_VAR", "GPU_DEFAULTS", "compiler_options", "compile_lowered"]
+__all__ = ["ENV_VAR", "CPU_DEFAULTS", "GPU_DEFAULTS", "compiler_options", "compile_lowered", "jit", "filter_jit"]
 
 #: environment variable that replaces :data:`GPU_DEFAULTS` (``name=value,...`` or ``none``).
 ENV_VAR = "JAXCAL_XLA_OPTIONS"
+
+#: options jaxcal passes when it compiles for the CPU.
+CPU_DEFAULTS: dict[str, object] = {"xla_cpu_use_fusion_emitters": False}
 
 #: options jaxcal passes when it compiles for a GPU.
 GPU_DEFAULTS: dict[str, object] = {"xla_gpu_autotune_level": 0}
@@ -66,6 +80,8 @@ def compiler_options(platform: str) -> dict[str, object] | None:
         opts = _parse(env)
     elif platform.lower() in ("gpu", "cuda", "rocm"):
         opts = dict(GPU_DEFAULTS)
+    elif platform.lower() == "cpu":
+        opts = dict(CPU_DEFAULTS)
     else:
         opts = {}
     flags = os.environ.get("XLA_FLAGS", "")
@@ -111,3 +127,40 @@ def compile_lowered(lowered, platform: str | None = None):
         platform = target_platform()
     opts = compiler_options(platform)
     return lowered.compile() if opts is None else lowered.compile(opts)
+
+
+def jit_options() -> dict[str, object] | None:
+    """The compiler options of jaxcal's jitted functions (:func:`jit`, :func:`filter_jit`): those
+    of the CPU and of a GPU together (each platform ignores the other's); ``None`` for XLA's
+    defaults."""
+    opts = {**(compiler_options("cpu") or {}), **(compiler_options("gpu") or {})}
+    return opts or None
+
+
+def jit(fun=None, **kwargs):
+    """``jax.jit(fun, **kwargs)`` with :func:`jit_options` (a decorator, bare or with arguments)."""
+    import functools
+
+    import jax
+
+    if fun is None:
+        return functools.partial(jit, **kwargs)
+    opts = jit_options()
+    if opts is not None:
+        kwargs.setdefault("compiler_options", opts)
+    return jax.jit(fun, **kwargs)
+
+
+def filter_jit(fun=None, **kwargs):
+    """``equinox.filter_jit(fun, **kwargs)`` with :func:`jit_options` (a decorator, bare or with
+    arguments)."""
+    import functools
+
+    import equinox as eqx
+
+    if fun is None:
+        return functools.partial(filter_jit, **kwargs)
+    opts = jit_options()
+    if opts is not None:
+        kwargs.setdefault("compiler_options", opts)
+    return eqx.filter_jit(fun, **kwargs)

@@ -14,6 +14,8 @@ import functools
 import jax
 import numpy as np
 
+from .._core._xla import jit
+
 __all__ = ["seed_split", "permutation_rounds"]
 
 
@@ -83,7 +85,7 @@ def seed_split_numpy(seed: int, n: int):
 def seed_split_program():
     """The split as one compiled JAX program ``(seed, n) -> (k_method, permutation)`` (built on first use)."""
 
-    @functools.partial(jax.jit, static_argnums=1)
+    @functools.partial(jit, static_argnums=1)
     def program(seed, n):
         k_split, k_method = jax.random.split(jax.random.key(seed))
         return k_method, jax.random.permutation(k_split, n)

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core._params import ParameterSpace
+from .._core._xla import jit
 from .._datasets._dataset import Dataset
 from .._fit._problem import Problem
 from .._models._kinematics import fk_position
@@ -145,7 +146,7 @@ def indices_from_jacobian(J, scale=None) -> ObservabilityIndices:
 # -- Jacobians --------------------------------------------------------------------------------------
 
 
-@jax.jit
+@jit
 def _jac(problem: Problem):
     return problem.jacobian(problem.x0())
 
@@ -449,7 +450,7 @@ def _inv(M):
     return jax.scipy.linalg.cho_solve((L, True), jnp.eye(M.shape[0], dtype=M.dtype))
 
 
-@functools.partial(jax.jit, static_argnames=("n", "criterion"))
+@functools.partial(jit, static_argnames=("n", "criterion"))
 def _greedy(Jc, M0, W, avail0, n: int, criterion: str):
     def step(carry, _):
         Minv, M, avail = carry
@@ -462,7 +463,7 @@ def _greedy(Jc, M0, W, avail0, n: int, criterion: str):
     return picks, M
 
 
-@functools.partial(jax.jit, static_argnames=("criterion", "max_iter"))
+@functools.partial(jit, static_argnames=("criterion", "max_iter"))
 def _exchange(Jc, M0, W, sel0, criterion: str, max_iter: int):
     """DETMAX-style exchange (Mitchell 1974; Fedorov 1972): add the candidate that improves the
     criterion most, drop the selected pose (the new one included) whose removal costs least;
@@ -662,7 +663,7 @@ def _selected_data(candidates, sel):
     return None
 
 
-@functools.partial(jax.jit, static_argnames=("iters",))
+@functools.partial(jit, static_argnames=("iters",))
 def _multiplicative(Jc, eps, iters: int):
     N, _, p = Jc.shape
 

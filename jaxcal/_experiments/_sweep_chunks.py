@@ -29,7 +29,7 @@ from jax.sharding import PartitionSpec as P
 
 from .._core._buckets import BoundedCache, cache_size, release_memory, signature
 from .._core._precision import cast_floating, dtype_scope
-from .._core._xla import compile_lowered
+from .._core._xla import compile_lowered, jit
 
 __all__ = ["DEFAULT_CHUNK_PER_DEVICE", "DEFAULT_CHUNK_PER_ACCELERATOR"]
 
@@ -95,7 +95,7 @@ def _batched(static, dyn, inputs, hyper, sequential: bool = False):
     return over_trials(None) if hyper is None else batch(over_trials, (hyper,))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+@functools.partial(jit, static_argnums=(0, 1, 2, 3))
 def _run_chunk(static, mesh, grid: bool, sequential: bool, dyn, inputs, hyper):
     """One chunk of trials, jitted (module level so compilations are cached by the static part).
 

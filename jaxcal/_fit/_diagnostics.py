@@ -21,7 +21,6 @@ import dataclasses
 import math
 import warnings
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -30,6 +29,7 @@ from .._core._json import from_json_number
 from .._core._params import group_kind
 from .._core._precision import to_device
 from .._core._trig import wrap_angle_deg
+from .._core._xla import jit
 from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
@@ -166,7 +166,7 @@ def gram_from_jacobian(problem, r, J, loss: str, loss_scale):
     return d, (Js * w[:, None]).T @ Js, G, jnp.sum(w * r * r), r, e
 
 
-_gram = jax.jit(gram_at, static_argnames="loss")
+_gram = jit(gram_at, static_argnames="loss")
 
 
 def _sample_errors(measurement, z):

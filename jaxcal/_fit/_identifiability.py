@@ -14,6 +14,7 @@ from jaxtyping import Array
 from .._core._buckets import LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
+from .._core._xla import jit
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
@@ -311,7 +312,7 @@ def pivot_triangular(R0: Array) -> tuple[Array, Array]:
     return _householder(jnp.asarray(R0), pivot=True)
 
 
-@jax.jit
+@jit
 def _pivoted_qr(A):
     return pivot_triangular(householder_r(A))
 

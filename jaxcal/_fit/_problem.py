@@ -11,6 +11,7 @@ from jaxtyping import Array, Float
 from .._core._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
+from .._core._xla import jit
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
@@ -193,13 +194,13 @@ def residual_blocks_numpy(problem: Problem, r) -> np.ndarray:
     return r[:, :3] if problem.measurement.kind == "pose" else r
 
 
-@jax.jit
+@jit
 def sample_errors_at(problem: Problem, x: Float[Array, " p"]) -> Float[Array, " n"]:
     """Per-sample errors (mm) at free parameters ``x``, jitted (see :func:`residual_blocks`)."""
     return problem.sample_errors(x)
 
 
-@jax.jit
+@jit
 def prediction_variance_at(problem: Problem, x: Float[Array, " p"], covariance: Float[Array, "p p"]
                            ) -> Float[Array, " n"]:
     """Per-sample variance (mm²) of the predicted reading at free parameters ``x`` with parameter
@@ -212,7 +213,7 @@ def prediction_variance_at(problem: Problem, x: Float[Array, " p"], covariance: 
     return jnp.einsum("nmp,pk,nmk->n", J, covariance, J)
 
 
-@jax.jit
+@jit
 def predict_jit(measurement, robot, deviations, q):
     """``measurement.predict(robot, deviations, q)``, jitted for host-side callers (compiled once
     per shape; executed op by op, the kinematics run as hundreds of small XLA programs, each

@@ -14,12 +14,12 @@ the frame chain.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._core._params import Deviations
 from .._core._trig import angle_sum_trig, dh_joint_terms, materialised, shared_joint_trig
+from .._core._xla import jit
 from ._nongeometric import register_corrections
 from ._robot import DHRobot
 
@@ -264,5 +264,5 @@ def rotvec_to_matrix(w: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
 #: :func:`fk_position` and :func:`fk_pose` compiled (once per shape), for host-side callers that
 #: evaluate the kinematics outside ``jit``: op by op they run as hundreds of small XLA programs,
 #: each compiled (or loaded from the persistent cache) once per process.
-fk_position_jit = jax.jit(fk_position, static_argnames="tool")
-fk_pose_jit = jax.jit(fk_pose, static_argnames="tool")
+fk_position_jit = jit(fk_position, static_argnames="tool")
+fk_pose_jit = jit(fk_pose, static_argnames="tool")

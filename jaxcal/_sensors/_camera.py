@@ -60,6 +60,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._core._params import Deviations, Group, layout_for
+from .._core._xla import filter_jit
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
 from ._measurement import MeasurementModel
 
@@ -679,8 +680,8 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
 
 
 #: the residual and the camera-frame points, compiled once per shape (host-side callers)
-_residual_jit = eqx.filter_jit(lambda m, robot, d, q, y: m.residual(robot, d, q, y))
-_predict_jit = eqx.filter_jit(lambda m, robot, d, q: (m.predict(robot, d, q), m.camera_points(robot, d, q)[2]))
+_residual_jit = filter_jit(lambda m, robot, d, q, y: m.residual(robot, d, q, y))
+_predict_jit = filter_jit(lambda m, robot, d, q: (m.predict(robot, d, q), m.camera_points(robot, d, q)[2]))
 
 
 def camera_floor(noise_px: float, n_params: int, y):

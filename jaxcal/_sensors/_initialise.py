@@ -51,11 +51,11 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import jax
 import numpy as np
 
 from .._core._metrics import robust_scale
 from .._core._params import Deviations
+from .._core._xla import jit
 
 __all__ = ["ExtrasEstimate", "multilaterate", "wire_with_tool", "kabsch", "project_rotation",
     "pose_from_markers"]
@@ -86,8 +86,8 @@ class ExtrasEstimate(NamedTuple):
 
 
 #: the measurement model's residual and per-sample error, compiled once per shape (host-side use)
-_residual = jax.jit(lambda measurement, robot, dev, q, y: measurement.residual(robot, dev, q, y))
-_sample_error = jax.jit(lambda measurement, r: measurement.sample_error(r))
+_residual = jit(lambda measurement, robot, dev, q, y: measurement.residual(robot, dev, q, y))
+_sample_error = jit(lambda measurement, r: measurement.sample_error(r))
 
 #: Rows whose closed-form-start residual is beyond this many robust σ are left out of the start.
 TRIM_ROBUST_SIGMAS = 5.0

@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .._core._params import Deviations
+from .._core._xla import jit
 from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel, Position
 from ._simulate import Experiment, draw_deviations, simulate_experiment
@@ -117,5 +118,5 @@ def _simulate_units(k_dev, k_sim, center, sd, robot, measurement, layout, n_samp
 
         if len(_PROGRAMS) > 8:
             _PROGRAMS.clear()
-        entry = _PROGRAMS[key] = (robot, measurement, jax.jit(jax.vmap(unit, in_axes=(0, 0, None, None))))
+        entry = _PROGRAMS[key] = (robot, measurement, jit(jax.vmap(unit, in_axes=(0, 0, None, None))))
     return entry[2](k_dev, k_sim, center, sd)

@@ -14,6 +14,7 @@ from jaxtyping import Array, Float
 from .._core._cache import ensure_compilation_cache
 from .._core._params import Deviations, Layout, layout_for
 from .._core._precision import to_device, warn_if_float32
+from .._core._xla import filter_jit
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._datasets._split import permutation_rounds
 from .._models._kinematics import tool_point_soa
@@ -276,7 +277,7 @@ def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Co
     return true_deviations, q, y, k_split, (short if cfg.flag_short else None)
 
 
-@eqx.filter_jit
+@filter_jit
 def _simulate(key, robot, measurement, true_deviations, noise_std, cfg: _Config):
     """The :class:`Experiment`; with ``cfg.flag_short`` the pair ``(experiment, too_few_poses)``."""
     true_deviations, q, y, k_split, short = _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg)

@@ -4,12 +4,12 @@ the constraint, noise), as :class:`~jaxcal.Experiment` splits.
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._core._params import Deviations, layout_for
+from .._core._xla import filter_jit
 from .._datasets._dataset import label_metadata_key
 from .._models._kinematics import tool_point_soa
 from .._sensors._camera import Camera, _log, _predict_jit, _setup_frames, default_camera
@@ -25,7 +25,7 @@ def _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, lengt
     from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, draw_deviations
 
     if true_deviations is None:
-        dh = eqx.filter_jit(draw_deviations)(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
+        dh = filter_jit(draw_deviations)(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
                              length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
                              tool_std_mm=tool_std_mm, dtype=dtype)
         true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
@@ -43,7 +43,7 @@ def _row_constraint(robot, dev, m, qi, k):
     return jnp.atleast_1d(jnp.linalg.norm(p - c[k]) - r[k])
 
 
-@eqx.filter_jit
+@filter_jit
 def _candidates(robot, dev, m, key, n: int):
     """``n`` random joint-angle rows ``[n, dof]``, their labels in turn ``[n]`` and each row's
     distance to its label's constraint ``[n]``, in one compiled program (op by op, this was
@@ -54,13 +54,13 @@ def _candidates(robot, dev, m, key, n: int):
     return q, labels, jnp.linalg.norm(g, axis=1)
 
 
-@eqx.filter_jit
+@filter_jit
 def _tool_points(robot, dev, q):
     """Tool points ``[n, 3]`` (mm) of the rows ``q``, compiled."""
     return jnp.stack(tool_point_soa(robot, dev, q), -1)
 
 
-@eqx.filter_jit
+@filter_jit
 def _newton_step(robot, dev, m, q, k, target):
     g = jax.vmap(lambda qi, ki: _row_constraint(robot, dev, m, qi, ki))(q, k)
     J = jax.vmap(jax.jacfwd(lambda qi, ki: _row_constraint(robot, dev, m, qi, ki)))(q, k)  # [n, m, dof]
@@ -164,7 +164,7 @@ def _pair_constraint(robot, dev, qa, qb):
     return jnp.atleast_1d(jnp.linalg.norm(pa - pb))
 
 
-@eqx.filter_jit
+@filter_jit
 def _pair_step(robot, dev, qa, qb, target):
     g = jax.vmap(lambda a, b: _pair_constraint(robot, dev, a, b))(qa, qb)
     J = jax.vmap(jax.jacfwd(lambda b, a: _pair_constraint(robot, dev, a, b)))(qb, qa)  # [n, 1, dof]

@@ -10,6 +10,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from jaxcal._core import _cache, _exported
 
@@ -123,3 +124,33 @@ def test_program_keys_name_the_device_the_program_runs_on():
         assert _xla.target_platform() == "cpu"
     assert _xla.target_device() == jax.devices()[0]
     assert _xla.export_platform() in {"cpu", "cuda", "rocm", "tpu"}
+
+
+def test_compile_options_per_platform_overridable_and_accepted_everywhere(monkeypatch):
+    """jaxcal's compile options: XLA:CPU's classic emitters on the CPU, no autotuning on a GPU;
+    ``$JAXCAL_XLA_OPTIONS`` replaces them, an option named in ``$XLA_FLAGS`` is left to it, and a
+    jitted function carrying both platforms' options compiles and computes what ``jax.jit`` does."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxcal._core import _xla
+
+    monkeypatch.delenv(_xla.ENV_VAR, raising=False)
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert _xla.compiler_options("cpu") == {"xla_cpu_use_fusion_emitters": False}
+    assert _xla.compiler_options("cuda") == _xla.compiler_options("gpu") == {"xla_gpu_autotune_level": 0}
+    assert _xla.compiler_options("tpu") is None
+    assert _xla.jit_options() == {"xla_cpu_use_fusion_emitters": False, "xla_gpu_autotune_level": 0}
+    f = lambda x: jnp.sin(x) * jnp.exp(-x)  # noqa: E731
+    x = jnp.linspace(0.0, 3.0, 17)
+    for jitted in (_xla.jit(f), _xla.jit()(f), _xla.filter_jit(f)):
+        np.testing.assert_array_equal(np.asarray(jitted(x)), np.asarray(jax.jit(f)(x)))
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+    assert _xla.compiler_options("cpu") is None  # the user's own flag wins
+    monkeypatch.setenv(_xla.ENV_VAR, "xla_gpu_autotune_level=4, xla_cpu_use_fusion_emitters=false")
+    assert _xla.compiler_options("cuda") == {"xla_gpu_autotune_level": 4}
+    monkeypatch.setenv(_xla.ENV_VAR, "none")
+    assert _xla.compiler_options("cpu") is None and _xla.compiler_options("cuda") is None
+    monkeypatch.setenv(_xla.ENV_VAR, "bogus")
+    with pytest.raises(ValueError, match="name=value"):
+        _xla.compiler_options("cpu")
