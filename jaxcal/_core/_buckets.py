@@ -293,9 +293,9 @@ class LeanJit:
         import functools
         import inspect
 
-        from ._xla import jit
+        import jax
 
-        self.jitted = jit(fn, static_argnames=static_argnames)
+        self.jitted = jax.jit(fn, static_argnames=static_argnames)  # options: compile_lowered below
         self.static = tuple(static_argnames)
         self.cache = BoundedCache(maxsize)
         self._sig = inspect.signature(fn)

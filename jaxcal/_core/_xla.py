@@ -18,7 +18,9 @@ The options are passed per compilation (``jax.stages.Lowered.compile(compiler_op
 programs jaxcal compiles itself, ``jax.jit(..., compiler_options=...)`` for its jitted functions,
 :func:`jit` and :func:`filter_jit`), not through the process-wide ``XLA_FLAGS``, so the user's
 other JAX programs are untouched. A jitted function gets the options of every platform (each
-platform ignores the other's), decided when jaxcal's module is imported.
+platform ignores the other's), decided when jaxcal's module is imported, and only when it is
+called at the top level: inside a user's ``jit`` (or ``vmap``, ``grad``) the outermost program's
+options apply, as JAX requires.
 
 Overriding: set ``JAXCAL_XLA_OPTIONS`` to a comma-separated list of ``name=value`` XLA debug
 options (e.g. ``JAXCAL_XLA_OPTIONS=xla_gpu_autotune_level=4``) to replace the defaults on every
@@ -30,7 +32,8 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["ENV_VAR", "CPU_DEFAULTS", "GPU_DEFAULTS", "compiler_options", "compile_lowered", "jit", "filter_jit"]
+__all__ = ["ENV_VAR", "CPU_DEFAULTS", "GPU_DEFAULTS", "compiler_options", "compile_lowered", "jit", "filter_jit",
+           "TopLevelOptions"]
 
 #: environment variable that replaces :data:`GPU_DEFAULTS` (``name=value,...`` or ``none``).
 ENV_VAR = "JAXCAL_XLA_OPTIONS"
@@ -137,30 +140,65 @@ def jit_options() -> dict[str, object] | None:
     return opts or None
 
 
+def _top_level() -> bool:
+    """Whether JAX is not tracing or transforming anything now (a call here runs eagerly);
+    ``False`` when it cannot tell (then no options are passed)."""
+    try:
+        from jax._src import core
+    except ImportError:  # pragma: no cover - JAX moved its internals
+        return False
+    clean = getattr(core, "trace_state_clean", None)
+    return bool(clean()) if clean is not None else False
+
+
+class TopLevelOptions:
+    """A jitted function that passes :func:`jit_options` when called at the top level and runs the
+    plain jitted function inside a transformation (another ``jit``, ``vmap``, ``grad``,
+    ``jax.export``): JAX accepts ``compiler_options`` on the outermost ``jit`` only, and the
+    outermost program's own options apply to everything inside it. Attributes (``lower``,
+    ``trace``, ``clear_cache``, ...) are the plain function's; :func:`compile_lowered` adds the
+    options to a lowering."""
+
+    def __init__(self, plain, optioned):
+        import functools
+
+        self._plain, self._optioned = plain, optioned
+        functools.update_wrapper(self, plain)
+
+    def __call__(self, *args, **kwargs):
+        return (self._optioned if _top_level() else self._plain)(*args, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._plain, name)
+
+
+def _with_options(make, fun, kwargs):
+    opts = jit_options()
+    plain = make(fun, **kwargs)
+    if opts is None or "compiler_options" in kwargs:
+        return plain
+    return TopLevelOptions(plain, make(fun, compiler_options=opts, **kwargs))
+
+
 def jit(fun=None, **kwargs):
-    """``jax.jit(fun, **kwargs)`` with :func:`jit_options` (a decorator, bare or with arguments)."""
+    """``jax.jit(fun, **kwargs)`` with :func:`jit_options` at the top level
+    (:class:`TopLevelOptions`; a decorator, bare or with arguments)."""
     import functools
 
     import jax
 
     if fun is None:
         return functools.partial(jit, **kwargs)
-    opts = jit_options()
-    if opts is not None:
-        kwargs.setdefault("compiler_options", opts)
-    return jax.jit(fun, **kwargs)
+    return _with_options(jax.jit, fun, kwargs)
 
 
 def filter_jit(fun=None, **kwargs):
-    """``equinox.filter_jit(fun, **kwargs)`` with :func:`jit_options` (a decorator, bare or with
-    arguments)."""
+    """``equinox.filter_jit(fun, **kwargs)`` with :func:`jit_options` at the top level
+    (:class:`TopLevelOptions`; a decorator, bare or with arguments)."""
     import functools
 
     import equinox as eqx
 
     if fun is None:
         return functools.partial(filter_jit, **kwargs)
-    opts = jit_options()
-    if opts is not None:
-        kwargs.setdefault("compiler_options", opts)
-    return eqx.filter_jit(fun, **kwargs)
+    return _with_options(eqx.filter_jit, fun, kwargs)

@@ -145,6 +145,14 @@ def test_compile_options_per_platform_overridable_and_accepted_everywhere(monkey
     x = jnp.linspace(0.0, 3.0, 17)
     for jitted in (_xla.jit(f), _xla.jit()(f), _xla.filter_jit(f)):
         np.testing.assert_array_equal(np.asarray(jitted(x)), np.asarray(jax.jit(f)(x)))
+        # JAX takes compile options on the outermost jit only: inside a user's jit, vmap, grad or
+        # jax.export the plain function runs
+        np.testing.assert_array_equal(np.asarray(jax.jit(lambda v, g=jitted: g(v) + 1.0)(x)),
+                                      np.asarray(jax.jit(lambda v: f(v) + 1.0)(x)))
+        np.testing.assert_array_equal(np.asarray(jax.vmap(jitted)(x[:, None])), np.asarray(jax.vmap(f)(x[:, None])))
+        np.testing.assert_allclose(np.asarray(jax.grad(lambda v, g=jitted: g(v).sum())(x)),
+                                   np.asarray(jax.grad(lambda v: f(v).sum())(x)), rtol=1e-14)
+        jax.export.export(jax.jit(lambda v, g=jitted: g(v)), platforms=["cpu"])(x)
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
     assert _xla.compiler_options("cpu") is None  # the user's own flag wins
     monkeypatch.setenv(_xla.ENV_VAR, "xla_gpu_autotune_level=4, xla_cpu_use_fusion_emitters=false")
