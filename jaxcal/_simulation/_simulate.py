@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -86,16 +87,18 @@ def draw_deviations(
     dtype = dtype or jnp.result_type(float)
     k = jax.random.split(key, 8)
     dof = robot.dof
-    ang = math.radians(angle_std_deg)
+    # a traced σ (simulate_experiment's float settings are arguments of its program): the same
+    # float64 product as math.radians (CPython multiplies by the double nearest π/180)
+    ang = angle_std_deg * (math.pi / 180) if _tracing(angle_std_deg) else math.radians(angle_std_deg)
     n = lambda kk, shape, s: s * jax.random.normal(kk, shape, dtype)  # noqa: E731
     layout = layout_for(robot)
-    if layout.groups[:5] != Layout.dh(dof).groups[:5]:
+    if not _dh_table(robot):
         vals = {"anchor": n(k[5], (3,), anchor_std_mm), "tool": n(k[6], (3,), tool_std_mm),
                 "cable_offset": n(k[7], (), cable_offset_std_mm)}
         allow = getattr(robot, "free_by_default", lambda name: True)
         geo = [g for g in layout.groups if g.kind == "geometric"]
         for kk, g in zip(jax.random.split(k[0], len(geo)), geo):
-            std = jnp.asarray([(ang if u == "rad" else length_std_mm if u == "mm" else 0.0) * bool(allow(nm))
+            std = jnp.asarray([(ang if u == "rad" else length_std_mm if u == "mm" else 0.0) if allow(nm) else 0.0
                                for nm, u in zip(g.names, g.units)], dtype).reshape(g.shape)
             vals[g.name] = std * jax.random.normal(kk, g.shape, dtype)
         return Deviations(vals, layout)
@@ -111,6 +114,12 @@ def draw_deviations(
         cable_offset=n(k[7], (), cable_offset_std_mm),
     )
     return out if layout == out.layout else Deviations(out.values, layout)  # + zero non-geometric groups
+
+
+def _dh_table(robot) -> bool:
+    """Whether :func:`draw_deviations` draws ``robot``'s deviations as a DH table's (not a generic
+    chain's, entry by entry)."""
+    return layout_for(robot).groups[:5] == Layout.dh(robot.dof).groups[:5]
 
 
 def check_simulation_settings(n_samples: int, test_fraction: float, noise_std: float, oversample: float) -> None:
@@ -182,7 +191,10 @@ def simulate_experiment(
         ensure_compilation_cache()  # its program takes seconds to compile: kept on disk like calibrate's
     cfg = _Config(n_samples, test_fraction, angle_std_deg, length_std_mm, anchor_std_mm, tool_std_mm,
                   cable_offset_std_mm, coverage, wire_range, min_height_mm, oversample, flag_short=eager)
-    out = _simulate(key, robot, measurement, true_deviations, noise_std, cfg)
+    # the float settings and σ as arguments of the program, not constants in it: calls that differ
+    # only in them share one compiled program (~9 s to compile), with bit-identical data
+    out = _simulate(key, robot, measurement, true_deviations, _traced_float(noise_std, dtype),
+                    cfg.traced(dtype, deviations=_dh_table(robot)))
     if not eager:  # under jit/vmap: equinox's runtime error checks the workspace filter
         return out
     ex, short = out
@@ -195,23 +207,55 @@ def _tracing(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
 
+def _traced_float(x, dtype):
+    """``x`` (a number) as a ``dtype`` scalar array, so that ``(equinox.)jit`` traces it instead of
+    compiling it in as a constant (rounded from float64 once, as a Python float constant is); a
+    tracer as it is."""
+    return x if _tracing(x) else to_device(np.asarray(x, np.float64), dtype)
+
+
 class _Config(eqx.Module):
+    """A simulation's settings. The sizes (``n_samples``, ``test_fraction``: the split's sizes,
+    ``oversample``) and ``flag_short`` are static; the float settings are pytree leaves: Python
+    floats are static under ``(equinox.)jit`` all the same (constants of the program, as inside
+    :mod:`jaxcal._experiments._sweep_trials` or with the whole config static), arrays
+    (:meth:`traced`) are its arguments."""
+
     n_samples: int = eqx.field(static=True)
     test_fraction: float = eqx.field(static=True)
-    angle_std_deg: float = eqx.field(static=True)
-    length_std_mm: float = eqx.field(static=True)
-    anchor_std_mm: float = eqx.field(static=True)
-    tool_std_mm: float = eqx.field(static=True)
-    cable_offset_std_mm: float = eqx.field(static=True)
-    coverage: float = eqx.field(static=True)
-    wire_range: tuple[float, float] = eqx.field(static=True)
-    min_height_mm: float = eqx.field(static=True)
+    angle_std_deg: float
+    length_std_mm: float
+    anchor_std_mm: float
+    tool_std_mm: float
+    cable_offset_std_mm: float
+    coverage: float
+    wire_range: tuple[float, float]
+    min_height_mm: float
     oversample: int = eqx.field(static=True)
     #: report too few poses inside the workspace filter as an output flag, checked on the host by
     #: the caller, instead of equinox's runtime error: a program with that error holds a host
     #: callback, and JAX's persistent compilation cache keeps no such program (the simulation then
     #: compiled again, ~17 s on 2 CPU cores, in every new process)
     flag_short: bool = eqx.field(static=True, default=False)
+
+    def traced(self, dtype, deviations: bool = True) -> _Config:
+        """This config with its float settings as ``dtype`` scalar arrays (traced by ``jit``), in
+        float64, bit-identical data. Some stay Python floats, where a traced value would change
+        the data: all of them in float32 (the angle's σ is converted to radians in float64 on the
+        host, ``math.radians``, then rounded once, which a float32 traced value cannot reproduce;
+        float32 simulations are rare, and warned about), and, with ``deviations=False`` (a generic
+        chain: :func:`draw_deviations` builds a σ array per entry), the angle and length σ (traced,
+        a chain's drawn deviations came out 1 ulp apart from the constant σ array's in some
+        entries)."""
+        if jnp.dtype(dtype) != jnp.float64:
+            return self
+        f = lambda x: _traced_float(x, dtype)  # noqa: E731
+        g = f if deviations else (lambda x: x)  # noqa: E731
+        return dataclasses.replace(
+            self, angle_std_deg=g(self.angle_std_deg), length_std_mm=g(self.length_std_mm),
+            anchor_std_mm=f(self.anchor_std_mm), tool_std_mm=f(self.tool_std_mm),
+            cable_offset_std_mm=f(self.cable_offset_std_mm), coverage=f(self.coverage),
+            wire_range=tuple(map(f, self.wire_range)), min_height_mm=f(self.min_height_mm))
 
 
 def noise_on(measurement: MeasurementModel) -> str:
