@@ -3,6 +3,7 @@
 import json
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -50,10 +51,13 @@ def assert_lm_at_floor_and_cramer_rao(ex, n_test_extra=20000, seed=11):
     # the truth restricted to the identifiable subset: LM on noiseless data at the same poses.
     # The left-out parameters are absorbed to first order only (e.g. a5 acts like −θ5/L, L ≈ 200 mm), leaving a
     # ~1e-3 mm remainder, negligible against σ.
-    y_clean = ex.measurement.predict(ex.robot, ex.true_deviations, ex.train.q)
+    # compiled, not op by op (each eager operation is a program of its own)
+    y_clean = eqx.filter_jit(lambda m, r, d, q: m.predict(r, d, q))(ex.measurement, ex.robot, ex.true_deviations,
+                                                                     ex.train.q)
     ref = calibrate(ex.robot, ex.measurement, (ex.train.q, y_clean), "lm", space=space)
     assert ref.train_metrics.rmse < 0.01 * float(ex.noise_std), "identifiable subset must represent the true robot"
-    J = np.asarray(Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space).jacobian(jnp.asarray(ref.x)))
+    J = np.asarray(eqx.filter_jit(lambda p, x: p.jacobian(x))(
+        Problem(ex.robot, ex.measurement, ex.train.q, ex.train.y, space), jnp.asarray(ref.x)))
     cov = float(ex.noise_std) ** 2 * np.linalg.inv(J.T @ J)
     err = res.x - ref.x
     z = err / np.sqrt(np.diag(cov))
@@ -116,17 +120,25 @@ def test_residual_with_jacfwd_has_the_exact_derivatives(experiment):
     z = 0.01 * jax.random.normal(jax.random.key(0), (sp.n_free,))
     t = jax.random.normal(jax.random.key(1), (sp.n_free,))
     np.testing.assert_array_equal(f(z), sp.residual(z))
-    (r1, d1), (r2, d2) = jax.jvp(f, (z,), (t,)), jax.jvp(sp.residual, (z,), (t,))
+    # the derivative checks compiled (one program each, the problem an argument), not op by op:
+    # evaluated eagerly, every operation of the transformed residuals was a program of its own
+    jvps = eqx.filter_jit(lambda sp, z, t: (jax.jvp(residual_with_jacfwd(sp), (z,), (t,)),
+                                            jax.jvp(sp.residual, (z,), (t,))))
+    (r1, d1), (r2, d2) = jvps(sp, z, t)
     # the JVP rule evaluates the residual inside a shared_joint_trig block: cos(q + θ) by angle
     # addition, equal to the direct form to round-off
     np.testing.assert_allclose(r1, r2, rtol=1e-13, atol=1e-10)
     np.testing.assert_allclose(d1, d2, rtol=1e-10, atol=1e-10)
-    np.testing.assert_allclose(jax.jacfwd(f)(z), sp.jacobian(z), rtol=1e-10, atol=1e-10)
+    jac_f, jac = eqx.filter_jit(lambda sp, z: (jax.jacfwd(residual_with_jacfwd(sp))(z), sp.jacobian(z)))(sp, z)
+    np.testing.assert_allclose(jac_f, jac, rtol=1e-10, atol=1e-10)
     w = jax.random.normal(jax.random.key(2), r1.shape)
-    np.testing.assert_allclose(jax.vjp(f, z)[1](w)[0], jax.vjp(sp.residual, z)[1](w)[0], rtol=1e-9, atol=1e-9)
+    vjp_f, vjp = eqx.filter_jit(lambda sp, z, w: (jax.vjp(residual_with_jacfwd(sp), z)[1](w)[0],
+                                                  jax.vjp(sp.residual, z)[1](w)[0]))(sp, z, w)
+    np.testing.assert_allclose(vjp_f, vjp, rtol=1e-9, atol=1e-9)
     two = jax.tree.map(lambda a: jnp.stack([a, a]), sp)
-    batched = jax.vmap(lambda p, z: jax.jvp(residual_with_jacfwd(p), (z,), (t,))[1])(two, jnp.stack([z, 2 * z]))
-    np.testing.assert_allclose(batched[1], jax.jvp(sp.residual, (2 * z,), (t,))[1], rtol=1e-10, atol=1e-10)
+    batched = eqx.filter_jit(jax.vmap(lambda p, z, t: jax.jvp(residual_with_jacfwd(p), (z,), (t,))[1],
+                                      in_axes=(0, 0, None)))(two, jnp.stack([z, 2 * z]), t)
+    np.testing.assert_allclose(batched[1], jvps(sp, 2 * z, t)[1][1], rtol=1e-10, atol=1e-10)
 
 
 def test_lm_started_at_its_optimum_stops_at_once(experiment):
@@ -186,7 +198,9 @@ def test_free_set_is_data(experiment, monkeypatch):
     from jaxcal._calibration import _calibrate as cal_mod
 
     ex = experiment
-    data = ex.train.subset(np.arange(300))
+    # the whole training set, as the other tests of this module calibrate: its identifiability and
+    # plain-LM programs are compiled once for the module (a 300-sample subset compiled its own)
+    data = ex.train
     settings = [dict(), dict(fix="d_4,a_2"), dict(objective="measured"), dict(objective="measured", fix="theta")]
     before = set(cal_mod._COMPILED._d)
     masked = [calibrate(ex.robot, ex.measurement, data, "lm", **kw) for kw in settings]
@@ -219,7 +233,9 @@ def test_gradient_methods_noiseless(name):
 
 def test_vmap_over_keys_and_data_equals_sequential():
     keys = jax.random.split(jax.random.PRNGKey(3), 3)
-    exs = jax.vmap(lambda k: simulate_experiment(k, n_samples=150))(keys)
+    # the experiment fixture's sample count: identifiability() below then runs the program that
+    # test_lm_cholesky_step_equals_qr_step compiled for that shape
+    exs = jax.vmap(lambda k: simulate_experiment(k))(keys)
     robot, meas = jaxcal.robots.hsr_jr680(), exs.measurement
     meas = jaxcal.CableLength(exs.measurement.anchor[0])
     space = jaxcal.identifiability(robot, meas, exs.train.q[0]).space

@@ -13,7 +13,7 @@ from conftest import central_differences
 import jaxcal
 from jaxcal import Camera, Dataset, checkerboard, hand_eye_park, robots, simulate_camera, solve_pnp
 from jaxcal._models._kinematics import fk_pose, fk_pose_jit
-from jaxcal._sensors._camera import _T, _inv, camera_floor, masked_corners, project_points
+from jaxcal._sensors._camera import _T, _inv, _residual_jit, camera_floor, masked_corners, project_points
 
 INTR = [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.001]
 
@@ -43,8 +43,11 @@ def test_jacobian_of_the_structured_projection(mount):
     from jaxcal._sensors._camera import _distort_project
 
     robot = robots.hsr_jr680()
+    # simulated with the camera model of test_masked_corners_roundtrip_and_residual (the same
+    # 5-view simulation program; the intrinsics group only adds zero deviations to the truth),
+    # then differentiated with the intrinsics free
+    q, y, _, _ = simulate_camera(jax.random.key(4), robot, _camera(mount), n_views=5, noise_px=0.3)
     cam = Camera(checkerboard(9, 6, 20.0), INTR, mount, image_size=(1280, 1024), calibrate_intrinsics=True)
-    q, y, cam, _ = simulate_camera(jax.random.key(4), robot, cam, n_views=5, noise_px=0.3)
     pr = jaxcal.Problem(robot, cam, q, y, jaxcal.ParameterSpace.for_robot(robot, measurement=cam))
     x = pr.x0() + 1e-3 * jax.random.normal(jax.random.key(5), pr.x0().shape)
 
@@ -101,7 +104,8 @@ def test_masked_corners_roundtrip_and_residual(tmp_path):
     back = jaxcal.load_csv(tmp_path / "c.csv")
     assert back.kind == "camera"
     np.testing.assert_array_equal(np.isnan(back.y), np.isnan(np.asarray(y)))
-    r = np.asarray(cam.residual(robot, truth, back.q, back.y)).reshape(5, -1, 2)
+    # compiled, not op by op (each eager operation is a program of its own)
+    r = np.asarray(_residual_jit(cam, robot, truth, back.q, back.y)).reshape(5, -1, 2)
     assert np.all(r[np.isnan(np.asarray(y))] == 0)  # masked: zero weight
     assert np.abs(r).max() < 1e-6  # noiseless: the truth reprojects exactly
 
@@ -134,14 +138,20 @@ def test_calibrated_camera_positions_within_3_sigma(calibrated):
     assert res.ok
     space = res.space
 
-    def f(x):
-        return _camera_in_target(nominal, robot, space.from_vector(x, res.deviations), q[te])
+    # one compiled program, not op by op (each eager operation is a program of its own); every
+    # array an argument, not a constant XLA would fold at compile time
+    @eqx.filter_jit
+    def positions(x, base, truth, qte, nominal, cam, robot):
+        def f(x):
+            return _camera_in_target(nominal, robot, space.from_vector(x, base), qte)
 
-    x = jnp.asarray(res.x)
-    J = np.asarray(jax.jacfwd(f)(x))  # [10, 3, p]
+        return jax.jacfwd(f)(x), f(x), _camera_in_target(cam, robot, truth, qte)
+
+    J, fx, true_pos = (np.asarray(a) for a in positions(jnp.asarray(res.x), res.deviations, truth, q[te], nominal,
+                                                        cam, robot))  # J: [10, 3, p]
     cov = np.asarray(res.uncertainty.covariance)
     sd = np.sqrt(np.einsum("nip,pk,nik->ni", J, cov, J))
-    err = np.asarray(f(x)) - np.asarray(_camera_in_target(cam, robot, truth, q[te]))
+    err = fx - true_pos
     print(f"camera positions at 10 held-out poses: max |error| {np.abs(err).max():.4f} mm, "
           f"max |error|/σ {(np.abs(err) / sd).max():.2f}, median σ {np.median(sd):.4f} mm")
     assert np.all(np.abs(err) <= 3 * sd), (np.abs(err) / sd).max()
@@ -164,10 +174,15 @@ def test_evaluate_registers_a_moved_camera(calibrated):
     assert "RMSE/px" in text and "mm" not in text.split("Accuracy")[1].split("expected")[0]
     assert "no sensor" not in text and "raw nominal" not in text and "handeye_rotation" in ev.message
     assert not ev.worse_than_expected and ev.after.rmse == pytest.approx(ev.expected_rmse, rel=0.25)
-    moved = truth.replace(handeye_translation=truth.values["handeye_translation"] + jnp.array([2.0, -1.0, 1.5]),
-                          handeye_rotation=truth.values["handeye_rotation"] + jnp.array([0.01, 0.0, -0.01]))
-    ym = cam.predict(robot, moved, q[te]) + 0.3 * jax.random.normal(jax.random.key(9), y[te].shape)
-    new = Dataset(q[te], jnp.where(jnp.isnan(y[te]), jnp.nan, ym), "camera")
+
+    @eqx.filter_jit  # one compiled program, not op by op (each eager operation is a program of its own)
+    def remounted(truth, q, y, cam, robot):
+        moved = truth.replace(handeye_translation=truth.values["handeye_translation"] + jnp.array([2.0, -1.0, 1.5]),
+                              handeye_rotation=truth.values["handeye_rotation"] + jnp.array([0.01, 0.0, -0.01]))
+        ym = cam.predict(robot, moved, q) + 0.3 * jax.random.normal(jax.random.key(9), y.shape)
+        return jnp.where(jnp.isnan(y), jnp.nan, ym)
+
+    new = Dataset(q[te], remounted(truth, q[te], y[te], cam, robot), "camera")
     again = jaxcal.evaluate_result(res, new)
     print(f"moved camera: registered {again.after.rmse:.3f} px (expected {again.expected_rmse:.3f})")
     assert not again.worse_than_expected and again.after.rmse < 1.5 * ev.after.rmse
