@@ -22,14 +22,72 @@ __all__ = ["simulate_contact", "save_simulated_contact", "simulate_distance", "s
 def _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, length_std_mm, tool_std_mm, dtype):
     """The simulated robot's deviations: the given ones, or drawn (the experiment's defaults where a
     std is ``None``) and restricted to the model's parameter groups."""
-    from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM, draw_deviations
+    from ._simulate import DEFAULT_ANGLE_STD_DEG, DEFAULT_LENGTH_STD_MM
 
     if true_deviations is None:
-        dh = filter_jit(draw_deviations)(k_dev, robot, angle_std_deg=DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
-                             length_std_mm=DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
-                             tool_std_mm=tool_std_mm, dtype=dtype)
-        true_deviations = Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
+        true_deviations = _draw_true(k_dev, robot, layout,
+                                     DEFAULT_ANGLE_STD_DEG if angle_std_deg is None else angle_std_deg,
+                                     DEFAULT_LENGTH_STD_MM if length_std_mm is None else length_std_mm,
+                                     tool_std_mm, dtype)
     return true_deviations.astype(dtype)
+
+
+@filter_jit
+def _draw_true(k_dev, robot, layout, angle_std_deg, length_std_mm, tool_std_mm, dtype):
+    """:func:`~jaxcal.draw_deviations` restricted to ``layout``'s groups, one compiled program
+    (a jitted wrapper made at module level: one made per call was traced again every call)."""
+    from ._simulate import draw_deviations
+
+    dh = draw_deviations(k_dev, robot, angle_std_deg=angle_std_deg, length_std_mm=length_std_mm,
+                         tool_std_mm=tool_std_mm, dtype=dtype)
+    return Deviations({g: v for g, v in dh.values.items() if g in layout.group_names}, layout, dtype)
+
+
+#: rows per call of the programs that score candidate rows (constraint values, tool points): the
+#: rows are padded to a multiple of it, so each compiles once per model, not once per number of
+#: samples; their values are bit-identical to one call over all rows. (Not the Newton steps: in
+#: blocks, their results differ in the last bit from one call over all rows.)
+_CHUNK = 2048
+
+
+def _chunked(fn, *row_args, chunk=_CHUNK):
+    """``fn(*chunk_of_row_args)`` over the rows in blocks of ``chunk`` (the last one padded with
+    copies of the last row), outputs concatenated on the host (NumPy) and cut to the row count."""
+    n = int(row_args[0].shape[0])
+    if chunk is None or n == 0:
+        return tuple(np.asarray(o) for o in fn(*row_args))
+    hosts = [np.asarray(a) for a in row_args]
+    outs = []
+    for i in range(0, n, chunk):
+        part = [a[i:i + chunk] for a in hosts]
+        m = part[0].shape[0]
+        if m < chunk:
+            part = [np.concatenate([a, np.repeat(a[-1:], chunk - m, axis=0)]) for a in part]
+        outs.append(tuple(np.asarray(o)[:m] for o in fn(*part)))
+    return tuple(np.concatenate(o, axis=0) for o in zip(*outs))
+
+
+@filter_jit
+def _split(key, n: int):
+    return tuple(jax.random.split(key, n))
+
+
+@filter_jit
+def _normal(key, shape, dtype):
+    """``N(0, 1)`` draws of ``shape`` (scaled by σ on the host: scaled inside the program, one
+    value in ~1000 came out one bit different from the former eager product)."""
+    return jax.random.normal(key, shape, dtype)
+
+
+@filter_jit
+def _permutation(key, n: int):
+    return jax.random.permutation(key, n)
+
+
+@filter_jit
+def _sample_q_jit(key, robot, n: int):
+    return _sample_q(key, robot, n)
+
 
 def _row_constraint(robot, dev, m, qi, k):
     """The constraint of one row, ``[m]``: signed distance / ``p − c`` / sphere distance."""
@@ -44,20 +102,26 @@ def _row_constraint(robot, dev, m, qi, k):
 
 
 @filter_jit
-def _candidates(robot, dev, m, key, n: int):
-    """``n`` random joint-angle rows ``[n, dof]``, their labels in turn ``[n]`` and each row's
-    distance to its label's constraint ``[n]``, in one compiled program (op by op, this was
-    hundreds of small programs)."""
+def _candidates(robot, key, n: int, n_labels: int):
+    """``n`` random joint-angle rows ``[n, dof]`` and their labels in turn ``[n]`` (one program for
+    every model with that many labels); their distances to the labels' constraints: :func:`_scores`
+    (in blocks of rows, one program per model)."""
     q = _sample_q(key, robot, n)
-    labels = jnp.arange(n) % len(m.labels)
+    return q, jnp.arange(n) % n_labels
+
+
+@filter_jit
+def _scores(robot, dev, m, q, labels):
+    """Each row's distance to its label's constraint ``[n]``, in one compiled program (op by op,
+    this was hundreds of small programs)."""
     g = jax.vmap(lambda qi, ki: _row_constraint(robot, dev, m, qi, ki))(q, labels)
-    return q, labels, jnp.linalg.norm(g, axis=1)
+    return (jnp.linalg.norm(g, axis=1),)
 
 
 @filter_jit
 def _tool_points(robot, dev, q):
     """Tool points ``[n, 3]`` (mm) of the rows ``q``, compiled."""
-    return jnp.stack(tool_point_soa(robot, dev, q), -1)
+    return (jnp.stack(tool_point_soa(robot, dev, q), -1),)
 
 
 @filter_jit
@@ -95,13 +159,14 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
 
     m = default_setup("plane", robot) if measurement is None else measurement
     dtype = jnp.result_type(float)
-    k_dev, k_q, k_noise, k_split = jax.random.split(key, 4)
+    k_dev, k_q, k_noise, k_split = _split(key, 4)
     layout = layout_for(robot, m)
     true_deviations = _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, length_std_mm,
                                        tool_std_mm, dtype)
     K = len(m.labels)
     n_cand = n_samples * oversample
-    cand, lab_all, score = _candidates(robot, true_deviations, m, k_q, n_cand * K)
+    cand, lab_all = _candidates(robot, k_q, n_cand * K, K)
+    (score,) = _chunked(lambda qc, lc: _scores(robot, true_deviations, m, qc, lc), cand, lab_all)
     score = np.asarray(score, np.float64)
     lab_np = np.asarray(lab_all)
     picks = []
@@ -109,13 +174,13 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
         rows = np.flatnonzero(lab_np == k)
         picks.append(rows[np.argsort(score[rows])][: tries * (n_samples // K + 1)])
     order = np.stack(picks, 1).reshape(-1)  # labels in turn
-    q = cand[order]
-    k = lab_all[order]
+    q = np.asarray(cand)[order]  # on the host: jnp indexing compiles a program per shape
+    k = lab_np[order]
     msize = m.size
-    target = noise_std * jax.random.normal(k_noise, (q.shape[0], msize), dtype)
+    target = noise_std * np.asarray(_normal(k_noise, (q.shape[0], msize), dtype))
     for _ in range(iterations):
-        q_new, err = _newton_step(robot, true_deviations, m, q, k, target)
-        if float(jnp.max(err)) < 1e-9:
+        q_new, err = _newton_step(robot, true_deviations, m, q, k, target)  # all rows at once: blocks change the last bit
+        if float(np.max(np.asarray(err))) < 1e-9:
             break
         q = q_new
     qn, errn = np.asarray(q), np.asarray(err)
@@ -129,7 +194,7 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
             "noise_std_mm": str(noise_std), **mm_joints_metadata(robot)}
     data = Dataset(jnp.asarray(qn[idx], dtype), jnp.asarray(np.asarray(k)[idx], dtype), m.kind, meta)
     n_test = int(round(n_samples * test_fraction))
-    perm = np.asarray(jax.random.permutation(k_split, n_samples))
+    perm = np.asarray(_permutation(k_split, n_samples))
     return Experiment(robot, m, true_deviations, data.subset(perm[n_test:]), data.subset(perm[:n_test]),
                       jnp.asarray(noise_std, dtype))
 
@@ -190,26 +255,26 @@ def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.
 
     m = DistanceBar(robot.dof)
     dtype = jnp.result_type(float)
-    k_dev, k_a, k_b, k_noise, k_split = jax.random.split(key, 5)
+    k_dev, k_a, k_b, k_noise, k_split = _split(key, 5)
     layout = layout_for(robot, m)
     true_deviations = _true_deviations(k_dev, robot, layout, true_deviations, angle_std_deg, length_std_mm,
                                        tool_std_mm, dtype)
     n_try = tries * n_samples
-    qa = _sample_q(k_a, robot, n_try)
-    pool = _sample_q(k_b, robot, min(8 * n_try, 8192))
-    pa = np.asarray(_tool_points(robot, true_deviations, qa))
-    pp = np.asarray(_tool_points(robot, true_deviations, pool))
+    qa = np.asarray(_sample_q_jit(k_a, robot, n_try))
+    pool = np.asarray(_sample_q_jit(k_b, robot, min(8 * n_try, 8192)))
+    (pa,) = _chunked(lambda qc: _tool_points(robot, true_deviations, qc), qa)
+    (pp,) = _chunked(lambda qc: _tool_points(robot, true_deviations, qc), pool)
     L = np.resize(np.asarray(lengths_mm, np.float64), n_try)
     best = np.empty(n_try, int)
     for i in range(0, n_try, 256):  # the pool pose nearest to a bar length away, in blocks (memory)
         dist = np.sqrt(((pa[i:i + 256, None, :] - pp[None, :, :]) ** 2).sum(-1))
         best[i:i + 256] = np.argmin(np.abs(dist - L[i:i + 256, None]), axis=1)
     qb = pool[best]
-    eps = noise_std * np.asarray(jax.random.normal(k_noise, (n_try,), dtype))
-    target = jnp.asarray(L + eps, dtype)[:, None]
+    eps = noise_std * np.asarray(_normal(k_noise, (n_try,), dtype))
+    target = np.asarray(L + eps, dtype)[:, None]
     for _ in range(iterations):
-        qb_new, err = _pair_step(robot, true_deviations, qa, qb, target)
-        if float(jnp.max(err)) < 1e-9:
+        qb_new, err = _pair_step(robot, true_deviations, qa, qb, target)  # all rows at once (as above)
+        if float(np.max(np.asarray(err))) < 1e-9:
             break
         qb = qb_new
     qa_n, qb_n, errn = np.asarray(qa), np.asarray(qb), np.asarray(err)
@@ -223,7 +288,7 @@ def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.
             **mm_joints_metadata(robot)}
     data = Dataset(jnp.asarray(qa_n[idx], dtype), jnp.asarray(y, dtype), "distance", meta)
     n_test = int(round(n_samples * test_fraction))
-    perm = np.asarray(jax.random.permutation(k_split, n_samples))
+    perm = np.asarray(_permutation(k_split, n_samples))
     return Experiment(robot, m, true_deviations, data.subset(perm[n_test:]), data.subset(perm[:n_test]),
                       jnp.asarray(noise_std, dtype))
 

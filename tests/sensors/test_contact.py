@@ -154,7 +154,8 @@ def test_closed_form_starts_recover_planes_points_and_tool(robot):
     np.testing.assert_allclose(np.asarray(d), np.asarray(m.offsets), atol=1e-6)
     p = default_setup("point", robot)
     truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])}, jaxcal._core._params.layout_for(robot, p))
-    ex = simulate_contact(jax.random.key(8), robot, p, n_samples=60, noise_std=0.0, test_fraction=0.0,
+    # 90 rows like the plane data here and the length-scale test's data: the same simulation programs
+    ex = simulate_contact(jax.random.key(8), robot, p, n_samples=90, noise_std=0.0, test_fraction=0.0,
                           true_deviations=truth)
     cp = FixedPoint.from_dataset(ex.train)
     est = initial_contact(robot, cp, ex.train, estimate=("point", "tool"))
@@ -165,7 +166,8 @@ def test_closed_form_starts_recover_planes_points_and_tool(robot):
 
 def test_csv_round_trip_and_relabel(robot, tmp_path):
     m = default_setup("plane", robot)
-    ex = simulate_contact(jax.random.key(9), robot, m, n_samples=30, noise_std=SIGMA, test_fraction=0.0)
+    # 24 rows, like the hidden plane rows of test_evaluate_expects_the_floor...: the same simulation programs
+    ex = simulate_contact(jax.random.key(9), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0)
     path = tmp_path / "p.csv"
     ex.train.to_csv(path)
     text = path.read_text()
@@ -174,10 +176,11 @@ def test_csv_round_trip_and_relabel(robot, tmp_path):
     assert back.kind == "plane" and back.meta["plane_labels"] == "table,wall_a,wall_b"
     np.testing.assert_array_equal(np.asarray(back.y), np.asarray(ex.train.y))
     other = relabel(back, ("wall_b", "table", "wall_a"))
-    r0 = m.residual(robot, ex.true_deviations, back.q, back.y)
+    # each residual as one compiled program (op by op, each operation compiled a program of its own)
+    r0 = jax.jit(lambda dev, q, y: m.residual(robot, dev, q, y))(ex.true_deviations, back.q, back.y)
     m2 = PlaneContact(("wall_b", "table", "wall_a"), np.asarray(m.normals)[[2, 0, 1]], np.asarray(m.offsets)[[2, 0, 1]])
-    np.testing.assert_allclose(np.asarray(m2.residual(robot, ex.true_deviations.replace(), other.q, other.y)),
-                               np.asarray(r0), atol=1e-9)
+    r2 = jax.jit(lambda dev, q, y: m2.residual(robot, dev, q, y))(ex.true_deviations.replace(), other.q, other.y)
+    np.testing.assert_allclose(np.asarray(r2), np.asarray(r0), atol=1e-9)
 
 
 def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
@@ -187,7 +190,8 @@ def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
     assert abs(ratio - 1) < 0.03, ratio
     # evaluate on hidden bar rows: the tool was estimated (part of the robot, kept), nothing to register;
     # the expectation counts each row's own second pose and length
-    hidden = simulate_distance(jax.random.key(4), robot, n_samples=60, noise_std=SIGMA, test_fraction=0.0,
+    # 300 rows, like the calibration data: the same simulation programs (60 rows compiled their own)
+    hidden = simulate_distance(jax.random.key(4), robot, n_samples=300, noise_std=SIGMA, test_fraction=0.0,
                                true_deviations=truth).train
     ev = jaxcal.evaluate_result(res, hidden)
     assert ev.extras == "none" and ev.kept == ("tool",) and "no sensor extras were estimated" not in ev.message
