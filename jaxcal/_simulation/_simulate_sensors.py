@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._core._buckets import pad_rows
 from .._core._params import Deviations, layout_for
 from .._core._xla import filter_jit
 from .._datasets._dataset import label_metadata_key
@@ -50,21 +51,21 @@ def _draw_true(k_dev, robot, layout, angle_std_deg, length_std_mm, tool_std_mm, 
 _CHUNK = 2048
 
 
-def _chunked(fn, *row_args, chunk=_CHUNK):
-    """``fn(*chunk_of_row_args)`` over the rows in blocks of ``chunk`` (the last one padded with
-    copies of the last row), outputs concatenated on the host (NumPy) and cut to the row count."""
-    n = int(row_args[0].shape[0])
-    if chunk is None or n == 0:
-        return tuple(np.asarray(o) for o in fn(*row_args))
-    hosts = [np.asarray(a) for a in row_args]
+def _chunked(fn, q, labels=None):
+    """``fn(q_block[, labels_block])`` ``[n, ...]`` over the rows in blocks of :data:`_CHUNK`, the
+    last one padded (:func:`~jaxcal._core._buckets.pad_rows`), concatenated on the host (NumPy)."""
+    q = np.asarray(q)
+    labels = None if labels is None else np.asarray(labels)
+    if q.shape[0] == 0:
+        return np.asarray(fn(q) if labels is None else fn(q, labels))
     outs = []
-    for i in range(0, n, chunk):
-        part = [a[i:i + chunk] for a in hosts]
-        m = part[0].shape[0]
-        if m < chunk:
-            part = [np.concatenate([a, np.repeat(a[-1:], chunk - m, axis=0)]) for a in part]
-        outs.append(tuple(np.asarray(o)[:m] for o in fn(*part)))
-    return tuple(np.concatenate(o, axis=0) for o in zip(*outs))
+    for i in range(0, q.shape[0], _CHUNK):
+        qc = q[i:i + _CHUNK]
+        lc = None if labels is None else labels[i:i + _CHUNK]
+        m = qc.shape[0]
+        qp, lp, _ = pad_rows(qc, lc, _CHUNK, host=True)
+        outs.append(np.asarray(fn(qp) if labels is None else fn(qp, lp))[:m])
+    return np.concatenate(outs, axis=0)
 
 
 @filter_jit
@@ -115,13 +116,13 @@ def _scores(robot, dev, m, q, labels):
     """Each row's distance to its label's constraint ``[n]``, in one compiled program (op by op,
     this was hundreds of small programs)."""
     g = jax.vmap(lambda qi, ki: _row_constraint(robot, dev, m, qi, ki))(q, labels)
-    return (jnp.linalg.norm(g, axis=1),)
+    return jnp.linalg.norm(g, axis=1)
 
 
 @filter_jit
 def _tool_points(robot, dev, q):
     """Tool points ``[n, 3]`` (mm) of the rows ``q``, compiled."""
-    return (jnp.stack(tool_point_soa(robot, dev, q), -1),)
+    return jnp.stack(tool_point_soa(robot, dev, q), -1)
 
 
 @filter_jit
@@ -166,8 +167,7 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     K = len(m.labels)
     n_cand = n_samples * oversample
     cand, lab_all = _candidates(robot, k_q, n_cand * K, K)
-    (score,) = _chunked(lambda qc, lc: _scores(robot, true_deviations, m, qc, lc), cand, lab_all)
-    score = np.asarray(score, np.float64)
+    score = np.asarray(_chunked(lambda qc, lc: _scores(robot, true_deviations, m, qc, lc), cand, lab_all), np.float64)
     lab_np = np.asarray(lab_all)
     picks = []
     for k in range(K):  # per label the candidates nearest to it
@@ -262,8 +262,8 @@ def simulate_distance(key, robot, *, n_samples: int = 300, noise_std: float = 0.
     n_try = tries * n_samples
     qa = np.asarray(_sample_q_jit(k_a, robot, n_try))
     pool = np.asarray(_sample_q_jit(k_b, robot, min(8 * n_try, 8192)))
-    (pa,) = _chunked(lambda qc: _tool_points(robot, true_deviations, qc), qa)
-    (pp,) = _chunked(lambda qc: _tool_points(robot, true_deviations, qc), pool)
+    pa = _chunked(lambda qc: _tool_points(robot, true_deviations, qc), qa)
+    pp = _chunked(lambda qc: _tool_points(robot, true_deviations, qc), pool)
     L = np.resize(np.asarray(lengths_mm, np.float64), n_try)
     best = np.empty(n_try, int)
     for i in range(0, n_try, 256):  # the pool pose nearest to a bar length away, in blocks (memory)
