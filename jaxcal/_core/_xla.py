@@ -142,13 +142,22 @@ def jit_options() -> dict[str, object] | None:
 
 def _top_level() -> bool:
     """Whether JAX is not tracing or transforming anything now (a call here runs eagerly);
-    ``False`` when it cannot tell (then no options are passed)."""
-    try:
-        from jax._src import core
-    except ImportError:  # pragma: no cover - JAX moved its internals
-        return False
-    clean = getattr(core, "trace_state_clean", None)
-    return bool(clean()) if clean is not None else False
+    ``False`` when it cannot tell (then no options are passed). Called on every call of a jitted
+    function: JAX's check is looked up once."""
+    check = _STATE.get("check")
+    if check is None:
+        try:
+            from jax._src import core
+
+            check = getattr(core, "trace_state_clean", None)
+        except ImportError:  # pragma: no cover - JAX moved its internals
+            check = None
+        check = _STATE["check"] = check or (lambda: False)
+    return bool(check())
+
+
+#: ``{"check": JAX's top-level test}`` once :func:`_top_level` has looked it up.
+_STATE: dict = {}
 
 
 class TopLevelOptions:
