@@ -462,7 +462,7 @@ def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None, host: bool = 
     host first)."""
     n = int(q.shape[0])
     pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
-    n_to = n if not pad else bucket_size(n) if n_to is None else n_to
+    n_to = n if not pad else bucket_size(n, width=cal.measurement.size) if n_to is None else n_to
     w = None
     if pad:
         q, y, w = pad_rows(q, y, n_to, host=host)

@@ -396,7 +396,8 @@ def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
     # the process's bucket rule (a later round of fewer units reuses the bucket of the first);
     # with buckets off still one padded size per batch (the fine grid)
     n_rows = max(_n_rows(r[1]) for r in pending.values())
-    n_to = bucket_size(n_rows) if buckets_enabled() else bucket_size(n_rows, minimum=256)
+    width = max(r[0].measurement.size for r in pending.values())
+    n_to = bucket_size(n_rows, width=width) if buckets_enabled() else bucket_size(n_rows, minimum=256, width=width)
     groups: dict = {}
     for i, (cal, q, y, key) in pending.items():
         with dtype_scope(q.dtype):

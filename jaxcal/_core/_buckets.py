@@ -12,6 +12,11 @@ On by default.
   (256, 288, 320, ..., 1 536, 1 664, 1 792, ...), so the padding is at most 1/9 (11 %) of the
   bucket — a user who calibrates one data size pays almost nothing for it (the paper experiment's
   1 600 training samples run as 1 664 rows). Below ``b`` samples every count pads to ``b``.
+* **Wide rows** (more than :data:`WIDE_ROW` = 6 residual entries per sample: a camera view's
+  image points, many markers) have a smaller smallest bucket, ``b·6/width`` rounded down to a
+  power of two (a 9×6 checkerboard's 108 entries per view: 8 views), so that padding to the
+  smallest bucket never adds more than ``6·b`` residual entries: 30 camera views run as 30
+  rows, not 256 (8.5 times the residuals, the Jacobian and every step of the solve).
 * **Later sizes reuse**: a count ``n`` runs in the smallest bucket this process has used already
   that holds it and is at most :data:`REUSE_FACTOR` (2) × ``n``; only when there is none a new
   bucket is made, and once the process has used one bucket above ``b``, new buckets come from the
@@ -46,7 +51,7 @@ import numpy as np
 from ._cache import OFF_WORDS
 
 __all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "clear_compiled", "ENV_VAR",
-           "REUSE_FACTOR", "FINE_STEPS"]
+           "REUSE_FACTOR", "FINE_STEPS", "WIDE_ROW"]
 
 #: environment variable: ``off`` (no padding), ``on`` or the smallest bucket (an integer, default 256).
 ENV_VAR = "JAXCAL_BUCKETS"
@@ -56,6 +61,10 @@ REUSE_FACTOR = 2.0
 
 #: steps per octave of the first bucket's grid (padding at most ``1/(FINE_STEPS + 1)`` of the bucket)
 FINE_STEPS = 8
+
+#: residual entries per sample up to which the smallest bucket is the configured one (a pose's 6);
+#: wider rows scale it down (:func:`smallest_bucket`)
+WIDE_ROW = 6
 
 _SETTING: dict = {}
 
@@ -88,6 +97,16 @@ def _parse_setting() -> tuple[int | None, bool]:
 def _min_bucket() -> int | None:
     """The smallest bucket, or ``None`` when padding is off."""
     return _parse_setting()[0]
+
+
+def smallest_bucket(minimum: int, width: int = 1) -> int:
+    """The smallest bucket for samples of ``width`` residual entries each: ``minimum`` up to
+    :data:`WIDE_ROW` entries, else ``minimum·WIDE_ROW/width`` rounded down to a power of two (at
+    least 1), so the smallest bucket holds at most ``WIDE_ROW·minimum`` residual entries."""
+    minimum, width = int(minimum), max(int(width), 1)
+    if width <= WIDE_ROW:
+        return minimum
+    return max(1, 1 << math.floor(math.log2(max(minimum * WIDE_ROW / width, 1.0))))
 
 
 def set_buckets(enabled: bool | int | None = True) -> None:
@@ -139,20 +158,23 @@ def octave_bucket(n: int, minimum: int = 256) -> int:
     return size
 
 
-def bucket_size(n: int, minimum: int | None = None) -> int:
+def bucket_size(n: int, minimum: int | None = None, *, width: int = 1) -> int:
     """The padded sample count for ``n`` samples (``n`` itself with padding off).
 
     With ``minimum`` given: the fine grid's bucket (:func:`fine_bucket`), a pure function of
     ``n``. Without (what jaxcal's programs use): the process's bucket rule of the module
     docstring — a bucket already used that holds ``n`` and is at most :data:`REUSE_FACTOR` × ``n``,
     else a new one (fine grid for the process's first bucket above the smallest, octave grid
-    after it), which is then remembered."""
+    after it), which is then remembered. ``width``: residual entries per sample (the measurement
+    model's ``size``); wide samples (a camera view) have a smaller smallest bucket
+    (:func:`smallest_bucket`)."""
     n = int(n)
     if minimum is not None:
-        return n if n <= 0 else fine_bucket(n, minimum)
+        return n if n <= 0 else fine_bucket(n, smallest_bucket(minimum, width))
     b = _min_bucket()
     if b is None or n <= 0:
         return n
+    b = smallest_bucket(b, width)
     if n <= b:
         return b
     fits = [s for s in _USED if n <= s <= REUSE_FACTOR * n]

@@ -249,7 +249,7 @@ def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experi
         sizes = None
         if pad:
             n, n_test = options["n_samples"], int(round(options["n_samples"] * options["test_fraction"]))
-            settings["bucket"] = bucket_size(n)
+            settings["bucket"] = bucket_size(n, width=measurement.size)
             sizes = jnp.asarray([n, n_test, _simulate_mod.permutation_rounds(n)], jnp.int32)
             options = options | {"n_samples": settings["bucket"]}
         return (_Simulated(robot, measurement, truth, tuple(sorted(options.items())), sizes), robot, measurement,

@@ -515,7 +515,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     n = int(q.shape[0])
     qp, yp, w = q, y, None
     if buckets_enabled() or n_to is not None:
-        n_to = bucket_size(n) if n_to is None else int(n_to)
+        n_to = bucket_size(n, width=measurement.size) if n_to is None else int(n_to)
         qp, yp, w = pad_rows(q, y, n_to)
         measurement = measurement.pad_rows(n, n_to)
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)

@@ -170,10 +170,11 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
     robust scales and outlier scans."""
     x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else to_device(x, problem.dtype)
     n = problem.n_samples
-    if problem.weight is None and buckets_enabled() and bucket_size(n) != n:
+    width = problem.measurement.size
+    if problem.weight is None and buckets_enabled() and bucket_size(n, width=width) != n:
         # evaluated on the rows padded to their shape bucket (one program per bucket), the
         # padding cut off on the host
-        n_to = bucket_size(n)
+        n_to = bucket_size(n, width=width)
         q, y, _ = pad_rows(problem.q, problem.y, n_to)
         padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, problem.space, problem.base)
         return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, x))[:n])

@@ -36,6 +36,16 @@ def test_bucket_rule():
         b = bucket_size(n, 256)
         assert n <= b and (b - n) <= b / 9 + 1
     assert bucket_size(1000, 64) == 1024 and bucket_size(100, 64) == 104
+    # wide samples (a camera view's 108 image coordinates) have a smaller smallest bucket, so that
+    # padding to it adds at most 6·256 residual entries; up to a pose's 6 entries nothing changes
+    assert [_buckets.smallest_bucket(256, w) for w in (1, 3, 6, 7, 9, 12, 108, 2000)] == [
+        256, 256, 256, 128, 128, 128, 8, 1]
+    assert [bucket_size(n, 256, width=108) for n in (1, 8, 9, 30, 31, 200)] == [8, 8, 9, 30, 32, 208]
+    assert bucket_size(200, 256, width=6) == 256
+    for w in (7, 12, 54, 108, 500):
+        for n in range(1, 3000, 7):
+            b = bucket_size(n, 256, width=w)
+            assert n <= b and (b - n) * w <= max(6 * 256, w * (b / 9 + 1))
 
 
 def test_bucket_reuse(buckets_on):
