@@ -331,16 +331,22 @@ def _camera_pair(robot, other: str, seed: int):
     from jaxcal._simulation._simulate_sensors import simulate_camera
 
     fresh = seed == 0
+
+    def plane_rows(key, truth=None):  # one simulation shape for training and fresh rows (compiled once)
+        return simulate_contact(key, robot, model, n_samples=600, noise_std=SIGMA_TRACKER, test_fraction=0.0,
+                                true_deviations=truth)
+
+    def views(key, truth):
+        return simulate_camera(key, robot, n_views=30, noise_px=SIGMA_PX, true_deviations=truth)
+
     if other == "plane":
         model = default_setup("plane", robot)
-        ex = simulate_contact(jax.random.key(10 + seed), robot, model, n_samples=1200 if fresh else 600,
-                              noise_std=SIGMA_TRACKER, test_fraction=0.5 if fresh else 0.0)
+        ex = plane_rows(jax.random.key(10 + seed))
         truth, extras = ex.true_deviations, "tool"
     else:
         model, extras = Position(), "tool,base"
         truth = None
-    q_c, y_c, cam, truth = simulate_camera(jax.random.key(seed), robot, n_views=60 if fresh else 30,
-                                           noise_px=SIGMA_PX, true_deviations=truth)
+    q_c, y_c, cam, truth = views(jax.random.key(seed), truth)
     if other == "tracker":
         dh = _dh_only(robot, truth).replace(tool=np.array([20.0, -10.0, 90.0]))
         ex = simulate_experiment(jax.random.key(20 + seed), robot, n_samples=1000, noise_std=SIGMA_TRACKER,
@@ -349,11 +355,13 @@ def _camera_pair(robot, other: str, seed: int):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = calibrate_blocks(robot, [Block(other, model, ex.train, extras=extras),
-                                       Block("camera", nominal, (q_c[:30], y_c[:30]))])
+                                       Block("camera", nominal, (q_c, y_c))])
     ratio = None
-    if fresh:  # the 30 views not trained on, and the held-out rows of the other sensor, with the true σ
-        comb, q, y = combine(robot, [Block(other, model, ex.test, SIGMA_TRACKER),
-                                     Block("camera", nominal, (q_c[30:], y_c[30:]), SIGMA_PX)])
+    if fresh:  # 30 views and rows of the other sensor not trained on (the same true set-up), with the true σ
+        test = plane_rows(jax.random.key(110), ex.true_deviations).train if other == "plane" else ex.test
+        q_t, y_t, _, _ = views(jax.random.key(100), truth)
+        comb, q, y = combine(robot, [Block(other, model, test, SIGMA_TRACKER),
+                                     Block("camera", nominal, (q_t, y_t), SIGMA_PX)])
         r = np.asarray(comb.residual(robot, res.deviations, q, y))
         n_train = sum(s.n_residuals for s in res.blocks)
         obs = comb.observed(y)
