@@ -627,7 +627,9 @@ def select_poses(
 
     ``start``: indices of candidates to start the exchange from instead of the greedy picks.
     Deterministic: the same candidates give the same selection (ties go to the lowest index);
-    generate the candidates from a seed with :func:`candidate_poses`.
+    generate the candidates from a seed with :func:`candidate_poses`. With data of other sensors
+    in hand (one combined fit): :func:`jaxcal.plan_blocks`, the same selection started from their
+    information.
     """
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")

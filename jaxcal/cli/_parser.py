@@ -408,7 +408,9 @@ def _add_plan(sub, fmt) -> None:
                     "(or read them), select --poses of them (greedy D/A/E/I-optimal selection with rank-m updates, "
                     "then a DETMAX exchange), print the observability indices O1-O5 and the predicted test RMSE "
                     "and per-parameter σ (linearised covariance σ²(JᵀJ)⁻¹; no measurement needed), and write the "
-                    "poses as a data file with empty reading columns.",
+                    "poses as a data file with empty reading columns. With --with FILE (data of other sensors in "
+                    "hand): the poses that add most to that data in one combined fit (`jaxcal calibrate --combine`), "
+                    "and the prediction of every block.",
         epilog="O1 = (σ1⋯σp)^(1/p)/√N (Borm & Menq 1991, D-optimality), O2 = σp/σ1 (inverse condition number, "
                "Driels & Pathre 1990), O3 = σp (Nahvi et al. 1994), O4 = σp²/σ1 (noise amplification, Nahvi & "
                "Hollerbach 1996), O5 = 1/Σ(1/σi) (Sun & Hollerbach 2008), of the column-scaled identification "
@@ -450,6 +452,14 @@ def _add_plan(sub, fmt) -> None:
     pl.add_argument("--seed", type=int, default=0, help="seed of the candidates and the random comparison (default 0)")
     pl.add_argument("--out", required=True, metavar="POSES.csv", help="CSV file to write the selected poses to")
     pl.add_argument("--plot", metavar="FILE.png", help="also draw predicted test RMSE vs number of poses (selected vs random)")
+    pl.add_argument("--with", dest="with_files", action="append", metavar="FILE",
+                    help="plan a combined set-up: a data file of another sensor already in hand (or planned), its "
+                         "kind from the file as `jaxcal calibrate` reads it; repeatable. The poses are chosen on the "
+                         "combined information of all blocks (each block's rows over its σ, the robot shared, each "
+                         "block's own extras), and the prediction covers every block")
+    pl.add_argument("--with-sigma", type=float, action="append", metavar="SIGMA",
+                    help="noise σ of the --with files, one per file in order (mm; px for a camera; default: the "
+                         "file's noise_std_mm / noise_std_px line, as `jaxcal simulate` and `jaxcal plan` write it)")
     pl.set_defaults(func=_cmd_plan)
 
 

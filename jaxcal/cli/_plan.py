@@ -65,6 +65,10 @@ def _cmd_plan(args) -> int:
     n_cand = len(cand.q) if hasattr(cand, "q") else cand.shape[0]
     if args.poses > n_cand:
         raise _Usage(f"--poses {args.poses} is more than the {n_cand} candidates")
+    if args.with_files:
+        return _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
+    if args.with_sigma:
+        raise _Usage("--with-sigma applies to --with FILE (one σ per file, in order)")
     sel = _plan.select_poses(robot, measurement, cand, args.poses, criterion=args.criterion,
                              exchange=not args.no_exchange, noise_std=args.noise_std)
     q_test = _plan.candidate_poses(k_test, robot, measurement, 2000 if not sensor else 500, **filters)
@@ -146,3 +150,129 @@ def _save_sensor_plan(path, robot, measurement, sel, meta) -> None:
         if getattr(measurement, "sphere", False):
             meta["radius_mm"] = f"{float(np.asarray(measurement.radii)[0]):g}"
     Dataset(data.q, data.y, measurement.kind, meta).to_csv(path)
+
+
+def _fixed_block(path: str, sigma, robot):
+    """A data file in hand as a :class:`jaxcal.Block`: its kind from the file, its model as
+    ``jaxcal calibrate`` builds it, the extras that kind needs, σ given or the file's
+    ``noise_std_mm`` / ``noise_std_px`` line."""
+    import types
+
+    from .._calibration._setup import measured_extras
+    from .._datasets._dataset import load_csv
+    from .._sensors._blocks import Block
+    from ._calibrate import _camera_measurement
+    from ._common import _measurement
+
+    p = pathlib.Path(path)
+    if not p.exists():
+        raise _Usage(f"--with: data file {path!r} not found")
+    try:
+        data = load_csv(p)
+    except ValueError as e:
+        raise _Usage(f"--with {path}: {e}") from None
+    kind = data.kind
+    if data.dof != robot.dof:
+        raise _Usage(f"--with {path}: {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+    if kind == "markers" or data.labels:
+        raise _Usage(f"--with {path}: {kind} data of several sessions or markers cannot be planned with; give "
+                     "cable, position, pose, plane, point, distance or camera files")
+    unit = "px" if kind == "camera" else "mm"
+    if sigma is None:
+        text = data.meta.get(f"noise_std_{unit}")
+        if text is None:
+            raise _Usage(f"--with {path}: give its noise σ ({unit}) with --with-sigma, or a '# noise_std_{unit}: …' "
+                         "line in the file")
+        sigma = _floats(str(text), 1, f"the file's noise_std_{unit}")[0]
+    if not (sigma > 0 and math.isfinite(sigma)):
+        raise _Usage(f"--with {path}: σ must be a finite number > 0, got {sigma}")
+    anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm") if "anchor_mm" in data.meta else None
+    sphere = kind == "point" and "radius_mm" in data.meta
+    if kind == "camera":
+        model = _camera_measurement(types.SimpleNamespace(target=None, camera=None, mount=None, estimate=""), data, p)
+    else:
+        model = _measurement(kind, anchor, robot, data=data)
+        if sphere:
+            model = _sphere_model("point", model, _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0], False)
+    extras, _ = measured_extras(kind, set(), anchor_known=anchor is not None, sphere=sphere)
+    extras = sorted(e for e in extras if e in ("tool", "base", "anchor", "offset", "cable_offset"))
+    if kind in ("plane", "point"):
+        from .._datasets._dataset import relabel
+
+        data = relabel(data, model.labels)
+    return Block(p.stem, model, data, sigma=float(sigma), extras=extras), unit
+
+
+def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm) -> int:
+    """`jaxcal plan ... --with FILE [--with FILE ...]`: the poses of this sensor that add most to the
+    data in hand (:func:`jaxcal.plan_blocks`), the combined prediction, the poses file."""
+    import jax
+    import numpy as np
+
+    from .._calibration._setup import measured_extras
+    from .._datasets._dataset import mm_joints_metadata
+    from .._experiments import _plan
+    from .._experiments._plan_blocks import plan_blocks
+    from .._sensors._blocks import Block
+
+    if args.plot:
+        raise _Usage("--plot does not apply to --with (the curve is of one sensor alone)")
+    sigmas = list(args.with_sigma or [])
+    if sigmas and len(sigmas) != len(args.with_files):
+        raise _Usage(f"--with-sigma: give one σ per --with file ({len(args.with_files)}), got {len(sigmas)}")
+    fixed, units = [], []
+    for i, path in enumerate(args.with_files):
+        blk, u = _fixed_block(path, sigmas[i] if sigmas else None, robot)
+        fixed.append(blk)
+        units.append(u)
+    names = [b.name for b in fixed]
+    if len(set(names)) != len(names):
+        raise _Usage(f"--with: the files' names (their blocks) must differ, got {names}")
+    name = args.measurement if args.measurement not in names else f"planned_{args.measurement}"
+    extras, _ = measured_extras(measurement.kind, set(), anchor_known=True,
+                                sphere=bool(getattr(measurement, "sphere", False)))
+    extras = sorted(e for e in extras if e in ("tool", "base", "anchor", "offset", "cable_offset"))
+    planned = Block(name, measurement, cand, sigma=args.noise_std, extras=extras)
+    try:
+        plan = plan_blocks(robot, planned, args.poses, fixed=fixed, criterion=args.criterion,
+                           exchange=not args.no_exchange)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+    sel, pred = plan.selection, plan.prediction
+    n_cand = len(cand.q) if hasattr(cand, "q") else cand.shape[0]
+    rnd_idx = np.sort(np.asarray(jax.random.permutation(k_perm, n_cand))[: args.poses])
+    rnd = plan.prediction_of(rnd_idx)
+    in_hand = ", ".join(f"{b.name} ({b.measurement.kind}, {len(np.asarray(b.data.q))} rows, σ = {b.sigma:g} {u})"
+                        for b, u in zip(fixed, units))
+    print(f"{source}; {sel.n} selected ({args.criterion}-optimal on the combined information, {sel.method}, "
+          f"{plan.seconds:.2f} s) for {plan.space.n_free} parameters (robot and every block's extras), given the "
+          f"data in hand: {in_hand}")
+    blocks = [b.name for b in pred.blocks]
+    print(f"\n| poses | {args.criterion} criterion (combined) | rank | "
+          + " | ".join(f"predicted test RMSE {b.name} / {b.unit}" for b in pred.blocks) + " |")
+    print("|---|---|---|" + "---|" * len(blocks))
+    for label, crit, pr in (("selected", plan.criterion_value, pred),
+                            ("random", plan.criterion_of(rnd_idx), rnd),
+                            ("none (data in hand only)", plan.fixed_value, None)):
+        cells = [f"{crit:.6g}", str(pr.rank) if pr is not None else "",
+                 *(f"{b.test_rmse:.4f}" for b in pr.blocks)] if pr is not None else \
+            [f"{crit:.6g}", "", *([""] * len(blocks))]
+        print(f"| {label} | " + " | ".join(cells) + " |")
+    print(f"\n({args.poses} random candidates for comparison; each block's test RMSE on fresh readings at its "
+          "poses — a planned block's: its candidates — with the σ given; linearised at the nominal robot)\n")
+    print(pred.table())
+    meta = [("source", "jaxcal plan --with"), ("robot", robot.name), ("planned_poses", args.poses),
+            ("criterion", f"{args.criterion}-optimal on the combined information ({sel.method})"),
+            ("seed", args.seed), ("planned_with", ",".join(str(pathlib.Path(f).name) for f in args.with_files)),
+            (f"predicted_test_rmse_{unit}", f"{pred.block(name).test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
+    if measurement.kind == "cable":
+        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
+    meta += list(mm_joints_metadata(robot).items())
+    if sensor:
+        _save_sensor_plan(args.out, robot, measurement, sel, meta)
+    else:
+        _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    files = " ".join([args.out, *args.with_files])
+    print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
+          f"`jaxcal calibrate {files} --robot {args.robot} --combine --out-dir fit`")
+    return 0
