@@ -246,7 +246,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
     moving joints are folded into the next origin, those after the last one into the flange
     transform ``F = (R_f, t_f)`` to the tip link frame; the tool point is in the tip link frame.
 
-    Error model (the ``"geometric"`` groups of :meth:`error_groups`), per joint and at the tip::
+    Error model (the ``"geometric"`` groups of :meth:`error_groups`), per joint and at the tip:
 
         revolute:   T_i = Tr(t_o + [dx, dy, dz]) · R_o · Rx(drx) · Ry(dry) · Rz(q_i + offset)
         prismatic:  T_i = Tr(t_o + [dx, dy, dz]) · R_o · Rx(drx) · Ry(dry) · Rz(drz) · Tz(q_i + offset)
