@@ -28,10 +28,11 @@ QUICK = os.environ.get("JAXCAL_NB_QUICK", "0") == "1"  # small settings for the 
 jaxcal.enable_x64()  # calibration wants float64 (jaxcal.enable_x64 says why)
 
 
-def show(fig, dpi=80):
-    \"\"\"Display a matplotlib Figure as a PNG (works with any backend, headless included).\"\"\"
+def show(fig, width=960):
+    \"\"\"Display a matplotlib Figure as a PNG about `width` pixels wide, never under 100 dpi
+    (works with any backend, headless included).\"\"\"
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format="png", dpi=max(100.0, width / fig.get_figwidth()))
     display(Image(buf.getvalue()))"""
 
 
@@ -577,7 +578,7 @@ combinations, such as the reading at a pose. `result.prediction_std(q)` is the �
 predicted reading at new poses: small where we measured, large far away — a map of where this
 calibration can be trusted. With noise alone the true robot's readings would lie within about
 ±3 of it; this simulated robot also has unmodelled compliance and gear errors, which no posterior
-σ covers, so the ratio printed below comes out larger (5.3 at the full setting) — posterior σ
+σ covers, so the ratio printed below comes out larger (8.1 at the full setting) — posterior σ
 describe the noise, not a model error.
 """),
         code("""
@@ -964,7 +965,7 @@ ax.set_ylabel("|socket distance error| (mm)")
 ax.legend(loc="upper left")
 ax.set_title("held-out socket distance against the machined 50.00 mm")
 fig.tight_layout()
-show(fig, dpi=110)
+show(fig)
 plt.close(fig)
 """),
         md("""

@@ -85,9 +85,11 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
             continue
         title = {"positional arguments": "Arguments", "options": "Options",
                  "optional arguments": "Options"}.get(group.title, group.title[:1].upper() + group.title[1:])
-        out += [f"**{_cell(title)}**\n", "| option | value | default | description |", "|---|---|---|---|"]
+        # the div (md_in_html) lets the stylesheet keep option names on one line: "--no-cache", not "--no-" / "cache"
+        out += [f"**{_cell(title)}**\n", '<div class="cli-options" markdown>\n',
+                "| option | value | default | description |", "|---|---|---|---|"]
         if group.description:
-            out.insert(len(out) - 2, _cell(group.description) + "\n")
+            out.insert(len(out) - 3, _cell(group.description) + "\n")
         for action in actions:
             names = ", ".join(f"`{s}`" for s in action.option_strings) or f"`{action.dest}`"
             if action.choices is not None and not isinstance(action.choices, dict):
@@ -102,7 +104,7 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
                            or not action.option_strings) else f"`{default}`"
             help_text = formatter._expand_help(action) if action.help else ""
             out.append(f"| {names} | {value} | {_cell(shown)} | {_cell(help_text)} |")
-        out.append("")
+        out += ["", "</div>\n"]
     return out
 
 

@@ -15,6 +15,8 @@ window.MathJax = {
 };
 
 document$.subscribe(() => {
+  // MathJax comes from a CDN: offline it never loads and the TeX stays as written
+  if (!window.MathJax || !window.MathJax.startup) return;
   MathJax.startup.output.clearCache();
   MathJax.typesetClear();
   MathJax.texReset();

@@ -59,7 +59,16 @@ def calibrate_fleet_jointly(robot, measurement, datasets, method="lm", *, base: 
                             initial=None, max_rounds: int = 5, tol: float = 0.05, objective: str | None = "measured",
                             **kwargs) -> JointFleetResult:
     """Fit a robot model's population and every unit's deviations together (empirical Bayes with
-    each unit's data re-linearised at its shrunk estimate; see the module docstring).
+    each unit's data re-linearised at its shrunk estimate).
+
+    The model is :meth:`jaxcal.Prior.from_fleet`'s: unit ``k``'s deviations ``x_k ~ N(μ, Σ)``.
+    ``from_fleet`` linearises each unit's data at its own estimate under a generic prior; this
+    function alternates, until the population mean moves by at most ``tol`` of its σ: every unit
+    calibrated under the members' prior ``N(μ, Σ)`` (each shrunk toward the fleet mean as far as
+    its data leave it uncertain; all units in one :func:`jaxcal.calibrate_many` call), then
+    ``(μ, Σ)`` learned again from these results (expectation–maximisation, each unit's prior
+    divided out). At the fixed point the units' results are the posterior modes of the joint model
+    and the population its empirical-Bayes estimate.
 
     Args:
         robot, measurement, datasets, method: as :func:`jaxcal.calibrate_many` (≥ 3 units of one

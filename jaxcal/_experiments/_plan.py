@@ -613,7 +613,9 @@ def select_poses(
 
     1. The identifiable subset of ``space`` (default the DH deviations) on the candidates and
        all candidate Jacobians ``[N, m, p]`` at once (``jax.jacfwd`` on the whole batch),
-       column-scaled (module docstring).
+       column-scaled, ``J_s = J·diag(1/s)`` with ``s_j`` parameter ``j``'s root-mean-square
+       sensitivity per residual row (mm per rad or mm per mm), so that angle and length columns
+       compare; the information matrix is ``M = J_sᵀJ_s + Λ``.
     2. Greedy selection: starting from the prior information ``Λ`` (``prior``, weighed against
        ``noise_std`` mm; without a prior ``ε·I`` so that the first picks are defined), add the
        candidate with the largest gain, every candidate scored at once (``jax.vmap``): D:

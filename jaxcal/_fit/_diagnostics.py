@@ -86,7 +86,12 @@ class Checks:
 
 @dataclasses.dataclass(frozen=True)
 class Uncertainty:
-    """Posterior standard deviations of the free parameters (see the module docstring).
+    """Posterior standard deviations of the free parameters.
+
+    Laplace (Gauss–Markov) approximation at the solution: ``Cov = (JᵀWJ/σ̂² + Λ)⁻¹`` with ``J`` the
+    Jacobian of the data residuals, ``W`` the robust-loss weights (identity for least squares),
+    ``Λ = diag(1/s_j²)`` the prior precision (0 without a prior) and σ̂ the noise estimated from
+    the residuals; without a prior this is ``σ̂²(JᵀJ)⁻¹``, the Cramér–Rao bound.
 
     Attributes:
         names, units: of the free parameters (``"rad"``/``"mm"``).

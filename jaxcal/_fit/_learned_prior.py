@@ -191,10 +191,20 @@ def _correlation_shrinkage(samples: np.ndarray) -> float:
 
 def fleet_prior(results, base: Prior, *, noise_std: float | None = None, iterations: int = 1000,
                 tol: float = 1e-7, members: bool = False) -> Prior:
-    """The robot model's prior learned from calibrated units of it (empirical Bayes; see the module
-    docstring): a :class:`~jaxcal.Prior` with the population mean as its ``mean`` and the
-    population covariance plus the mean's uncertainty as its ``covariance``; its ``population``
-    holds the :class:`FleetPopulation` (mean, spread and their uncertainties).
+    """The robot model's prior learned from calibrated units of it (empirical Bayes): a
+    :class:`~jaxcal.Prior` with the population mean as its ``mean`` and the population covariance
+    plus the mean's uncertainty as its ``covariance``; its ``population`` holds the
+    :class:`FleetPopulation` (mean, spread and their uncertainties).
+
+    Unit ``k``'s robot deviations are modelled as ``x_k ~ N(μ, Σ)``; its calibration, posterior
+    ``N(m_k, C_k)`` under its own prior ``N(μ₀, P₀⁻¹)``, carries the data information
+    ``J_k = C_k⁻¹ − P₀``, ``h_k = C_k⁻¹m_k − P₀μ₀``. Expectation–maximisation of the marginal
+    likelihood: E, ``C'_k = (J_k + Σ⁻¹)⁻¹``, ``m'_k = C'_k(h_k + Σ⁻¹μ)``; M, ``μ = mean m'_k``,
+    ``Σ = mean[(m'_k − μ)(m'_k − μ)ᵀ + C'_k]`` (the ``C'_k`` term takes each unit's estimation noise
+    out of the spread). Directions the units' data determine less than ``base`` does keep
+    ``base``; with few units the correlations are shrunk toward zero (Schäfer & Strimmer 2005).
+    The mean's uncertainty is ``M = (Σ_k (Σ + J_k⁻¹)⁻¹ + P₀)⁻¹`` and a new unit's prior
+    ``N(μ, Σ + M)``. Only the robot's own parameters enter, not sensor extras.
 
     Args:
         results: ≥ 3 :class:`~jaxcal.CalibrationResult` of units of one robot model (same nominal

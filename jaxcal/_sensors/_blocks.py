@@ -397,8 +397,20 @@ def _renamed(g: Group, block: str) -> Group:
 
 
 class Combined(MeasurementModel):
-    """Several measurement models over stacked rows, one whitened residual (kind ``"blocks"``;
-    see the module docstring). Build it with :func:`combine`.
+    """Several measurement models over stacked rows, one whitened residual (kind ``"blocks"``).
+    Build it with :func:`combine`.
+
+    ``q`` is the blocks' joint angles stacked ``[N, dof]`` block after block; ``y`` is ``[N, W]``,
+    each row its block's reading flattened (a label index, a wire length, a pose's 16 entries, a
+    camera image's pixels...) and padded with zeros to the widest block's ``W``. The residual is
+    ``[N, m]`` (``m`` the largest block residual size): each block's residual divided by its noise
+    σ_b (in the block's own unit), so the whole is unitless and ~N(0, 1) per entry at the truth,
+    zero-padded; :meth:`observed` marks the real entries, and every statistic counts only those.
+    The robot's parameters are shared; a labelled extra (``plane@K``, ``point@K``...) is shared by
+    every block with that label, the tool point by all blocks unless one says ``own_tool``, and a
+    sensor's own groups (``anchor``, ``base_rotation``, ``handeye_*``...) are renamed per block
+    when several blocks have them (``base_rotation@tracker``). Relations (:class:`KnownDistance`
+    ...) are one more block, kind ``"relations"``, already whitened (σ = 1).
 
     Attributes:
         models: the blocks' measurement models (the relations last, if any).

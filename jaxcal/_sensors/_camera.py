@@ -100,8 +100,27 @@ class Camera(MeasurementModel):
     """A calibrated pinhole camera (OpenCV radial-tangential distortion) seeing a known target.
 
     Readings ``[n, N, 2]`` px: the image coordinates ``(u, v)`` of the ``N`` target points in
-    each of ``n`` images, ``NaN`` where a point was not detected (masked: zero weight). See the
-    module docstring for the frames, the projection equations and the extras.
+    each of ``n`` images, ``NaN`` where a point was not detected (masked: zero weight, counted
+    and reported).
+
+    Frames: eye-in-hand, ``X = T_flange_camera`` (OpenCV's ``cam2gripper``), ``B = T_base_target``
+    and image ``i`` sees ``T_camera_target = X⁻¹·F(q_i)⁻¹·B`` (``F(q) = T_base_flange``);
+    eye-to-hand, ``X = T_base_camera`` (``cam2base``), ``B = T_flange_target`` and
+    ``T_camera_target = X⁻¹·F(q_i)·B``. A target point ``b_k`` lands at ``p = T_camera_target·b_k``
+    and is projected as by ``cv2.projectPoints``: ``x = p_x/p_z``, ``y = p_y/p_z``, ``r² = x² + y²``,
+    ``x' = x(1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2x²)``,
+    ``y' = y(1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2y²) + 2 p2 x y``, ``u = fx x' + cx``,
+    ``v = fy y' + cy``. The residual is the reprojection error ``(û − u, v̂ − v)`` px per point
+    (``[n, 2N]``); ``sample_error`` is the RMS over an image's detected points of the 2-D
+    reprojection distance (px).
+
+    Extras (free by default): ``handeye_rotation`` (``handeye_rx/ry/rz``, rad),
+    ``handeye_translation`` (``handeye_x/y/z``, mm), ``target_rotation``, ``target_translation``
+    (``target_rx…``, ``target_x…``), as ``R = exp(δr)·R₀``, ``t = t₀ + δt``; with
+    ``calibrate_intrinsics=True`` also ``intrinsics`` (``cam_fx, cam_fy, cam_cx, cam_cy`` px,
+    ``cam_k1, cam_k2, cam_p1, cam_p2, cam_k3``), additive. :func:`jaxcal.calibrate` starts them in
+    closed form (per-image PnP, then the hand-eye transform by Park & Martin 1994 as
+    ``cv2.calibrateHandEye(..., method=cv2.CALIB_HAND_EYE_PARK)``).
 
     Args:
         points_mm: ``[N, 3]`` target points in the target frame (mm), in the order of the

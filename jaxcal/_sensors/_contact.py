@@ -137,8 +137,13 @@ class PlaneContact(_LabelModel):
 
     Residual ``[n, 1]`` (mm): ``r_i = n_k·p(q_i) − d_k`` with ``k`` = the row's plane, ``p`` the
     tool point in the base frame (nominal tool + the ``tool`` extra), ``n_k`` the unit normal
-    ``exp([u_k·e_u + v_k·e_v]×)·n0_k`` and ``d_k = d0_k + plane_d@k`` (see the module docstring).
-    ``sample_error`` is the signed distance (mm).
+    ``exp([u_k·e_u + v_k·e_v]×)·n0_k`` (``u_k, v_k`` the extras ``plane_u@k, plane_v@k`` in rad,
+    ``e_u, e_v`` a fixed orthonormal basis ``⊥ n0_k``: two angles, singularity-free up to a 180°
+    turn) and ``d_k = d0_k + plane_d@k`` (mm), all in the robot base frame; the extras are free by
+    default and started in closed form by :func:`jaxcal.calibrate`. ``sample_error`` is the signed
+    distance (mm). The planes absorb a base-frame error: one plane leaves 2 translations and the
+    rotation about its normal unseen, two non-parallel planes the translation along their
+    intersection line; three planes with independent normals see every rigid motion.
 
     Attributes:
         normals: ``[K, 3]`` nominal unit normals (base frame); default ``(0, 0, 1)`` each (the

@@ -149,7 +149,16 @@ def _ridge_path(phi: Array, T: Array, ridges: Array):
 class RBFNetworkMethod(Method):
     """Gaussian RBF network learning the residual error over a base kinematic model (M6).
 
-    Iterations are the width candidates (``len(width_scales)``); see the module docstring.
+    ``ŷ(q) = model(q; Δ_base) + Σ_k W_k exp(−‖s(q) − c_k‖² / (2 σ_k²)) + W_0``, with ``s(q)`` the
+    joint angles scaled to [−1, 1] by the limits; ``n_centres`` centres ``c_k`` drawn from the
+    training poses and refined by Lloyd (k-means) iterations, widths ``σ_k = width_scale`` × the
+    RMS distance to the ``n_neighbours`` nearest centres, output weights by ridge regression on the
+    residual error of the base model. The (``width_scale``, ``ridge``) pair with the lowest
+    closed-form leave-one-out error is kept. Iterations are the width candidates
+    (``len(width_scales)``): ``history[k]`` is the training RMSE after ``k`` candidates. The
+    calibrated kinematic model alone does not contain the network: predict with
+    :meth:`jaxcal.CalibrationResult.predict` / ``evaluate``. Supports
+    :class:`~jaxcal.CableLength` and :class:`~jaxcal.Position` measurements.
 
     Defaults (the paper gives none; chosen on training data, the width and ridge selected by
     leave-one-out): ``base = "lm"``, ``n_centres = 400``, ``lloyd_iterations = 10``,

@@ -72,7 +72,15 @@ class StageInfo(NamedTuple):
 
 
 class Staged(Method):
-    """Methods run one after the other, each from where the last ended (see the module docstring).
+    """Methods run one after the other, each from where the last ended (``"ga>lm"``).
+
+    Stage ``k + 1`` runs on the problem re-centred at stage ``k``'s result, its column scaling
+    recomputed there (what ``calibrate(..., start=result_1.deviations, init="none")`` does by
+    hand); stage ``k`` gets ``jax.random.split(key, n_stages)[k]``. The history is one curve across
+    the stages (``n_iterations = Σ n_k``), the stage ends are in :class:`StageInfo`
+    (``CalibrationResult.extra``). The status is the first DIVERGED or FAILED stage's, otherwise
+    the last stage's. Settings are addressed per stage as ``"lm.max_steps"`` or by 1-based
+    position, ``"2.max_steps"``; predictions use the last stage's model.
 
     Attributes:
         stages: the stage methods, in order (at least two).
