@@ -30,8 +30,9 @@ from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 
 __all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_information", "block_directions",
-           "combined_floor", "block_result", "who_sees_what", "CombinedResult", "combined_result_to_dict",
-           "save_combined_result", "load_combined_result", "COMBINED_FORMAT"]
+           "length_scale_direction", "scale_shares", "free_scale_direction", "combined_floor", "block_result",
+           "who_sees_what", "CombinedResult", "combined_result_to_dict", "save_combined_result",
+           "load_combined_result", "COMBINED_FORMAT"]
 
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
@@ -69,6 +70,14 @@ class BlockStats:
         rank_without: the rank of the data's information matrix without this block's rows
             (compare :attr:`rank`): what becomes unidentifiable when the block is removed.
         rank: the rank with every block (the same in each block's stats).
+        scale_share: the block's share ``vᵀG_b v / vᵀG v`` of the information along the robot's
+            **length scale** ``v`` (every length of the set-up times ``1 + ε``:
+            :func:`length_scale_direction`; :func:`scale_shares`); ``nan`` where it was not computed
+            (a file written before it) or no length is free. Read it with :attr:`scale_seen`: plane
+            or pivot data alone keep all of the little information along the scale (their
+            residuals' own, ``J·v = r``) and do not see it.
+        scale_seen: whether the data (all blocks together) see the length scale at all
+            (:func:`scale_shares`); ``None`` where not computed. The same in each block's stats.
     """
 
     name: str
@@ -88,6 +97,8 @@ class BlockStats:
     directions: tuple = dataclasses.field(default=(), repr=False)
     rank_without: int = -1
     rank: int = -1
+    scale_share: float = float("nan")
+    scale_seen: bool | None = None
 
     def line(self) -> str:
         given = "given" if self.sigma_given else "estimated"
@@ -178,12 +189,153 @@ def _direction(terms) -> str:
     return " ".join(f"{c:+.2f}·{n}" for c, n in terms)
 
 
+def _nominal_lengths(robot, model) -> dict[str, float]:
+    """``{entry: nominal value}`` (mm) of the length entries of one (non-combined) measurement
+    model's layout whose nominal value is not zero: the DH ``a_i``, ``d_i``, the tool point and the
+    model's own extras (a cable's anchor, plane offsets, point centres and sphere radii, marker
+    positions, a camera's hand-eye and target translations). Entries left out have nominal 0
+    (a base translation, a cable's zero offset, deviations of a guessed-at-zero extra)."""
+    from .._sensors._contact import FixedPoint, PlaneContact
+
+    out = {f"a_{i + 1}": v for i, v in enumerate(np.asarray(robot.a, np.float64))}
+    out |= {f"d_{i + 1}": v for i, v in enumerate(np.asarray(robot.d, np.float64))}
+    out |= {f"tool_{c}": v for c, v in zip("xyz", np.asarray(robot.tool, np.float64))}
+
+    def vec(prefix, values, suffix=""):
+        return {f"{prefix}{c}{suffix}": float(v) for c, v in zip("xyz", np.asarray(values, np.float64))}
+
+    if isinstance(model, PlaneContact):
+        out |= {f"plane_d@{s}": float(v) for s, v in zip(model.labels, np.asarray(model.offsets, np.float64))}
+    elif isinstance(model, FixedPoint):
+        for s, c, r in zip(model.labels, np.asarray(model.centres, np.float64), np.asarray(model.radii, np.float64)):
+            out |= vec("point_", c, f"@{s}") | {f"radius@{s}": float(r)}
+    if getattr(model, "kind", None) == "cable":
+        out |= vec("anchor_", model.anchor)
+    if getattr(model, "kind", None) == "camera":
+        out |= vec("handeye_", model.handeye_translation) | vec("target_", model.target_translation)
+    pos = getattr(model, "positions", None)
+    if pos is not None and getattr(model, "kind", None) == "markers":
+        pos = np.asarray(pos, np.float64)
+        if pos.ndim == 2:  # Markers: marker_k_x
+            for k, row in enumerate(pos):
+                out |= vec(f"marker_{k + 1}_", row)
+        else:  # SessionMarkers: marker_k_x@placement
+            for p, rows in zip(model.placements, pos):
+                for k, row in enumerate(rows):
+                    out |= vec(f"marker_{k + 1}_", row, f"@{p}")
+    return out
+
+
+def length_scale_direction(robot, model, deviations: Deviations, space: ParameterSpace) -> np.ndarray:
+    """The direction ``v`` ``[p]`` of the free parameters along which every length of the set-up
+    grows by the same factor (``d/dε`` of each length ``x`` at ``x·(1 + ε)``): for each free entry
+    in mm its current absolute value (nominal + deviation: the DH ``a_i``, ``d_i``, the tool point,
+    base and frame translations, plane offsets, point centres, sphere radii, marker positions,
+    anchors), 0 for angles and other units. Data whose residuals keep every contact under that
+    scaling (plane contact, pivots, spheres of unknown radius) cannot see it
+    (:func:`jaxcal.identifiability` shows it as a rank deficiency); a known length (a distance bar,
+    a known sphere radius, a known distance between labels, a camera's target) does.
+
+    Args:
+        robot: the nominal robot.
+        model: the measurement model; for a :class:`~jaxcal._sensors._blocks.Combined` model each
+            block's extras take their block model's nominal values under their combined names.
+        deviations: the current deviations (``model``'s layout).
+        space: the free parameters (``v``'s entries, in ``space.free_names`` order).
+    """
+    nominal: dict[str, float] = {}
+    if isinstance(model, Combined):
+        comb = space.layout
+        for b, mod in enumerate(model.models):
+            if model.views[b] is None:
+                continue
+            layout, mapping = model.views[b]
+            own = _nominal_lengths(robot, mod)
+            for g, c in mapping:
+                for bn, cn in zip(layout.group(g).names, comb.group(c).names):
+                    if bn in own:
+                        nominal.setdefault(cn, own[bn])
+        nominal = _nominal_lengths(robot, None) | nominal
+    else:
+        nominal = _nominal_lengths(robot, model)
+    dev = deviations.named()
+    return np.asarray([nominal.get(n, 0.0) + float(dev.get(n, 0.0)) if u == "mm" else 0.0
+                       for n, u in zip(space.free_names, space.free_units)], np.float64)
+
+
+#: the data see the length scale when the information along it exceeds this many times what the
+#: residuals themselves give: a residual that keeps every contact under the scaling is homogeneous of
+#: degree 1 in the lengths, so its derivative along ``v`` is the residual itself (``J·v = r``) and
+#: ``vᵀG v`` equals the whitened residual sum of squares (≈ N: the scale known to ≈ 1/√N only)
+_SCALE_SEEN_FACTOR = 100.0
+
+
+def scale_shares(grams, v, rss: float = 0.0, rtol: float = _UNSEEN_RTOL):
+    """Each block's share of the information along the length scale ``v``.
+
+    Args:
+        grams: ``[B, p, p]`` the blocks' whitened information matrices (:func:`block_information`).
+        v: ``[p]`` the length-scale direction (:func:`length_scale_direction`).
+        rss: the whitened residual sum of squares at the solution (``Σ r²``): data that cannot
+            see the scale still give ``vᵀG v = rss`` along it (``J·v = r``).
+        rtol: as :func:`block_directions`, in the same column scaling: ``vᵀG v`` below ``rtol``
+            times the largest eigenvalue (``v`` a unit vector in column-scaled parameters) is
+            unseen.
+
+    Returns:
+        ``(shares [B], seen)``: ``vᵀG_b v / vᵀG v`` (the column scaling cancels in the ratio), and
+        whether the data see the scale at all: ``vᵀG v`` above ``rtol·λ_max`` and above
+        ``_SCALE_SEEN_FACTOR · rss``. ``shares`` is ``nan`` when ``v`` is zero (no free length).
+    """
+    grams = np.asarray(grams, np.float64)
+    v = np.asarray(v, np.float64)
+    total = grams.sum(0)
+    d = np.sqrt(np.clip(np.diag(total), 0.0, None))
+    vs = v * d  # the same direction in block_directions' column-scaled parameters
+    norm = float(np.linalg.norm(vs))
+    if not norm > 0:
+        return np.full(grams.shape[0], np.nan), False
+    inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Gs = grams * inv[None, :, None] * inv[None, None, :]
+    u = vs / norm
+    per = np.einsum("i,bij,j->b", u, Gs, u)
+    along = float(per.sum())
+    lam_max = float(np.linalg.eigvalsh(Gs.sum(0))[-1]) if Gs.size else 0.0
+    seen = along > rtol * max(lam_max, 0.0) and float(v @ total @ v) > _SCALE_SEEN_FACTOR * rss
+    shares = per / along if along > 0 else np.full(grams.shape[0], np.nan)
+    return np.clip(shares, 0.0, 1.0), bool(seen)
+
+
+def scale_line(stats) -> str | None:
+    """The length-scale line of the block report (:attr:`BlockStats.scale_share`,
+    :attr:`BlockStats.scale_seen`): ``"length scale: set by bar (98 % of the information along
+    it)"`` (the blocks with ≥ 5 % named when none has 90 %), ``"length scale: not seen by any
+    block (...)"``, or ``None`` where it is not known (a file written before it; no free length)."""
+    if not stats or stats[0].scale_seen is None:
+        return None
+    if not stats[0].scale_seen:
+        return _UNSEEN_SCALE
+    shares = sorted(((s.name, s.scale_share) for s in stats if not math.isnan(s.scale_share)), key=lambda t: -t[1])
+    if not shares:
+        return None
+    name, top = shares[0]
+    if top >= 0.9:
+        return f"length scale: set by {name} ({100 * top:.0f} % of the information along it)"
+    return ("length scale: set by " + " and ".join(f"{n} ({100 * x:.0f} %)" for n, x in shares if x >= 0.05)
+            + " (their shares of the information along it)")
+
+
+_UNSEEN_SCALE = ("length scale: not seen by any block (scaling every length of the set-up keeps every reading: "
+                 "the prior, a length held at nominal or a known length sets it)")
+
+
 def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3) -> tuple[str, ...]:
     """Lines naming, per block, the free parameters it alone (nearly) determines (information share
     ≥ ``threshold``, :attr:`BlockStats.information`), the directions of several parameters only it
     determines (:attr:`BlockStats.directions`; more than ``max_directions`` are counted, not listed:
     a block that carries nearly all the information determines most directions alone), what
-    removing it leaves unidentifiable, and the parameters no block dominates."""
+    removing it leaves unidentifiable, which block sets the length scale (:func:`scale_line`) and
+    the parameters no block dominates."""
     lines, seen = [], set()
     for s in stats:
         own = [n for n, v in s.information.items() if v >= threshold]
@@ -199,6 +351,9 @@ def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3) -> tup
             lost = s.rank - s.rank_without
             lines.append(f"without {s.name}: {lost} direction{'s' if lost > 1 else ''} not identifiable "
                          f"(rank {s.rank_without} of {s.rank})")
+    scale = scale_line(stats)
+    if scale is not None:
+        lines.append(scale)
     if stats:
         shared = [n for n in stats[0].information if n not in seen]
         if shared:
@@ -234,7 +389,7 @@ def _block_grams(problem: Problem, observed):
 _block_grams = LeanJit(_block_grams, maxsize=4)
 
 
-def block_information(result, model: Combined, q, y):
+def block_information(result, model: Combined, q, y, *, every: bool = False):
     """Each block's information matrix of the free parameters at a combined fit's solution.
 
     Args:
@@ -245,6 +400,7 @@ def block_information(result, model: Combined, q, y):
         ``(r [N, m], grams [B, p, p])``: the whitened residual (unitless) and per block
         ``J_bᵀJ_b`` of the whitened Jacobian over ``result.space``'s free parameters
         (``p = n_free``; units 1/unit_i·1/unit_j of the parameters); masked entries count nowhere.
+        With ``every``, ``grams`` is over every parameter of the layout (free or held).
     """
     q = to_device(np.asarray(q, np.float64))
     y = np.asarray(y, np.float64)
@@ -253,8 +409,32 @@ def block_information(result, model: Combined, q, y):
     obs = model.observed(y)
     obs = np.ones((q.shape[0], model.size), bool) if obs is None else obs
     r, grams = _block_grams(problem, to_device(obs))
+    if every:
+        return np.asarray(r, np.float64), np.asarray(grams, np.float64)
     idx = result.space.free_index
     return np.asarray(r, np.float64), np.asarray(grams, np.float64)[:, idx][:, :, idx]
+
+
+def free_scale_direction(v, grams, free, rcond: float = 1e-10) -> np.ndarray:
+    """The length-scale direction over the free parameters when some lengths are held: ``v``
+    ``[P]`` over every parameter (:func:`length_scale_direction` of the whole layout), ``grams``
+    ``[B, P, P]`` (:func:`block_information` with ``every=True``), ``free`` ``[P]`` bool. A held
+    length that the free ones stand in for (``d_6`` beside ``tool_z``, ``d_3`` beside ``d_2`` on
+    parallel axes, ``d_1`` beside plane offsets: why it is held) moves onto them:
+    ``v_f + G_ff⁺ G_fh v_h`` (``G`` the blocks' total, column-scaled), the free step whose
+    readings best match scaling the held lengths too. Returns ``[p]`` (the free entries)."""
+    v = np.asarray(v, np.float64)
+    free = np.asarray(free, bool)
+    G = np.asarray(grams, np.float64).sum(0)
+    f, h = np.flatnonzero(free), np.flatnonzero(~free)
+    vf = v[f]
+    if not h.size or not np.any(v[h]):
+        return vf
+    d = np.sqrt(np.clip(np.diag(G)[f], 0.0, None))
+    inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    Gff = G[np.ix_(f, f)] * inv[:, None] * inv[None, :]
+    rhs = (G[np.ix_(f, h)] @ v[h]) * inv
+    return vf + inv * (np.linalg.pinv(Gff, rcond=rcond, hermitian=True) @ rhs)
 
 
 def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) -> tuple[BlockStats, ...]:
@@ -263,7 +443,9 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
     redundancy is ``r_b = n_b − tr(A⁺ J_bᵀJ_b)`` (``n_b`` its real residual entries, ``A`` the
     whitened information ``Σ_b J_bᵀJ_b + Λ``, ``Λ`` the prior's precision): the sum of ``1 − h_ii``
     over its entries."""
-    r, grams = block_information(result, model, q, y)
+    r, every = block_information(result, model, q, y, every=True)
+    idx = result.space.free_index
+    grams = every[:, idx][:, :, idx]
     p = grams.shape[1]
     lam = np.zeros(p)
     if result.prior is not None:
@@ -275,6 +457,11 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
     obs = np.ones(r.shape, bool) if obs is None else obs
     col = np.diag(total)
     rank, ranks_without, directions = block_directions(grams, result.space.free_names)
+    full = ParameterSpace.from_names(result.space.layout, result.space.layout.names)
+    v = free_scale_direction(length_scale_direction(result.robot, model, result.deviations, full), every,
+                             result.space.free)
+    shares, seen = scale_shares(grams, v, rss=float(np.sum(r[obs] ** 2)))
+    seen = None if np.all(np.isnan(shares)) else seen
     out = []
     sigma = np.asarray(model.sigma, np.float64)
     for b, (name, mod, rb, ob) in enumerate(zip(model.names, model.models, model._rows(r, r.shape[0]),
@@ -291,7 +478,7 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
                               float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob] ** 2))),
                               float(np.mean(np.abs(err))), float(np.max(np.abs(err))),
                               dict(zip(result.space.free_names, share.tolist())), directions[b], ranks_without[b],
-                              rank))
+                              rank, float(shares[b]), seen))
     return tuple(out)
 
 
@@ -494,7 +681,7 @@ def _stats_from_dict(d: dict) -> BlockStats:
 
     names = {f.name for f in dataclasses.fields(BlockStats)}
     kw = {k: v for k, v in d.items() if k in names}
-    for k in ("sigma", "sigma_hat", "redundancy", "rmse", "rms", "mean", "max"):
+    for k in ("sigma", "sigma_hat", "redundancy", "rmse", "rms", "mean", "max", "scale_share"):
         if k in kw:
             kw[k] = from_json_number(kw[k])
     kw["directions"] = tuple((float(share), tuple((float(c), str(n)) for c, n in terms))

@@ -1,5 +1,6 @@
 """Several data blocks in one fit, per-block σ by variance components, known relations (issue 34)."""
 
+import dataclasses
 import warnings
 
 import jax
@@ -17,7 +18,8 @@ from jaxcal import (
     combined_floor,
     evaluate_result,
 )
-from jaxcal._core._params import Deviations, layout_for
+from jaxcal._calibration._blocks import block_information, free_scale_direction, length_scale_direction, scale_shares
+from jaxcal._core._params import Deviations, ParameterSpace, layout_for
 from jaxcal._sensors._blocks import combine
 from jaxcal._sensors._contact import default_setup
 from jaxcal._simulation._simulate_sensors import simulate_contact, simulate_distance
@@ -51,6 +53,11 @@ def _fit(robot, planes, plane_data, bar_data, **kw):
                                         Block("bar", DistanceBar(robot.dof), bar_data)], **kw)
 
 
+def _stacked(pd, bd):
+    """The combined rows ``(q, y)`` of plane data ``pd`` and bar data ``bd`` (plane labels padded)."""
+    return np.concatenate([pd.q, bd.q]), np.concatenate([np.pad(np.asarray(pd.y)[:, None], ((0, 0), (0, 6))), bd.y])
+
+
 def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot):
     """Plane contact + a distance bar sharing the robot and the probe: σ of each block estimated by
     variance components (within 5 % of the truth on 3 seeds), and on fresh data of the same true
@@ -73,11 +80,32 @@ def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot
         scale = [terms for share, terms in est["bar"].directions if any(n[:2] in ("a_", "d_") for _, n in terms)]
         assert scale, res.block_report
         assert any(line.startswith("bar alone determines the direction") for line in res.block_report)
+        # in words: the length scale is set by the bar (its share of the information along every length
+        # times 1 + ε); the plane rows alone give it only their own residuals' worth (J·v = r): unseen
+        assert est["bar"].scale_seen and est["bar"].scale_share > 0.99 and est["plane"].scale_share < 0.01
+        line = [s for s in res.block_report if s.startswith("length scale: ")]
+        assert line and line[0].startswith("length scale: set by bar ("), res.block_report
+        if seed == 0:
+            # the direction: every length at its absolute value (held ones, d_1 and d_6 here, moved onto
+            # the free parameters that stand in for them); along it each plane residual changes by
+            # itself (J·v = r), so the plane rows' information along it is their own RSS
+            r, every = block_information(res, res.measurement, *_stacked(pd, bd), every=True)
+            full = ParameterSpace.from_names(res.space.layout, res.space.layout.names)
+            v_all = length_scale_direction(robot, res.measurement, res.deviations, full)
+            assert v_all[full.free_names.index("a_2")] == pytest.approx(float(robot.a[1] + res.deviations.a[1]))
+            assert v_all[full.free_names.index("theta_2")] == 0.0
+            v = free_scale_direction(v_all, every, res.space.free)
+            idx = res.space.free_index
+            grams = every[:, idx][:, :, idx]
+            rss_plane = float(np.sum(r[: pd.q.shape[0]] ** 2))
+            assert abs(v @ grams[0] @ v / rss_plane - 1) < 0.01, (v @ grams[0] @ v, rss_plane)
+            assert not scale_shares(grams[:1], v, rss_plane)[1]  # the plane block's information alone
+            assert scale_shares(grams, v, float(np.sum(r**2)))[1]
         # and within 2 % of the noise these rows really carry (the RMS residual of the true set-up)
         model = res.measurement
         layout = res.space.layout
         t = Deviations({g: v for g, v in truth.values.items() if g in layout.group_names}, layout)
-        q, y = np.concatenate([pd.q, bd.q]), np.concatenate([np.pad(np.asarray(pd.y)[:, None], ((0, 0), (0, 6))), bd.y])
+        q, y = _stacked(pd, bd)
         realised = [float(np.sqrt(np.mean(np.asarray(r) ** 2))) for r in model.block_residuals(robot, t, q, y)]
         assert abs(est["plane"].sigma_hat / realised[0] - 1) < 0.02 and abs(est["bar"].sigma_hat / realised[1] - 1) < 0.02
         assert not est["plane"].sigma_given and est["plane"].kind == "plane" and est["bar"].unit == "mm"
@@ -300,6 +328,9 @@ def test_cli_combine_with_relations_and_evaluate_new_labels(robot, sockets, tmp_
     assert np.allclose(np.asarray(saved.results["sockets"].predict(test.q)), np.asarray(alone.predict(test.q)))
     assert saved.results["sockets"].uncertainty is not None
     assert any("relations alone determines the direction" in line for line in saved.block_report)
+    # the length scale in words, and its shares read back from the file
+    assert any(line.startswith("length scale: set by relations (") for line in saved.block_report), saved.block_report
+    assert saved.blocks[1].scale_share > 0.99 and saved.blocks[0].scale_seen is True
     with pytest.raises(ValueError, match="not a jaxcal combined result"):
         jaxcal.load_combined_result(out / "sockets.json")
     rc = jaxcal.cli.main(["evaluate", str(out / "sockets.json"), str(tmp_path / "held_out.csv"),
@@ -409,15 +440,17 @@ def test_known_plane_distance_lets_plane_data_see_the_scale(robot):
     """Plane contact alone cannot see the length scale (one null direction of the Jacobian); a known
     distance between two parallel planes (a step of 25 mm), or a point on a plane at a known offset
     with a known socket distance, adds exactly that direction: the rank rises by one."""
+    from types import SimpleNamespace
+
     from jaxcal import PlaneContact, PlaneDistance, identifiability
-    from jaxcal._core._params import ParameterSpace
+    from jaxcal._calibration._blocks import BlockStats, who_sees_what
 
     base = default_setup("plane", robot)
     n = np.asarray(base.normals)
     d = np.asarray(base.offsets)
     planes = PlaneContact((*base.labels, "step"), np.concatenate([n, n[:1]]), np.concatenate([d, d[:1] + 25.0]))
     ex = simulate_contact(jax.random.key(4), robot, planes, n_samples=160, noise_std=0.0, test_fraction=0.0)
-    ranks = []
+    ranks, seen = [], []
     for relations in ((), [PlaneDistance("table", "step", 25.0)]):
         # the null direction needs exact contacts (off a plane, scaling changes the residual)
         model, q, y = combine(robot, [Block("planes", planes, ex.train, 0.05)], relations)
@@ -425,8 +458,27 @@ def test_known_plane_distance_lets_plane_data_see_the_scale(robot):
         truth = Deviations({g: v for g, v in ex.true_deviations.values.items() if g in layout.group_names}, layout)
         space = ParameterSpace.for_robot(robot, measurement=model, tool=True)
         ranks.append(identifiability(robot, model, q, space, truth).rank)
-    print("rank without / with the plane distance", ranks)
+        # the length-scale check of the block report on the same rows: the scale direction (every
+        # free length at its absolute value) is the Jacobian's null direction of the planes, seen
+        # by the relation alone
+        result = SimpleNamespace(robot=robot, deviations=truth, space=space)
+        r, grams = block_information(result, model, q, y)
+        v = length_scale_direction(robot, model, truth, space)
+        assert v[space.free_names.index("plane_d@step")] == pytest.approx(float(planes.offsets[3]))
+        shares, ok = scale_shares(grams, v, float(np.sum(r**2)))
+        seen.append(ok)
+        if not relations:
+            pr = jaxcal.Problem(robot, model, q, y, space, truth)
+            J = np.asarray(pr.jacobian(pr.x0()))
+            assert np.linalg.norm(J @ v) < 1e-9 * np.linalg.norm(J, axis=0) @ np.abs(v)
+            stats = [BlockStats("planes", "plane", "mm", 1, 1, 1.0, True, 1.0, 1.0, 1.0, 1.0,
+                                scale_share=float(shares[0]), scale_seen=ok)]
+            assert "length scale: not seen by any block" in " ".join(who_sees_what(stats))
+        else:
+            assert shares[1] > 0.999, shares  # the relation rows
+    print("rank without / with the plane distance", ranks, "scale seen", seen)
     assert ranks[1] == ranks[0] + 1
+    assert seen == [False, True]
 
 
 def test_block_directions_names_the_block_that_alone_sees_a_direction():
@@ -452,3 +504,38 @@ def test_block_directions_names_the_block_that_alone_sees_a_direction():
     lines = who_sees_what(stats)
     assert "B alone determines the direction (+0.71·p1 +0.71·p2) (100.0% of its information)" in lines
     assert "without B: 1 direction not identifiable (rank 2 of 3)" in lines
+
+
+def test_scale_shares_closed_form():
+    """The blocks' shares of the information along the length scale ``v`` against their closed forms
+    ``vᵀG_b v / vᵀG v``; the column scaling cancels; a total below the residuals' own information
+    (``J·v = r`` for data blind to the scale) or below ``rtol`` of the largest eigenvalue is unseen;
+    the report's line names the block, or says nobody sees it."""
+    import json
+
+    from jaxcal._calibration._blocks import BlockStats, _stats_from_dict, _stats_to_dict, who_sees_what
+    from jaxcal._core._json import to_jsonable
+
+    a = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])  # block A sees p1 and p2 (lengths), not p3 (an angle)
+    b = np.array([[3.0, 3.0, 3.0]])
+    grams = np.stack([a.T @ a, b.T @ b])
+    v = np.array([2.0, 1.0, 0.0])  # the lengths' absolute values, 0 for the angle
+    shares, seen = scale_shares(grams, v)
+    # vᵀG_A v = 2² + (2·1)² = 8, vᵀG_B v = (3·2 + 3·1)² = 81
+    assert np.allclose(shares, [8 / 89, 81 / 89]) and seen
+    assert np.allclose(scale_shares(grams * 1e6, v)[0], shares)  # units cancel
+    assert not scale_shares(grams, v, rss=1.0)[1]  # 89 < 100 × the residuals' own
+    assert not scale_shares(np.stack([a.T @ a]), np.array([0.0, 0.0, 1.0]))[1]  # nobody sees p3
+    mk = [BlockStats(n, "plane", "mm", 1, 1, 1.0, True, 1.0, 1.0, 1.0, 1.0, scale_share=float(x), scale_seen=seen)
+          for n, x in zip(("A", "B"), shares)]
+    assert "length scale: set by B (91 % of the information along it)" in who_sees_what(mk)
+    mk = [dataclasses.replace(s, scale_share=x) for s, x in zip(mk, (0.6, 0.4))]
+    assert "length scale: set by A (60 %) and B (40 %) (their shares of the information along it)" in who_sees_what(mk)
+    old = [dataclasses.replace(s, scale_share=float("nan"), scale_seen=None) for s in mk]  # a file without them
+    assert not any(line.startswith("length scale") for line in who_sees_what(old))
+    # saved with the combined result's JSON and read back; a file written before them reads as unknown
+    back = _stats_from_dict(json.loads(json.dumps(to_jsonable(_stats_to_dict(mk[0])))))
+    assert back.scale_share == 0.6 and back.scale_seen is True
+    d = {k: v for k, v in to_jsonable(_stats_to_dict(mk[0])).items() if not k.startswith("scale_")}
+    back = _stats_from_dict(d)
+    assert np.isnan(back.scale_share) and back.scale_seen is None
