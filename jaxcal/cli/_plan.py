@@ -14,7 +14,6 @@ def _cmd_plan(args) -> int:
     import jax
     import numpy as np
 
-    from .._datasets._dataset import mm_joints_metadata
     from .._experiments import _plan
 
     robot, measurement = _robot_and_sensor(args)
@@ -82,13 +81,7 @@ def _cmd_plan(args) -> int:
     meta = [("source", "jaxcal plan"), ("robot", robot.name), ("planned_poses", args.poses),
             ("criterion", f"{args.criterion}-optimal ({sel.method})"), ("seed", args.seed),
             (f"predicted_test_rmse_{unit}", f"{pred.test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
-    if args.measurement == "cable":
-        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
-    meta += list(mm_joints_metadata(robot).items())
-    if sensor:
-        _save_sensor_plan(args.out, robot, measurement, sel, meta)
-    else:
-        _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    _write_plan(args.out, robot, measurement, sel, meta, sensor)
     print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
           f"for {len(sel.space.free_names)} identifiable parameters")
     rows = [["selected", *[f"{v:.4g}" for v in (sel.indices.o1, sel.indices.o2, sel.indices.o3, sel.indices.o4,
@@ -126,6 +119,22 @@ _PLAN_NEXT = {
     "camera": "take an image at each pose and fill in the detected target points' u_k_px, v_k_px (empty where not "
               "detected)",
 }
+
+
+def _write_plan(path, robot, measurement, sel, meta: list, sensor: bool) -> None:
+    """The selected poses as a data file with empty readings: ``meta`` plus the anchor (draw wire)
+    and the joint units."""
+    from .._datasets._dataset import mm_joints_metadata
+    from .._experiments import _plan
+
+    meta = list(meta)
+    if measurement.kind == "cable":
+        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
+    meta += list(mm_joints_metadata(robot).items())
+    if sensor:
+        _save_sensor_plan(path, robot, measurement, sel, meta)
+    else:
+        _plan.save_plan_csv(path, sel.q, measurement.kind, meta)
 
 
 def _save_sensor_plan(path, robot, measurement, sel, meta) -> None:
@@ -210,8 +219,6 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     import numpy as np
 
     from .._calibration._setup import measured_extras
-    from .._datasets._dataset import mm_joints_metadata
-    from .._experiments import _plan
     from .._experiments._plan_blocks import plan_blocks
     from .._sensors._blocks import Block
 
@@ -265,13 +272,7 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
             ("criterion", f"{args.criterion}-optimal on the combined information ({sel.method})"),
             ("seed", args.seed), ("planned_with", ",".join(str(pathlib.Path(f).name) for f in args.with_files)),
             (f"predicted_test_rmse_{unit}", f"{pred.block(name).test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
-    if measurement.kind == "cable":
-        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
-    meta += list(mm_joints_metadata(robot).items())
-    if sensor:
-        _save_sensor_plan(args.out, robot, measurement, sel, meta)
-    else:
-        _plan.save_plan_csv(args.out, sel.q, measurement.kind, meta)
+    _write_plan(args.out, robot, measurement, sel, meta, sensor)
     files = " ".join([args.out, *args.with_files])
     print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
           f"`jaxcal calibrate {files} --robot {args.robot} --combine --out-dir fit`")
