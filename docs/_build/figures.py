@@ -306,7 +306,7 @@ def setup_distance_bar(out: Path):
         ax.text(p[0] + 0.06, p[1] + 0.05, name, fontsize=10, ha="left", va="bottom")
     _arrow(ax, a + [0, -0.14], b + [0, -0.14], color=SENSOR, style="<|-|>", ms=10)
     ax.text((a[0] + b[0]) / 2, a[1] - 0.18, "L", color=SENSOR, fontsize=11, ha="center", va="top")
-    _note(ax, 0.95, "a bar of known length L between two nests:  ‖p(qₐ) − p(q_b)‖ = L", SENSOR)
+    _note(ax, 0.95, "a bar of known length L between two nests:  ‖p(q_a) − p(q_b)‖ = L", SENSOR)
     _save(fig, out, "setup-distance-bar.svg")
 
 
