@@ -111,3 +111,55 @@ def test_pages_name_no_private_module():
 
 def test_pages_cite_no_issue_numbers():
     assert _offences(_ISSUE) == [], "say what is true now; the history is in git"
+
+
+# --- figures: committed SVGs drawn by docs/_build/figures.py ------------------------------------
+
+FIGURES_DIR = ROOT / "docs" / "figures"
+_IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+\.svg)\)")
+
+
+def _script_figures() -> list[str]:
+    """The names in ``FIGURES`` of ``docs/_build/figures.py``, read without importing matplotlib."""
+    import ast
+
+    tree = ast.parse((ROOT / "docs" / "_build" / "figures.py").read_text(encoding="utf-8"))
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "FIGURES" for t in node.targets):
+            return sorted(ast.literal_eval(node.value))
+    raise AssertionError("docs/_build/figures.py defines no FIGURES")
+
+
+def _figure_uses() -> dict[str, list[str]]:
+    """``{figure file name: [pages that show it]}`` for every ``![alt](…/figures/x.svg)`` of the pages."""
+    uses: dict[str, list[str]] = {}
+    for page in sorted((ROOT / "docs").rglob("*.md")):
+        for target in _IMAGE.findall(page.read_text(encoding="utf-8")):
+            path = (page.parent / target).resolve()
+            assert path.parent == FIGURES_DIR, f"{page.relative_to(ROOT)}: {target} is not in docs/figures"
+            uses.setdefault(path.name, []).append(page.relative_to(ROOT).as_posix())
+    return uses
+
+
+def test_figures_are_the_scripts_and_every_one_is_shown():
+    committed = sorted(p.name for p in FIGURES_DIR.glob("*.svg"))
+    assert committed == _script_figures(), "docs/figures differs from FIGURES: run python docs/_build/figures.py"
+    uses = _figure_uses()
+    assert sorted(set(committed) - set(uses)) == [], "figures no page shows"
+    assert sorted(set(uses) - set(committed)) == [], "pages show figures that are not committed"
+
+
+def test_figures_have_alt_text_and_no_page_uses_mermaid():
+    for page in sorted((ROOT / "docs").rglob("*.md")):
+        text = page.read_text(encoding="utf-8")
+        assert "```mermaid" not in text, f"{page.relative_to(ROOT)}: Mermaid needs a script from a CDN (draw an SVG)"
+        for alt in re.findall(r"!\[([^\]]*)\]\([^)]*figures/", text):
+            assert len(alt.split()) >= 5, f"{page.relative_to(ROOT)}: a figure without a describing alt text"
+
+
+def test_figures_are_reproducible_svgs():
+    """Small text SVGs with no date and a fixed id salt (so regenerating changes only what was redrawn)."""
+    for svg in sorted(FIGURES_DIR.glob("*.svg")):
+        text = svg.read_text(encoding="utf-8")
+        assert len(text) < 60_000, f"{svg.name}: {len(text)} bytes (text as paths? svg.fonttype must be 'none')"
+        assert "<dc:date>" not in text, f"{svg.name} carries a date"
