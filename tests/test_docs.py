@@ -73,7 +73,7 @@ def test_docs_links_resolve_in_the_repository():
 
 _OUTSIDE = re.compile(r"DESIGN\.md|design notes|\.\./shared\b|(?<![\w.:/~-])/(?:work|home|tmp|root|Users|mnt)/",
                       re.I)
-_PRIVATE = re.compile(r"\bjaxcal\._[A-Za-z]")
+_PRIVATE = re.compile(r"\bjaxcal[./]_[A-Za-z]")  # jaxcal._fit._problem or jaxcal/_fit/_problem.py
 _ISSUE = re.compile(r"\bissues?\s+#?\d+", re.I)
 
 
