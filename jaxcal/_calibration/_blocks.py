@@ -37,6 +37,16 @@ __all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_informat
 #: a block's ``extras=`` names → the standard groups they free
 _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"), "anchor": ("anchor",),
                  "cable_offset": ("cable_offset",), "offset": ("cable_offset",)}
+
+
+def block_extras(names) -> list[str]:
+    """The entries of ``names`` (extras as :func:`jaxcal.calibrate` names them, e.g. what
+    :func:`~jaxcal._calibration._setup.measured_extras` chose for a data file) that a
+    :class:`jaxcal.Block` takes as its ``extras``, sorted; a sensor's own unknowns (planes,
+    points, hand-eye, ...) are always estimated and are not named."""
+    return sorted(e for e in names if e in _EXTRA_GROUPS)
+
+
 #: a measurement's own groups that :func:`initial_extras` starts (free by default, as alone)
 _OWN_INIT = ("plane", "point", "markers", "handeye", "target")
 
@@ -245,16 +255,13 @@ def length_scale_direction(robot, model, deviations: Deviations, space: Paramete
     """
     nominal: dict[str, float] = {}
     if isinstance(model, Combined):
-        comb = space.layout
         for b, mod in enumerate(model.models):
             if model.views[b] is None:
                 continue
-            layout, mapping = model.views[b]
             own = _nominal_lengths(robot, mod)
-            for g, c in mapping:
-                for bn, cn in zip(layout.group(g).names, comb.group(c).names):
-                    if bn in own:
-                        nominal.setdefault(cn, own[bn])
+            for bn, cn in model.names_in(b, space.layout).items():
+                if bn in own:
+                    nominal.setdefault(cn, own[bn])
         nominal = _nominal_lengths(robot, None) | nominal
     else:
         nominal = _nominal_lengths(robot, model)
@@ -641,9 +648,8 @@ def block_result(result, name: str):
     b = model.block_index(name)
     if model.views[b] is None:
         raise ValueError("the relations block has no result of its own: it has no measurement model")
-    layout, mapping = model.views[b]
-    comb = result.space.layout
-    to_comb = {bn: cn for g, c in mapping for bn, cn in zip(layout.group(g).names, comb.group(c).names)}
+    layout = model.views[b][0]
+    to_comb = model.names_in(b, result.space.layout)
     free_c = set(result.space.free_names)
     space = ParameterSpace.from_names(layout, [n for n in layout.names if to_comb[n] in free_c])
     dev = model.view(b, result.deviations)

@@ -258,9 +258,8 @@ class _Setup:
 
     def _columns(self, b: int):
         """Block ``b``'s own space over the candidate parameters and their combined columns."""
-        layout_b, mapping = self.model.views[b]
-        comb = self.cand.layout
-        to_comb = {bn: cn for g, c in mapping for bn, cn in zip(layout_b.group(g).names, comb.group(c).names)}
+        layout_b = self.model.views[b][0]
+        to_comb = self.model.names_in(b, self.cand.layout)
         col = {n: i for i, n in enumerate(self.cand.free_names)}
         space_b = ParameterSpace.from_names(layout_b, [n for n in layout_b.names if to_comb[n] in col])
         return space_b, np.asarray([col[to_comb[n]] for n in space_b.free_names], int)
@@ -294,25 +293,12 @@ class _Setup:
 
     def identifiable(self, rows) -> tuple[ParameterSpace, np.ndarray]:
         """The free set :func:`jaxcal.calibrate` would choose from the whitened Jacobian ``rows``
-        ``[R, p_cand]`` (column-scaled, pivoted QR as :func:`jaxcal.identifiability`, on the rows
-        themselves: a Gram matrix would square the condition number; with a prior every parameter
-        it covers and the data-identifiable rest) and its columns."""
-        import scipy.linalg
+        ``[R, p_cand]`` (:func:`~jaxcal._fit._identifiability.identifiable_columns`; with a prior
+        every parameter it covers and the data-identifiable rest) and its columns."""
+        from .._fit._identifiability import identifiable_columns
 
-        from .._fit._identifiability import _preference_key, _select, default_rtol, select_free
-
-        names = self.cand.free_names
-        norms = np.linalg.norm(rows, axis=0)
-        norms = np.where(norms > 1e-10 * norms.max(), norms, 0.0)
-        R0 = np.linalg.qr(rows / np.where(norms > 0, norms, 1.0), mode="r")
-        R, piv = scipy.linalg.qr(R0, mode="r", pivoting=True)
-        pref = [(*_preference_key(n), i) for i, n in enumerate(names)]
-        rtol = default_rtol(np.float64)
-        sel = _select(norms, R, piv, rtol, pref)
-        keep = np.zeros(len(names), bool)
-        keep[sel.keep_idx] = True
-        if self.prior is not None:
-            keep = select_free(sel.Rs, norms, float(sel.s[0]), pref, self.prior.std(self.cand), rtol)
+        keep = identifiable_columns(rows, self.cand.free_names,
+                                    prior_std=None if self.prior is None else self.prior.std(self.cand))
         return self.cand.restrict(keep), np.flatnonzero(keep)
 
     def stacked(self, blocks, idx=None) -> np.ndarray:

@@ -486,6 +486,38 @@ def _select(norms, R, piv, rtol: float, pref) -> _Selection:
     return _Selection(norms, Rs, Rs * scale, s, rank, keep_idx, drop_idx, cond)
 
 
+def _preference(names) -> list:
+    """A total order of the candidates for :func:`_select`: equal keys (e.g. the same component of
+    two sessions' frames) are ordered by their position, so that no choice is left to the pivots'
+    round-off."""
+    return [(*_preference_key(n), i) for i, n in enumerate(names)]
+
+
+def identifiable_columns(J, names, *, prior_std=None, rtol: float | None = None) -> np.ndarray:
+    """``[p]`` bool: the columns of an identification Jacobian ``J`` ``[N, p]`` (host array, in
+    any units per column) that :func:`identify_with_residuals` would free — the same column
+    scaling (a round-off-size column counts as zero), pivoted factor, preference order and, with
+    ``prior_std`` ``[p]`` (``inf`` = no prior), :func:`select_free` — for a Jacobian its caller
+    assembles itself (the combined whitened rows of a planned set-up). The factor is formed on the
+    host (LAPACK QR, then ``geqp3``-pivoting of the ``p×p`` factor: the rows themselves, not a Gram
+    matrix, which would square the condition number)."""
+    import scipy.linalg
+
+    J = np.asarray(J, np.float64)
+    norms = np.linalg.norm(J, axis=0)
+    norms = np.where(norms > 1e-10 * norms.max(), norms, 0.0)
+    R0 = np.linalg.qr(J / np.where(norms > 0, norms, 1.0), mode="r")
+    R, piv = scipy.linalg.qr(R0, mode="r", pivoting=True)
+    pref = _preference(names)
+    rtol = default_rtol(np.float64) if rtol is None else float(rtol)
+    sel = _select(norms, R, piv, rtol, pref)
+    if prior_std is not None:
+        return select_free(sel.Rs, norms, float(sel.s[0]), pref, np.asarray(prior_std, np.float64), rtol)
+    keep = np.zeros(len(names), bool)
+    keep[sel.keep_idx] = True
+    return keep
+
+
 def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None,
                             prior_std=None, n_to=None, still_deg=None):
     """:func:`identifiability`, and with measurements ``y`` also their residual blocks ``[n, m]``
@@ -523,9 +555,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
         resid = np.asarray(resid)[:n]
     rtol = default_rtol(q.dtype) if rtol is None else float(rtol)
     names = space.free_names
-    # a total order: equal keys (e.g. the same component of two sessions' frames) are ordered by
-    # their position, so that no choice is left to the pivots' round-off
-    pref = [(*_preference_key(n), i) for i, n in enumerate(names)]
+    pref = _preference(names)
     sel = _select(norms, R, piv, rtol, pref)
     still = still_joints(robot, np.asarray(q)) if still_deg is None else still_joints(robot, np.asarray(q), still_deg)
     unseen: tuple[str, ...] = ()

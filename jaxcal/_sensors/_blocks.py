@@ -497,6 +497,13 @@ class Combined(MeasurementModel):
         m = self.models[b]
         return yb[:, : self.widths[b]].reshape(yb.shape[0], *m.sample_shape)
 
+    def names_in(self, b: int, layout) -> dict[str, str]:
+        """Block ``b``'s parameter names (its own layout) → their names in the combined ``layout``
+        (:func:`jaxcal.layout_for` of the robot and this model: a block's renamed extras, e.g. its
+        plane offset under the block's label)."""
+        own, mapping = self.views[b]
+        return {bn: cn for g, c in mapping for bn, cn in zip(own.group(g).names, layout.group(c).names)}
+
     def view(self, b: int, deviations: Deviations | None) -> Deviations | None:
         """Block ``b``'s deviations in its own layout (its renamed groups under their own names);
         the relations block reads the combined deviations themselves."""

@@ -334,7 +334,7 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     evaluate`) and ``combined.json`` (:func:`jaxcal.save_combined_result`: every block's statistics and result, the
     relations, σ, the deviations)."""
 
-    from .._calibration._blocks import block_result, calibrate_blocks, save_combined_result
+    from .._calibration._blocks import block_extras, block_result, calibrate_blocks, save_combined_result
     from .._calibration._calibrate import CalibrationWarning
     from .._calibration._io import save_result
     from .._sensors._blocks import Block, load_relations
@@ -355,9 +355,7 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     first = setups[0]
     try:
         relations = load_relations(args.relations) if args.relations else ()
-        blocks = [Block(n, s.measurement, s.data, extras=[e for e in sorted(s.estimate)
-                                                           if e in ("tool", "base", "anchor", "offset", "cable_offset")])
-                  for n, s in zip(names, setups)]
+        blocks = [Block(n, s.measurement, s.data, extras=block_extras(s.estimate)) for n, s in zip(names, setups)]
     except (ValueError, OSError) as e:
         raise _Usage(str(e)) from None
     print(f"combined fit of robot {first.robot.name}: {len(blocks)} blocks ("

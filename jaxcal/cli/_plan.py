@@ -167,6 +167,7 @@ def _fixed_block(path: str, sigma, robot):
     ``noise_std_mm`` / ``noise_std_px`` line."""
     import types
 
+    from .._calibration._blocks import block_extras
     from .._calibration._setup import measured_extras
     from .._datasets._dataset import load_csv
     from .._sensors._blocks import Block
@@ -204,12 +205,11 @@ def _fixed_block(path: str, sigma, robot):
         if sphere:
             model = _sphere_model("point", model, _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0], False)
     extras, _ = measured_extras(kind, set(), anchor_known=anchor is not None, sphere=sphere)
-    extras = sorted(e for e in extras if e in ("tool", "base", "anchor", "offset", "cable_offset"))
     if kind in ("plane", "point"):
         from .._datasets._dataset import relabel
 
         data = relabel(data, model.labels)
-    return Block(p.stem, model, data, sigma=float(sigma), extras=extras), unit
+    return Block(p.stem, model, data, sigma=float(sigma), extras=block_extras(extras)), unit
 
 
 def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm) -> int:
@@ -218,6 +218,7 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     import jax
     import numpy as np
 
+    from .._calibration._blocks import block_extras
     from .._calibration._setup import measured_extras
     from .._experiments._plan_blocks import plan_blocks
     from .._sensors._blocks import Block
@@ -238,8 +239,7 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     name = args.measurement if args.measurement not in names else f"planned_{args.measurement}"
     extras, _ = measured_extras(measurement.kind, set(), anchor_known=True,
                                 sphere=bool(getattr(measurement, "sphere", False)))
-    extras = sorted(e for e in extras if e in ("tool", "base", "anchor", "offset", "cable_offset"))
-    planned = Block(name, measurement, cand, sigma=args.noise_std, extras=extras)
+    planned = Block(name, measurement, cand, sigma=args.noise_std, extras=block_extras(extras))
     try:
         plan = plan_blocks(robot, planned, args.poses, fixed=fixed, criterion=args.criterion,
                            exchange=not args.no_exchange)
@@ -261,9 +261,8 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     for label, crit, pr in (("selected", plan.criterion_value, pred),
                             ("random", plan.criterion_of(rnd_idx), rnd),
                             ("none (data in hand only)", plan.fixed_value, None)):
-        cells = [f"{crit:.6g}", str(pr.rank) if pr is not None else "",
-                 *(f"{b.test_rmse:.4f}" for b in pr.blocks)] if pr is not None else \
-            [f"{crit:.6g}", "", *([""] * len(blocks))]
+        rest = [str(pr.rank), *(f"{b.test_rmse:.4f}" for b in pr.blocks)] if pr is not None else [""] * (1 + len(blocks))
+        cells = [f"{crit:.6g}", *rest]
         print(f"| {label} | " + " | ".join(cells) + " |")
     print(f"\n({args.poses} random candidates for comparison; each block's test RMSE on fresh readings at its "
           "poses — a planned block's: its candidates — with the σ given; linearised at the nominal robot)\n")
