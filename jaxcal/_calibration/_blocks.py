@@ -28,6 +28,7 @@ from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._fit._problem import Problem, value_and_jacfwd
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
+from .._sensors._measurement import xyz_entries
 
 __all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_information", "block_directions",
            "length_scale_direction", "scale_shares", "free_scale_direction", "combined_floor", "block_result",
@@ -201,39 +202,13 @@ def _direction(terms) -> str:
 
 def _nominal_lengths(robot, model) -> dict[str, float]:
     """``{entry: nominal value}`` (mm) of the length entries of one (non-combined) measurement
-    model's layout whose nominal value is not zero: the DH ``a_i``, ``d_i``, the tool point and the
-    model's own extras (a cable's anchor, plane offsets, point centres and sphere radii, marker
-    positions, a camera's hand-eye and target translations). Entries left out have nominal 0
-    (a base translation, a cable's zero offset, deviations of a guessed-at-zero extra)."""
-    from .._sensors._contact import FixedPoint, PlaneContact
-
+    model's layout: the robot's DH ``a_i``, ``d_i`` and tool point, and the model's own extras
+    (:meth:`~jaxcal.MeasurementModel.nominal_lengths`). Entries left out have nominal 0 (a base
+    translation, a cable's zero offset)."""
     out = {f"a_{i + 1}": v for i, v in enumerate(np.asarray(robot.a, np.float64))}
     out |= {f"d_{i + 1}": v for i, v in enumerate(np.asarray(robot.d, np.float64))}
-    out |= {f"tool_{c}": v for c, v in zip("xyz", np.asarray(robot.tool, np.float64))}
-
-    def vec(prefix, values, suffix=""):
-        return {f"{prefix}{c}{suffix}": float(v) for c, v in zip("xyz", np.asarray(values, np.float64))}
-
-    if isinstance(model, PlaneContact):
-        out |= {f"plane_d@{s}": float(v) for s, v in zip(model.labels, np.asarray(model.offsets, np.float64))}
-    elif isinstance(model, FixedPoint):
-        for s, c, r in zip(model.labels, np.asarray(model.centres, np.float64), np.asarray(model.radii, np.float64)):
-            out |= vec("point_", c, f"@{s}") | {f"radius@{s}": float(r)}
-    if getattr(model, "kind", None) == "cable":
-        out |= vec("anchor_", model.anchor)
-    if getattr(model, "kind", None) == "camera":
-        out |= vec("handeye_", model.handeye_translation) | vec("target_", model.target_translation)
-    pos = getattr(model, "positions", None)
-    if pos is not None and getattr(model, "kind", None) == "markers":
-        pos = np.asarray(pos, np.float64)
-        if pos.ndim == 2:  # Markers: marker_k_x
-            for k, row in enumerate(pos):
-                out |= vec(f"marker_{k + 1}_", row)
-        else:  # SessionMarkers: marker_k_x@placement
-            for p, rows in zip(model.placements, pos):
-                for k, row in enumerate(rows):
-                    out |= vec(f"marker_{k + 1}_", row, f"@{p}")
-    return out
+    out |= xyz_entries("tool_", robot.tool)
+    return out if model is None else out | model.nominal_lengths()
 
 
 def length_scale_direction(robot, model, deviations: Deviations, space: ParameterSpace) -> np.ndarray:

@@ -62,7 +62,7 @@ from jaxtyping import Array, Float
 from .._core._params import Deviations, Group, layout_for
 from .._core._xla import filter_jit
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
-from ._measurement import MeasurementModel
+from ._measurement import MeasurementModel, xyz_entries
 
 __all__ = ["Camera", "MOUNTS", "INTRINSIC_NAMES", "project_points", "undistort_points", "solve_pnp",
     "hand_eye_park", "initial_camera_extras", "checkerboard", "load_target", "camera_floor",
@@ -190,6 +190,9 @@ class Camera(MeasurementModel):
     def extra_groups(self) -> tuple[Group, ...]:
         """Hand-eye and target pose (always), the intrinsics with ``calibrate_intrinsics``."""
         return CAMERA_GROUPS + ((INTRINSICS,) if self.calibrate_intrinsics else ())
+
+    def nominal_lengths(self) -> dict[str, float]:
+        return xyz_entries("handeye_", self.handeye_translation) | xyz_entries("target_", self.target_translation)
 
     # -- frames ---------------------------------------------------------------------------------
     def frames(self, deviations: Deviations | None, dtype=None):

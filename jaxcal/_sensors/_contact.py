@@ -73,7 +73,7 @@ from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import CONTACT_KINDS, _check_label, dataset_labels
 from .._models._kinematics import check_joint_angles, fk_pose_jit, rotvec_to_matrix, tool_point_soa
-from ._measurement import MeasurementModel
+from ._measurement import MeasurementModel, xyz_entries
 
 __all__ = ["PlaneContact", "FixedPoint", "plane_group", "point_groups", "initial_contact",
     "unobservable_directions", "contact_model", "default_setup", "DistanceBar", "length_reference_note"]
@@ -188,6 +188,9 @@ class PlaneContact(_LabelModel):
         """``plane@K`` per label."""
         return tuple(plane_group(s) for s in self.labels)
 
+    def nominal_lengths(self) -> dict[str, float]:
+        return {f"plane_d@{s}": float(v) for s, v in zip(self.labels, np.asarray(self.offsets, np.float64))}
+
     def planes(self, deviations: Deviations | None, dtype=None):
         """``(n [K, 3], d [K])``: the planes' unit normals and offsets (mm), base frame."""
         dtype = self.normals.dtype if dtype is None else dtype
@@ -271,6 +274,12 @@ class FixedPoint(_LabelModel):
     def extra_groups(self) -> tuple[Group, ...]:
         """``point@K`` (and ``radius@K``) per label."""
         return tuple(g for s in self.labels for g in point_groups(s, self.estimate_radius))
+
+    def nominal_lengths(self) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for s, c, r in zip(self.labels, np.asarray(self.centres, np.float64), np.asarray(self.radii, np.float64)):
+            out |= xyz_entries("point_", c, f"@{s}") | {f"radius@{s}": float(r)}
+        return out
 
     def points(self, deviations: Deviations | None, dtype=None):
         """``(c [K, 3], r [K])``: centres and radii (mm)."""

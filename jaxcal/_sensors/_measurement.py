@@ -24,6 +24,12 @@ from .._models._robot import DHRobot
 __all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
 
 
+def xyz_entries(prefix: str, values, suffix: str = "") -> dict[str, float]:
+    """``{prefix x suffix: v_x, ...}`` of a ``[3]`` position (mm): the entry names of a vector
+    group (``anchor_x``, ``point_y@a0``)."""
+    return {f"{prefix}{c}{suffix}": float(v) for c, v in zip("xyz", np.asarray(values, np.float64))}
+
+
 class MeasurementModel(eqx.Module):
     """Abstract base of measurement models (an ``eqx.Module``: a pytree)."""
 
@@ -63,6 +69,13 @@ class MeasurementModel(eqx.Module):
         scales, the residual count) counts only real ones."""
         del y
         return None
+
+    def nominal_lengths(self) -> dict[str, float]:
+        """``{entry: nominal value}`` (mm) of this model's extras that are lengths with a nominal
+        value (an anchor, plane offsets, point centres, ...), under their names in
+        :func:`jaxcal.layout_for`: where a uniform scaling of every length of the set-up starts
+        (:func:`~jaxcal._calibration._blocks.length_scale_direction`). None by default."""
+        return {}
 
     def sample_error(self, residual: Float[Array, "n m"]) -> Float[Array, " n"]:
         """One signed (m = 1) or non-negative (m > 1, Euclidean norm) error per sample (mm)."""
@@ -104,6 +117,9 @@ class CableLength(MeasurementModel):
         if anchor.shape != (3,):
             raise ValueError(f"anchor must be a [3] position in mm, got shape {anchor.shape}")
         self.anchor = anchor
+
+    def nominal_lengths(self) -> dict[str, float]:
+        return xyz_entries("anchor_", self.anchor)
 
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:
         """Wire lengths ``[n]`` (mm)."""
@@ -311,6 +327,10 @@ class Markers(MarkerModel):
     def extra_groups(self) -> tuple[Group, ...]:
         """``marker_1 … marker_N`` unless the positions are known."""
         return () if self.known else tuple(marker_group(k + 1) for k in range(self.n_markers))
+
+    def nominal_lengths(self) -> dict[str, float]:
+        return {n: v for k, row in enumerate(np.asarray(self.positions, np.float64))
+                for n, v in xyz_entries(f"marker_{k + 1}_", row).items()}
 
     def marker_points(self, deviations: Deviations | None, dtype=None) -> Float[Array, "N 3"]:
         """Marker positions in the flange frame, nominal + the ``marker_k`` deviations (mm)."""

@@ -53,7 +53,7 @@ from ._initialise import (
     marker_errors,
     trimmed_note,
 )
-from ._measurement import MarkerModel
+from ._measurement import MarkerModel, xyz_entries
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "session_labels",
     "masked_markers"]
@@ -236,6 +236,10 @@ class SessionMarkers(MarkerModel):
         """``base_rotation@F, base_translation@F`` per frame label, then ``marker_k@K`` per placement."""
         return (tuple(g for f in self.frames for g in frame_groups(f))
                 + tuple(g for p, ks in zip(self.placements, self.markers) for g in placement_groups(p, ks)))
+
+    def nominal_lengths(self) -> dict[str, float]:
+        return {n: v for p, rows in zip(self.placements, np.asarray(self.positions, np.float64))
+                for k, row in enumerate(rows) for n, v in xyz_entries(f"marker_{k + 1}_", row, f"@{p}").items()}
 
     def groups_of(self, *, frame: str | None = None, placement: str | None = None) -> tuple[str, ...]:
         """Group names of a frame label and/or a placement label."""
