@@ -360,10 +360,10 @@ def _block_grams(problem: Problem, observed):
     ``problem.x0()``, in one compiled program: the ``N×p`` Jacobian stays on the device."""
     r, J = value_and_jacfwd(problem.residual, problem.x0(), problem.q)
     model = problem.measurement
-    n, m = problem.q.shape[0], model.size
-    J = J.reshape(n, m, -1) * observed[:, :, None].astype(J.dtype)
+    n = problem.q.shape[0]
+    J = problem.to_blocks(J) * observed[:, :, None].astype(J.dtype)
     grams = jnp.stack([jnp.einsum("imp,imq->pq", Jb, Jb) for Jb in model._rows(J, n)])
-    return r.reshape(n, m), grams
+    return problem.to_blocks(r), grams
 
 
 #: one program per combined model and row count: the space is every parameter of the layout, so

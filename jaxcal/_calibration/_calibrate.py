@@ -43,7 +43,7 @@ from .._fit._diagnostics import (
 )
 from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
-from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
+from .._fit._problem import Problem, entry_count, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import (
     CalibrationResult,
     Status,
@@ -460,7 +460,7 @@ def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None, host: bool = 
     method; :func:`jaxcal.calibrate_many` pads every unit to one size). ``host``: ``q``, ``y``,
     ``weight`` and a padded start Jacobian as NumPy arrays (a caller that stacks units on the
     host first)."""
-    n = int(q.shape[0])
+    n, measurement = int(q.shape[0]), cal.measurement
     pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
     n_to = n if not pad else bucket_size(n, width=cal.measurement.size) if n_to is None else n_to
     w = None
@@ -469,13 +469,14 @@ def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None, host: bool = 
         if n_to != n:
             cal = eqx.tree_at(lambda c: c.measurement, cal, cal.measurement.pad_rows(n, n_to))
     J = cal.start_jacobian
-    m = cal.measurement.size
-    if J is not None and J.shape[0] != n_to * m:
+    rows, rows_to = entry_count(measurement, n), entry_count(cal.measurement, n_to)
+    if J is not None and J.shape[0] != rows_to:
         # computed on the real rows, or on another padding (the identifiability program pads
-        # whatever the method): the real rows on the host, zero rows for this padding
-        Jn = np.asarray(J)[: n * m]
-        if n_to != n:
-            Jn = np.concatenate([Jn, np.zeros(((n_to - n) * m, Jn.shape[1]), Jn.dtype)])
+        # whatever the method): the real rows on the host (padding rows' entries come last), zero
+        # rows for this padding
+        Jn = np.asarray(J)[:rows]
+        if rows_to != rows:
+            Jn = np.concatenate([Jn, np.zeros((rows_to - rows, Jn.shape[1]), Jn.dtype)])
         cal = eqx.tree_at(lambda c: c.start_jacobian, cal, Jn if host else jax.device_put(Jn))
     return cal, q, y, w
 

@@ -433,7 +433,7 @@ EXPECTED_FACTOR = 1.5
 @functools.lru_cache(maxsize=1)
 def _jacobian_program():
 
-    return filter_jit(lambda problem: problem.jacobian(problem.x0()))
+    return filter_jit(lambda problem: problem.to_blocks(problem.jacobian(problem.x0())).reshape(problem.n_residuals, -1))
 
 
 def _registered_terms(result, data, registered, deviations):

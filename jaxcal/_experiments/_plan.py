@@ -148,7 +148,7 @@ def indices_from_jacobian(J, scale=None) -> ObservabilityIndices:
 
 @jit
 def _jac(problem: Problem):
-    return problem.jacobian(problem.x0())
+    return problem.to_blocks(problem.jacobian(problem.x0()))
 
 
 def candidate_rows(robot: DHRobot, measurement: MeasurementModel, candidates, y=None):

@@ -162,13 +162,14 @@ def gram_from_jacobian(problem, r, J, loss: str, loss_scale):
     d = jnp.sqrt(jnp.sum(J * J, axis=0))
     Js = J / jnp.where(d > 0, d, 1.0)
     G = Js.T @ Js
+    blocks = problem.to_blocks(r)  # the residual returned is [n·m] (zeros where the model has no entry)
     if loss == "linear":
-        return d, G, G, jnp.sum(r * r), r, None
-    n, m = problem.n_samples, problem.measurement.size
-    e = problem.measurement.sample_error(r.reshape(n, m))
+        return d, G, G, jnp.sum(r * r), blocks.reshape(-1), None
+    e = problem.measurement.sample_error(blocks)
     f = robust_factor(loss, e * e, loss_scale)
-    w = jnp.repeat(f * f, m)
-    return d, (Js * w[:, None]).T @ Js, G, jnp.sum(w * r * r), r, e
+    rows = problem.entry_rows()
+    w = jnp.repeat(f * f, problem.measurement.size) if rows is None else (f * f)[rows]
+    return d, (Js * w[:, None]).T @ Js, G, jnp.sum(w * r * r), blocks.reshape(-1), e
 
 
 _gram = jit(gram_at, static_argnames="loss")

@@ -347,7 +347,7 @@ def _start_factor(robot, measurement, q, deviations, space, y=None, weight=None)
         if y is None:
             resid = None
         elif free:
-            resid = r.reshape(q.shape[0], measurement.size)
+            resid = problem.to_blocks(r)
         else:
             resid = measurement.residual(robot, deviations, q, jnp.asarray(y, q.dtype))
     d = jnp.sqrt(jnp.sum(J * J, axis=0))

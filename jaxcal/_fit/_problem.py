@@ -16,9 +16,16 @@ from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
 
-__all__ = ["Problem", "value_and_jacfwd", "residual_blocks", "residual_blocks_numpy", "signed_residuals",
+__all__ = ["Problem", "entry_count", "value_and_jacfwd", "residual_blocks", "residual_blocks_numpy", "signed_residuals",
            "observed_entries",
            "sample_errors_at", "predict_jit"]
+
+
+def entry_count(measurement: MeasurementModel, n: int) -> int:
+    """Entries of a residual vector of ``n`` rows (:meth:`Problem.residual`): ``n·m``, or the
+    model's own entries (:meth:`MeasurementModel.residual_entries`)."""
+    e = measurement.residual_entries(n)
+    return n * measurement.size if e is None else int(e.size)
 
 
 def value_and_jacfwd(f, x: Float[Array, " p"], q: Float[Array, "n dof"]):
@@ -84,6 +91,37 @@ class Problem(eqx.Module):
         return self.n_samples * self.measurement.size
 
     @property
+    def entries(self) -> np.ndarray | None:
+        """Flat positions ``[k]`` into ``[n, m]`` of the entries :meth:`residual` returns
+        (:meth:`MeasurementModel.residual_entries`); ``None``: all ``n·m``."""
+        return self.measurement.residual_entries(self.n_samples)
+
+    @property
+    def n_entries(self) -> int:
+        """Length of :meth:`residual`'s vector (and rows of :meth:`jacobian`): :attr:`n_residuals`,
+        or fewer where the model names its entries (a combined model's narrower blocks)."""
+        return entry_count(self.measurement, self.n_samples)
+
+    def to_blocks(self, v):
+        """``[n_entries, ...]`` (a :meth:`residual` vector, a :meth:`jacobian`) → ``[n, m, ...]``,
+        the entries the model leaves out set to zero (NumPy in, NumPy out)."""
+        n, m, e = self.n_samples, self.measurement.size, self.entries
+        if e is None:
+            return v.reshape(n, m, *v.shape[1:])
+        if isinstance(v, np.ndarray):
+            full = np.zeros((n * m, *v.shape[1:]), v.dtype)
+            full[e] = v
+        else:
+            full = jnp.zeros((n * m, *v.shape[1:]), v.dtype).at[e].set(v)
+        return full.reshape(n, m, *v.shape[1:])
+
+    def entry_rows(self) -> np.ndarray | None:
+        """``[n_entries]`` the row of each entry of :meth:`residual` (``None``: all ``n·m``, row
+        ``i`` holding entries ``i·m … i·m + m − 1``)."""
+        e = self.entries
+        return None if e is None else e // self.measurement.size
+
+    @property
     def n_real(self):
         """Real samples: ``n_samples`` (a Python int) without weights, else ``Σ weight`` (an array)."""
         return self.n_samples if self.weight is None else jnp.sum(self.weight)
@@ -129,10 +167,13 @@ class Problem(eqx.Module):
         """Full deviations for free-parameter vector ``x``."""
         return self.space.from_vector(x, self.base)
 
-    def residual(self, x: Float[Array, " p"]) -> Float[Array, " n*m"]:
-        """``prediction − measured`` flattened to ``[n·m]`` (mm)."""
-        r = self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
-        return self.weighted_blocks(r).reshape(-1)
+    def residual(self, x: Float[Array, " p"]) -> Float[Array, " N"]:
+        """``prediction − measured`` flattened to ``[n·m]`` (mm), or to the model's own entries
+        ``[n_entries]`` where it names them (:meth:`MeasurementModel.residual_entries`: the others
+        are zero by construction); :meth:`to_blocks` is the inverse."""
+        r = self.weighted_blocks(self.measurement.residual(self.robot, self.deviations(x), self.q, self.y))
+        e = self.entries
+        return r.reshape(-1) if e is None else r.reshape(-1)[e]
 
     def sample_errors(self, x: Float[Array, " p"]) -> Float[Array, " n"]:
         """Per-sample errors for the metrics (mm; 0 on padding rows)."""
@@ -141,10 +182,11 @@ class Problem(eqx.Module):
 
     def sample_errors_from_residual(self, r: Float[Array, " n*m"]) -> Float[Array, " n"]:
         """:meth:`sample_errors` from the flat residual :meth:`residual` gave (padding rows 0)."""
-        return self.measurement.sample_error(r.reshape(self.n_samples, self.measurement.size))
+        return self.measurement.sample_error(self.to_blocks(r))
 
     def jacobian(self, x: Float[Array, " p"]) -> Float[Array, "n*m p"]:
-        """Identification Jacobian ``∂residual/∂x`` ``[n·m, p]`` by ``jax.jacfwd`` (paper eq. 5)."""
+        """Identification Jacobian ``∂residual/∂x`` ``[n_entries, p]`` (``[n·m, p]`` unless the model
+        names its entries) by ``jax.jacfwd`` (paper eq. 5)."""
         return value_and_jacfwd(self.residual, x, self.q)[1]
 
     def with_data(self, q, y, weight=None) -> Problem:
@@ -207,8 +249,7 @@ def prediction_variance_at(problem: Problem, x: Float[Array, " p"], covariance: 
     """Per-sample variance (mm²) of the predicted reading at free parameters ``x`` with parameter
     covariance ``covariance`` ``[p, p]``: ``diag(J·Cov·Jᵀ)`` summed over the sample's coordinates
     (the position part of a pose), jitted (one program per shape; the N×p Jacobian stays in XLA)."""
-    n, m = problem.n_samples, problem.measurement.size
-    J = problem.jacobian(x).reshape(n, m, -1)
+    J = problem.to_blocks(problem.jacobian(x))
     if problem.measurement.kind == "pose":
         J = J[:, :3]
     return jnp.einsum("nmp,pk,nmk->n", J, covariance, J)

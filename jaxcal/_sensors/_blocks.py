@@ -560,6 +560,19 @@ class Combined(MeasurementModel):
         out = self._join(parts, np)
         return None if out.all() else out
 
+    def residual_entries(self, n: int) -> np.ndarray | None:
+        """Each row's own block entries (its first ``m_b`` of ``m``; the padding rows are block-0
+        rows), flat; ``None`` when every block has ``m`` entries. 30 camera images (108 entries)
+        beside 500 tracker rows (3): 4 740 entries instead of 57 240."""
+        sizes = [mod.size for mod in self.models]
+        m = max(sizes)
+        if min(sizes) == m:
+            return None
+        per_row = np.repeat(np.asarray(sizes + [sizes[0]]), np.asarray([*self.counts, self.pad]))
+        if per_row.size != n:
+            raise ValueError(f"combined model of {per_row.size} rows (padding included) evaluated on {n}")
+        return np.flatnonzero(np.arange(m)[None, :] < per_row[:, None])
+
     def check_measurements(self, y, n: int) -> None:
         shape = tuple(np.shape(y))
         if shape != (n, *self.sample_shape) or n != self.n_rows + self.pad:

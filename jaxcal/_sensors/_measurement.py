@@ -70,6 +70,16 @@ class MeasurementModel(eqx.Module):
         del y
         return None
 
+    def residual_entries(self, n: int) -> np.ndarray | None:
+        """The flat positions ``[k]`` (row-major, into the ``[n, size]`` residual of ``n`` rows)
+        that this model can make non-zero, or ``None``: every entry. A model whose rows are
+        narrower than ``size`` in places (:class:`~jaxcal.Combined`: a tracker's 3 entries beside a
+        camera's 108) names the others, which are zero by construction; the solves, Jacobians and
+        information matrices then run over these entries only (:meth:`jaxcal.Problem.residual`),
+        and :meth:`jaxcal.Problem.to_blocks` puts a vector back into ``[n, size]``."""
+        del n
+        return None
+
     def nominal_lengths(self) -> dict[str, float]:
         """``{entry: nominal value}`` (mm) of this model's extras that are lengths with a nominal
         value (an anchor, plane offsets, point centres, ...), under their names in

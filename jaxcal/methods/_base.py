@@ -87,9 +87,9 @@ class ScaledProblem(eqx.Module):
         if objective is not None and objective.plain_least_squares:
             objective = None
         x_start = problem.x0() if x_start is None else jnp.asarray(x_start, problem.dtype)
-        if jacobian is not None and jacobian.shape != (problem.n_residuals, problem.space.n_free):
+        if jacobian is not None and jacobian.shape != (problem.n_entries, problem.space.n_free):
             raise ValueError(f"start Jacobian has shape {jacobian.shape}, expected "
-                             f"{(problem.n_residuals, problem.space.n_free)} (residuals × free parameters)")
+                             f"{(problem.n_entries, problem.space.n_free)} (residuals × free parameters)")
         pending = defer_scale and jacobian is None
         if mask is not None:
             mask = jnp.asarray(mask, problem.dtype)
@@ -115,8 +115,9 @@ class ScaledProblem(eqx.Module):
         # sqrt(sum(J²)) rather than jnp.linalg.norm: the latter's column reduction is ~10x
         # slower on XLA:CPU for a [N, p] Jacobian (measured, JAX 0.10)
         norms = jnp.sqrt(jnp.sum(J * J, axis=0))
-        # sqrt(N) of the real residuals (padding rows of a bucketed problem have zero Jacobian rows)
-        root_n = math.sqrt(J.shape[0]) if problem.weight is None else jnp.sqrt(problem.n_real_residuals)
+        # sqrt(N) of the real residuals (padding rows of a bucketed problem have zero Jacobian rows;
+        # N counts all n·m entries also where J holds the model's own entries only: the same scales)
+        root_n = math.sqrt(problem.n_residuals) if problem.weight is None else jnp.sqrt(problem.n_real_residuals)
         scale = jnp.where(norms > 0, root_n / jnp.where(norms > 0, norms, 1.0), 1.0)
         return scale if mask is None else scale * mask
 
@@ -137,7 +138,7 @@ class ScaledProblem(eqx.Module):
     def n_objective_residuals(self) -> int:
         """Entries of :meth:`objective_residual`: data residuals, plus ``p`` with a prior."""
         extra = self.n_free if (self.objective is not None and self.objective.has_prior) else 0
-        return self.problem.n_residuals + extra
+        return self.problem.n_entries + extra
 
     def prior_residual(self, z: Float[Array, " p"]) -> Float[Array, " p"]:
         """``P·(x − m)`` (mm), ``σ·W(x − m)`` with a full prior covariance; zeros without a prior."""
@@ -212,8 +213,10 @@ class ScaledProblem(eqx.Module):
         the robust factor of its error (``r`` itself for plain least squares / the linear loss)."""
         if not self.robust:
             return r
-        blocks = r.reshape(problem.n_samples, problem.measurement.size)
-        return (blocks * self._robust_factor(problem.measurement.sample_error(blocks))[:, None]).reshape(-1)
+        blocks = problem.to_blocks(r)
+        f = self._robust_factor(problem.measurement.sample_error(blocks))
+        rows = problem.entry_rows()
+        return (blocks * f[:, None]).reshape(-1) if rows is None else r * f[rows]
 
     @property
     def n_free(self) -> int:

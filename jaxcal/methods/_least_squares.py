@@ -115,6 +115,8 @@ def _rmse_from_residual(problem: ScaledProblem, z, r):
     if isinstance(measurement, Pose):
         return problem.rmse(z)
     if problem.plain and problem.problem.weight is None:
+        if r.size != problem.problem.n_residuals:  # the model's own entries of n·m (the rest are zero)
+            return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_residuals)
         return jnp.sqrt(measurement.size * jnp.mean(r * r))
     # data residuals (robust-scaled) and prior residuals, per real data residual (padding rows are 0)
     return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_real_residuals)
@@ -173,7 +175,7 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     # the data residual and Jacobian of the accepted point are carried apart from the objective's
     # only where the two differ (a prior or a robust loss) and the caller asked for them
     carry_data = keep and not plain
-    n_data = problem.problem.n_residuals
+    n_data = problem.problem.n_entries
     r_struct = jax.ShapeDtypeStruct((problem.n_objective_residuals,), problem.dtype)
     jac_struct = jax.ShapeDtypeStruct((problem.n_objective_residuals, problem.n_free), problem.dtype)
     info_struct = optx.FunctionInfo.ResidualJac(r_struct, lx.MatrixLinearOperator(jac_struct))

@@ -235,7 +235,7 @@ class RBFNetworkMethod(Method):
             z_base = jnp.zeros(problem.n_free, dtype)
             base_its, base_status = jnp.asarray(0), jnp.asarray(int(Status.COMPLETED))
 
-        r_base = pr.residual(problem.x(z_base)).reshape(n, m)  # prediction − measured
+        r_base = pr.to_blocks(pr.residual(problem.x(z_base)))  # prediction − measured, [n, m]
         T = -r_base  # the network learns measured − prediction
         robot = pr.robot
         q_offset = (0.5 * (robot.q_min + robot.q_max)).astype(dtype)

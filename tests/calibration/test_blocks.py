@@ -541,3 +541,54 @@ def test_scale_shares_closed_form():
     d = {k: v for k, v in to_jsonable(_stats_to_dict(mk[0])).items() if not k.startswith("scale_")}
     back = _stats_from_dict(d)
     assert np.isnan(back.scale_share) and back.scale_seen is None
+
+
+
+def test_own_entries_of_narrow_blocks_equal_the_padded_rows(robot, monkeypatch):
+    """A combined model's rows are padded to the widest block (a tracker's 3 entries, a wire's 1);
+    the residual vector and the Jacobian hold each row's own entries only
+    (``Combined.residual_entries``: 3 100 of 6 300 here). Against the same quantities with the padding
+    kept in (the entries switched off, a fresh trace): the residual put back into rows is the model's
+    own, and what the solves and the uncertainty read — the robust objective's ``JᵀJ``, ``Jᵀr`` and
+    ``‖r‖²``, the Gram matrices, the robust weights' residual sum, the sample errors and the column
+    scales — agree to round-off."""
+    from jaxcal import CableLength, Position
+    from jaxcal._fit._diagnostics import gram_from_jacobian
+    from jaxcal._fit._objective import Objective
+    from jaxcal._fit._problem import Problem, value_and_jacfwd
+    from jaxcal._sensors._blocks import Combined
+    from jaxcal._simulation._simulate import default_anchor, simulate_experiment
+    from jaxcal.methods import ScaledProblem
+
+    # the simulations at the shapes other tests draw (the paper's draw-wire experiment, the tracker
+    # of the camera pairs): their programs are compiled once in a test run
+    wire = simulate_experiment(jax.random.key(8), robot)
+    track = simulate_experiment(jax.random.key(7), robot, n_samples=1000, noise_std=0.05, measurement=Position(),
+                                true_deviations=_dh_only(robot, wire.true_deviations), test_fraction=0.5)
+    model, q, y = combine(robot, [Block("tracker", Position(), track.train, 0.05, extras="tool,base"),
+                                  Block("wire", CableLength(default_anchor(robot)), wire.train, 0.05)])
+    space = ParameterSpace.for_robot(robot, measurement=model)
+    problem = Problem(robot, model, q, y, space)
+    assert problem.n_entries == 500 * 3 + 1600 and problem.n_residuals == 2100 * 3
+    np.testing.assert_array_equal(problem.entry_rows()[[0, 1499, 1500, 3099]], [0, 499, 500, 2099])
+    x = jax.random.normal(jax.random.key(3), (space.n_free,)) * 1e-3  # off the start: residuals of all sizes
+    objective = Objective.build(space, None, 0.05, loss="huber", loss_scale=2.0)
+
+    def pieces(problem, x):
+        scaled = ScaledProblem.build(problem, objective=objective)
+        z = scaled.z(x)
+        ro, Jo = scaled.objective_residual_and_jacobian(z)
+        r, J = value_and_jacfwd(problem.residual, x, problem.q)
+        blocks = problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
+        return (problem.to_blocks(r), blocks), (Jo.T @ Jo, Jo.T @ ro, ro @ ro, scaled.scale,
+                                                problem.sample_errors_from_residual(r),
+                                                *gram_from_jacobian(problem, r, J, "huber", 2.0))
+
+    (back, blocks), own = jax.jit(lambda p, x: pieces(p, x))(problem, x)
+    np.testing.assert_allclose(np.asarray(back), np.asarray(blocks), rtol=1e-12, atol=1e-12)  # the wire's rows: 1 entry
+    assert not np.any(np.asarray(back)[500:, 1:])
+    monkeypatch.setattr(Combined, "residual_entries", lambda self, n: None)
+    assert Problem(robot, model, q, y, space).n_entries == 6300
+    padded = jax.jit(lambda p, x: pieces(p, x))(problem, x)[1]
+    for a, b in zip(own, padded):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-10, atol=1e-12 * float(np.max(np.abs(b))))
