@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import codecs
 import csv
+import math
 import os
 from dataclasses import dataclass
 
@@ -86,6 +87,23 @@ class Table:
                 "remove or fix them — nothing is dropped silently"
             )
         return out
+
+
+def number_list(text: str, n: int, what: str) -> list[float]:
+    """The ``n`` finite numbers of a comma-separated text such as a metadata line's value
+    (``"1200, 0, 300"``; ``;`` separates too); ``what`` names the text in the error.
+
+    Raises:
+        ValueError: a part is not a number, or there are not ``n`` finite numbers.
+    """
+    parts = [p for p in text.replace(";", ",").split(",") if p.strip()]
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{what} must be {n} comma-separated numbers, got {text!r}") from None
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise ValueError(f"{what} must be {n} finite comma-separated numbers, got {text!r}")
+    return vals
 
 
 def _decode(path: str) -> str:

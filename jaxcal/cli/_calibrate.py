@@ -11,7 +11,7 @@ import time
 import types
 import warnings
 
-from ._common import _EXIT_FAILED, _floats, _measurement, _robot, _sphere_model, _Usage
+from ._common import _EXIT_FAILED, _floats, _robot, _Usage
 
 __all__ = ["FLEET_KINDS"]
 
@@ -30,42 +30,6 @@ def _hyper(items: list[str] | None) -> dict:
         except (ValueError, SyntaxError):
             out[k.strip()] = v.strip()
     return out
-
-
-def _camera_measurement(args, data, path):
-    """The :class:`~jaxcal.Camera` of ``jaxcal calibrate --measurement camera`` from ``--target``,
-    ``--camera``, ``--mount`` (or the data file's ``# target:``, ``# camera_intrinsics:``,
-    ``# mount:`` lines), hand-eye and target pose unknown (started from the data)."""
-    from .._sensors._camera import Camera, load_target
-
-    meta = data.meta
-    target = args.target or meta.get("target")
-    if not target:
-        raise _Usage("--measurement camera needs the target layout: --target checkerboard:COLSxROWS:SQUARE_MM or "
-                     "--target FILE.csv (x_mm,y_mm,z_mm per point), or a '# target: …' line in the data file")
-    try:
-        points = load_target(target, base_dir=pathlib.Path(path).parent)
-    except (ValueError, OSError) as e:
-        raise _Usage(f"--target: {e}") from None
-    if points.shape[0] != data.y.shape[1]:
-        raise _Usage(f"the target has {points.shape[0]} points but {path} has image columns for {data.y.shape[1]} "
-                     "(u_k_px, v_k_px)")
-    spec = args.camera or meta.get("camera_intrinsics")
-    if not spec:
-        raise _Usage("--measurement camera needs the camera's intrinsics: --camera fx,fy,cx,cy[,k1,k2,p1,p2[,k3]] "
-                     "(px; OpenCV's camera matrix and distortion) or a '# camera_intrinsics: …' line")
-    parts = [p for p in spec.replace(";", ",").split(",") if p.strip()]
-    intr = _floats(spec, len(parts), "--camera") if len(parts) in (4, 8, 9) else None
-    if intr is None:
-        raise _Usage(f"--camera takes 4, 8 or 9 numbers fx,fy,cx,cy[,k1,k2,p1,p2[,k3]], got {spec!r}")
-    mount = (args.mount or meta.get("mount") or "eye_in_hand").replace("-", "_").lower()
-    size = meta.get("image_size_px")
-    size = tuple(int(v) for v in _floats(size, 2, "the file's image_size_px")) if size else None
-    try:
-        return Camera(points, intr, mount, image_size=size, calibrate_intrinsics="intrinsics" in
-                      {e.strip().lower() for e in (args.estimate or "").split(",")})
-    except ValueError as e:
-        raise _Usage(str(e)) from None
 
 
 def _metrics_rows(pairs):
@@ -189,7 +153,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     the loaded data, the measurement model, the extras to estimate, the objective, the checks and the
     method's settings (raises :class:`_Usage` on bad input)."""
     from .._calibration._evaluate import MEASURED_DEFAULTS
-    from .._calibration._setup import measured_extras
+    from .._calibration._setup import measurement_for
     from .._datasets._dataset import load_csv
     from .._fit._diagnostics import Checks
     from .._fit._objective import LOSSES, Prior
@@ -215,64 +179,12 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
                      "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    estimate = {e.strip().lower() for e in (args.estimate or "").split(",") if e.strip()}
-    # the extras asked for are checked here; measured_extras adds the ones the kind of data needs
-    if kind == "camera":
-        if estimate - {"intrinsics"}:
-            raise _Usage(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the target "
-                         f"pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
-        estimate = set()  # intrinsics: a group of the camera model (--estimate read again below)
-    if kind == "distance" and "base" in estimate:
-        raise _Usage("--estimate base does not apply to distance data: distances never see the base frame")
-    sphere = kind == "point" and (args.radius_mm is not None or "radius" in estimate
-                                              or "radius_mm" in data.meta)
-    radius_mm = args.radius_mm
-    if sphere and radius_mm is None and "radius_mm" in data.meta:
-        radius_mm = _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0]
-    estimate_radius = "radius" in estimate
-    estimate.discard("radius")
-    if (args.radius_mm is not None or estimate_radius) and kind != "point":
-        raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
-    if kind in ("plane", "point") and "base" in estimate:
-        raise _Usage(f"--estimate base does not apply to {kind} data: the {kind}s are "
-                     "in the robot base frame and carry any base-frame error")
-    bad = estimate - {"anchor", "tool", "offset", "cable_offset", "base"}
-    if bad:
-        raise _Usage(f"--estimate takes anchor, offset, tool (cable) or base, tool (position); got {sorted(bad)}")
-    if kind != "cable" and estimate & {"anchor", "offset", "cable_offset"}:
-        raise _Usage("--estimate anchor/offset apply to --measurement cable only")
-    if kind == "cable" and "base" in estimate:
-        raise _Usage("--estimate base applies to --measurement position only")
-    if anchor is None and kind == "cable" and "anchor_mm" in data.meta:
-        anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm")
-    if kind == "markers" and "tool" in estimate:
-        raise _Usage("--estimate tool does not apply to marker data: the marker positions are the tool")
-    estimate, notes = measured_extras(kind, estimate, anchor_known=anchor is not None, sessions=bool(data.labels),
-                                      sphere=sphere, estimate_radius=estimate_radius, radius_mm=radius_mm)
-    if kind == "camera":
-        from .._sensors._camera import masked_corners
-
-        measurement = _camera_measurement(args, data, path)
-        n_mask, n_all, n_img = masked_corners(data.y)
-        notes.append(f"camera ({measurement.mount}): hand-eye transform and target pose estimated (per-image PnP, "
-                     f"Park–Martin hand-eye, then the joint fit){'; intrinsics estimated' if measurement.calibrate_intrinsics else ''}; "
-                     f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "
-                     "(zero weight), not dropped")
-    elif data.labels:  # marker data of several sessions: SessionMarkers (one frame / placement per label)
-        from .._sensors._sessions import SessionMarkers, masked_markers
-
-        measurement = SessionMarkers.from_dataset(data)
-        n_miss, n_all, n_rows = masked_markers(data.y)
-        places = ", ".join(f"{p} ({len(k)})" for p, k in zip(measurement.placements, measurement.markers))
-        notes.append(f"{len(dict.fromkeys(s for s, _, _ in data.labels))} recording sessions: frames "
-                     f"{', '.join(measurement.frames)}; placements (markers) {places}; shared robot errors"
-                     + (f"; {n_miss} of {n_all} marker readings missing (empty cells) in {n_rows} row(s): masked "
-                        "(zero weight), not dropped" if n_miss else ""))
-    else:
-        measurement = _measurement(kind, anchor, robot,
-                                   data.y.shape[1] if data.kind == "markers" else None, data=data)
-        if sphere:
-            measurement = _sphere_model("point", measurement, radius_mm, estimate_radius)
+    try:  # the model and extras from the file and the options (its metadata lines as defaults)
+        ms = measurement_for(data, robot, anchor_mm=anchor, radius_mm=args.radius_mm, estimate=args.estimate or (),
+                             target=args.target, camera_intrinsics=args.camera, mount=args.mount, path=path)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+    estimate, notes, measurement = set(ms.estimate), list(ms.notes), ms.measurement
     if args.test and args.test_fraction is not None:
         raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
     test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
@@ -310,7 +222,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         raise _Usage(f"--set: unknown setting(s) {sorted(set(hyper) - set(valid))} for method {method}; "
                      f"its settings: {', '.join(valid)}")
     return types.SimpleNamespace(robot=robot, path=path, data=data, kind=kind, estimate=estimate, notes=notes,
-                                 measurement=measurement, test_fraction=test_fraction, loss=loss,
+                                 measurement=measurement, extras=ms.extras, test_fraction=test_fraction, loss=loss,
                                  test_file=test_file, prior=prior, checks=checks, hyper=hyper)
 
 
@@ -442,7 +354,7 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
         k_method = k if k_method is None else k_method  # one key for every unit (same seed)
         trains.append(s.data.subset(train_idx))
         tests.append(s.data.subset(test_idx))
-    extras = sorted({"offset": "cable_offset"}.get(e, e) for e in first.estimate)
+    extras = first.extras
     robot, measurement = first.robot, first.measurement
     print(f"fleet: {len(setups)} units of robot {robot.name}, {measurement.kind} data, method {method}; "
           f"{first.test_fraction:g} of each file held out (seed {args.seed})")
@@ -515,8 +427,7 @@ def _cmd_calibrate(args) -> int:
     if len(args.data) > 1 or args.out_dir:
         return _cmd_calibrate_fleet(args, method)
     setup = _calibration_setup(args, method, args.data[0])
-    robot, path, data, estimate, notes, measurement = (
-        setup.robot, setup.path, setup.data, setup.estimate, setup.notes, setup.measurement)
+    robot, path, data, notes, measurement = setup.robot, setup.path, setup.data, setup.notes, setup.measurement
     test_fraction, loss, test_file, prior, checks, hyper = (
         setup.test_fraction, setup.loss, setup.test_file, setup.prior, setup.checks, setup.hyper)
     excluded = sorted(set(_rows(args.exclude_rows)))
@@ -541,7 +452,7 @@ def _cmd_calibrate(args) -> int:
         measurement = full.take(train_idx)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
-    extras = sorted({"offset": "cable_offset"}.get(e, e) for e in estimate)
+    extras = setup.extras
     file_row = lambda i: int(kept_rows[train_idx[i]]) + 1  # noqa: E731  (1-based data row of a training row)
 
     split = (f"{train.n} train / {test.n} test (seed {args.seed})" if test_file is None else

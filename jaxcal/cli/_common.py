@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import math
 import pathlib
 import sys
 
@@ -15,14 +14,12 @@ class _Usage(Exception):
 
 
 def _floats(text: str, n: int, what: str) -> list[float]:
-    parts = [p for p in text.replace(";", ",").split(",") if p.strip()]
+    from .._datasets._csvfile import number_list
+
     try:
-        vals = [float(p) for p in parts]
-    except ValueError:
-        raise _Usage(f"{what} must be {n} comma-separated numbers, got {text!r}") from None
-    if len(vals) != n or not all(math.isfinite(v) for v in vals):
-        raise _Usage(f"{what} must be {n} finite comma-separated numbers, got {text!r}")
-    return vals
+        return number_list(text, n, what)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
 
 
 def _robot(spec: str, base: str | None = None, tip: str | None = None):
@@ -48,31 +45,13 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
 
 
 def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):
-    from .._sensors._measurement import CableLength, Markers, Pose, Position
+    """:func:`~jaxcal._calibration._setup.measurement_of_kind` (bad input: :class:`_Usage`)."""
+    from .._calibration._setup import measurement_of_kind
 
-    if kind in ("plane", "point", "distance"):  # contact data (jaxcal._sensors._contact): planes/points from the data's labels
-        if anchor is not None:
-            raise _Usage("--anchor applies to --measurement cable only")
-        from .._sensors._contact import contact_model
-
-        return contact_model(kind, robot, data)
-
-    if kind == "cable":
-        if anchor is None:
-            from .._simulation._simulate import default_anchor
-
-            return CableLength(default_anchor(robot))
-        from .._core._precision import to_device
-
-        return CableLength(to_device(anchor))  # as jnp.asarray, without a compiled conversion program
-    if anchor is not None:
-        raise _Usage("--anchor applies to --measurement cable only")
-    if kind == "markers":
-        # marker positions on the flange unknown: they start from the data (closed form) and are calibrated
-        import numpy as np
-
-        return Markers(np.zeros((int(n_markers), 3)))
-    return Pose() if kind == "pose" else Position()
+    try:
+        return measurement_of_kind(kind, robot, anchor_mm=anchor, n_markers=n_markers, data=data)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
 
 
 def _robot_and_sensor(args):
@@ -94,15 +73,14 @@ def _robot_and_sensor(args):
 
 
 def _sphere_model(kind: str, measurement, radius_mm, estimate: bool):
-    """``--radius-mm`` / ``--estimate radius``: the point model as spheres (jaxcal.FixedPoint with radii)."""
-    if kind != "point":
-        raise _Usage("--radius-mm and --estimate radius apply to --measurement point only")
-    r = 0.0 if radius_mm is None else float(radius_mm)
-    if not (math.isfinite(r) and r >= 0):
-        raise _Usage(f"--radius-mm must be a finite number >= 0 (mm), got {radius_mm}")
-    from .._sensors._contact import FixedPoint
+    """``--radius-mm`` / ``--estimate radius``: the point model as spheres
+    (:func:`~jaxcal._calibration._setup.as_spheres`; bad input: :class:`_Usage`)."""
+    from .._calibration._setup import as_spheres
 
-    return FixedPoint(measurement.labels, measurement.centres, radii_mm=r, estimate_radius=estimate)
+    try:
+        return as_spheres(kind, measurement, radius_mm, estimate)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
 
 
 def _write_outputs(res, out, *, figures: bool) -> dict:

@@ -162,54 +162,19 @@ def _save_sensor_plan(path, robot, measurement, sel, meta) -> None:
 
 
 def _fixed_block(path: str, sigma, robot):
-    """A data file in hand as a :class:`jaxcal.Block`: its kind from the file, its model as
-    ``jaxcal calibrate`` builds it, the extras that kind needs, σ given or the file's
-    ``noise_std_mm`` / ``noise_std_px`` line."""
-    import types
+    """``(block, unit)``: a ``--with`` data file as a :class:`jaxcal.Block`
+    (:func:`~jaxcal._calibration._setup.block_from_file`: its model as ``jaxcal calibrate`` builds
+    it, σ given or the file's ``noise_std_mm`` / ``noise_std_px`` line)."""
+    from .._calibration._setup import block_from_file
 
-    from .._calibration._blocks import block_extras
-    from .._calibration._setup import measured_extras
-    from .._datasets._dataset import load_csv
-    from .._sensors._blocks import Block
-    from ._calibrate import _camera_measurement
-    from ._common import _measurement
-
-    p = pathlib.Path(path)
-    if not p.exists():
+    if not pathlib.Path(path).exists():
         raise _Usage(f"--with: data file {path!r} not found")
     try:
-        data = load_csv(p)
-    except ValueError as e:
-        raise _Usage(f"--with {path}: {e}") from None
-    kind = data.kind
-    if data.dof != robot.dof:
-        raise _Usage(f"--with {path}: {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
-    if kind == "markers" or data.labels:
-        raise _Usage(f"--with {path}: {kind} data of several sessions or markers cannot be planned with; give "
-                     "cable, position, pose, plane, point, distance or camera files")
-    unit = "px" if kind == "camera" else "mm"
-    if sigma is None:
-        text = data.meta.get(f"noise_std_{unit}")
-        if text is None:
-            raise _Usage(f"--with {path}: give its noise σ ({unit}) with --with-sigma, or a '# noise_std_{unit}: …' "
-                         "line in the file")
-        sigma = _floats(str(text), 1, f"the file's noise_std_{unit}")[0]
-    if not (sigma > 0 and math.isfinite(sigma)):
-        raise _Usage(f"--with {path}: σ must be a finite number > 0, got {sigma}")
-    anchor = _floats(data.meta["anchor_mm"], 3, "the file's anchor_mm") if "anchor_mm" in data.meta else None
-    sphere = kind == "point" and "radius_mm" in data.meta
-    if kind == "camera":
-        model = _camera_measurement(types.SimpleNamespace(target=None, camera=None, mount=None, estimate=""), data, p)
-    else:
-        model = _measurement(kind, anchor, robot, data=data)
-        if sphere:
-            model = _sphere_model("point", model, _floats(data.meta["radius_mm"], 1, "the file's radius_mm")[0], False)
-    extras, _ = measured_extras(kind, set(), anchor_known=anchor is not None, sphere=sphere)
-    if kind in ("plane", "point"):
-        from .._datasets._dataset import relabel
-
-        data = relabel(data, model.labels)
-    return Block(p.stem, model, data, sigma=float(sigma), extras=block_extras(extras)), unit
+        block = block_from_file(path, robot, sigma=sigma)
+    except ValueError as e:  # the file's own faults start with its path: said as --with FILE
+        msg = str(e)
+        raise _Usage(f"--with {msg}" if msg.startswith(f"{path}: ") else msg) from None
+    return block, getattr(block.measurement, "unit", "mm")
 
 
 def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm) -> int:
