@@ -37,7 +37,8 @@ if sys.argv[1] == "padded":
     Combined.residual_entries = lambda self, n: None
 robot = jaxcal.robots.hsr_jr680()
 q_c, y_c, cam, truth = simulate_camera(jax.random.key(0), robot, n_views=30, noise_px=0.3)
-layout = jaxcal.layout_for(robot)
+from jaxcal._core._params import layout_for
+layout = layout_for(robot)
 dh = jaxcal.Deviations({g: v for g, v in truth.values.items() if g in layout.group_names}, layout)
 ex = simulate_experiment(jax.random.key(20), robot, n_samples=1000, noise_std=0.05, measurement=Position(),
                          true_deviations=dh.replace(tool=np.array([20.0, -10.0, 90.0])), test_fraction=0.5)
