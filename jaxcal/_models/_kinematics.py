@@ -15,8 +15,10 @@ the frame chain.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._buckets import bucket_size, buckets_enabled, pad_rows
 from .._core._params import Deviations
 from .._core._trig import angle_sum_trig, dh_joint_terms, materialised, shared_joint_trig
 from .._core._xla import jit
@@ -261,8 +263,25 @@ def rotvec_to_matrix(w: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     return eye + a * K + b * (K @ K)
 
 
-#: :func:`fk_position` and :func:`fk_pose` compiled (once per shape), for host-side callers that
-#: evaluate the kinematics outside ``jit``: op by op they run as hundreds of small XLA programs,
-#: each compiled (or loaded from the persistent cache) once per process.
-fk_position_jit = jit(fk_position, static_argnames="tool")
-fk_pose_jit = jit(fk_pose, static_argnames="tool")
+def _host_kinematics(fn):
+    """``fn`` (:func:`fk_position` or :func:`fk_pose`) compiled for host-side callers that evaluate
+    the kinematics outside ``jit`` (op by op they run as hundreds of small XLA programs), its rows
+    padded to their shape bucket (:func:`~jaxcal._core._buckets.bucket_size`; ``JAXCAL_BUCKETS=off``:
+    as given) so that one program serves the training rows, the held-out rows and every other
+    count of a bucket; NumPy out (``[n, 3]`` mm, ``[n, 4, 4]``)."""
+    compiled = jit(fn, static_argnames="tool")
+
+    def call(robot, q, deviations=None, *, tool: bool = False) -> np.ndarray:
+        n = int(q.shape[0])
+        n_to = bucket_size(n) if buckets_enabled() else n
+        if n_to != n:
+            q = pad_rows(q, None, n_to)[0]
+        return np.asarray(compiled(robot, q, deviations, tool=tool))[:n]
+
+    call.__name__ = call.__qualname__ = f"{fn.__name__}_jit"
+    call.__doc__ = f":func:`{fn.__name__}` for host-side callers (compiled once per shape bucket; NumPy out)."
+    return call
+
+
+fk_position_jit = _host_kinematics(fk_position)
+fk_pose_jit = _host_kinematics(fk_pose)
