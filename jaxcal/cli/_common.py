@@ -1,4 +1,4 @@
-"""What several ``jaxcal`` commands share: errors, robot and measurement from the arguments, tables.
+"""What several ``jaxcal`` commands share: errors, robot and measurement from the arguments, tables, the date.
 """
 
 from __future__ import annotations
@@ -115,3 +115,10 @@ def _print_tables(res) -> None:
     print(convergence_table(res))
     print()
     print(dh_table(res))
+
+
+def _today() -> str:
+    """The UTC date a result is written (``jaxcal drift`` names the earlier calibration by it)."""
+    import datetime
+
+    return datetime.datetime.now(datetime.timezone.utc).date().isoformat()

@@ -1,0 +1,121 @@
+"""What ``jaxcal calibrate`` builds from its arguments and one data file before fitting.
+"""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+import types
+
+from ._common import _floats, _robot, _Usage
+
+
+def _hyper(items: list[str] | None) -> dict:
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise _Usage(f"--set expects NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        try:
+            out[k.strip()] = ast.literal_eval(v.strip())
+        except (ValueError, SyntaxError):
+            out[k.strip()] = v.strip()
+    return out
+
+
+def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
+    """``robot`` with the non-geometric error models of ``--compliance`` / ``--harmonics``."""
+    try:
+        if compliance:
+            spec = compliance.strip()
+            if spec.lower() != "default" and not pathlib.Path(spec).exists():
+                raise _Usage(f"--compliance: mass model file {spec!r} not found (or 'default')")
+            robot = robot.with_compliance(None if spec.lower() == "default" else spec)
+        if harmonics:
+            spec, orders = harmonics.strip().lower(), (1, 2)
+            if ":" in spec:
+                spec, o = spec.split(":", 1)
+                orders = tuple(int(x) for x in o.split(",") if x.strip())
+            joints = None if spec in ("", "all") else [int(j) for j in spec.split(",") if j.strip()]
+            robot = robot.with_harmonics(joints, orders=orders)
+    except (ValueError, OSError) as e:
+        raise _Usage(f"--compliance/--harmonics: {e}") from None
+    return robot
+
+
+def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespace:
+    """What `jaxcal calibrate` builds from its arguments and one data file before fitting: the robot,
+    the loaded data, the measurement model, the extras to estimate, the objective, the checks and the
+    method's settings (raises :class:`_Usage` on bad input)."""
+    from .._calibration._evaluate import MEASURED_DEFAULTS
+    from .._calibration._setup import measurement_for
+    from .._datasets._dataset import load_csv
+    from .._fit._diagnostics import Checks
+    from .._fit._objective import LOSSES, Prior
+
+    robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
+    path = pathlib.Path(data_file)
+    if not path.exists():
+        raise _Usage(f"data file {data_file!r} not found")
+    if args.markers is not None and args.measurement not in (None, "markers"):
+        raise _Usage("--markers applies to --measurement markers only")
+    if args.markers is not None and args.markers < 1:
+        raise _Usage(f"--markers must be at least 1, got {args.markers}")
+    try:  # without --measurement: the file's '# kind:' line, else the kind its columns show
+        data = load_csv(path, kind=args.measurement, n_markers=args.markers)
+    except ValueError as e:
+        if args.measurement != "markers":
+            raise
+        raise _Usage(str(e)) from None
+    kind = data.kind
+    if data.dof != robot.dof:
+        raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+    if data.labels and args.test:
+        raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
+                     "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
+    anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
+    try:  # the model and extras from the file and the options (its metadata lines as defaults)
+        ms = measurement_for(data, robot, anchor_mm=anchor, radius_mm=args.radius_mm, estimate=args.estimate or (),
+                             target=args.target, camera_intrinsics=args.camera, mount=args.mount, path=path)
+    except ValueError as e:
+        raise _Usage(str(e)) from None
+    estimate, notes, measurement = set(ms.estimate), list(ms.notes), ms.measurement
+    if args.test and args.test_fraction is not None:
+        raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
+    test_fraction = 0.2 if args.test_fraction is None else args.test_fraction
+    if args.test:
+        test_fraction = 0.0
+    if not (0.0 <= test_fraction < 1.0):
+        raise _Usage(f"--test-fraction must be in [0, 1), got {test_fraction}")
+    loss = MEASURED_DEFAULTS["loss"] if args.loss is None else args.loss
+    if loss not in LOSSES:
+        raise _Usage(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    test_file = None
+    if args.test:
+        tpath = pathlib.Path(args.test)
+        if not tpath.exists():
+            raise _Usage(f"test file {args.test!r} not found")
+        test_file = load_csv(tpath, kind=data.kind, n_markers=data.y.shape[1] if data.kind == "markers" else None)
+        if test_file.dof != robot.dof:
+            raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+        if test_file.labels:
+            raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
+        if test_file.kind in ("plane", "point"):
+            from .._datasets._dataset import relabel
+
+            test_file = relabel(test_file, measurement.labels)
+    try:
+        prior = Prior.parse(args.prior)
+    except ValueError as e:
+        raise _Usage(f"--prior: {e}") from None
+    checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm)
+    hyper = _hyper(args.set)
+    from ..methods import method_settings
+
+    valid = method_settings(method)
+    if valid is not None and set(hyper) - set(valid):
+        raise _Usage(f"--set: unknown setting(s) {sorted(set(hyper) - set(valid))} for method {method}; "
+                     f"its settings: {', '.join(valid)}")
+    return types.SimpleNamespace(robot=robot, path=path, data=data, kind=kind, estimate=estimate, notes=notes,
+                                 measurement=measurement, extras=ms.extras, test_fraction=test_fraction, loss=loss,
+                                 test_file=test_file, prior=prior, checks=checks, hyper=hyper)

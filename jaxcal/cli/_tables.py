@@ -1,0 +1,148 @@
+"""What ``jaxcal calibrate`` prints of a result: accuracy, parameters and extras ± σ, outliers, warnings.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+
+def _metrics_rows(pairs):
+    return [[name, m.rmse, m.mean, m.max] for name, m in pairs]
+
+
+def _fmt_value(v: float, sd: float | None, unit: str) -> str:
+    if sd is None:
+        return f"{v:+.4f}"
+    return f"{v:+.4f} ± {sd:.2g}" if sd < float("inf") else f"{v:+.4f} ± ∞"
+
+
+def _print_dh_table(robot, res, sd) -> None:
+    from .._core._metrics import format_table
+    from .._core._trig import wrap_angle_deg
+
+    nominal = robot.dh_table_deg()
+    cal = res.dh_table()
+    by_prior = _set_by_prior(res)
+    trows = []
+    for j in range(robot.dof):
+        cells = [str(j + 1)]
+        for g, col in (("alpha", 0), ("a", 1), ("d", 2), ("theta", 3)):
+            name = f"{g}_{j + 1}"
+            delta = cal[j, col] - nominal[j, col]
+            if col in (0, 3):
+                delta = float(wrap_angle_deg(delta))
+            if name in sd:
+                mark = "†" if name in by_prior else ""
+                cells.append(f"{cal[j, col]:.4f}{mark} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
+            else:
+                cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
+        trows.append(cells)
+    print()
+    print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
+                       title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
+                             + _TABLE_MARKS))
+
+
+#: the legend of the parameter tables' marks
+_TABLE_MARKS = ("† set by the prior rather than the data (posterior σ above half the prior σ); "
+                "* not calibrated: held at its start value (not identifiable without a prior, or fixed)")
+
+
+def _set_by_prior(res) -> set:
+    """Free parameters whose posterior σ is above ``Checks.weak_fraction`` of their prior σ."""
+    if res.prior is None or res.diagnostics is None:
+        return set()
+    return set(res.diagnostics.weak_parameters)
+
+
+def _print_chain_table(robot, res, sd) -> None:
+    """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
+    (mm), drx, dry, drz (°), and a last row with the tip transform's tip_dx … tip_drz; ± one
+    posterior σ; * = not calibrated (not identifiable or fixed)."""
+    from .._core._metrics import format_table
+    from .._models._chain import GEOMETRIC_GROUPS, TIP_GROUPS, correction_entries
+
+    free = set(res.space.free_names)
+    value = {n: v for n, v, _ in correction_entries(robot, res.deviations)}
+
+    by_prior = _set_by_prior(res)
+
+    def cell(name):
+        if name not in value:  # drz at a revolute joint: the joint offset
+            return ""
+        if name not in free:
+            return f"{value[name]:+.4f}*"
+        return _fmt_value(value[name], sd.get(name, (None,))[0], "") + ("†" if name in by_prior else "")
+
+    rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
+            for j in range(robot.dof)]
+    rows.append([f"tip → {robot.tip}", ""] + [cell(n) for _, names, _ in TIP_GROUPS for n in names])
+    print()
+    print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
+                       title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "
+                             f"posterior standard deviation; {_TABLE_MARKS}; `jaxcal export` writes the corrected URDF)"))
+
+
+def _print_estimates(res, sd: dict, extras, unit: str) -> None:
+    """The estimated extras (and those asked for but held), the non-geometric errors, σ̂ and the
+    condition number, each ± one posterior σ (``sd``: :meth:`Uncertainty.std_display`); ``unit``:
+    the readings' unit (mm, px)."""
+    import numpy as np
+
+    from .._calibration._calibrate import SELECT_GROUPS
+    from .._core._params import group_kind, group_of
+
+    # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions
+    extra_names = [n for n in res.space.free_names if group_kind(n) == "extra"]
+    # asked for but held (no prior, and the data cannot tell them from another extra): at their start
+    asked = {g for e in extras for g in SELECT_GROUPS.get(e, ())}
+    frozen = [n for n in res.space.names if group_kind(n) == "extra" and group_of(n) in asked
+              and n not in res.space.free_names]
+    if extra_names or frozen:
+        dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
+        units = dict(zip(res.space.names, res.space.units))
+        parts = []
+        for n in extra_names + frozen:
+            u = "°" if units[n] == "rad" else units[n]
+            v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
+            s_ = sd.get(n, (None,))[0]
+            parts.append(f"{n} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
+        print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ"
+              + ("; * held at its start value: without a prior the data cannot tell it from another extra"
+                 if frozen else "")
+              + "): " + ", ".join(parts))
+
+    ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
+    if ng_names:
+        dev = dict(zip(res.space.free_names, np.asarray(res.x)))
+        units = dict(zip(res.space.names, res.space.units))
+        parts = []
+        for n in ng_names:
+            s_ = sd.get(n, (None,))[0]
+            if units[n] == "rad":
+                parts.append(f"{n} {_fmt_value(math.degrees(dev[n]), s_, '°')}°")
+            else:  # compliance: µrad/(N·m)
+                parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
+        print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
+    if res.uncertainty is not None:
+        print(f"residual σ̂ {res.uncertainty.noise_std:.4f} {unit}, effective parameters "
+              f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}"
+              + (" (data and prior together)" if res.prior is not None else ""))
+
+
+def _print_outliers_and_warnings(res, args, checks, file_row) -> None:
+    """Outlier rows after the fit (as 1-based data rows, ``file_row``) and the result's warnings."""
+    diag = res.diagnostics
+    if diag.outliers_after:
+        listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
+        print(f"outliers after the fit (residual > {checks.outlier_k:g} × {diag.outlier_scale_mm:.3g} mm, the robust σ): data rows "
+              f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
+              + ("" if args.exclude_outliers else
+                 " (kept, down-weighted by the robust loss; --exclude-outliers drops them)" if args.loss != "linear" else
+                 " (kept; --exclude-outliers or --loss huber to guard against them)"))
+    for w in res.warnings:
+        if diag.outliers_after and "outlier sample(s)" in w:
+            w = (f"{len(diag.outliers_after)} outlier sample(s) at data rows "
+                 f"{', '.join(str(file_row(i)) for i in diag.outliers_after[:20])} (see above)")
+        print(f"jaxcal: warning: {w}", file=sys.stderr)
