@@ -14,7 +14,8 @@ problem:
   residual is divided by its noise σ_b (mm, px...: the block's own unit), so the combined
   residual is **whitened** (unitless, ~N(0, 1) per entry at the truth), and padded with zeros;
   :meth:`Combined.observed` marks the real entries, so every statistic (σ̂, robust scales, the
-  residual count) counts only those.
+  residual count) counts only those; the residual vector of a fit, its Jacobian and the solves
+  hold each row's own entries only (:meth:`Combined.residual_entries`), not the padding.
 
 The robot's parameters are shared. Extras (see :func:`combine`): a labelled group (``plane@K``,
 ``point@K``, ``radius@K``, session groups) names one physical object and is shared by every
@@ -405,7 +406,9 @@ class Combined(MeasurementModel):
     camera image's pixels...) and padded with zeros to the widest block's ``W``. The residual is
     ``[N, m]`` (``m`` the largest block residual size): each block's residual divided by its noise
     σ_b (in the block's own unit), so the whole is unitless and ~N(0, 1) per entry at the truth,
-    zero-padded; :meth:`observed` marks the real entries, and every statistic counts only those.
+    zero-padded; :meth:`observed` marks the real entries, and every statistic counts only those. The
+    padding never enters a solve: :meth:`residual_entries` names each row's own entries, and
+    :meth:`jaxcal.Problem.residual` and its Jacobian hold those only.
     The robot's parameters are shared; a labelled extra (``plane@K``, ``point@K``...) is shared by
     every block with that label, the tool point by all blocks unless one says ``own_tool``, and a
     sensor's own groups (``anchor``, ``base_rotation``, ``handeye_*``...) are renamed per block
