@@ -34,3 +34,15 @@ def median_time(fn, *args, repeats: int = 20, warmup: int = 1) -> float:
         jax.block_until_ready(fn(*args))
         ts.append(time.perf_counter() - t)
     return float(np.median(ts))
+
+
+def append_section(path, title: str, how: str, table: str, load: tuple[float, float]) -> None:
+    """Append a dated results section to ``path``: ``## title (date)``, the machine and the load
+    average at the start and end (``load``), ``how`` the numbers were taken, then ``table``."""
+    import pathlib
+
+    text = (f"\n## {title} ({time.strftime('%Y-%m-%d')})\n\n"
+            f"Machine: {machine()}; load average {load[0]:.2f} at the start, {load[1]:.2f} at the end. "
+            f"{how}\n\n{table}\n")
+    with pathlib.Path(path).open("a", encoding="utf-8") as f:
+        f.write(text)

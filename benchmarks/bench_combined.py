@@ -19,7 +19,6 @@ import os
 import pathlib
 import subprocess
 import sys
-import time
 
 OUT = pathlib.Path(__file__).resolve().parent / "results" / "camera_cpu.md"
 
@@ -67,7 +66,7 @@ def run(mode: str) -> dict:
 
 
 def main() -> None:
-    from _common import machine
+    from _common import append_section
 
     load0 = os.getloadavg()[0]
     out = {mode: run(mode) for mode in ("own entries", "padded")}
@@ -83,15 +82,12 @@ def main() -> None:
                      f"{solves} | {first['its']} | {first['rmse'][0]:.5f} / {first['rmse'][1]:.4f} |")
     table = "\n".join(lines)
     print(table)
-    section = (f"\n## A tracker and a camera in one fit: each row's own entries ({time.strftime('%Y-%m-%d')})\n\n"
-               f"Machine: {machine()}; load average {load0:.2f} at the start, {load1:.2f} at the end. "
-               "`PYTHONPATH=. python benchmarks/bench_combined.py`: 500 tracker rows (3 entries) and 30 camera "
-               "images (108 entries) on hsr_jr680, σ given, `calibrate_blocks(..., method='lm')`, a fresh "
-               "process per mode, no persistent cache. *padded*: every row carries the widest block's "
-               "entries, the narrower ones zero (the code before each row kept its own entries).\n\n"
-               f"{table}\n")
-    with OUT.open("a", encoding="utf-8") as f:
-        f.write(section)
+    append_section(OUT, "A tracker and a camera in one fit: each row's own entries",
+                   "`PYTHONPATH=. python benchmarks/bench_combined.py`: 500 tracker rows (3 entries) and 30 camera "
+                   "images (108 entries) on hsr_jr680, σ given, `calibrate_blocks(..., method='lm')`, a fresh "
+                   "process per mode, no persistent cache. *padded*: every row carries the widest block's "
+                   "entries, the narrower ones zero (the code before each row kept its own entries).",
+                   table, (load0, load1))
 
 
 if __name__ == "__main__":

@@ -66,7 +66,7 @@ def run(cache: str) -> dict:
 
 def main() -> None:
     sys.path.insert(0, str(HERE))
-    from _common import machine
+    from _common import append_section
 
     load0 = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,15 +85,12 @@ def main() -> None:
                          f"{row['before']:.2f} → {row['after']:.2f} |")
     table = "\n".join(lines)
     print(table)
-    section = (f"\n## Holding out one real motion-capture session ({time.strftime('%Y-%m-%d')})\n\n"
-               f"Machine: {machine()}; load average {load0:.2f} at the start, {load1:.2f} at the end. "
-               "`PYTHONPATH=. python benchmarks/bench_holdout.py`: FIGAROH's TIAGo Vicon gripper3 sessions "
-               "(63 rows, 8-joint URDF chain), `jaxcal.holdout_session(chain, data, session, prior=default, "
-               "loss='huber')` for each of the three sessions in one fresh process (the first pays the "
-               "compilation), first with an empty persistent cache, then again with the cache it left. "
-               f"Whole processes: {cold['process']:.1f} s and {warm['process']:.1f} s.\n\n{table}\n")
-    with OUT.open("a", encoding="utf-8") as f:
-        f.write(section)
+    append_section(OUT, "Holding out one real motion-capture session",
+                   "`PYTHONPATH=. python benchmarks/bench_holdout.py`: FIGAROH's TIAGo Vicon gripper3 sessions "
+                   "(63 rows, 8-joint URDF chain), `jaxcal.holdout_session(chain, data, session, prior=default, "
+                   "loss='huber')` for each of the three sessions in one fresh process (the first pays the "
+                   "compilation), first with an empty persistent cache, then again with the cache it left. "
+                   f"Whole processes: {cold['process']:.1f} s and {warm['process']:.1f} s.", table, (load0, load1))
 
 
 if __name__ == "__main__":
