@@ -577,8 +577,8 @@ def test_own_entries_of_narrow_blocks_equal_the_padded_rows(robot, monkeypatch):
     def pieces(problem, x):
         scaled = ScaledProblem.build(problem, objective=objective)
         z = scaled.z(x)
-        ro, Jo = scaled.objective_residual_and_jacobian(z)
-        r, J = value_and_jacfwd(problem.residual, x, problem.q)
+        r, J = value_and_jacfwd(problem.residual, x, problem.q)  # one derivative of the kinematics
+        ro, Jo = scaled.objective_from_data(z, r, J * scaled.scale)
         blocks = problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
         return (problem.to_blocks(r), blocks), (Jo.T @ Jo, Jo.T @ ro, ro @ ro, scaled.scale,
                                                 problem.sample_errors_from_residual(r),
