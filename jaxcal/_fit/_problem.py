@@ -171,9 +171,12 @@ class Problem(eqx.Module):
         """``prediction − measured`` flattened to ``[n·m]`` (mm), or to the model's own entries
         ``[n_entries]`` where it names them (:meth:`MeasurementModel.residual_entries`: the others
         are zero by construction); :meth:`to_blocks` is the inverse."""
-        r = self.weighted_blocks(self.measurement.residual(self.robot, self.deviations(x), self.q, self.y))
-        e = self.entries
-        return r.reshape(-1) if e is None else r.reshape(-1)[e]
+        rows = self.entry_rows()
+        if rows is None:
+            return self.weighted_blocks(self.measurement.residual(self.robot, self.deviations(x), self.q, self.y)
+                                        ).reshape(-1)
+        r = self.measurement.entry_residual(self.robot, self.deviations(x), self.q, self.y)
+        return r if self.weight is None else r * self.weight[rows]
 
     def sample_errors(self, x: Float[Array, " p"]) -> Float[Array, " n"]:
         """Per-sample errors for the metrics (mm; 0 on padding rows)."""

@@ -525,14 +525,25 @@ class Combined(MeasurementModel):
         return [m.residual(robot, self.view(b, deviations), qs[b], self._y(b, ys[b]))
                 for b, m in enumerate(self.models)]
 
+    def _whitened(self, robot, deviations, q, y) -> list:
+        """Per block its residual over its σ ``[n_b, m_b]`` (block 0 with the padding rows)."""
+        return [r / self.sigma[b].astype(r.dtype) for b, r in enumerate(self.block_residuals(robot, deviations, q, y))]
+
     def residual(self, robot, deviations, q, y) -> Float[Array, "N m"]:
         """Whitened residual ``[N, m]``: each block's residual over its σ, zero-padded."""
         m = self.size
-        parts = []
-        for b, r in enumerate(self.block_residuals(robot, deviations, q, y)):
-            r = r / self.sigma[b].astype(r.dtype)
-            parts.append(jnp.pad(r, ((0, 0), (0, m - r.shape[1]))) if r.shape[1] < m else r)
-        return self._join(parts)
+        return self._join([jnp.pad(r, ((0, 0), (0, m - r.shape[1]))) if r.shape[1] < m else r
+                           for r in self._whitened(robot, deviations, q, y)])
+
+    def entry_residual(self, robot, deviations, q, y) -> Float[Array, " k"]:
+        """The whitened residual at :meth:`residual_entries`, built from the blocks' own rows (no
+        padding made and dropped again)."""
+        if self.residual_entries(jnp.shape(q)[0]) is None:
+            return self.residual(robot, deviations, q, y).reshape(-1)
+        parts = self._whitened(robot, deviations, q, y)
+        n0 = self.counts[0]  # block 0's padding rows come last (see _rows)
+        return jnp.concatenate([parts[0][:n0].reshape(-1), *(r.reshape(-1) for r in parts[1:]),
+                                parts[0][n0:].reshape(-1)])
 
     def sample_error(self, residual) -> Float[Array, " N"]:
         """Per row its block's sample error of the whitened residual (unitless)."""

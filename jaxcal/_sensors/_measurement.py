@@ -80,6 +80,13 @@ class MeasurementModel(eqx.Module):
         del n
         return None
 
+    def entry_residual(self, robot, deviations, q, y) -> Float[Array, " k"]:
+        """The residual at :meth:`residual_entries` ``[k]`` (row-major; all ``n·size`` entries
+        where it is ``None``). A model that names its entries builds them directly."""
+        r = self.residual(robot, deviations, q, y).reshape(-1)
+        e = self.residual_entries(jnp.shape(q)[0])
+        return r if e is None else r[e]
+
     def nominal_lengths(self) -> dict[str, float]:
         """``{entry: nominal value}`` (mm) of this model's extras that are lengths with a nominal
         value (an anchor, plane offsets, point centres, ...), under their names in

@@ -114,11 +114,8 @@ def _rmse_from_residual(problem: ScaledProblem, z, r):
     measurement = problem.problem.measurement
     if isinstance(measurement, Pose):
         return problem.rmse(z)
-    if problem.plain and problem.problem.weight is None:
-        if r.size != problem.problem.n_residuals:  # the model's own entries of n·m (the rest are zero)
-            return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_residuals)
-        return jnp.sqrt(measurement.size * jnp.mean(r * r))
-    # data residuals (robust-scaled) and prior residuals, per real data residual (padding rows are 0)
+    # data residuals (robust-scaled) and prior residuals, per real data residual: n·m entries (padding
+    # rows are 0; a model that names its own entries leaves out only zeros)
     return jnp.sqrt(measurement.size * jnp.sum(r * r) / problem.problem.n_real_residuals)
 
 
