@@ -2,7 +2,7 @@
 compile log (``jax_log_compiles``). Appends one block per test to ``$COMPILEPROF_OUT`` (default
 ``compileprof.txt``). It logs every compilation, so the run is slower with it.
 
-Run: ``PYTHONPATH=benchmarks COMPILEPROF_OUT=/tmp/prof.txt python -m pytest -q -n 2 -m "not slow" -p compileprof``.
+Run: ``PYTHONPATH=benchmarks COMPILEPROF_OUT=/tmp/prof.txt python -m pytest -q -n 2 --dist loadgroup -m "not slow" -p compileprof``.
 Summary of the last full run: ``benchmarks/results/test_compile_profile_cpu.md``.
 """
 import collections

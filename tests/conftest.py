@@ -53,6 +53,24 @@ def central_differences(f, x0, h):
     return ((out[0] - out[1]) / (2.0 * steps[:, None])).T
 
 
+# Modules whose tests share nothing in-process (each starts its own Python processes), so that
+# ``--dist loadgroup`` spreads their tests over the workers one by one.
+_SPREAD_MODULES = {"test_notebooks.py", "test_multiprocess.py"}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Group each test module's tests on one xdist worker (the README's command runs
+    ``-n 2 --dist loadgroup``): a module's tests share module-scoped fixtures (simulated data sets,
+    fits) and compiled programs of the same shapes, which under ``--dist load`` both workers built,
+    each for its share of the module. Runs before xdist reads the marks (``tryfirst``); without
+    ``--dist loadgroup`` the marks change nothing."""
+    for item in items:
+        if item.path.name not in _SPREAD_MODULES:
+            rel = item.path.relative_to(config.rootpath).as_posix()
+            item.add_marker(pytest.mark.xdist_group(rel))
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():
     """After a test module, when the worker's resident memory is above
