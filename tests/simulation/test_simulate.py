@@ -116,10 +116,14 @@ def test_before_calibration_error_in_paper_range():
 
 
 def test_vmap_over_keys_equals_sequential():
+    """Under ``vmap`` the deviations are drawn inside the simulation's program; a direct call
+    draws them in a program of their own (it compiles faster): the same bits either way."""
     keys = jax.random.split(jax.random.key(7), 3)
     batched = jax.vmap(lambda k: simulate_experiment(k, n_samples=N_SMALL))(keys)
     for i in range(3):
         one = simulate_experiment(keys[i], n_samples=N_SMALL)
+        for name, v in one.true_deviations.values.items():
+            np.testing.assert_array_equal(np.asarray(batched.true_deviations.values[name][i]), np.asarray(v))
         np.testing.assert_array_equal(np.asarray(batched.train.y[i]), np.asarray(one.train.y))
         np.testing.assert_array_equal(np.asarray(batched.test.q[i]), np.asarray(one.test.q))
 
