@@ -9,7 +9,7 @@ import warnings
 
 from ._calibrate_setup import _calibration_setup
 from ._calibrate_several import _cmd_calibrate_combined, _cmd_calibrate_fleet
-from ._common import _EXIT_FAILED, _today, _Usage
+from ._common import _EXIT_FAILED, _as_usage, _today, _Usage
 from ._tables import _metrics_rows, _print_chain_table, _print_dh_table, _print_estimates, _print_outliers_and_warnings
 
 _T0 = time.perf_counter()  # process start-up (as near as the CLI can tell)
@@ -51,10 +51,8 @@ def _cmd_calibrate(args) -> int:
     from .._datasets._split import seed_split
     from ..methods._stages import check_method_name
 
-    try:
+    with _as_usage():
         method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
-    except ValueError as e:
-        raise _Usage(str(e)) from None
     if args.combine or args.relations:
         return _cmd_calibrate_combined(args, method)
     if len(args.data) > 1 or args.out_dir:
@@ -99,11 +97,9 @@ def _cmd_calibrate(args) -> int:
     def run(train_set):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
-            try:
+            with _as_usage(errors=(TypeError,)):  # a --set name the method does not take
                 res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
                                 loss=loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
-            except TypeError as e:
-                raise _Usage(str(e)) from None
         for w in caught:
             if not issubclass(w.category, CalibrationWarning):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)

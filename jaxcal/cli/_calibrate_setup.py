@@ -7,7 +7,7 @@ import ast
 import pathlib
 import types
 
-from ._common import _floats, _robot, _Usage
+from ._common import _as_usage, _floats, _robot, _Usage
 
 
 def _hyper(items: list[str] | None) -> dict:
@@ -25,7 +25,7 @@ def _hyper(items: list[str] | None) -> dict:
 
 def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
     """``robot`` with the non-geometric error models of ``--compliance`` / ``--harmonics``."""
-    try:
+    with _as_usage("--compliance/--harmonics: ", (ValueError, OSError)):
         if compliance:
             spec = compliance.strip()
             if spec.lower() != "default" and not pathlib.Path(spec).exists():
@@ -38,8 +38,6 @@ def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
                 orders = tuple(int(x) for x in o.split(",") if x.strip())
             joints = None if spec in ("", "all") else [int(j) for j in spec.split(",") if j.strip()]
             robot = robot.with_harmonics(joints, orders=orders)
-    except (ValueError, OSError) as e:
-        raise _Usage(f"--compliance/--harmonics: {e}") from None
     return robot
 
 
@@ -74,11 +72,9 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
                      "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    try:  # the model and extras from the file and the options (its metadata lines as defaults)
+    with _as_usage():  # the model and extras from the file and the options (its metadata lines as defaults)
         ms = measurement_for(data, robot, anchor_mm=anchor, radius_mm=args.radius_mm, estimate=args.estimate or (),
                              target=args.target, camera_intrinsics=args.camera, mount=args.mount, path=path)
-    except ValueError as e:
-        raise _Usage(str(e)) from None
     estimate, notes, measurement = set(ms.estimate), list(ms.notes), ms.measurement
     if args.test and args.test_fraction is not None:
         raise _Usage("--test FILE and --test-fraction exclude each other (a separate test file replaces the random split)")
@@ -104,10 +100,8 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             from .._datasets._dataset import relabel
 
             test_file = relabel(test_file, measurement.labels)
-    try:
+    with _as_usage("--prior: "):
         prior = Prior.parse(args.prior)
-    except ValueError as e:
-        raise _Usage(f"--prior: {e}") from None
     checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm)
     hyper = _hyper(args.set)
     from ..methods import method_settings

@@ -8,7 +8,7 @@ import sys
 import warnings
 
 from ._calibrate_setup import _calibration_setup
-from ._common import _EXIT_FAILED, _today, _Usage
+from ._common import _EXIT_FAILED, _as_usage, _today, _Usage
 
 __all__ = ["FLEET_KINDS"]
 
@@ -52,11 +52,9 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     if len(set(names)) != len(names):
         raise _Usage(f"--combine: the files' names (their blocks) must differ, got {names}")
     first = setups[0]
-    try:
+    with _as_usage(errors=(ValueError, OSError)):
         relations = load_relations(args.relations) if args.relations else ()
         blocks = [Block(n, s.measurement, s.data, extras=block_extras(s.estimate)) for n, s in zip(names, setups)]
-    except (ValueError, OSError) as e:
-        raise _Usage(str(e)) from None
     print(f"combined fit of robot {first.robot.name}: {len(blocks)} blocks ("
           + ", ".join(f"{n}: {s.data.n} {s.kind} rows" for n, s in zip(names, setups))
           + (f"), {len(relations)} relations from {args.relations}" if relations else ")") + f", method {method}; "
@@ -66,11 +64,9 @@ def _cmd_calibrate_combined(args, method: str) -> int:
             print(f"note: {s.path.name}: {n}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
-        try:
+        with _as_usage():
             res = calibrate_blocks(first.robot, blocks, relations, method, prior=first.prior, loss=first.loss,
                                    checks=first.checks, free=args.free, fix=args.fix or (), **first.hyper)
-        except ValueError as e:
-            raise _Usage(str(e)) from None
     for w in caught:
         if issubclass(w.category, CalibrationWarning):
             print(f"jaxcal: warning: {w.message}", file=sys.stderr)
@@ -149,13 +145,11 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
         print(f"note: {n}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
-        try:
+        with _as_usage(errors=(TypeError,)):  # a --set name the method does not take
             fleet = calibrate_many(robot, measurement, trains, method, names=names, key=k_method, extras=extras,
                                    prior=first.prior, loss=first.loss, checks=first.checks, free=args.free,
                                    fix=args.fix or (), tolerance_mm=args.tolerance_mm, noise_std=args.noise_std,
                                    **first.hyper)
-        except TypeError as e:
-            raise _Usage(str(e)) from None
     for w in caught:
         if issubclass(w.category, CalibrationWarning):
             print(f"jaxcal: warning: {w.message}", file=sys.stderr)

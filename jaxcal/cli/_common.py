@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import pathlib
 import sys
 
@@ -13,13 +14,21 @@ class _Usage(Exception):
     """Bad command-line input: reported as one line, exit status 2."""
 
 
+@contextlib.contextmanager
+def _as_usage(prefix: str = "", errors: tuple[type[BaseException], ...] = (ValueError,)):
+    """The library's ``errors`` raised inside the block (bad values the user typed or pointed to)
+    re-raised as :class:`_Usage`, their message after ``prefix``."""
+    try:
+        yield
+    except errors as e:
+        raise _Usage(f"{prefix}{e}") from None
+
+
 def _floats(text: str, n: int, what: str) -> list[float]:
     from .._datasets._csvfile import number_list
 
-    try:
+    with _as_usage():
         return number_list(text, n, what)
-    except ValueError as e:
-        raise _Usage(str(e)) from None
 
 
 def _robot(spec: str, base: str | None = None, tip: str | None = None):
@@ -48,10 +57,8 @@ def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=No
     """:func:`~jaxcal._calibration._setup.measurement_of_kind` (bad input: :class:`_Usage`)."""
     from .._calibration._setup import measurement_of_kind
 
-    try:
+    with _as_usage():
         return measurement_of_kind(kind, robot, anchor_mm=anchor, n_markers=n_markers, data=data)
-    except ValueError as e:
-        raise _Usage(str(e)) from None
 
 
 def _robot_and_sensor(args):
@@ -77,10 +84,8 @@ def _sphere_model(kind: str, measurement, radius_mm, estimate: bool):
     (:func:`~jaxcal._calibration._setup.as_spheres`; bad input: :class:`_Usage`)."""
     from .._calibration._setup import as_spheres
 
-    try:
+    with _as_usage():
         return as_spheres(kind, measurement, radius_mm, estimate)
-    except ValueError as e:
-        raise _Usage(str(e)) from None
 
 
 def _write_outputs(res, out, *, figures: bool) -> dict:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import pathlib
 
-from ._common import _floats, _robot_and_sensor, _sphere_model, _Usage
+from ._common import _as_usage, _floats, _robot_and_sensor, _sphere_model, _Usage
 
 
 def _cmd_plan(args) -> int:
@@ -205,11 +205,9 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     extras, _ = measured_extras(measurement.kind, set(), anchor_known=True,
                                 sphere=bool(getattr(measurement, "sphere", False)))
     planned = Block(name, measurement, cand, sigma=args.noise_std, extras=block_extras(extras))
-    try:
+    with _as_usage():
         plan = plan_blocks(robot, planned, args.poses, fixed=fixed, criterion=args.criterion,
                            exchange=not args.no_exchange)
-    except ValueError as e:
-        raise _Usage(str(e)) from None
     sel, pred = plan.selection, plan.prediction
     n_cand = len(cand.q) if hasattr(cand, "q") else cand.shape[0]
     rnd_idx = np.sort(np.asarray(jax.random.permutation(k_perm, n_cand))[: args.poses])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pathlib
 
-from ._common import _robot, _robot_and_sensor, _Usage
+from ._common import _as_usage, _robot, _robot_and_sensor, _Usage
 
 #: ``--unknown-anchor``: σ per axis (mm) of the true anchor around the default one, and σ (mm) of
 #: the wire's zero offset; neither is written where ``jaxcal calibrate`` reads a known anchor.
@@ -116,10 +116,8 @@ def _like(args):
     src = pathlib.Path(args.like)
     if not src.exists():
         raise _Usage(f"--like: result file {args.like!r} not found")
-    try:
+    with _as_usage("--like: "):
         raw = load_result_dict(src)
-    except ValueError as e:
-        raise _Usage(f"--like: {e}") from None
     path = result_data_file(src, raw)
     if path is None:
         data_path = (raw.get("settings") or {}).get("data")
@@ -171,11 +169,9 @@ def _simulate_camera(args) -> int:
     target = "checkerboard:9x6:20"
     intr = [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0]
     cam = Camera(checkerboard(9, 6, 20.0), intr, args.mount.replace("-", "_"), image_size=(1280, 1024))
-    try:
+    with _as_usage():
         q, y, cam, truth = simulate_camera(jax.random.key(args.seed), robot, cam, n_views=args.samples,
                                            noise_px=args.noise_std, missing=args.missing_corners)
-    except ValueError as e:
-        raise _Usage(str(e)) from None
     n_masked = int(np.isnan(np.asarray(y)).any(axis=-1).sum())
     meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_px": args.noise_std,
             "target": target, "camera_intrinsics": ",".join(repr(v) for v in intr), "mount": cam.mount,
