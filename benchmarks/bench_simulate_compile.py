@@ -16,13 +16,13 @@ import argparse
 import json
 import os
 import pathlib
-import re
 import subprocess
 import sys
 import tempfile
 
 HERE = pathlib.Path(__file__).resolve().parent
-_DONE = re.compile(r"Finished XLA compilation of (\S+) in ([0-9.]+) sec")
+sys.path.insert(0, str(HERE))
+from bench_compile import _DONE  # noqa: E402  (the compile log's "Finished XLA compilation" line)
 
 CASES = [("hsr_jr680", "cable", (2000, 1000)), ("hsr_jr680", "position", (1500, 300)),
          ("puma560", "pose", (200, 400))]
@@ -73,7 +73,6 @@ def main() -> None:
     ap.add_argument("--label", action="append", default=[])
     ap.add_argument("--out", default=str(HERE / "results" / "compile_cpu.md"))
     args = ap.parse_args()
-    sys.path.insert(0, str(HERE))
     from _common import append_section
 
     runs = [(None, "this checkout")] + list(zip(args.source, args.label or args.source))

@@ -195,9 +195,7 @@ def simulate_experiment(
     # only in them share one compiled program, with bit-identical data
     traced = cfg.traced(dtype, deviations=_dh_table(robot))
     if eager and true_deviations is None:
-        true_deviations = _draw_experiment_deviations(key, robot, traced.angle_std_deg, traced.length_std_mm,
-                                                      traced.anchor_std_mm, traced.tool_std_mm,
-                                                      traced.cable_offset_std_mm)
+        true_deviations = _draw_experiment_deviations(key, robot, traced.deviation_stds())
     out = _simulate(key, robot, measurement, true_deviations, _traced_float(noise_std, dtype), traced)
     if not eager:  # under jit/vmap: equinox's runtime error checks the workspace filter
         return out
@@ -242,6 +240,12 @@ class _Config(eqx.Module):
     #: compiled again, ~17 s on 2 CPU cores, in every new process)
     flag_short: bool = eqx.field(static=True, default=False)
 
+    def deviation_stds(self) -> dict:
+        """The σ keywords of :func:`draw_deviations`."""
+        return dict(angle_std_deg=self.angle_std_deg, length_std_mm=self.length_std_mm,
+                    anchor_std_mm=self.anchor_std_mm, tool_std_mm=self.tool_std_mm,
+                    cable_offset_std_mm=self.cable_offset_std_mm)
+
     def traced(self, dtype, deviations: bool = True) -> _Config:
         """This config with its float settings as ``dtype`` scalar arrays (traced by ``jit``), in
         float64, bit-identical data. Some stay Python floats, where a traced value would change
@@ -281,18 +285,20 @@ TOO_FEW_POSES = ("simulate_experiment: too few joint configurations inside the w
                  "raise `oversample`, widen `wire_range_mm` or lower `min_height_mm`")
 
 
+def _experiment_deviations(k_dev, robot, stds: dict) -> Deviations:
+    """The experiment's true deviations drawn from ``k_dev`` with ``stds``
+    (:meth:`_Config.deviation_stds`)."""
+    return draw_deviations(k_dev, robot, **stds, dtype=jnp.result_type(float))
+
+
 @filter_jit
-def _draw_experiment_deviations(key, robot, angle_std_deg, length_std_mm, anchor_std_mm, tool_std_mm,
-                                cable_offset_std_mm) -> Deviations:
+def _draw_experiment_deviations(key, robot, stds: dict) -> Deviations:
     """The deviations :func:`_draw_readings` draws from ``key`` when none are given (bit-identical),
     as a program of their own: one per robot structure, shared by every sample count and
     measurement model. Drawn inside the simulation program, XLA fused the draws' threefry hash and
-    inverse erf into every kernel that reads the deviations, and that program compiled in ~11 s
-    instead of ~4 s (2-core CPU); drawn here it compiles in ~1.5 s, once."""
-    k_dev = jax.random.split(key, 4)[0]
-    return draw_deviations(k_dev, robot, angle_std_deg=angle_std_deg, length_std_mm=length_std_mm,
-                           anchor_std_mm=anchor_std_mm, tool_std_mm=tool_std_mm,
-                           cable_offset_std_mm=cable_offset_std_mm, dtype=jnp.result_type(float))
+    inverse erf into every kernel that reads the deviations: a new sample count's simulation
+    compiled in 5.3–6.3 s instead of 2.2–2.5 s (2-core CPU, ``benchmarks/bench_simulate_compile.py``)."""
+    return _experiment_deviations(jax.random.split(key, 4)[0], robot, stds)  # k_dev, as _draw_readings splits
 
 
 def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Config, n_real=None):
@@ -308,11 +314,7 @@ def _draw_readings(key, robot, measurement, true_deviations, noise_std, cfg: _Co
     dtype = jnp.result_type(float)
     k_dev, k_q, k_noise, k_split = jax.random.split(key, 4)
     if true_deviations is None:
-        true_deviations = draw_deviations(
-            k_dev, robot, angle_std_deg=cfg.angle_std_deg, length_std_mm=cfg.length_std_mm,
-            anchor_std_mm=cfg.anchor_std_mm, tool_std_mm=cfg.tool_std_mm,
-            cable_offset_std_mm=cfg.cable_offset_std_mm, dtype=dtype,
-        )
+        true_deviations = _experiment_deviations(k_dev, robot, cfg.deviation_stds())
     true_deviations = true_deviations.astype(dtype)
     n_cand = cfg.n_samples * cfg.oversample
     cand = sample_joint_angles(k_q, robot, n_cand, coverage=cfg.coverage, dtype=dtype)
