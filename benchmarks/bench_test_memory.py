@@ -1,6 +1,6 @@
 """Peak resident memory of the test run's worker processes (issue 25's memory row).
 
-Runs a pytest command (default: the README's test command, ``python -m pytest -q -n 2 --dist loadgroup -m "not slow"``) and
+Runs a pytest command (default: the README's test command, ``python -m pytest -q -n 2 --dist loadscope -m "not slow"``) and
 samples every process under it every ``--every`` seconds from ``/proc/<pid>/statm``: the peak
 resident set size (RSS) of each process that reached 500 MB, with its command line (the xdist
 controller and its workers), the wall time, the test summary line and the load average.
@@ -57,7 +57,7 @@ def main() -> None:
     ap.add_argument("--label", default="")
     ap.add_argument("--env", action="append", default=[], metavar="NAME=VALUE")
     ap.add_argument("--log", help="write pytest's whole output here")
-    ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "2", "--dist", "loadgroup", "-m", "not slow"])
+    ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "2", "--dist", "loadscope", "-m", "not slow"])
     args = ap.parse_args()
     from _common import machine
 

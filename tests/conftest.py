@@ -53,22 +53,29 @@ def central_differences(f, x0, h):
     return ((out[0] - out[1]) / (2.0 * steps[:, None])).T
 
 
-# Modules whose tests share nothing in-process (each starts its own Python processes), so that
-# ``--dist loadgroup`` spreads their tests over the workers one by one.
+# Modules whose tests share nothing in-process (each starts its own Python processes): spread over
+# the workers test by test instead of kept together.
 _SPREAD_MODULES = {"test_notebooks.py", "test_multiprocess.py"}
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items):
-    """Group each test module's tests on one xdist worker (the README's command runs
-    ``-n 2 --dist loadgroup``): a module's tests share module-scoped fixtures (simulated data sets,
-    fits) and compiled programs of the same shapes, which under ``--dist load`` both workers built,
-    each for its share of the module. Runs before xdist reads the marks (``tryfirst``); without
-    ``--dist loadgroup`` the marks change nothing."""
-    for item in items:
-        if item.path.name not in _SPREAD_MODULES:
-            rel = item.path.relative_to(config.rootpath).as_posix()
-            item.add_marker(pytest.mark.xdist_group(rel))
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope`` (the README's command) keeps each test module's tests on one xdist
+    worker, as xdist's own ``loadscope`` does, except the modules in ``_SPREAD_MODULES``, whose
+    tests are spread one by one. A module's tests share module-scoped fixtures (simulated data
+    sets, fits) and compiled programs of the same shapes, which under ``--dist load`` both workers
+    built, each for its share of the module. Scopes go out largest first (xdist's
+    ``--loadscope-reorder``), so the spread tests fill the end of the run. Other ``--dist`` modes
+    are xdist's own."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class _ModuleScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return nodeid if module.rsplit("/", 1)[-1] in _SPREAD_MODULES else module
+
+    return _ModuleScheduling(config, log)
 
 
 @pytest.fixture(autouse=True, scope="module")
