@@ -141,11 +141,19 @@ def nominal_with_extras(result) -> Deviations:
     return _extras_of(groups, start, zero) if result.start is not None else zero
 
 
-def register_extras(robot, measurement, data, deviations: Deviations, groups, *, loss: str = "huber"):
+def register_extras(robot, measurement, data, deviations: Deviations, groups, *, loss: str = "huber", like=None):
     """``deviations`` with the extra ``groups`` registered on ``data`` (robot and every other entry
     fixed): closed form (:func:`jaxcal.initial_extras`), then LM on those groups only with the
     ``loss`` (Huber by default: a gross row on the new day must not move the frame). Returns
-    ``(deviations, message)``."""
+    ``(deviations, message)``.
+
+    ``like``: the :class:`~jaxcal.CalibrationResult` whose set-up this is. The fit then runs the
+    calibration's compiled solve (same program space and objective kind, the free set a run-time
+    mask) instead of compiling one of its own: its estimated extras stay candidates (held fixed),
+    and a calibration with a diagonal prior gives the fit the default :class:`Prior` — which puts
+    none on sensor extras and whose robot rows the mask zeroes, so the registration's minimiser
+    is the prior-free one (to round-off)."""
+    from .._fit._objective import Prior
     from .._sensors._initial_extras import initial_extras
     from ._calibrate import calibrate
 
@@ -156,10 +164,22 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     layout = layout_for(robot, measurement)
     names = [n for g in groups for n in layout.group(g).names]
     space = ParameterSpace.from_names(layout, names)
+    extras, prior = (), None
+    if like is not None:
+        estimated = {_family(layout.group_of(n)) for n in like.space.free_names if group_kind(n) == "extra"}
+        extras = sorted({_CANDIDATE_EXTRAS[f] for f in estimated if f in _CANDIDATE_EXTRAS})
+        diagonal = isinstance(like.prior, Prior) and not like.prior.covariance
+        prior = Prior() if diagonal else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = calibrate(robot, measurement, data, "lm", space=space, start=start.deviations, init="none", loss=loss)
+        res = calibrate(robot, measurement, data, "lm", space=space, start=start.deviations, init="none", loss=loss,
+                        extras=extras, prior=prior)
     return res.deviations, start.message
+
+
+#: extra families that :func:`jaxcal.calibrate`'s ``extras=`` adds to the candidates, by its name there
+_CANDIDATE_EXTRAS = {"tool": "tool", "base_rotation": "base", "base_translation": "base", "anchor": "anchor",
+                     "cable_offset": "cable_offset"}
 
 
 def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
@@ -581,11 +601,11 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
                f"used before and after{held}" if not kept else
                f"no sensor set-up extras to register{held}")
     else:
-        dev_b, msg_b = register_extras(robot, m, data, zero, groups)  # the nominal robot, its nominal tool
+        dev_b, msg_b = register_extras(robot, m, data, zero, groups, like=result)  # the nominal robot, its nominal tool
         held = f"{what}the calibrated robot (the nominal robot keeps its nominal one)" if kept else ""
         if mode == "register":
             keep = _extras_of(groups, zero, result.deviations)  # extras back to the guess, robot calibrated
-            dev_a, _ = register_extras(robot, m, data, keep, groups)
+            dev_a, _ = register_extras(robot, m, data, keep, groups, like=result)
             source, registered = "registered", groups
             msg = (f"extras re-registered on the new data (a new set-up: {', '.join(groups)}), robot fixed, for the "
                    f"nominal and the calibrated robot alike (closed form, then a fit of the extras only){held}")

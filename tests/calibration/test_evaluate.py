@@ -80,6 +80,27 @@ def test_evaluate_registers_a_new_frame_and_reaches_the_floor(two_days, capsys):
     assert e.extras == "registered" and math.isclose(e.rmse, m["after"]["rmse"], rel_tol=1e-6)
 
 
+def test_registration_runs_the_calibrations_solve(two_days):
+    """A new day's frame registration (extras only, robot fixed) runs the calibration's compiled
+    solve — same program space and objective kind, the free set a run-time mask — and equals the
+    registration compiled for itself (no prior, its own candidates) to round-off."""
+    from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._calibration._evaluate import register_extras
+
+    d, _ = two_days
+    res = jaxcal.load_result(d / "result.json")  # prior + Huber (the measured-data defaults)
+    day2 = jaxcal.load_csv(d / "day2.csv")  # 300 rows: the bucket of the 400 training rows holds them
+    groups = ("base_rotation", "base_translation")
+    before = set(cal_mod._COMPILED._d)
+    shared, _ = register_extras(res.robot, res.measurement, day2, res.deviations, groups, like=res)
+    assert set(cal_mod._COMPILED._d) == before
+    own, _ = register_extras(res.robot, res.measurement, day2, res.deviations, groups)
+    assert len(set(cal_mod._COMPILED._d) - before) == 1
+    a, b = np.asarray(shared._ravel_numpy()), np.asarray(own._ravel_numpy())
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())
+    assert np.any(a != np.asarray(res.deviations._ravel_numpy()))  # the frame moved
+
+
 def test_evaluate_with_the_old_frame_is_worse_and_exits_1(two_days, capsys):
     d, _ = two_days
     assert main(["evaluate", str(d / "result.json"), str(d / "day2.csv"), "--keep-extras"]) == 1
