@@ -46,6 +46,7 @@ def _cmd_calibrate(args) -> int:
         joints_to_file_units,
         sample_errors,
     )
+    from .._core._buckets import bucket_size
     from .._core._metrics import format_table, metrics_numpy
     from .._core._params import Deviations
     from .._datasets._split import seed_split
@@ -83,6 +84,11 @@ def _cmd_calibrate(args) -> int:
         measurement = full.take(train_idx)
     if train.n < 2:
         raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
+    # the whole file's shape bucket first: the training rows then pad to it (jaxcal._core._buckets'
+    # reuse rule), so that `jaxcal evaluate` of a file of this size — a new day of the same
+    # measurement program, in a fresh process — runs the programs this command compiled and kept
+    # on disk instead of compiling its own (the fit changes by round-off only)
+    bucket_size(data.n, width=measurement.size)
     extras = setup.extras
     file_row = lambda i: int(kept_rows[train_idx[i]]) + 1  # noqa: E731  (1-based data row of a training row)
 

@@ -291,7 +291,9 @@ def _add_simulate(sub, fmt) -> None:
         epilog=_SIMULATE_FORMAT + "\n\n" + _ROBOT_FORMAT,
     )
     s.add_argument("--out", required=True, help="CSV file to write")
-    s.add_argument("--samples", type=int, default=2000, help="number of samples (default 2000)")
+    s.add_argument("--samples", type=int, default=None,
+                   help="number of samples (default 2000; with --like the row count of the file the result was "
+                        "calibrated on: a new day of the same measurement program)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--noise-std", type=float, default=None,
                    help="sensor noise σ in mm (default 0.5; --like: the first file's)")

@@ -21,11 +21,13 @@ def _cmd_simulate(args) -> int:
     from .._datasets._dataset import Dataset, mm_joints_metadata
     from .._simulation._simulate import simulate_experiment
 
+    if args.like:  # --samples default: the row count of the first file
+        robot, measurement, truth, noise, meta = _like(args)
+    elif args.samples is None:
+        args.samples = 2000
     if args.measurement != "camera" and args.samples < 2:  # camera: at least 3 images (_simulate_camera)
         raise _Usage(f"--samples must be at least 2, got {args.samples}")
-    if args.like:
-        robot, measurement, truth, noise, meta = _like(args)
-    else:
+    if not args.like:
         args.robot = args.robot or "hsr_jr680"
         args.measurement = args.measurement or "cable"
         noise = args.noise_std = 0.5 if args.noise_std is None else args.noise_std
@@ -125,7 +127,10 @@ def _like(args):
                      if isinstance(data_path, str) else
                      f"--like: {src} does not name one data file (a fleet result or one saved from Python); "
                      "simulate with --robot/--seed instead")
-    meta = load_csv(path).meta
+    first = load_csv(path)
+    meta = first.meta
+    if args.samples is None:  # the same measurement program: as many rows as the first file
+        args.samples = first.n
     if meta.get("source") != "jaxcal simulate" or "seed" not in meta:
         raise _Usage(f"--like: {path} was not written by `jaxcal simulate` (no '# source: jaxcal simulate' and "
                      "'# seed:' lines), so its true robot is not known; measure a new file instead")
