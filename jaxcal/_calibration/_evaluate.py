@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core._buckets import LeanJit
-from .._core._metrics import Metrics, compute_metrics, format_table
+from .._core._metrics import Metrics, format_table, metrics_numpy
 from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
 from .._core._precision import to_device
 from .._core._xla import filter_jit
@@ -273,8 +273,6 @@ def joints_from_file_units(robot, q) -> np.ndarray:
     return np.where(rad[None, :], np.deg2rad(q), q)
 
 
-def _metrics(e) -> Metrics:
-    return Metrics(*(float(v) for v in compute_metrics(jnp.asarray(e))))
 
 
 # -- evaluation ----------------------------------------------------------------------------------------
@@ -587,7 +585,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         why = f" ({data.n} rows are too few to register them again)"
     dtype = np.asarray(data.q).dtype
     zero = Deviations.zeros(layout, dtype)
-    raw = _metrics(sample_errors(robot, m, zero, data)) if has_guessed_extras(m) else None
+    raw = metrics_numpy(sample_errors(robot, m, zero, data)) if has_guessed_extras(m) else None
     # estimated extras that are no sensor set-up (a tool point, a camera's intrinsics): part of the
     # robot / the sensor here, taken from the result before and after
     kept = tuple(g for g in dict.fromkeys(layout.group_of(n) for n in result.space.free_names)
@@ -618,7 +616,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     ea = sample_errors(robot, m, dev_a, data)
     rows, scale = _outliers(robot, m, dev_a, data)
     return Evaluation(
-        before=_metrics(eb), after=_metrics(ea), raw_nominal=raw, before_errors=eb, after_errors=ea,
+        before=metrics_numpy(eb), after=metrics_numpy(ea), raw_nominal=raw, before_errors=eb, after_errors=ea,
         q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
         outlier_rows=rows, outlier_scale_mm=scale if math.isfinite(scale) else float("nan"),
         deviations_before=dev_b, deviations_after=dev_a, objective=objective,
@@ -719,7 +717,7 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
            f"data: {how}, robot fixed (for the nominal robot every one is registered); closed form, then a Huber fit of "
            f"the extras only{gaps}")
     return Evaluation(
-        before=_metrics(eb), after=_metrics(ea), raw_nominal=_metrics(raw), before_errors=eb, after_errors=ea,
-        q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
+        before=metrics_numpy(eb), after=metrics_numpy(ea), raw_nominal=metrics_numpy(raw), before_errors=eb,
+        after_errors=ea, q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
         outlier_scale_mm=scale if np.isfinite(scale) else float("nan"), deviations_before=dev_b,
         deviations_after=dev_a, objective=objective, q_file=joints_to_file_units(robot, q))

@@ -222,7 +222,11 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
 
 
 # -- rotation vector <-> matrix (pose files) ------------------------------------------------
-def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+def _rotvec_to_matrix(w) -> np.ndarray:
+    """``[..., 3, 3]`` rotation matrices of rotation vectors ``w`` ``[..., 3]`` (rad; Rodrigues),
+    in NumPy: host-side callers (pose files, closed-form starts, a camera's pose fit) run no
+    device program per call."""
+    w = np.asarray(w, np.float64)
     th = np.linalg.norm(w, axis=-1, keepdims=True)
     k = np.where(th > 0, w / np.where(th > 0, th, 1.0), 0.0)
     K = np.zeros(w.shape[:-1] + (3, 3))

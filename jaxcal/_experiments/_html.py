@@ -81,11 +81,11 @@ def _points(robot_dict, q_deg) -> np.ndarray | None:
 
         from .._calibration._evaluate import joints_from_file_units
         from .._calibration._io import robot_from_dict
-        from .._models._kinematics import fk_position
+        from .._models._kinematics import fk_position_jit
 
         robot = robot_from_dict(robot_dict)
         q = joints_from_file_units(robot, q_deg)  # degrees (mm at prismatic joints) → rad
-        return np.asarray(fk_position(robot, jnp.asarray(q)), np.float64)
+        return fk_position_jit(robot, jnp.asarray(q), tool=True)  # one compiled program, not ~40 small ones
     except Exception:  # noqa: BLE001 - a figure is optional; the page says it is missing
         return None
 

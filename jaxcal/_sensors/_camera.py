@@ -61,6 +61,7 @@ from jaxtyping import Array, Float
 
 from .._core._params import Deviations, Group, layout_for
 from .._core._xla import filter_jit
+from .._datasets._dataset import _rotvec_to_matrix as _rotvec
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
 from ._measurement import MeasurementModel, xyz_entries
 
@@ -360,13 +361,6 @@ _affine_project.defjvp(_affine_project_jvp, symbolic_zeros=True)
 
 
 # -- NumPy geometry ------------------------------------------------------------------------------
-def _rotvec(w) -> np.ndarray:
-    w = np.asarray(w, np.float64)
-    th = np.linalg.norm(w)
-    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / th**2 * (K @ K)
 
 
 def _log(R) -> np.ndarray:

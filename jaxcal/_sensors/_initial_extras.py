@@ -12,6 +12,7 @@ import numpy as np
 
 from .._core._params import Deviations, layout_for
 from .._datasets._dataset import _matrix_to_rotvec
+from .._datasets._dataset import _rotvec_to_matrix as _rotvec
 from .._models._kinematics import fk_pose_jit, fk_position_jit
 from .._models._robot import DHRobot
 from ._initialise import (
@@ -268,9 +269,3 @@ def initial_extras(
     msg = ("extras from the data: " + "; ".join(what) + f" (RMS residual of the nominal robot {before:.2f} → "
            f"{after:.2f} mm" + trimmed_note(n_trim, "sample") + ")")
     return ExtrasEstimate(dev, before, after, n_trim, msg)
-
-
-def _rotvec(w) -> np.ndarray:
-    from .._models._kinematics import rotvec_to_matrix
-
-    return np.asarray(rotvec_to_matrix(jnp.asarray(w)), np.float64)

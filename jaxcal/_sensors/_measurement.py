@@ -163,8 +163,9 @@ def _sensor_frame(model, deviations, dtype):
 
 
 def _check_frame(rotation, translation):
-    R = jnp.eye(3) if rotation is None else jnp.asarray(rotation)
-    t = jnp.zeros(3) if translation is None else jnp.asarray(translation)
+    # defaults made in NumPy: jnp.eye / jnp.zeros would each compile a small program in a fresh process
+    R = jnp.asarray(np.eye(3) if rotation is None else rotation)
+    t = jnp.asarray(np.zeros(3) if translation is None else translation)
     if R.shape != (3, 3):
         raise ValueError(f"rotation must be a [3, 3] rotation matrix (sensor <- base), got shape {R.shape}")
     if t.shape != (3,):
