@@ -486,31 +486,83 @@ def _launch(cal: Calibrator, q, y, key):
     ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``.
     The data are padded to their shape bucket (:func:`_pad_to_bucket`); the output is the
     unpadded run's, except ``gram``'s residual vector, which carries the padding rows (zeros) at
-    its end."""
+    its end. A compilation :func:`_compile_ahead` started for the same program is waited for."""
     with dtype_scope(q.dtype):
-        cal, q, y, w = _pad_to_bucket(cal, q, y)
-        dyn, stat = eqx.partition(cal, eqx.is_array)
-        dyn = cast_floating(dyn, q.dtype)
+        cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key)
         t0 = time.perf_counter()
-        try:
-            ck = (stat, _signature((dyn, q, y, key, w)), target_platform(), jax.config.jax_enable_x64)
-            hash(ck)
-        except TypeError:  # unhashable static part: no cache
-            ck = None
         compiled = _COMPILED.get(ck) if ck is not None else None
+        ahead = _AHEAD.pop(ck, None) if ck is not None else None
+        if compiled is None and ahead is not None:
+            try:
+                compiled = ahead.result()
+            except Exception:  # noqa: BLE001 - compiled again below, where the error is raised in this thread
+                compiled = None
         if compiled is None:
-            # kept on disk (a fresh process skips tracing), else traced and lowered here
-            compiled = (_stored_calibrator(cal, dyn, stat, q, y, key, w) if ck is not None else None) or \
-                compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
-            if ck is not None:
-                _COMPILED.put(ck, compiled)
-                # the executable is all a later call needs: drop the trace (jaxpr, lowering) that
-                # jax.jit keeps per shape, tens of MB for a solve, never freed otherwise
-                _run_calibrator.clear_cache()
-            release_memory()
+            compiled = _build_solve(cal, dyn, stat, q, y, key, w, ck)
         t1 = time.perf_counter()
         out = compiled(dyn, q, y, key, w)
     return out, t1 - t0, t1
+
+
+def _solve_inputs(cal: Calibrator, q, y, key):
+    """``(cal, q, y, weight, dynamic part, static part, cache key or None)`` of a solve: the data
+    padded to their bucket, the calibrator split for ``jit``."""
+    cal, q, y, w = _pad_to_bucket(cal, q, y)
+    dyn, stat = eqx.partition(cal, eqx.is_array)
+    dyn = cast_floating(dyn, q.dtype)
+    try:
+        ck = (stat, _signature((dyn, q, y, key, w)), target_platform(), jax.config.jax_enable_x64)
+        hash(ck)
+    except TypeError:  # unhashable static part: no cache
+        ck = None
+    return cal, q, y, w, dyn, stat, ck
+
+
+def _build_solve(cal: Calibrator, dyn, stat, q, y, key, w, ck):
+    """The compiled solve: kept on disk (a fresh process skips tracing), else traced and lowered
+    here; remembered under ``ck``."""
+    compiled = (_stored_calibrator(cal, dyn, stat, q, y, key, w) if ck is not None else None) or \
+        compile_lowered(_run_calibrator.lower(dyn, stat, q, y, key, w))
+    if ck is not None:
+        _COMPILED.put(ck, compiled)
+        # the executable is all a later call needs: drop the trace (jaxpr, lowering) that
+        # jax.jit keeps per shape, tens of MB for a solve, never freed otherwise
+        _run_calibrator.clear_cache()
+    release_memory()
+    return compiled
+
+
+#: solves being compiled on a background thread (:func:`_compile_ahead`), by cache key
+_AHEAD: dict = {}
+
+
+@functools.lru_cache(maxsize=1)
+def _ahead_pool():
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcal-compile")
+
+
+def _compile_ahead(cal: Calibrator, q, y, key) -> None:
+    """Start compiling ``cal``'s solve on a background thread while :func:`calibrate` does its
+    other work (closed-form extras, the identifiability program): XLA compiles without holding
+    Python's lock, so on a machine with a second core the two programs compile at once.
+    :func:`_launch` waits for it. Nothing happens when the program is compiled already, where
+    ``JAXCAL_COMPILE_AHEAD=off`` or on a single core."""
+    import os
+
+    if (os.cpu_count() or 1) < 2 or switched_off("JAXCAL_COMPILE_AHEAD"):
+        return
+    with dtype_scope(q.dtype):
+        cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key)
+    if ck is None or ck in _AHEAD or _COMPILED.get(ck) is not None:
+        return
+
+    def build():
+        with dtype_scope(q.dtype):
+            return _build_solve(cal, dyn, stat, q, y, key, w, ck)
+
+    _AHEAD[ck] = _ahead_pool().submit(build)
 
 
 def _output_structure(cal: Calibrator):
@@ -646,7 +698,8 @@ def calibrate(
     """
     steps = _calibration_steps(robot, measurement, data, method, key=key, space=space, start=start, extras=extras,
                                free=free, fix=fix, init=init, prior=prior, loss=loss, objective=objective,
-                               loss_scale=loss_scale, checks=checks, throw=throw, **hyperparameters)
+                               loss_scale=loss_scale, checks=checks, throw=throw, ahead=_compile_ahead,
+                               **hyperparameters)
     launched = None
     while True:  # each request is one compiled solve (calibrate_many batches the requests of many units)
         try:
@@ -676,6 +729,7 @@ def _calibration_steps(
     checks: Checks | None = None,
     throw: bool = False,
     sensor_noise_std: float | None = None,
+    ahead=None,
     **hyperparameters,
 ) -> Generator[tuple, _Launched, CalibrationResult]:
     """:func:`calibrate` as a generator: it yields each solve it needs as ``(Calibrator, q, y, key)``
@@ -684,7 +738,10 @@ def _calibration_steps(
     many units as one vmapped program (:func:`jaxcal.calibrate_many`). Its warnings name the frame
     two levels above it (the caller of the driver). ``sensor_noise_std``: the sensor's noise σ (mm)
     that σ̂ is checked against when neither the prior nor the data's metadata give one
-    (:func:`~jaxcal._fit._diagnostics.given_noise_std`; :func:`jaxcal.calibrate_many`'s ``noise_std``)."""
+    (:func:`~jaxcal._fit._diagnostics.given_noise_std`; :func:`jaxcal.calibrate_many`'s ``noise_std``).
+    ``ahead``: called with ``(Calibrator, q, y, key)`` of the first solve as soon as its program is
+    known (before the closed-form extras and the identifiability): :func:`calibrate` starts
+    compiling it on a background thread (:func:`_compile_ahead`)."""
     ensure_compilation_cache()  # before the first of this call's programs compiles
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
@@ -707,6 +764,23 @@ def _calibration_steps(
         flags[g] = any(group_of(n).startswith(g + "_") for n in cand.free_names)
     flags.update({e: any(_family(group_of(n)) == e for n in cand.free_names) for e in ("plane", "point")})
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
+    masked = _masked(meth)
+    key = _default_key() if key is None else key
+    plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
+
+    def solve(cur, prog, mask, noise, scale, free, start_jacobian):
+        """The solve of one round: ``(Calibrator, q, y, key)``."""
+        objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype, free=free)
+        return Calibrator(robot, measurement, meth, cur, prog,
+                          None if objective is None or objective.plain_least_squares else objective, report=True,
+                          start_jacobian=start_jacobian, free=mask), q, y, key
+
+    if ahead is not None and masked and (_default_selection(space) or isinstance(space, ParameterSpace)):
+        # the program of the first solve is known before its free set: the candidates' program
+        # space with the free set as a run-time mask (the σ and scale values are run-time data)
+        guess = cand if _default_selection(space) else space
+        prog, _, mask = _solve_space(robot, measurement, cand, guess, True, q.dtype)
+        ahead(*solve(start, prog, mask, 1.0, None if loss == "linear" else 1.0, guess, None))
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:
@@ -715,21 +789,18 @@ def _calibration_steps(
     selecting = _default_selection(space)
     # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
     adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
-    masked = _masked(meth)
     # the start Jacobian serves a one-round unmasked fit only (below)
     space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior,
                                                                 jacobian=not (adaptive or masked))
     problem = Problem(robot, measurement, q, y, space, start)
     n_res = problem.n_observed_residuals  # real readings (a missing marker is masked)
     _check_enough_residuals(q.shape[0], n_res, space, report, prior)
-    key = _default_key() if key is None else key
     x = space.to_vector_numpy(start)  # problem.x0() on the host (no device round trip)
     if resid_start is None:  # else from the identifiability program
         resid_start = signed_residuals(problem, x)
     else:
         resid_start = residual_blocks_numpy(problem, resid_start)
 
-    plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
     # a robust loss's threshold in units of a clean sample's RMS error (√3 σ for a position's norm)
     dims = math.sqrt(error_dims(measurement, problem.observed())) if loss != "linear" and loss_scale is None else 1.0
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
@@ -754,14 +825,10 @@ def _calibration_steps(
                                    or rounds - first >= 4):
                 break
             noise, scale = new_noise, new_scale
-            objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype, free=space)
-            cal = Calibrator(robot, measurement, meth, cur, prog,
-                             None if objective is None or objective.plain_least_squares else objective, report=True,
-                             # the identifiability program's Jacobian serves a one-round fit (several rounds
-                             # share one compiled program, which then computes it); a masked solve
-                             # computes its own (its columns are the program space's)
-                             start_jacobian=None if adaptive or masked else start_jac, free=mask)
-            launched = yield cal, q, y, key
+            # the identifiability program's Jacobian serves a one-round fit (several rounds share one
+            # compiled program, which then computes it); a masked solve computes its own (its
+            # columns are the program space's)
+            launched = yield solve(cur, prog, mask, noise, scale, space, None if adaptive or masked else start_jac)
             out, c_s = launched.out, launched.compile_s
             if before_rows is None:  # host work that does not need the fit, while the device runs it
                 before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
