@@ -50,7 +50,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory
+from .._core._buckets import BoundedCache, bucket_size, buckets_enabled, cache_size, release_memory, signature
 from .._core._metrics import format_table, statistical_floor
 from .._core._precision import cast_floating, dtype_scope
 from .._core._xla import compile_lowered, jit, target_platform
@@ -60,7 +60,6 @@ from ._calibrate import (
     _calibration_steps,
     _Launched,
     _pad_to_bucket,
-    _signature,
 )
 
 __all__ = ["calibrate_many", "FleetResult", "FleetSummary", "UnitRow"]
@@ -406,7 +405,7 @@ def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
             dyn = cast_floating(dyn, q.dtype)
         paths, treedef = jax.tree_util.tree_flatten_with_path((dyn, q, y, key, w))
         leaves = [leaf for _, leaf in paths]
-        gk = (static, treedef, _signature(leaves))
+        gk = (static, treedef, signature(leaves))
         if gk not in groups:
             groups[gk] = ([], static, treedef, [], tuple(_own(path) for path, _ in paths))
         groups[gk][0].append(i)
