@@ -168,8 +168,10 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     if like is not None:
         estimated = {_family(layout.group_of(n)) for n in like.space.free_names if group_kind(n) == "extra"}
         extras = sorted({_CANDIDATE_EXTRAS[f] for f in estimated if f in _CANDIDATE_EXTRAS})
+        # the default prior leaves the sensor extras free (σ = inf); used only where it does so for
+        # every registered parameter, so that the minimiser is the prior-free one
         diagonal = isinstance(like.prior, Prior) and not like.prior.covariance
-        prior = Prior() if diagonal else None
+        prior = Prior() if diagonal and np.all(np.isinf(Prior().std(space))) else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = calibrate(robot, measurement, data, "lm", space=space, start=start.deviations, init="none", loss=loss,
