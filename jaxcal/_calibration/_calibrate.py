@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 import time
 import warnings
 from collections.abc import Generator
@@ -259,6 +260,13 @@ def _family(group: str) -> str:
     return group.partition("@")[0]
 
 
+def extras_among(names) -> dict[str, bool]:
+    """Which of the extras ``calibrate(extras=...)`` names (anchor, cable offset, base, tool) the
+    parameter ``names`` hold: ``{extra: bool}``."""
+    families = {_family(group_of(n)) for n in names}
+    return {e: any(f in SELECT_GROUPS[e] for f in families) for e in ("anchor", "cable_offset", "base", "tool")}
+
+
 def _selection(items, layout) -> set[str]:
     """Parameter names selected by ``items``: aliases of :data:`SELECT_GROUPS`, a kind
     (``geometric``, ``nongeometric``, ``extras``), any group name of ``layout`` or parameter names."""
@@ -494,7 +502,7 @@ def _launch(cal: Calibrator, q, y, key):
         cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key)
         t0 = time.perf_counter()
         compiled = _COMPILED.get(ck) if ck is not None else None
-        ahead = _AHEAD.pop(ck, None) if ck is not None else None
+        ahead = _AHEAD.pop(ck, None)
         if compiled is None and ahead is not None:
             try:
                 compiled = ahead.result()
@@ -555,8 +563,6 @@ def _compile_ahead(cal: Calibrator, q, y, key) -> None:
     Python's lock, so on a machine with a second core the two programs compile at once.
     :func:`_launch` waits for it. Nothing happens when the program is compiled already, where
     ``JAXCAL_COMPILE_AHEAD=off`` or on a single core."""
-    import os
-
     if (os.cpu_count() or 1) < 2 or switched_off("JAXCAL_COMPILE_AHEAD"):
         return
     # a set-up this process met before has its program already (a warm call): skip the padding
@@ -771,8 +777,7 @@ def _calibration_steps(
     if init not in ("auto", "none"):
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
     cand = candidate_space(robot, measurement, extras, free, fix)
-    flags = {e: any(_family(group_of(n)) in SELECT_GROUPS[e] for n in cand.free_names)
-             for e in ("anchor", "cable_offset", "base", "tool")}
+    flags = extras_among(cand.free_names)
     flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
     for g in ("handeye", "target"):  # camera extras (jaxcal._sensors._camera)
         flags[g] = any(group_of(n).startswith(g + "_") for n in cand.free_names)
@@ -794,7 +799,7 @@ def _calibration_steps(
         # space with the free set as a run-time mask (the σ and scale values are run-time data)
         guess = cand if _default_selection(space) else space
         prog, _, mask = _solve_space(robot, measurement, cand, guess, True, q.dtype)
-        ahead(*solve(start, prog, mask, 1.0, None if loss == "linear" else 1.0, guess, None))
+        ahead(*solve(start, prog, mask, 1.0, 1.0, guess, None))
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:

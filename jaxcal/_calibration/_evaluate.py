@@ -155,7 +155,7 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     is the prior-free one (to round-off)."""
     from .._fit._objective import Prior
     from .._sensors._initial_extras import initial_extras
-    from ._calibrate import calibrate
+    from ._calibrate import calibrate, extras_among
 
     if not groups:
         return deviations, ""
@@ -166,8 +166,7 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     space = ParameterSpace.from_names(layout, names)
     extras, prior = (), None
     if like is not None:
-        estimated = {_family(layout.group_of(n)) for n in like.space.free_names if group_kind(n) == "extra"}
-        extras = sorted({_CANDIDATE_EXTRAS[f] for f in estimated if f in _CANDIDATE_EXTRAS})
+        extras = [e for e, held in extras_among(like.space.free_names).items() if held]
         # the default prior leaves the sensor extras free (σ = inf); used only where it does so for
         # every registered parameter, so that the minimiser is the prior-free one
         diagonal = isinstance(like.prior, Prior) and not like.prior.covariance
@@ -177,11 +176,6 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
         res = calibrate(robot, measurement, data, "lm", space=space, start=start.deviations, init="none", loss=loss,
                         extras=extras, prior=prior)
     return res.deviations, start.message
-
-
-#: extra families that :func:`jaxcal.calibrate`'s ``extras=`` adds to the candidates, by its name there
-_CANDIDATE_EXTRAS = {"tool": "tool", "base_rotation": "base", "base_translation": "base", "anchor": "anchor",
-                     "cable_offset": "cable_offset"}
 
 
 def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
@@ -273,8 +267,6 @@ def joints_from_file_units(robot, q) -> np.ndarray:
     rad = np.asarray([u == "rad" for u in joint_units(robot)])
     q = np.asarray(q, np.float64)
     return np.where(rad[None, :], np.deg2rad(q), q)
-
-
 
 
 # -- evaluation ----------------------------------------------------------------------------------------

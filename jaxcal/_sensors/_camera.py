@@ -61,7 +61,7 @@ from jaxtyping import Array, Float
 
 from .._core._params import Deviations, Group, layout_for
 from .._core._xla import filter_jit
-from .._datasets._dataset import _rotvec_to_matrix as _rotvec
+from .._datasets._dataset import _rotvec_to_matrix
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
 from ._measurement import MeasurementModel, xyz_entries
 
@@ -361,8 +361,6 @@ _affine_project.defjvp(_affine_project_jvp, symbolic_zeros=True)
 
 
 # -- NumPy geometry ------------------------------------------------------------------------------
-
-
 def _log(R) -> np.ndarray:
     """Rotation vector of ``R`` ``[3, 3]`` (rad), accurate near 0 and π (via the quaternion)."""
     R = np.asarray(R, np.float64)
@@ -467,12 +465,12 @@ def _refine_pose(R, t, pts, uv, k, iterations: int = 30):
         for j in range(6):
             e = np.zeros(6)
             e[j] = 1e-7 if j < 3 else 1e-5
-            J[:, j] = (_pose_residual(_rotvec(e[:3]) @ R, t + e[3:], pts, uv, k)
-                       - _pose_residual(_rotvec(-e[:3]) @ R, t - e[3:], pts, uv, k)) / (2 * e[j])
+            J[:, j] = (_pose_residual(_rotvec_to_matrix(e[:3]) @ R, t + e[3:], pts, uv, k)
+                       - _pose_residual(_rotvec_to_matrix(-e[:3]) @ R, t - e[3:], pts, uv, k)) / (2 * e[j])
         H, g = J.T @ J, J.T @ r
         while True:
             step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g)
-            Rn, tn = _rotvec(step[:3]) @ R, t + step[3:]
+            Rn, tn = _rotvec_to_matrix(step[:3]) @ R, t + step[3:]
             rn = _pose_residual(Rn, tn, pts, uv, k)
             if rn @ rn < r @ r:
                 done = r @ r - rn @ rn < 1e-14 * (r @ r) + 1e-24
@@ -737,11 +735,11 @@ def _setup_frames(robot, camera: Camera, deviations, home, distance_mm: float):
     pts = np.asarray(camera.points, np.float64)
     centre = pts.mean(axis=0)
     if camera.mount == "eye_in_hand":
-        X = _T(_rotvec([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
-        Ch = _T(_rotvec([0.05, 0.04, 0.1]), -_rotvec([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
+        X = _T(_rotvec_to_matrix([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
+        Ch = _T(_rotvec_to_matrix([0.05, 0.04, 0.1]), -_rotvec_to_matrix([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
         B = Fh @ X @ Ch  # T_base_target
     else:
-        B = _T(_rotvec([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
+        B = _T(_rotvec_to_matrix([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
         tgt_world = Fh @ B
         c_world = tgt_world[:3, :3] @ centre + tgt_world[:3, 3]
         n_world = tgt_world[:3, :3] @ np.array([0.0, 0.0, 1.0])

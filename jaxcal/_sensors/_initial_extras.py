@@ -11,8 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core._params import Deviations, layout_for
-from .._datasets._dataset import _matrix_to_rotvec
-from .._datasets._dataset import _rotvec_to_matrix as _rotvec
+from .._datasets._dataset import _matrix_to_rotvec, _rotvec_to_matrix
 from .._models._kinematics import fk_pose_jit, fk_position_jit
 from .._models._robot import DHRobot
 from ._initialise import (
@@ -100,7 +99,7 @@ def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est
     """``(R, t, M [N, 3], keep)``: one sensor frame and the marker layout of a :class:`Markers`
     model (:func:`alternate_frames_and_markers` with one frame and one placement)."""
     T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
-    R = _rotvec(start.base_rotation) @ np.asarray(measurement.rotation, np.float64)
+    R = _rotvec_to_matrix(start.base_rotation) @ np.asarray(measurement.rotation, np.float64)
     t = np.asarray(measurement.translation, np.float64) + np.asarray(start.base_translation, np.float64)
     M = np.asarray(measurement.marker_points(start), np.float64)
     zero = np.zeros(Y.shape[0], int)
@@ -222,7 +221,7 @@ def initial_extras(
         est_base = "base" in estimate
         R0 = np.asarray(measurement.rotation, np.float64)
         t0 = np.asarray(measurement.translation, np.float64)
-        R_guess = _rotvec(start.base_rotation) @ R0
+        R_guess = _rotvec_to_matrix(start.base_rotation) @ R0
         b_guess = t0 + np.asarray(start.base_translation, np.float64)
         if kind == "pose":
             R, t, tool, keep = _pose_start(Pl, Fl, Y, R_guess, b_guess, tool0, est_base, est_tool)
