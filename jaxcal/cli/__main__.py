@@ -1,6 +1,6 @@
 """``python -m jaxcal.cli``: the same as the ``jaxcal`` command."""
 
-from . import main
+from . import console_main
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(console_main())

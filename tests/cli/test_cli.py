@@ -163,6 +163,34 @@ def test_simulate_help_describes_what_it_writes(capsys):
     assert "marker_1_x_mm" not in out and "makes no marker" in out
 
 
+def test_garbage_collector_after_the_command(monkeypatch):
+    """``main`` (called inside a longer-lived process) leaves the collector as it found it and
+    freezes nothing; the program's entry point (``console_main``: the console script and
+    ``python -m jaxcal.cli``) freezes the command's objects before switching it on again, so that
+    neither a collection after the command nor the one at exit traverses them."""
+    import gc
+    import pathlib
+
+    import tomllib
+
+    root = pathlib.Path(__file__).resolve().parents[2]
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["jaxcal"] == "jaxcal.cli:console_main"
+    assert "console_main()" in (root / "jaxcal" / "cli" / "__main__.py").read_text()
+    from jaxcal.cli import console_main
+
+    frozen = gc.get_freeze_count()
+    assert gc.isenabled()
+    assert main(["simulate", "--help"]) == 0
+    assert gc.isenabled() and gc.get_freeze_count() == frozen
+    monkeypatch.setattr("sys.argv", ["jaxcal", "simulate", "--help"])
+    try:
+        assert console_main() == 0
+        assert gc.isenabled() and gc.get_freeze_count() > frozen
+    finally:
+        gc.unfreeze()
+
+
 def test_import_and_help_do_not_import_jax():
     """``import jaxcal`` and ``jaxcal --help`` import neither JAX nor a jaxcal module beyond the
     package and the command line (start-up: 0.05 s of CPU instead of 1.3 s); every public name
