@@ -418,13 +418,12 @@ def _program_space(robot, measurement, cand: ParameterSpace, space: ParameterSpa
     return ParameterSpace.from_names(space.layout, [n for n in space.layout.names if n in keep])
 
 
-def _solve_space(robot, measurement, cand: ParameterSpace, space: ParameterSpace, masked: bool, dtype):
-    """``(program space, columns, mask)`` of a solve of the free ``space``: with ``masked``, the
-    :func:`_program_space`, the free parameters' columns in it and the run-time 0/1 mask; else
-    ``(space, None, None)``."""
-    if not masked:
+def _solve_space(prog: ParameterSpace | None, space: ParameterSpace, dtype):
+    """``(program space, columns, mask)`` of a solve of the free ``space``: with a program space
+    ``prog`` (:func:`_program_space`; a masked solve), ``prog``, the free parameters' columns in it
+    and the run-time 0/1 mask; else (``prog=None``) ``(space, None, None)``."""
+    if prog is None:
         return space, None, None
-    prog = _program_space(robot, measurement, cand, space)
     free = set(space.free_names)
     columns = np.asarray([i for i, n in enumerate(prog.free_names) if n in free])
     mask = np.zeros(prog.n_free)
@@ -794,12 +793,17 @@ def _calibration_steps(
                           None if objective is None or objective.plain_least_squares else objective, report=True,
                           start_jacobian=start_jacobian, free=mask), q, y, key
 
-    if ahead is not None and masked and (_default_selection(space) or isinstance(space, ParameterSpace)):
+    # a masked method's program space: every free set this call meets (identifiability, its
+    # re-selection, the given space) lies in the candidates' program space or the given space's
+    prog_space = None
+    if masked and (_default_selection(space) or isinstance(space, ParameterSpace)):
+        prog_space = _program_space(robot, measurement, cand, cand if _default_selection(space) else space)
+    if ahead is not None and prog_space is not None:
         # the program of the first solve is known before its free set: the candidates' program
         # space with the free set as a run-time mask (the σ and scale values are run-time data)
         guess = cand if _default_selection(space) else space
-        prog, _, mask = _solve_space(robot, measurement, cand, guess, True, q.dtype)
-        ahead(*solve(start, prog, mask, 1.0, 1.0, guess, None))
+        _, _, mask = _solve_space(prog_space, guess, q.dtype)
+        ahead(*solve(start, prog_space, mask, 1.0, 1.0, guess, None))
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:
@@ -829,7 +833,9 @@ def _calibration_steps(
     before_rows = cov = None
     while True:  # re-selection: identifiability judged again at the solution (below)
         first = rounds
-        prog, columns, mask = _solve_space(robot, measurement, cand, space, masked, q.dtype)
+        if masked and (prog_space is None or not set(space.free_names) <= set(prog_space.free_names)):
+            prog_space = _program_space(robot, measurement, cand, space)
+        prog, columns, mask = _solve_space(prog_space if masked else None, space, q.dtype)
         while True:  # rounds of re-estimated scales
             if plain:
                 new_noise = new_scale = None
