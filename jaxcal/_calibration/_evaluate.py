@@ -21,15 +21,19 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 import warnings
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._core._buckets import LeanJit
+from .._core._buckets import LeanJit, signature
+from .._core._cache import switched_off
 from .._core._metrics import Metrics, format_table, metrics_numpy
 from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
-from .._core._precision import to_device
+from .._core._precision import to_device, uncommitted
 from .._core._xla import filter_jit
 from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
 from .._sensors._initialise import _residual, _sample_error
@@ -182,9 +186,10 @@ def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarra
     """Per-row errors (mm) of ``robot + deviations`` on ``data`` (compiled once per shape)."""
     from .._fit._problem import Problem, sample_errors_at
 
-    q = jnp.asarray(data.q)
+    q = to_device(data.q)  # not jnp.asarray: a copy program per shape
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
-    pr = Problem(robot, measurement, q, data.y, space, deviations.astype(q.dtype))
+    # uncommitted: a fit's deviations and zeros run one program, not one per placement
+    pr = Problem(robot, measurement, q, data.y, space, uncommitted(deviations.astype(q.dtype)))
     return np.asarray(sample_errors_at(pr, pr.x0()), np.float64)
 
 
@@ -448,22 +453,71 @@ def _jacobian_program():
     return filter_jit(lambda problem: problem.to_blocks(problem.jacobian(problem.x0())).reshape(problem.n_residuals, -1))
 
 
+def _registered_problem(result, data, registered, deviations):
+    """``(problem, registered names, robot names)`` of :func:`_registered_terms`: the Jacobian's
+    problem at ``deviations`` (uncommitted: the compile-ahead's zeros and a fit's deviations run
+    one program) over the robot's free parameters with an uncertainty and the ``registered``
+    extras."""
+    from .._fit._problem import Problem
+
+    layout = result.space.layout
+    e_names = [n for g in registered for n in layout.group(g).names]
+    theta = [n for n in result.space.free_names if n not in set(e_names) and n in result.uncertainty.names]
+    space = ParameterSpace.from_names(layout, [n for n in layout.names if n in set(theta) | set(e_names)])
+    q = to_device(np.asarray(data.q, np.float64))
+    pr = Problem(result.robot, result.measurement, q, to_device(np.asarray(data.y, np.float64)), space,
+                 uncommitted(deviations.astype(q.dtype)))
+    return pr, e_names, theta
+
+
+def _registered_key(pr) -> tuple | None:
+    """What decides the Jacobian program of :func:`_registered_terms` (its static part, shapes and
+    dtypes), or ``None`` where it is not hashable."""
+    dyn, stat = eqx.partition(pr, eqx.is_array)
+    try:
+        key = (stat, signature(dyn))
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
+#: Jacobian programs of :func:`_registered_terms` being compiled on the background thread, by key
+_JACOBIAN_AHEAD: dict = {}
+
+
+def _compile_registered_ahead(result, data, registered) -> None:
+    """Start compiling (and running once, at zero deviations) the Jacobian program of
+    :func:`_registered_terms` on the background compile thread while :func:`evaluate_result`
+    registers the extras: its largest program (0.4-0.6 s on 2 CPU cores), independent of the
+    registration's result. Nothing happens on a single core or with ``JAXCAL_COMPILE_AHEAD=off``."""
+    from ._calibrate import _ahead_pool
+
+    if (os.cpu_count() or 1) < 2 or switched_off("JAXCAL_COMPILE_AHEAD"):
+        return
+    pr, _, _ = _registered_problem(result, data, registered, Deviations.zeros(result.space.layout, np.float64))
+    key = _registered_key(pr)
+    if key is None or key in _JACOBIAN_AHEAD:
+        return
+    _JACOBIAN_AHEAD[key] = _ahead_pool().submit(lambda: jax.block_until_ready(_jacobian_program()(pr)))
+
+
 def _registered_terms(result, data, registered, deviations):
     """``(mean prediction variance per sample, registered parameters p_E, residual entries N)`` when
     the extras ``registered`` are fitted again on ``data`` with the robot fixed: the robot's
     uncertainty seen through ``M = I − J_E J_E⁺`` (what the registration does not absorb: a base
     rotation the prior alone held is absorbed by new point centres), at ``data``'s own readings
     (labels pick the plane/point of each row)."""
-    from .._fit._problem import Problem
-
     m = result.measurement
-    layout = result.space.layout
     unc = result.uncertainty
-    e_names = [n for g in registered for n in layout.group(g).names]
-    theta = [n for n in result.space.free_names if n not in set(e_names) and n in unc.names]
-    space = ParameterSpace.from_names(layout, [n for n in layout.names if n in set(theta) | set(e_names)])
-    q = to_device(np.asarray(data.q, np.float64))
-    pr = Problem(result.robot, m, q, to_device(np.asarray(data.y, np.float64)), space, deviations.astype(q.dtype))
+    pr, e_names, theta = _registered_problem(result, data, registered, deviations)
+    q = pr.q
+    ahead = _JACOBIAN_AHEAD.pop(_registered_key(pr), None)
+    if ahead is not None:  # compiled on the background thread (evaluate_result): wait for it
+        try:
+            ahead.result()
+        except Exception:  # noqa: BLE001 - compiled again below, where the error is raised in this thread
+            pass
     J = np.asarray(_jacobian_program()(pr), np.float64)
     obs = m.observed(np.asarray(data.y))
     size = m.size
@@ -471,7 +525,7 @@ def _registered_terms(result, data, registered, deviations):
     if m.kind == "pose":  # the position part, as the sample error
         keep &= np.tile(np.arange(size) < 3, q.shape[0])
     J = np.where(keep[:, None], J, 0.0)
-    idx = {n: i for i, n in enumerate(space.free_names)}
+    idx = {n: i for i, n in enumerate(pr.space.free_names)}
     JE, Jt = J[:, [idx[n] for n in e_names]], J[:, [idx[n] for n in theta]]
     U, s, _ = np.linalg.svd(JE, full_matrices=False)
     U = U[:, s > 1e-10 * (s[0] if s.size else 1.0)]
@@ -593,6 +647,10 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
                f"used before and after{held}" if not kept else
                f"no sensor set-up extras to register{held}")
     else:
+        unc = result.uncertainty
+        if mode == "register" and unc is not None and result.predictor is None and unc.noise_std > 0 \
+                and math.isfinite(unc.noise_std):  # expected_rmse's program (below), while the extras are registered
+            _compile_registered_ahead(result, data, groups)
         dev_b, msg_b = register_extras(robot, m, data, zero, groups, like=result)  # the nominal robot, its nominal tool
         held = f"{what}the calibrated robot (the nominal robot keeps its nominal one)" if kept else ""
         if mode == "register":

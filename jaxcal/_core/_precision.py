@@ -105,6 +105,21 @@ def canonical_numpy(x, dtype=None) -> np.ndarray:
     return a.astype(jax.dtypes.canonicalize_dtype(a.dtype if dtype is None else dtype), copy=False)
 
 
+def uncommitted(tree):
+    """``tree`` with each committed JAX array (the output of a compiled program) replaced by an
+    uncommitted copy of its host values (``jax.device_put`` without a device), other leaves as
+    they are. ``jax.jit`` compiles one program per placement of its arguments as well as per
+    shape, so a host-side function called once with a result's parameters and once with freshly
+    made ones compiled twice (``jaxcal evaluate``: ``sample_errors_at``, 0.16 s each on 2 CPU
+    cores). For small arrays (parameters): the copy goes through the host."""
+    def one(leaf):
+        if isinstance(leaf, jax.Array) and getattr(leaf, "committed", False):
+            return jax.device_put(np.asarray(leaf))
+        return leaf
+
+    return jax.tree_util.tree_map(one, tree)
+
+
 def to_device(x, dtype=None) -> jax.Array:
     """``x`` (NumPy or array-like) as a JAX array by ``jax.device_put``, in ``dtype``
     canonicalised as JAX does (:func:`canonical_numpy`).

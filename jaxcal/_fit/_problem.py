@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -10,7 +12,6 @@ from jaxtyping import Array, Float
 
 from .._core._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
-from .._core._precision import to_device
 from .._core._xla import jit
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
@@ -212,8 +213,16 @@ residual_blocks = LeanJit(residual_blocks, maxsize=16)
 
 def signed_residuals(problem: Problem, x) -> np.ndarray:
     """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
-    robust scales and outlier scans."""
-    x = jnp.asarray(x, problem.dtype) if isinstance(x, jax.Array) else to_device(x, problem.dtype)
+    robust scales and outlier scans.
+
+    Evaluated at the full deviations — the free entries ``x`` put into the problem's ``base`` on
+    the host — by a program with no free set of its own: one compiled program per (models, row
+    bucket) serves every free set (the robust/MAP rounds, identifiability's re-selection, an
+    evaluation's registration and its outlier scan), not one per set."""
+    x = np.asarray(x)
+    fixed = Problem(problem.robot, problem.measurement, problem.q, problem.y, _no_free(problem.space.layout),
+                    problem.space.from_vector(x.astype(problem.dtype, copy=False), problem.base), problem.weight)
+    none = np.zeros(0, problem.dtype)
     n = problem.n_samples
     width = problem.measurement.size
     if problem.weight is None and buckets_enabled() and bucket_size(n, width=width) != n:
@@ -221,9 +230,15 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
         # padding cut off on the host
         n_to = bucket_size(n, width=width)
         q, y, _ = pad_rows(problem.q, problem.y, n_to)
-        padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, problem.space, problem.base)
-        return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, x))[:n])
-    return residual_blocks_numpy(problem, residual_blocks(problem, x))
+        padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, fixed.space, fixed.base)
+        return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, none))[:n])
+    return residual_blocks_numpy(problem, residual_blocks(fixed, none))
+
+
+@functools.lru_cache(maxsize=64)
+def _no_free(layout) -> ParameterSpace:
+    """The parameter space of ``layout`` with nothing free."""
+    return ParameterSpace.from_names(layout, [])
 
 
 def observed_entries(problem: Problem, r) -> np.ndarray:
