@@ -5,6 +5,7 @@ import html.parser
 import inspect
 import json
 import math
+import os
 import warnings
 import xml.etree.ElementTree as ET
 
@@ -99,6 +100,57 @@ def test_registration_runs_the_calibrations_solve(two_days):
     a, b = np.asarray(shared._ravel_numpy()), np.asarray(own._ravel_numpy())
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())
     assert np.any(a != np.asarray(res.deviations._ravel_numpy()))  # the frame moved
+
+
+def test_evaluation_programs_are_shared(two_days, monkeypatch):
+    """evaluate's programs: the expected RMSE's Jacobian is compiled on the background thread while
+    the extras are registered (and the evaluation equals one without it); the per-row errors of
+    a fit's deviations and of fresh zeros run one program (jax.jit compiles per placement:
+    a fit's committed arrays); residuals at two free sets run one program, equal to the
+    residuals at the deviations the free entries make."""
+    import threading
+
+    from jaxcal._calibration import _evaluate as ev_mod
+    from jaxcal._core._params import Deviations, ParameterSpace
+    from jaxcal._core._precision import uncommitted
+    from jaxcal._fit._problem import Problem, residual_blocks, sample_errors_at, signed_residuals
+
+    d, _ = two_days
+    res = jaxcal.load_result(d / "result.json")
+    day2 = jaxcal.load_csv(d / "day2.csv")
+    threads = []
+    program = ev_mod._jacobian_program()
+    monkeypatch.setattr(ev_mod, "_jacobian_program",
+                        lambda: (lambda pr: threads.append(threading.current_thread().name) or program(pr)))
+    e = res.evaluate(day2, extras="register")
+    ahead = (os.cpu_count() or 1) >= 2 and os.environ.get("JAXCAL_COMPILE_AHEAD", "on") != "off"
+    assert len(threads) == 1 + ahead and threads[0].startswith("jaxcal-compile") == ahead, threads
+    assert not ev_mod._JACOBIAN_AHEAD
+    monkeypatch.setenv("JAXCAL_COMPILE_AHEAD", "off")
+    ref = res.evaluate(day2, extras="register")
+    assert e.expected_rmse == ref.expected_rmse and np.array_equal(e.after_errors, ref.after_errors)
+
+    committed = e.deviations_after  # a fit's output
+    assert any(getattr(a, "committed", False) for a in committed.arrays)
+    assert not any(getattr(a, "committed", False) for a in uncommitted(committed).arrays)
+    zero = Deviations.zeros(res.space.layout, np.float64)
+    jitted = getattr(sample_errors_at, "_optioned", sample_errors_at)  # the jit a top-level call runs
+    ev_mod.sample_errors(res.robot, res.measurement, zero, day2)
+    n = jitted._cache_size()
+    ev_mod.sample_errors(res.robot, res.measurement, committed, day2)
+    assert jitted._cache_size() == n >= 1
+
+    q, y = jnp.asarray(day2.q), jnp.asarray(day2.y)
+    layout = res.space.layout
+    before = len(residual_blocks.cache)
+    for names in (res.space.free_names, ("base_x", "d_2")):
+        space = ParameterSpace.from_names(layout, names)
+        pr = Problem(res.robot, res.measurement, q, y, space, committed)
+        x = np.asarray(space.to_vector_numpy(committed)) + 1e-3
+        got = signed_residuals(pr, x)
+        want = np.asarray(res.measurement.residual(res.robot, space.from_vector(x, committed), q, y))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    assert len(residual_blocks.cache) - before <= 1
 
 
 def test_evaluate_with_the_old_frame_is_worse_and_exits_1(two_days, capsys):
