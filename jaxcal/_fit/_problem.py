@@ -220,7 +220,7 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
     bucket) serves every free set (the robust/MAP rounds, identifiability's re-selection, an
     evaluation's registration and its outlier scan), not one per set."""
     x = np.asarray(x)
-    fixed = Problem(problem.robot, problem.measurement, problem.q, problem.y, _no_free(problem.space.layout),
+    fixed = Problem(problem.robot, problem.measurement, problem.q, problem.y, no_free(problem.space.layout),
                     problem.space.from_vector(x.astype(problem.dtype, copy=False), problem.base), problem.weight)
     none = np.zeros(0, problem.dtype)
     n = problem.n_samples
@@ -236,7 +236,7 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _no_free(layout) -> ParameterSpace:
+def no_free(layout) -> ParameterSpace:
     """The parameter space of ``layout`` with nothing free."""
     return ParameterSpace.from_names(layout, [])
 

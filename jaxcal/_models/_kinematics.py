@@ -14,12 +14,15 @@ the frame chain.
 
 from __future__ import annotations
 
+import inspect
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from .._core._buckets import bucket_size, buckets_enabled, pad_rows
 from .._core._params import Deviations
+from .._core._precision import uncommitted
 from .._core._trig import angle_sum_trig, dh_joint_terms, materialised, shared_joint_trig
 from .._core._xla import jit
 from ._nongeometric import register_corrections
@@ -268,15 +271,18 @@ def _host_kinematics(fn):
     the kinematics outside ``jit`` (op by op they run as hundreds of small XLA programs), its rows
     padded to their shape bucket (:func:`~jaxcal._core._buckets.bucket_size`; ``JAXCAL_BUCKETS=off``:
     as given) so that one program serves the training rows, the held-out rows and every other
-    count of a bucket; NumPy out (``[n, 3]`` mm, ``[n, 4, 4]``)."""
+    count of a bucket; NumPy out (``[n, 3]`` mm, ``[n, 4, 4]``). ``tool`` defaults as in ``fn``
+    (the tool point for :func:`fk_position`, the flange for :func:`fk_pose`)."""
     compiled = jit(fn, static_argnames="tool")
+    default = inspect.signature(fn).parameters["tool"].default  # fk_position: the tool point; fk_pose: the flange
 
-    def call(robot, q, deviations=None, *, tool: bool = False) -> np.ndarray:
+    def call(robot, q, deviations=None, *, tool: bool = default) -> np.ndarray:
         n = int(q.shape[0])
         n_to = bucket_size(n) if buckets_enabled() else n
         if n_to != n:
             q = pad_rows(q, None, n_to)[0]
-        return np.asarray(compiled(robot, q, deviations, tool=tool))[:n]
+        # uncommitted: a fit's deviations and fresh ones run one program (jax.jit compiles per placement)
+        return np.asarray(compiled(robot, q, uncommitted(deviations), tool=tool))[:n]
 
     call.__name__ = call.__qualname__ = f"{fn.__name__}_jit"
     call.__doc__ = f":func:`{fn.__name__}` for host-side callers (compiled once per shape bucket; NumPy out)."

@@ -12,7 +12,7 @@ import numpy as np
 
 from .._core._params import Deviations, layout_for
 from .._datasets._dataset import _matrix_to_rotvec, _rotvec_to_matrix
-from .._models._kinematics import fk_pose_jit, fk_position_jit
+from .._models._kinematics import fk_pose_jit
 from .._models._robot import DHRobot
 from ._initialise import (
     MIN_FRAME_ROWS,
@@ -167,21 +167,22 @@ def initial_extras(
     est_tool = "tool" in estimate
     tool0 = np.asarray(robot.tool, np.float64) + np.asarray(start.tool, np.float64)  # flange frame, mm
     P = Pl = Fl = None  # tool points; flange origins and rotations (base frame)
-    if kind == "pose" or (kind != "markers" and est_tool):
+    if kind != "markers":
+        # the flange frames (one compiled program for every kind and estimate, shared with the
+        # other closed-form starts), the tool points from them
         T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
         Fl, Pl = T[:, :3, :3], T[:, :3, 3]
         P = Pl + Fl @ tool0
-    elif kind != "markers":
-        P = np.asarray(fk_position_jit(robot, q, start), np.float64)
     Y = np.asarray(y, np.float64)
 
     def rms(dev):
-        r = _residual(measurement, robot, dev, q, jnp.asarray(y))
         if kind == "markers":
-            e = np.asarray(_sample_error(measurement, r), np.float64)
-        else:
-            r = np.asarray(r, np.float64)
-            e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)
+            e = np.asarray(_sample_error(measurement, _residual(measurement, robot, dev, q, jnp.asarray(y))), np.float64)
+        else:  # the residual program of the calibration's own host-side checks (one per row bucket)
+            from .._fit._problem import Problem, no_free, signed_residuals
+
+            r = signed_residuals(Problem(robot, measurement, q, y, no_free(dev.layout), dev), np.zeros(0))
+            e = np.linalg.norm(r, axis=1)  # a pose's position part (signed_residuals), else every entry
         return float(np.sqrt(np.mean(e**2)))
 
     before = rms(start)

@@ -130,17 +130,19 @@ def test_evaluation_programs_are_shared(two_days, monkeypatch):
     ref = res.evaluate(day2, extras="register")
     assert e.expected_rmse == ref.expected_rmse and np.array_equal(e.after_errors, ref.after_errors)
 
-    committed = e.deviations_after  # a fit's output
-    assert any(getattr(a, "committed", False) for a in committed.arrays)
+    # committed to the device, as a compiled program's outputs are (device_put with a device)
+    committed = jax.tree_util.tree_map(lambda a: jax.device_put(a, jax.devices()[0]), e.deviations_after)
+    assert all(a.committed for a in committed.arrays)
     assert not any(getattr(a, "committed", False) for a in uncommitted(committed).arrays)
     zero = Deviations.zeros(res.space.layout, np.float64)
     jitted = getattr(sample_errors_at, "_optioned", sample_errors_at)  # the jit a top-level call runs
-    ev_mod.sample_errors(res.robot, res.measurement, zero, day2)
+    rows = Dataset(day2.q[:37], day2.y[:37], "position", day2.meta)  # a row count no program has seen
     n = jitted._cache_size()
-    ev_mod.sample_errors(res.robot, res.measurement, committed, day2)
-    assert jitted._cache_size() == n >= 1
+    ev_mod.sample_errors(res.robot, res.measurement, zero, rows)
+    ev_mod.sample_errors(res.robot, res.measurement, committed, rows)
+    assert jitted._cache_size() == n + 1
 
-    q, y = jnp.asarray(day2.q), jnp.asarray(day2.y)
+    q, y = jnp.asarray(rows.q), jnp.asarray(rows.y)
     layout = res.space.layout
     before = len(residual_blocks.cache)
     for names in (res.space.free_names, ("base_x", "d_2")):

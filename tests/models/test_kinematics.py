@@ -67,6 +67,22 @@ def test_single_configuration_and_jit(robot):
     np.testing.assert_allclose(np.asarray(jitted), np.asarray(batched), atol=1e-12)
 
 
+def test_host_kinematics_equal_the_functions_with_their_defaults(robot):
+    """``fk_position_jit`` / ``fk_pose_jit`` (host callers: rows padded to a bucket, NumPy out)
+    give what ``fk_position`` / ``fk_pose`` give, with the same default for ``tool`` (the tool
+    point for a position, the flange for a pose), for a fit's committed deviations as for fresh ones."""
+    from jaxcal._models._kinematics import fk_pose_jit, fk_position_jit
+
+    q = jnp.asarray(_random_q(robot, 7))
+    dev = Deviations.zeros(robot.dof).replace(tool=jnp.asarray([1.0, -2.0, 3.0]), d=jnp.full(robot.dof, 0.5))
+    committed = jax.tree_util.tree_map(lambda a: jax.device_put(a, jax.devices()[0]), dev)
+    for d in (dev, committed):
+        np.testing.assert_allclose(fk_position_jit(robot, q, d), np.asarray(fk_position(robot, q, d)), atol=1e-9)
+        np.testing.assert_allclose(fk_pose_jit(robot, q, d), np.asarray(fk_pose(robot, q, d)), atol=1e-9)
+    np.testing.assert_allclose(fk_position_jit(robot, q, dev, tool=False),
+                               np.asarray(fk_position(robot, q, dev, tool=False)), atol=1e-9)
+
+
 def test_rotation_is_orthonormal(robot):
     T = np.asarray(fk_pose(robot, jnp.asarray(_random_q(robot, 20)), _random_dev(robot)))
     R = T[:, :3, :3]
