@@ -284,6 +284,8 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
 
 def _extra_to_dict(extra) -> dict | None:
     """Method state worth keeping (the RBF network); ``None`` otherwise."""
+    if extra is None:  # most methods (not importing the RBF network's module for them)
+        return None
     from ..methods import RBFNetwork
 
     if isinstance(extra, RBFNetwork):

@@ -55,7 +55,8 @@ from jaxtyping import Array, Float, Int
 from .._fit._result import Status
 from .._sensors._measurement import CableLength, Position
 from ._base import Method, RawRun, ScaledProblem, register_method
-from ._least_squares import LevenbergMarquardt, optimistix_run
+from ._least_squares import LevenbergMarquardt
+from ._optimistix import optimistix_run
 from ._population import check_positive, start_rmse
 
 __all__ = ["RBFNetwork", "RBFNetworkMethod", "rbf_features", "rbf_apply"]
