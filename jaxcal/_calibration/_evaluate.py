@@ -182,10 +182,34 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     return res.deviations, start.message
 
 
+def _plain_sample_error(measurement) -> bool:
+    """Whether ``measurement``'s per-row error is the plain one of its residual block (the signed
+    entry of a length, the Euclidean norm of a position, a pose's position part), which the host
+    takes from :func:`~jaxcal._fit._problem.signed_residuals` itself."""
+    from .._sensors._measurement import MeasurementModel, Pose
+
+    return type(measurement).sample_error in (MeasurementModel.sample_error, Pose.sample_error)
+
+
+def _host_sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
+    """:func:`sample_errors` of a plain-error model (:func:`_plain_sample_error`) from the residual
+    program of the calibration's host-side checks (one per models and row bucket, loaded where a
+    calibration of the set-up compiled it): no program of its own."""
+    from .._fit._problem import Problem, no_free, signed_residuals
+
+    layout = layout_for(robot, measurement)
+    pr = Problem(robot, measurement, to_device(data.q), data.y, no_free(layout), deviations)
+    r = signed_residuals(pr, np.zeros(0))  # [n, m], a pose's position part
+    return r[:, 0].copy() if measurement.size == 1 else np.linalg.norm(r, axis=1)
+
+
 def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
-    """Per-row errors (mm) of ``robot + deviations`` on ``data`` (compiled once per shape)."""
+    """Per-row errors (mm) of ``robot + deviations`` on ``data`` (compiled once per shape; a
+    length, position or pose from the residual program the calibration's checks use)."""
     from .._fit._problem import Problem, sample_errors_at
 
+    if _plain_sample_error(measurement):
+        return _host_sample_errors(robot, measurement, deviations, data)
     q = to_device(data.q)  # not jnp.asarray: a copy program per shape
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
     # uncommitted: a fit's deviations and zeros run one program, not one per placement
@@ -199,8 +223,11 @@ def sample_errors_many(robot, measurement, deviations, datasets) -> list[np.ndar
     array per dataset, the values of :func:`sample_errors` (the same operations on the same
     shapes), from one compiled program where :func:`sample_errors` per deviations and dataset
     runs one per shape (the command line's before/after table: four programs, each loaded from
-    the compilation cache at every start). The datasets are not concatenated: XLA:CPU's code
-    for another row count can differ in the last bits."""
+    the compilation cache at every start); a length, position or pose from the residual program
+    of the calibration's checks, as :func:`sample_errors`. The datasets are not concatenated:
+    XLA:CPU's code for another row count can differ in the last bits."""
+    if _plain_sample_error(measurement):  # no program of its own (see sample_errors)
+        return [np.stack([_host_sample_errors(robot, measurement, d, ds) for d in deviations]) for ds in datasets]
     # to_device, not jnp.asarray: that compiles a copy program per shape
     qs, ys = tuple(to_device(ds.q) for ds in datasets), tuple(to_device(ds.y) for ds in datasets)
     devs = tuple(d.astype(qs[0].dtype) for d in deviations)

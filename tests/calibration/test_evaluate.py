@@ -105,9 +105,9 @@ def test_registration_runs_the_calibrations_solve(two_days):
 def test_evaluation_programs_are_shared(two_days, monkeypatch):
     """evaluate's programs: the expected RMSE's Jacobian is compiled on the background thread while
     the extras are registered (and the evaluation equals one without it); the per-row errors of
-    a fit's deviations and of fresh zeros run one program (jax.jit compiles per placement:
-    a fit's committed arrays); residuals at two free sets run one program, equal to the
-    residuals at the deviations the free entries make."""
+    a fit's (committed) deviations and of fresh zeros come from one residual program and equal the
+    model's own; residuals at two free sets run one program, equal to the residuals at the
+    deviations the free entries make."""
     import threading
 
     from jaxcal._calibration import _evaluate as ev_mod
@@ -135,12 +135,17 @@ def test_evaluation_programs_are_shared(two_days, monkeypatch):
     assert all(a.committed for a in committed.arrays)
     assert not any(getattr(a, "committed", False) for a in uncommitted(committed).arrays)
     zero = Deviations.zeros(res.space.layout, np.float64)
+    # a position's per-row errors come from the residual program of the checks: no program of
+    # their own, one residual program for a fit's deviations and fresh zeros, the model's own errors
     jitted = getattr(sample_errors_at, "_optioned", sample_errors_at)  # the jit a top-level call runs
     rows = Dataset(day2.q[:37], day2.y[:37], "position", day2.meta)  # a row count no program has seen
-    n = jitted._cache_size()
-    ev_mod.sample_errors(res.robot, res.measurement, zero, rows)
-    ev_mod.sample_errors(res.robot, res.measurement, committed, rows)
-    assert jitted._cache_size() == n + 1
+    n, n_res = jitted._cache_size(), len(residual_blocks.cache)
+    errors = [ev_mod.sample_errors(res.robot, res.measurement, d, rows) for d in (zero, committed)]
+    assert jitted._cache_size() == n and len(residual_blocks.cache) <= n_res + 1
+    for d, e in zip((zero, committed), errors):
+        want = res.measurement.sample_error(res.measurement.residual(res.robot, d, jnp.asarray(rows.q),
+                                                                     jnp.asarray(rows.y)))
+        np.testing.assert_allclose(e, np.asarray(want), rtol=0, atol=1e-9)
 
     q, y = jnp.asarray(rows.q), jnp.asarray(rows.y)
     layout = res.space.layout
