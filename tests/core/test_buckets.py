@@ -89,6 +89,15 @@ def test_pad_rows():
     np.testing.assert_array_equal(np.asarray(w), [1, 1, 1, 1, 0, 0])
     qs, ys, w = pad_rows(q, y, 4)
     assert qs is q and ys is y and np.all(np.asarray(w) == 1)
+    # device arrays (immutable) padded again: the last padding is reused; other arrays, another
+    # size or host (mutable NumPy) inputs are padded anew
+    qd, yd = jax.device_put(q), jax.device_put(y)
+    first = pad_rows(qd, yd, 6)
+    assert pad_rows(qd, yd, 6) is first
+    assert pad_rows(qd, yd, 8) is not first and pad_rows(jax.device_put(q), yd, 6) is not first
+    again = pad_rows(q, y, 6)
+    assert again is not pad_rows(q, y, 6)
+    np.testing.assert_array_equal(np.asarray(first[0]), np.asarray(again[0]))
 
 
 def test_bounded_cache():
