@@ -459,10 +459,12 @@ class Evaluation:
 
 
 def _outliers(robot, measurement, dev, data, k: float = 5.0):
+    """``(rows, robust σ)``: the 0-based rows of ``data`` whose residual at ``robot + dev`` is beyond
+    ``k`` robust σ of these rows' own residuals (:func:`~jaxcal._fit._diagnostics.outlier_rows`)."""
     from .._fit._diagnostics import outlier_rows
     from .._fit._problem import Problem
 
-    q = jnp.asarray(data.q)
+    q = to_device(data.q)  # not jnp.asarray: a copy program per shape
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
     pr = Problem(robot, measurement, q, data.y, space, dev.astype(q.dtype))
     rows, _, s = outlier_rows(pr, pr.x0(), k)

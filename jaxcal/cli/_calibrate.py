@@ -40,6 +40,7 @@ def _cmd_calibrate(args) -> int:
 
     from .._calibration._calibrate import CalibrationWarning, calibrate
     from .._calibration._evaluate import (
+        _outliers,
         before_after_errors,
         describe_objective,
         evaluate_result,
@@ -181,6 +182,17 @@ def _cmd_calibrate(args) -> int:
         _print_chain_table(robot, res, sd)
     _print_estimates(res, sd, extras, unit)
     _print_outliers_and_warnings(res, args, checks, file_row)
+    test_outliers = []
+    if test_file is None and test.n:
+        # the held-out rows' gross errors, named as the training rows' are (they enter the test
+        # RMSE/MAX above, not the fit)
+        rows_t, scale_t = _outliers(robot, sets["test"][1], res.deviations, test, checks.outlier_k)
+        test_outliers = [int(kept_rows[test_idx[i]]) + 1 for i in rows_t]
+        if test_outliers:
+            listed = ", ".join(map(str, test_outliers[:20]))
+            print(f"outliers in the test rows (residual > {checks.outlier_k:g} × {scale_t:.3g} {unit}, their robust σ): "
+                  f"data rows {listed}{' …' if len(test_outliers) > 20 else ''} — not used in the fit; they raise "
+                  "the test RMSE/MAX above")
     diag = res.diagnostics
     if args.out:
         settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
@@ -188,7 +200,8 @@ def _cmd_calibrate(args) -> int:
                     "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": loss,
                     "objective": objective_line,
                     "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
-                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after]}
+                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after],
+                    "outlier_rows_test": test_outliers}
         info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
                                 "message": evaluation.message}} if evaluation is not None else {}
         from .._calibration._io import save_result  # only with --out

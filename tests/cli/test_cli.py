@@ -57,6 +57,7 @@ def test_calibrate_prints_tables_and_round_trips(data_csv, tmp_path, capsys):
     assert "test, after" in text and "Calibrated DH table" in text and "rank 19" in text
     d = load_result_dict(out)
     assert d["status"] == "converged" and d["settings"]["n_test"] == 24
+    assert d["settings"]["outlier_rows_test"] == [] and "outliers in the test rows" not in text
     before, after = d["metrics_mm"]["test, before"], d["metrics_mm"]["test, after"]
     assert after["rmse"] < before["rmse"] / 3
     # the saved result predicts like the original: same held-out metrics, same DH table
@@ -70,6 +71,29 @@ def test_calibrate_prints_tables_and_round_trips(data_csv, tmp_path, capsys):
     # the default prior: MAP over all 24 DH deviations, of which the data identify 19; nothing held
     assert res.space.n_free == 24 and res.identifiability["rank"] == 19 and res.identifiability["held"] == []
     assert f"{res.dh_table()[0, 1]:.4f}" in text  # a1 as printed
+
+
+def test_a_gross_test_row_is_named(data_csv, tmp_path, capsys):
+    """A gross error in a held-out row (not fitted) is named by its data row, as the training rows'
+    outliers are, and kept in the result file."""
+    import csv
+
+    from jaxcal._datasets._split import seed_split
+
+    rows = list(csv.reader(data_csv.open()))
+    head = next(i for i, r in enumerate(rows) if r and r[0].startswith("q1"))
+    col = rows[head].index("length_mm")
+    _, _, test_idx = seed_split(0, N, 0.2)
+    bad = int(test_idx[3])
+    rows[head + 1 + bad][col] = str(float(rows[head + 1 + bad][col]) + 40.0)
+    path, out = tmp_path / "bad.csv", tmp_path / "bad.json"
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    assert main(["calibrate", str(path), "--robot", "hsr_jr680", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    line = next(ln for ln in text.splitlines() if ln.startswith("outliers in the test rows"))
+    assert f"data rows {bad + 1} " in line
+    assert load_result_dict(out)["settings"]["outlier_rows_test"] == [bad + 1]
 
 
 def test_robot_file_round_trip(tmp_path):
