@@ -199,8 +199,8 @@ def pad_rows(q, y, n_to: int, host: bool = False):
     memo = not host and isinstance(q, jax.Array) and (y is None or isinstance(y, jax.Array))
     if memo:
         last = _LAST_PADDING.get("entry")
-        if last is not None and last[0]() is q and (last[1] is None if y is None else last[1]() is y) \
-                and last[2] == n_to:
+        same_y = last is not None and (last[1] is None if y is None else last[1] is not None and last[1]() is y)
+        if same_y and last[0]() is q and last[2] == n_to:
             return last[3]
     put = (lambda a: a) if host else jax.device_put
     n = int(q.shape[0])

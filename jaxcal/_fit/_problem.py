@@ -10,14 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._core._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._xla import jit
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
+from .._sensors._initialise import residual_rows
 from .._sensors._measurement import MeasurementModel
 
-__all__ = ["Problem", "entry_count", "value_and_jacfwd", "residual_blocks", "residual_blocks_numpy", "signed_residuals",
+__all__ = ["Problem", "entry_count", "value_and_jacfwd", "residual_blocks_numpy", "signed_residuals",
            "observed_entries",
            "sample_errors_at", "predict_jit"]
 
@@ -201,38 +201,20 @@ class Problem(eqx.Module):
         return Problem(self.robot, self.measurement, self.q, self.y, space, self.base, self.weight)
 
 
-def residual_blocks(problem: Problem, x: Float[Array, " p"]) -> Float[Array, "n m"]:
-    """``prediction − measured`` as ``[n, m]`` (mm) at free parameters ``x``, jitted (compiled once
-    per shape): the host-side checks, metrics and diagnostics call this instead of evaluating
-    the kinematics op by op."""
-    return problem.measurement.residual(problem.robot, problem.deviations(x), problem.q, problem.y)
-
-
-residual_blocks = LeanJit(residual_blocks, maxsize=16)
-
-
 def signed_residuals(problem: Problem, x) -> np.ndarray:
     """Residual entries as NumPy ``[n, m]`` (mm; the position part ``[n, 3]`` of a pose), for
     robust scales and outlier scans.
 
     Evaluated at the full deviations — the free entries ``x`` put into the problem's ``base`` on
-    the host — by a program with no free set of its own: one compiled program per (models, row
-    bucket) serves every free set (the robust/MAP rounds, identifiability's re-selection, an
-    evaluation's registration and its outlier scan), not one per set."""
+    the host — by :func:`~jaxcal._sensors._initialise.residual_rows`, a program with no free set:
+    one compiled program per (models, row bucket) serves every free set (the robust/MAP rounds,
+    identifiability's re-selection, an evaluation's registration and its outlier scan, the
+    closed-form starts), not one per set."""
     x = np.asarray(x)
-    fixed = Problem(problem.robot, problem.measurement, problem.q, problem.y, no_free(problem.space.layout),
-                    problem.space.from_vector(x.astype(problem.dtype, copy=False), problem.base), problem.weight)
-    none = np.zeros(0, problem.dtype)
-    n = problem.n_samples
-    width = problem.measurement.size
-    if problem.weight is None and buckets_enabled() and bucket_size(n, width=width) != n:
-        # evaluated on the rows padded to their shape bucket (one program per bucket), the
-        # padding cut off on the host
-        n_to = bucket_size(n, width=width)
-        q, y, _ = pad_rows(problem.q, problem.y, n_to)
-        padded = Problem(problem.robot, problem.measurement.pad_rows(n, n_to), q, y, fixed.space, fixed.base)
-        return residual_blocks_numpy(problem, np.asarray(residual_blocks(padded, none))[:n])
-    return residual_blocks_numpy(problem, residual_blocks(fixed, none))
+    dev = problem.space.from_vector(x.astype(problem.dtype, copy=False), problem.base)
+    # rows with weights are padded already (shape buckets): as given
+    r = residual_rows(problem.measurement, problem.robot, dev, problem.q, problem.y, pad=problem.weight is None)
+    return residual_blocks_numpy(problem, r)
 
 
 @functools.lru_cache(maxsize=64)
@@ -257,7 +239,7 @@ def residual_blocks_numpy(problem: Problem, r) -> np.ndarray:
 
 @jit
 def sample_errors_at(problem: Problem, x: Float[Array, " p"]) -> Float[Array, " n"]:
-    """Per-sample errors (mm) at free parameters ``x``, jitted (see :func:`residual_blocks`)."""
+    """Per-sample errors (mm) at free parameters ``x``, jitted (compiled once per shape)."""
     return problem.sample_errors(x)
 
 

@@ -26,6 +26,7 @@ from ._initialise import (
     kabsch,
     multilaterate,
     project_rotation,
+    residual_rows,
     trimmed_note,
     wire_with_tool,
 )
@@ -179,10 +180,8 @@ def initial_extras(
         if kind == "markers":
             e = np.asarray(_sample_error(measurement, _residual(measurement, robot, dev, q, jnp.asarray(y))), np.float64)
         else:  # the residual program of the calibration's own host-side checks (one per row bucket)
-            from .._fit._problem import Problem, no_free, signed_residuals
-
-            r = signed_residuals(Problem(robot, measurement, q, y, no_free(dev.layout), dev), np.zeros(0))
-            e = np.linalg.norm(r, axis=1)  # a pose's position part (signed_residuals), else every entry
+            r = residual_rows(measurement, robot, dev, q, y)
+            e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)
         return float(np.sqrt(np.mean(e**2)))
 
     before = rms(start)

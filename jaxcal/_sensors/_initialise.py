@@ -53,8 +53,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._core._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
 from .._core._metrics import robust_scale
 from .._core._params import Deviations
+from .._core._precision import to_device, uncommitted
 from .._core._xla import jit
 
 __all__ = ["ExtrasEstimate", "multilaterate", "wire_with_tool", "kabsch", "project_rotation",
@@ -88,6 +90,30 @@ class ExtrasEstimate(NamedTuple):
 #: the measurement model's residual and per-sample error, compiled once per shape (host-side use)
 _residual = jit(lambda measurement, robot, dev, q, y: measurement.residual(robot, dev, q, y))
 _sample_error = jit(lambda measurement, r: measurement.sample_error(r))
+
+
+def _residual_of(measurement, robot, deviations, q, y):
+    return measurement.residual(robot, deviations, q, y)
+
+
+#: the residual program of host-side checks: one per (models, row bucket), every deviations
+_residual_rows = LeanJit(_residual_of, maxsize=16)
+
+
+def residual_rows(measurement, robot, deviations: Deviations, q, y, *, pad: bool = True) -> np.ndarray:
+    """``measurement.residual`` of ``robot + deviations`` as NumPy ``[n, m]`` (mm), from one compiled
+    program per models and shape bucket whatever the deviations (the closed-form starts' RMS, the
+    calibration's robust scales and outlier scans, an evaluation's per-row errors): the rows are
+    padded to their bucket (``pad=False``: as given, rows a caller padded itself) and the deviations
+    taken as uncommitted host values (``jax.jit`` compiles per placement too)."""
+    n = int(q.shape[0])
+    width = measurement.size
+    dev = uncommitted(deviations)
+    if pad and buckets_enabled() and bucket_size(n, width=width) != n:
+        n_to = bucket_size(n, width=width)
+        qp, yp, _ = pad_rows(q, y, n_to)
+        return np.asarray(_residual_rows(measurement.pad_rows(n, n_to), robot, dev, qp, yp))[:n]
+    return np.asarray(_residual_rows(measurement, robot, dev, to_device(q), to_device(y, np.asarray(q).dtype)))
 
 #: Rows whose closed-form-start residual is beyond this many robust σ are left out of the start.
 TRIM_ROBUST_SIGMAS = 5.0

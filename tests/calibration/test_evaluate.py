@@ -113,7 +113,8 @@ def test_evaluation_programs_are_shared(two_days, monkeypatch):
     from jaxcal._calibration import _evaluate as ev_mod
     from jaxcal._core._params import Deviations, ParameterSpace
     from jaxcal._core._precision import uncommitted
-    from jaxcal._fit._problem import Problem, residual_blocks, sample_errors_at, signed_residuals
+    from jaxcal._fit._problem import Problem, sample_errors_at, signed_residuals
+    from jaxcal._sensors._initialise import _residual_rows as residual_blocks
 
     d, _ = two_days
     res = jaxcal.load_result(d / "result.json")

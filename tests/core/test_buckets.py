@@ -95,6 +95,8 @@ def test_pad_rows():
     first = pad_rows(qd, yd, 6)
     assert pad_rows(qd, yd, 6) is first
     assert pad_rows(qd, yd, 8) is not first and pad_rows(jax.device_put(q), yd, 6) is not first
+    no_y = pad_rows(qd, None, 6)
+    assert no_y[1] is None and pad_rows(qd, yd, 6)[1] is not None  # with readings after without: padded anew
     again = pad_rows(q, y, 6)
     assert again is not pad_rows(q, y, 6)
     np.testing.assert_array_equal(np.asarray(first[0]), np.asarray(again[0]))
