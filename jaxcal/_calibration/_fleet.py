@@ -247,7 +247,7 @@ def calibrate_many(robot, measurement, datasets, method="lm", *, names=None, tol
             raise ValueError(f"every unit failed: {errors[0]}")
         chunks = [range(0, k)]  # all advanced
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcal-fleet") as worker:
-        pipe = _Pipeline(worker, size, sequential, advance, pending)
+        pipe = _Pipeline(worker, size, sequential, advance, pending, max(map(_rows_of, datasets)))
         for c, chunk in enumerate(chunks):
             if c > 0:
                 for i in chunk:  # host steps beside the previous chunk's solves
@@ -273,8 +273,9 @@ class _Pipeline:
     solves run beside the host steps of other units); :meth:`collect` waits for the oldest
     batches and advances their units, launching the next round of those still iterating."""
 
-    def __init__(self, worker, size, sequential, advance, pending):
+    def __init__(self, worker, size, sequential, advance, pending, rows: int = 0):
         self.worker, self.size, self.sequential, self.advance, self.pending = worker, size, sequential, advance, pending
+        self.rows = rows  # the fleet's largest row count: every chunk pads to its bucket
         self.flight: deque = deque()
         self.compile_s = self.solve_s = 0.0
 
@@ -282,7 +283,7 @@ class _Pipeline:
         """Launch the pending requests of ``units``; the batches launched."""
         if not units:
             return []
-        batches = _batches({i: self.pending[i] for i in units}, self.size, self.sequential)
+        batches = _batches({i: self.pending[i] for i in units}, self.size, self.sequential, self.rows)
         for batch in batches:
             batch.launch(self.worker)
             self.compile_s += batch.compile_s
@@ -302,6 +303,15 @@ class _Pipeline:
 
 def _n_rows(q) -> int:
     return int(q.shape[0])
+
+
+def _rows_of(data) -> int:
+    """The row count of a unit's data (a :class:`Dataset` or a ``(q, y)`` pair); 0 where it has none
+    (the unit fails with its own error)."""
+    try:
+        return int(np.shape(data.q if hasattr(data, "q") else data[0])[0])
+    except (TypeError, IndexError, ValueError):
+        return 0
 
 
 class _Batch:
@@ -388,13 +398,15 @@ class _Share(_Launched):
         return out, self.batch.run_s / len(self.batch.units)
 
 
-def _batches(pending: dict, size: int, sequential: bool) -> list[_Batch]:
+def _batches(pending: dict, size: int, sequential: bool, rows: int = 0) -> list[_Batch]:
     """The pending requests ``{unit: (cal, q, y, key)}`` grouped into :class:`_Batch` es of at most
-    ``size`` units: padded to one row count (the bucket of the largest unit; methods that cannot
-    pad keep theirs) on the host, then grouped by static part and leaf shapes."""
+    ``size`` units: padded to one row count (the bucket of the largest unit, or of ``rows``, the
+    fleet's largest, so that every chunk runs one program whatever buckets the process used
+    before; methods that cannot pad keep theirs) on the host, then grouped by static part and
+    leaf shapes."""
     # the process's bucket rule (a later round of fewer units reuses the bucket of the first);
     # with buckets off still one padded size per batch (the fine grid)
-    n_rows = max(_n_rows(r[1]) for r in pending.values())
+    n_rows = max(rows, *(_n_rows(r[1]) for r in pending.values()))
     width = max(r[0].measurement.size for r in pending.values())
     n_to = bucket_size(n_rows, width=width) if buckets_enabled() else bucket_size(n_rows, minimum=256, width=width)
     groups: dict = {}
