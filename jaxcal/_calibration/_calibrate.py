@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 import time
 import warnings
 from collections.abc import Generator
@@ -32,7 +31,7 @@ from .._core._cache import ensure_compilation_cache, switched_off
 from .._core._metrics import Metrics, compute_metrics
 from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind, group_of, layout_for
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
-from .._core._xla import compile_lowered, jit, target_platform
+from .._core._xla import ahead_enabled, compile_ahead, compile_lowered, jit, take_ahead, target_platform
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._fit._diagnostics import (
     Checks,
@@ -500,13 +499,9 @@ def _launch(cal: Calibrator, q, y, key):
     with dtype_scope(q.dtype):
         cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key)
         t0 = time.perf_counter()
-        compiled = _COMPILED.get(ck) if ck is not None else None
-        ahead = _AHEAD.pop(ck, None)
-        if compiled is None and ahead is not None:
-            try:
-                compiled = ahead.result()
-            except Exception:  # noqa: BLE001 - compiled again below, where the error is raised in this thread
-                compiled = None
+        compiled = take_ahead(_AHEAD, ck)  # a compilation _compile_ahead started: waited for
+        if compiled is None and ck is not None:
+            compiled = _COMPILED.get(ck)
         if compiled is None:
             compiled = _build_solve(cal, dyn, stat, q, y, key, w, ck)
         t1 = time.perf_counter()
@@ -549,20 +544,13 @@ _AHEAD: dict = {}
 _AHEAD_SEEN: set = set()
 
 
-@functools.lru_cache(maxsize=1)
-def _ahead_pool():
-    from concurrent.futures import ThreadPoolExecutor
-
-    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcal-compile")
-
-
 def _compile_ahead(cal: Calibrator, q, y, key) -> None:
     """Start compiling ``cal``'s solve on a background thread while :func:`calibrate` does its
     other work (closed-form extras, the identifiability program): XLA compiles without holding
     Python's lock, so on a machine with a second core the two programs compile at once.
     :func:`_launch` waits for it. Nothing happens when the program is compiled already, where
     ``JAXCAL_COMPILE_AHEAD=off`` or on a single core."""
-    if (os.cpu_count() or 1) < 2 or switched_off("JAXCAL_COMPILE_AHEAD"):
+    if not ahead_enabled():
         return
     # a set-up this process met before has its program already (a warm call): skip the padding
     # and hashing below, ~1 ms of a ~10 ms warm calibrate; a set-up that shares this summary but
@@ -574,14 +562,14 @@ def _compile_ahead(cal: Calibrator, q, y, key) -> None:
     _AHEAD_SEEN.add(seen)
     with dtype_scope(q.dtype):
         cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key, host=True)
-    if ck is None or ck in _AHEAD or _COMPILED.get(ck) is not None:
+    if ck is None or _COMPILED.get(ck) is not None:
         return
 
     def build():
         with dtype_scope(q.dtype):
             return _build_solve(cal, dyn, stat, q, y, key, w, ck)
 
-    _AHEAD[ck] = _ahead_pool().submit(build)
+    compile_ahead(_AHEAD, ck, build)
 
 
 def _output_structure(cal: Calibrator):
@@ -793,17 +781,16 @@ def _calibration_steps(
                           None if objective is None or objective.plain_least_squares else objective, report=True,
                           start_jacobian=start_jacobian, free=mask), q, y, key
 
-    # a masked method's program space: every free set this call meets (identifiability, its
-    # re-selection, the given space) lies in the candidates' program space or the given space's
-    prog_space = None
-    if masked and (_default_selection(space) or isinstance(space, ParameterSpace)):
-        prog_space = _program_space(robot, measurement, cand, cand if _default_selection(space) else space)
-    if ahead is not None and prog_space is not None:
+    # a masked method's program space, the same for every round: every free set this call meets
+    # (identifiability and its re-selection pick from the candidates; "all" is the candidates; a
+    # given space is its own) lies in the program space of the candidates and a given space
+    given = space if isinstance(space, ParameterSpace) else cand
+    prog_space = _program_space(robot, measurement, cand, given) if masked else None
+    if ahead is not None and prog_space is not None and (_default_selection(space) or given is space):
         # the program of the first solve is known before its free set: the candidates' program
         # space with the free set as a run-time mask (the σ and scale values are run-time data)
-        guess = cand if _default_selection(space) else space
-        _, _, mask = _solve_space(prog_space, guess, q.dtype)
-        ahead(*solve(start, prog_space, mask, 1.0, 1.0, guess, None))
+        _, _, mask = _solve_space(prog_space, given, q.dtype)
+        ahead(*solve(start, prog_space, mask, 1.0, 1.0, given, None))
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:
@@ -833,9 +820,7 @@ def _calibration_steps(
     before_rows = cov = None
     while True:  # re-selection: identifiability judged again at the solution (below)
         first = rounds
-        if masked and (prog_space is None or not set(space.free_names) <= set(prog_space.free_names)):
-            prog_space = _program_space(robot, measurement, cand, space)
-        prog, columns, mask = _solve_space(prog_space if masked else None, space, q.dtype)
+        prog, columns, mask = _solve_space(prog_space, space, q.dtype)
         while True:  # rounds of re-estimated scales
             if plain:
                 new_noise = new_scale = None

@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 import warnings
 
 import equinox as eqx
@@ -30,13 +29,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core._buckets import LeanJit, signature
-from .._core._cache import switched_off
 from .._core._metrics import Metrics, format_table, metrics_numpy
 from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
 from .._core._precision import to_device, uncommitted
-from .._core._xla import filter_jit
+from .._core._xla import ahead_enabled, compile_ahead, filter_jit, take_ahead
 from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
-from .._sensors._initialise import _residual, _sample_error
+from .._sensors._initialise import _residual, _sample_error, plain_row_errors, residual_rows
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
@@ -195,12 +193,7 @@ def _host_sample_errors(robot, measurement, deviations: Deviations, data) -> np.
     """:func:`sample_errors` of a plain-error model (:func:`_plain_sample_error`) from the residual
     program of the calibration's host-side checks (one per models and row bucket, loaded where a
     calibration of the set-up compiled it): no program of its own."""
-    from .._fit._problem import Problem, no_free, signed_residuals
-
-    layout = layout_for(robot, measurement)
-    pr = Problem(robot, measurement, to_device(data.q), data.y, no_free(layout), deviations)
-    r = signed_residuals(pr, np.zeros(0))  # [n, m], a pose's position part
-    return r[:, 0].copy() if measurement.size == 1 else np.linalg.norm(r, axis=1)
+    return plain_row_errors(measurement, residual_rows(measurement, robot, deviations, data.q, data.y))
 
 
 def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
@@ -520,15 +513,12 @@ def _compile_registered_ahead(result, data, registered) -> None:
     :func:`_registered_terms` on the background compile thread while :func:`evaluate_result`
     registers the extras: its largest program (0.4-0.6 s on 2 CPU cores), independent of the
     registration's result. Nothing happens on a single core or with ``JAXCAL_COMPILE_AHEAD=off``."""
-    from ._calibrate import _ahead_pool
-
-    if (os.cpu_count() or 1) < 2 or switched_off("JAXCAL_COMPILE_AHEAD"):
+    if not ahead_enabled():
         return
     pr, _, _ = _registered_problem(result, data, registered, Deviations.zeros(result.space.layout, np.float64))
     key = _registered_key(pr)
-    if key is None or key in _JACOBIAN_AHEAD:
-        return
-    _JACOBIAN_AHEAD[key] = _ahead_pool().submit(lambda: jax.block_until_ready(_jacobian_program()(pr)))
+    if key is not None:
+        compile_ahead(_JACOBIAN_AHEAD, key, lambda: jax.block_until_ready(_jacobian_program()(pr)))
 
 
 def _registered_terms(result, data, registered, deviations):
@@ -541,12 +531,7 @@ def _registered_terms(result, data, registered, deviations):
     unc = result.uncertainty
     pr, e_names, theta = _registered_problem(result, data, registered, deviations)
     q = pr.q
-    ahead = _JACOBIAN_AHEAD.pop(_registered_key(pr), None)
-    if ahead is not None:  # compiled on the background thread (evaluate_result): wait for it
-        try:
-            ahead.result()
-        except Exception:  # noqa: BLE001 - compiled again below, where the error is raised in this thread
-            pass
+    take_ahead(_JACOBIAN_AHEAD, _registered_key(pr))  # compiled on the background thread (evaluate_result)
     J = np.asarray(_jacobian_program()(pr), np.float64)
     obs = m.observed(np.asarray(data.y))
     size = m.size
@@ -563,6 +548,13 @@ def _registered_terms(result, data, registered, deviations):
     cov = np.asarray(unc.covariance, np.float64)[np.ix_(ui, ui)]
     v = np.einsum("ip,pq,iq->i", MJ, cov, MJ).reshape(q.shape[0], size).sum(axis=1)
     return float(np.mean(v)), U.shape[1], int(keep.sum())
+
+
+def _has_expectation(result) -> bool:
+    """Whether ``result`` predicts its own error (:func:`expected_rmse`): an uncertainty with a
+    finite noise estimate, and no learned predictor of its own (the RBF network)."""
+    unc = result.uncertainty
+    return unc is not None and result.predictor is None and unc.noise_std > 0 and math.isfinite(unc.noise_std)
 
 
 def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
@@ -582,9 +574,9 @@ def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
     noise term the ``p_E`` parameters the registration fits, ``σ̂²(1 − p_E/N)`` per entry."""
     from .._fit._diagnostics import robust_consistency
 
-    unc = result.uncertainty
-    if unc is None or result.predictor is not None or not (unc.noise_std > 0 and math.isfinite(unc.noise_std)):
+    if not _has_expectation(result):
         return None
+    unc = result.uncertainty
     m = result.measurement
     c = robust_consistency(m, "linear", m.observed(data.y)).mean_sq_error
     coords = 3 if m.kind == "pose" else m.size
@@ -676,9 +668,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
                f"used before and after{held}" if not kept else
                f"no sensor set-up extras to register{held}")
     else:
-        unc = result.uncertainty
-        if mode == "register" and unc is not None and result.predictor is None and unc.noise_std > 0 \
-                and math.isfinite(unc.noise_std):  # expected_rmse's program (below), while the extras are registered
+        if mode == "register" and _has_expectation(result):  # expected_rmse's program, while the extras are registered
             _compile_registered_ahead(result, data, groups)
         dev_b, msg_b = register_extras(robot, m, data, zero, groups, like=result)  # the nominal robot, its nominal tool
         held = f"{what}the calibrated robot (the nominal robot keeps its nominal one)" if kept else ""

@@ -211,3 +211,45 @@ def filter_jit(fun=None, **kwargs):
     if fun is None:
         return functools.partial(filter_jit, **kwargs)
     return _with_options(eqx.filter_jit, fun, kwargs)
+
+
+# -- compiling ahead on a background thread --------------------------------------------------------
+def ahead_enabled() -> bool:
+    """Whether programs may compile ahead on a background thread (:func:`compile_ahead`): a second
+    core, and ``JAXCAL_COMPILE_AHEAD`` not ``off``. XLA compiles without holding Python's lock, so
+    a program compiles there while the calling thread runs others."""
+    from ._cache import switched_off
+
+    return (os.cpu_count() or 1) >= 2 and not switched_off("JAXCAL_COMPILE_AHEAD")
+
+
+def compile_ahead(pending: dict, key, build) -> None:
+    """Start ``build()`` (a program's compilation, or a first call of it) on the background compile
+    thread under ``key`` of ``pending``, unless one is pending already; :func:`take_ahead` gives
+    its result."""
+    if key not in pending:
+        pending[key] = _ahead_pool().submit(build)
+
+
+def take_ahead(pending: dict, key):
+    """The result of the :func:`compile_ahead` ``pending`` holds for ``key`` (waited for, and
+    removed), or ``None``: none started, or it failed (the caller builds again in its own thread,
+    where the error is raised)."""
+    future = pending.pop(key, None)
+    if future is None:
+        return None
+    try:
+        return future.result()
+    except Exception:  # noqa: BLE001 - built again by the caller, which then raises it
+        return None
+
+
+_POOL: list = []
+
+
+def _ahead_pool():
+    if not _POOL:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcal-compile"))
+    return _POOL[0]

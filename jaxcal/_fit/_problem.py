@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -215,12 +213,6 @@ def signed_residuals(problem: Problem, x) -> np.ndarray:
     # rows with weights are padded already (shape buckets): as given
     r = residual_rows(problem.measurement, problem.robot, dev, problem.q, problem.y, pad=problem.weight is None)
     return residual_blocks_numpy(problem, r)
-
-
-@functools.lru_cache(maxsize=64)
-def no_free(layout) -> ParameterSpace:
-    """The parameter space of ``layout`` with nothing free."""
-    return ParameterSpace.from_names(layout, [])
 
 
 def observed_entries(problem: Problem, r) -> np.ndarray:

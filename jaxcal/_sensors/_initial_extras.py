@@ -25,6 +25,7 @@ from ._initialise import (
     alternate_frames_and_markers,
     kabsch,
     multilaterate,
+    plain_row_errors,
     project_rotation,
     residual_rows,
     trimmed_note,
@@ -180,8 +181,7 @@ def initial_extras(
         if kind == "markers":
             e = np.asarray(_sample_error(measurement, _residual(measurement, robot, dev, q, jnp.asarray(y))), np.float64)
         else:  # the residual program of the calibration's own host-side checks (one per row bucket)
-            r = residual_rows(measurement, robot, dev, q, y)
-            e = np.linalg.norm(r[:, :3] if kind == "pose" else r, axis=1)
+            e = plain_row_errors(measurement, residual_rows(measurement, robot, dev, q, y))
         return float(np.sqrt(np.mean(e**2)))
 
     before = rms(start)

@@ -88,14 +88,12 @@ class ExtrasEstimate(NamedTuple):
 
 
 #: the measurement model's residual and per-sample error, compiled once per shape (host-side use)
-_residual = jit(lambda measurement, robot, dev, q, y: measurement.residual(robot, dev, q, y))
-_sample_error = jit(lambda measurement, r: measurement.sample_error(r))
-
-
 def _residual_of(measurement, robot, deviations, q, y):
     return measurement.residual(robot, deviations, q, y)
 
 
+_residual = jit(_residual_of)
+_sample_error = jit(lambda measurement, r: measurement.sample_error(r))
 #: the residual program of host-side checks: one per (models, row bucket), every deviations
 _residual_rows = LeanJit(_residual_of, maxsize=16)
 
@@ -113,7 +111,18 @@ def residual_rows(measurement, robot, deviations: Deviations, q, y, *, pad: bool
         n_to = bucket_size(n, width=width)
         qp, yp, _ = pad_rows(q, y, n_to)
         return np.asarray(_residual_rows(measurement.pad_rows(n, n_to), robot, dev, qp, yp))[:n]
-    return np.asarray(_residual_rows(measurement, robot, dev, to_device(q), to_device(y, np.asarray(q).dtype)))
+    q = to_device(q)
+    return np.asarray(_residual_rows(measurement, robot, dev, q, to_device(y, q.dtype)))
+
+
+def plain_row_errors(measurement, r) -> np.ndarray:
+    """The per-row error ``[n]`` of residual blocks ``r`` ``[n, m]`` (NumPy) for a model whose
+    :meth:`~jaxcal.MeasurementModel.sample_error` is the plain one: the signed entry of a length,
+    the Euclidean norm of a pose's position part, else of the whole block."""
+    r = np.asarray(r, np.float64)
+    if measurement.size == 1:
+        return r[:, 0].copy()
+    return np.linalg.norm(r[:, :3] if measurement.kind == "pose" else r, axis=1)
 
 #: Rows whose closed-form-start residual is beyond this many robust σ are left out of the start.
 TRIM_ROBUST_SIGMAS = 5.0
