@@ -50,7 +50,7 @@ from .._fit._diagnostics import (
     result_findings,
     weak_parameters,
 )
-from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals
+from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals, start_jacobian
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from .._fit._problem import Problem, entry_count, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import (
@@ -114,6 +114,12 @@ class Calibrator(eqx.Module):
             parameters when the caller has it (``calibrate``: from the identifiability program,
             for measurements whose Jacobian does not depend on the readings); computed in the
             program otherwise. See :meth:`ScaledProblem.build`.
+        start_jacobian_given: with ``start_jacobian`` and a method that computes its own scales
+            (:attr:`~jaxcal.methods.Method.scales_itself`: LM, GN), a run-time boolean: whether
+            ``start_jacobian`` holds the start's Jacobian or zeros standing in (the program
+            computes it then), so the fits with and without one run one compiled program
+            (:func:`calibrate`'s masked solves of measurements whose Jacobian does not depend on
+            the readings).
         free: ``[p]`` 0/1 mask over ``space``'s parameters, run-time data: only those with 1 move
             (the others stay at ``start``, without prior terms), so one compiled program serves
             every free set of ``space`` (:attr:`~jaxcal.methods.Method.maskable` methods only;
@@ -129,6 +135,7 @@ class Calibrator(eqx.Module):
     report: bool = eqx.field(static=True, default=False)
     start_jacobian: Array | None = None
     free: Array | None = None
+    start_jacobian_given: Array | None = None
 
     def __check_init__(self):
         if self.free is not None and not self.method.maskable:
@@ -145,7 +152,8 @@ class Calibrator(eqx.Module):
         with shared_joint_trig(problem.q):  # cos/sin of the data once per solve, not per evaluation
             scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian,
                                          mask=self.free, keep_jacobian=self.report,
-                                         defer_scale=self.method.scales_itself)
+                                         defer_scale=self.method.scales_itself,
+                                         jacobian_given=self.start_jacobian_given)
             raw = self.method.run(scaled, key)
             if raw.scale is not None:  # computed by the method from the start's Jacobian
                 scaled = eqx.tree_at(lambda s: s.scale, scaled, raw.scale)
@@ -346,20 +354,21 @@ def _default_selection(space) -> bool:
 
 
 def _resolve_candidates(cand, robot, measurement, q, space, start, y=None, prior=None, jacobian: bool = True,
-                        n_to=None):
+                        n_to=None, all_columns: bool = False):
     """:func:`resolve_space` from the candidates ``cand``: ``(space, report_or_None, residuals,
     jacobian)``, the last two the residual blocks (NumPy) and the identification Jacobian of the
     chosen free parameters (device) at ``start`` when ``y`` is given and the identifiability
     program computed them (see :func:`~jaxcal._fit._identifiability.identify_with_residuals`), else
     ``None``; the Jacobian also ``None`` with ``jacobian=False`` (the caller does not use it: its
-    columns are not taken, a compiled program fewer)."""
+    columns are not taken, a compiled program fewer). ``all_columns``: the Jacobian of every
+    candidate (a masked solve's start), not of the chosen ones."""
     if _default_selection(space):
         prior_std = None if prior is None else prior.std(cand)
         report, resid, J = identify_with_residuals(robot, measurement, q, cand, start, y, prior_std=prior_std,
                                                    n_to=n_to)
         if not jacobian:
             J = None
-        if J is not None:
+        if J is not None and not all_columns:
             kept = set(report.space.free_names)
             J = _take_columns(J, np.asarray([i for i, n in enumerate(cand.free_names) if n in kept]))
         return report.space, report, resid, J
@@ -423,11 +432,32 @@ def _solve_space(prog: ParameterSpace | None, space: ParameterSpace, dtype):
     and the run-time 0/1 mask; else (``prog=None``) ``(space, None, None)``."""
     if prog is None:
         return space, None, None
-    free = set(space.free_names)
-    columns = np.asarray([i for i, n in enumerate(prog.free_names) if n in free])
-    mask = np.zeros(prog.n_free)
-    mask[columns] = 1.0
-    return prog, columns, to_device(mask, dtype)
+    key = (prog.free_names, space.free_names, np.dtype(dtype))
+    got = _MASKS.get(key)
+    if got is None:
+        free = set(space.free_names)
+        columns = np.asarray([i for i, n in enumerate(prog.free_names) if n in free])
+        mask = np.zeros(prog.n_free)
+        mask[columns] = 1.0
+        got = (columns, to_device(mask, dtype))
+        _MASKS.put(key, got)
+    return (prog, *got)
+
+
+#: the masks of the last free sets :func:`_solve_space` met (device arrays; a warm call reuses its own)
+_MASKS = BoundedCache(8)
+
+
+def _program_columns(J, cand: ParameterSpace, prog: ParameterSpace):
+    """A Jacobian ``J`` ``[N, p]`` of the candidates ``cand`` as the program space ``prog``'s
+    ``[N, P]`` (zero columns for the parameters outside ``cand``: a mask holds them). Where the
+    two are the same (the default candidates), ``J`` itself."""
+    if prog.free_names == cand.free_names:
+        return J
+    index = {n: i for i, n in enumerate(prog.free_names)}
+    out = np.zeros((J.shape[0], prog.n_free), J.dtype)
+    out[:, [index[n] for n in cand.free_names]] = np.asarray(J)
+    return jax.device_put(out)
 
 
 def _mask_output(out: CalibrationOutput, columns: np.ndarray) -> CalibrationOutput:
@@ -473,21 +503,42 @@ def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None, host: bool = 
     pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
     n_to = n if not pad else bucket_size(n, width=cal.measurement.size) if n_to is None else n_to
     w = None
+    new = {}  # fields replaced (one dataclasses.replace: ~3x cheaper than eqx.tree_at per field)
     if pad:
         q, y, w = pad_rows(q, y, n_to, host=host)
         if n_to != n:
-            cal = eqx.tree_at(lambda c: c.measurement, cal, cal.measurement.pad_rows(n, n_to))
+            new["measurement"] = measurement.pad_rows(n, n_to)
     J = cal.start_jacobian
-    rows, rows_to = entry_count(measurement, n), entry_count(cal.measurement, n_to)
-    if J is not None and J.shape[0] != rows_to:
+    rows, rows_to = entry_count(measurement, n), entry_count(new.get("measurement", measurement), n_to)
+    if J is None and cal.start_jacobian_given is not None:  # zeros stand in (Calibrator.start_jacobian_given)
+        new["start_jacobian"] = _zero_jacobian((rows_to, cal.space.n_free), q.dtype, host)
+    elif J is not None and J.shape[0] != rows_to:
         # computed on the real rows, or on another padding (the identifiability program pads
         # whatever the method): the real rows on the host (padding rows' entries come last), zero
         # rows for this padding
         Jn = np.asarray(J)[:rows]
         if rows_to != rows:
             Jn = np.concatenate([Jn, np.zeros((rows_to - rows, Jn.shape[1]), Jn.dtype)])
-        cal = eqx.tree_at(lambda c: c.start_jacobian, cal, Jn if host else jax.device_put(Jn))
+        new["start_jacobian"] = Jn if host else jax.device_put(Jn)
+    if new:
+        cal = dataclasses.replace(cal, **new)
     return cal, q, y, w
+
+
+#: the last zero start Jacobians :func:`_pad_to_bucket` made, by (shape, dtype, host)
+_ZERO_JACOBIAN = BoundedCache(4)
+
+
+def _zero_jacobian(shape: tuple, dtype, host: bool):
+    """Zeros ``shape`` standing in for a start Jacobian not given (NumPy with ``host``, else on
+    the device); the last few are kept (every masked solve of one set-up has the same shape)."""
+    key = (shape, np.dtype(dtype), host)
+    z = _ZERO_JACOBIAN.get(key)
+    if z is None:
+        z = np.zeros(shape, dtype)
+        z = z if host else jax.device_put(z)
+        _ZERO_JACOBIAN.put(key, z)
+    return z
 
 
 def _launch(cal: Calibrator, q, y, key):
@@ -706,6 +757,7 @@ def calibrate(
     steps = _calibration_steps(robot, measurement, data, method, key=key, space=space, start=start, extras=extras,
                                free=free, fix=fix, init=init, prior=prior, loss=loss, objective=objective,
                                loss_scale=loss_scale, checks=checks, throw=throw, ahead=_compile_ahead,
+                               share_start_jacobian=True,
                                **hyperparameters)
     launched = None
     while True:  # each request is one compiled solve (calibrate_many batches the requests of many units)
@@ -737,6 +789,7 @@ def _calibration_steps(
     throw: bool = False,
     sensor_noise_std: float | None = None,
     ahead=None,
+    share_start_jacobian: bool = False,
     **hyperparameters,
 ) -> Generator[tuple, _Launched, CalibrationResult]:
     """:func:`calibrate` as a generator: it yields each solve it needs as ``(Calibrator, q, y, key)``
@@ -748,7 +801,12 @@ def _calibration_steps(
     (:func:`~jaxcal._fit._diagnostics.given_noise_std`; :func:`jaxcal.calibrate_many`'s ``noise_std``).
     ``ahead``: called with ``(Calibrator, q, y, key)`` of the first solve as soon as its program is
     known (before the closed-form extras and the identifiability): :func:`calibrate` starts
-    compiling it on a background thread (:func:`_compile_ahead`)."""
+    compiling it on a background thread (:func:`_compile_ahead`). ``share_start_jacobian``: a
+    plain one-round masked solve (the paper's experiment) is given its start's Jacobian of the
+    candidates from the identifiability program (``Calibrator.start_jacobian``: one Jacobian fewer
+    in the solve, ~1 of its ~3 ms on 2 CPU cores); a re-selection refit then takes its own start's
+    from the same program, so the call runs one compiled solve. :func:`calibrate` sets it; a
+    batched driver does not (it would stack an ``[N, p]`` array per unit)."""
     ensure_compilation_cache()  # before the first of this call's programs compiles
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
@@ -765,28 +823,39 @@ def _calibration_steps(
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
     cand = candidate_space(robot, measurement, extras, free, fix)
     flags = extras_among(cand.free_names)
-    flags["markers"] = any(group_of(n).startswith("marker_") for n in cand.free_names)
-    for g in ("handeye", "target"):  # camera extras (jaxcal._sensors._camera)
-        flags[g] = any(group_of(n).startswith(g + "_") for n in cand.free_names)
-    flags.update({e: any(_family(group_of(n)) == e for n in cand.free_names) for e in ("plane", "point")})
+    groups = {group_of(n) for n in cand.free_names}
+    flags["markers"] = any(g.startswith("marker_") for g in groups)
+    for e in ("handeye", "target"):  # camera extras (jaxcal._sensors._camera)
+        flags[e] = any(g.startswith(e + "_") for g in groups)
+    families = {_family(g) for g in groups}
+    flags.update({e: e in families for e in ("plane", "point")})
     start = Deviations.zeros(layout_for(robot, measurement), q.dtype) if start is None else start.astype(q.dtype)
     masked = _masked(meth)
     key = _default_key() if key is None else key
     plain = prior is None and loss == "linear"  # plain least squares: no scale to estimate, no Objective
-
-    def solve(cur, prog, mask, noise, scale, free, start_jacobian):
-        """The solve of one round: ``(Calibrator, q, y, key)``."""
-        objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype, free=free)
-        return Calibrator(robot, measurement, meth, cur, prog,
-                          None if objective is None or objective.plain_least_squares else objective, report=True,
-                          start_jacobian=start_jacobian, free=mask), q, y, key
+    # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
+    adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
+    selecting = _default_selection(space)
 
     # a masked method's program space, the same for every round: every free set this call meets
     # (identifiability and its re-selection pick from the candidates; "all" is the candidates; a
     # given space is its own) lies in the program space of the candidates and a given space
     given = space if isinstance(space, ParameterSpace) else cand
     prog_space = _program_space(robot, measurement, cand, given) if masked else None
-    if ahead is not None and prog_space is not None and (_default_selection(space) or given is space):
+    # masked solves carry a start Jacobian (the program space's columns) with a run-time flag
+    # (share_start_jacobian): the identifiability program's at the start of a selection's first
+    # round, zeros standing in elsewhere — one compiled program either way
+    carry_jac = share_start_jacobian and prog_space is not None and measurement.jacobian_free_of_data
+
+    def solve(cur, prog, mask, noise, scale, free, start_jacobian):
+        """The solve of one round: ``(Calibrator, q, y, key)``."""
+        objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype, free=free)
+        given = np.bool_(start_jacobian is not None) if carry_jac else None
+        return Calibrator(robot, measurement, meth, cur, prog,
+                          None if objective is None or objective.plain_least_squares else objective, report=True,
+                          start_jacobian=start_jacobian, free=mask, start_jacobian_given=given), q, y, key
+
+    if ahead is not None and prog_space is not None and (selecting or given is space):
         # the program of the first solve is known before its free set: the candidates' program
         # space with the free set as a run-time mask (the σ and scale values are run-time data)
         _, _, mask = _solve_space(prog_space, given, q.dtype)
@@ -796,12 +865,12 @@ def _calibration_steps(
     if init == "auto" and initialisable:
         est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
         start, extras_msg = est.deviations, est.message
-    selecting = _default_selection(space)
-    # rounds: a robust scale or the prior's noise σ not given are re-estimated from the fit
-    adaptive = (loss != "linear" and loss_scale is None) or (prior is not None and prior.noise_std is None)
-    # the start Jacobian serves a one-round unmasked fit only (below)
+    # the start Jacobian serves a one-round fit only (below), or a carried one's first round
     space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior,
-                                                                jacobian=not (adaptive or masked))
+                                                                jacobian=carry_jac or not (adaptive or masked),
+                                                                all_columns=carry_jac)
+    if carry_jac and start_jac is not None:
+        start_jac = _program_columns(start_jac, cand, prog_space)
     problem = Problem(robot, measurement, q, y, space, start)
     n_res = problem.n_observed_residuals  # real readings (a missing marker is masked)
     _check_enough_residuals(q.shape[0], n_res, space, report, prior)
@@ -836,9 +905,11 @@ def _calibration_steps(
                 break
             noise, scale = new_noise, new_scale
             # the identifiability program's Jacobian serves a one-round fit (several rounds share one
-            # compiled program, which then computes it); a masked solve computes its own (its
-            # columns are the program space's)
-            launched = yield solve(cur, prog, mask, noise, scale, space, None if adaptive or masked else start_jac)
+            # compiled program, which then computes it), or the first round of a carried one (the
+            # later rounds' solves compute theirs); else a masked solve computes its own
+            jac = (start_jac if rounds == first else None) if carry_jac else \
+                None if adaptive or masked else start_jac
+            launched = yield solve(cur, prog, mask, noise, scale, space, jac)
             out, c_s = launched.out, launched.compile_s
             if before_rows is None:  # host work that does not need the fit, while the device runs it
                 before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
@@ -878,10 +949,15 @@ def _calibration_steps(
             report, space=space, rank=report.rank + len(added), identifiable=(*report.identifiable, *added),
             unidentifiable=tuple(n for n in report.unidentifiable if n not in added),
             dependencies={k: v for k, v in report.dependencies.items() if k not in added})
-        start_jac = None
         _check_enough_residuals(q.shape[0], n_res, space, report, prior)
         problem = Problem(robot, measurement, q, y, space, cur)
-        resid_start = signed_residuals(problem, space.to_vector_numpy(cur))
+        if carry_jac:  # the refit's start Jacobian from the identifiability program (compiled already)
+            resid_start, start_jac = start_jacobian(robot, measurement, q, cand, cur, y)
+            resid_start = residual_blocks_numpy(problem, resid_start)
+            start_jac = _program_columns(start_jac, cand, prog_space)
+        else:
+            start_jac = None
+            resid_start = signed_residuals(problem, space.to_vector_numpy(cur))
     status = Status(int(out.status))
     label = meth.label() if hasattr(meth, "label") else type(meth).name
     # one history across the rounds (each round restarts where the last ended; the objective's

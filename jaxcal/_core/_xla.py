@@ -33,7 +33,7 @@ from __future__ import annotations
 import os
 
 __all__ = ["ENV_VAR", "CPU_DEFAULTS", "GPU_DEFAULTS", "compiler_options", "compile_lowered", "jit", "filter_jit",
-           "TopLevelOptions"]
+           "TopLevelOptions", "computed_once"]
 
 #: environment variable that replaces :data:`GPU_DEFAULTS` (``name=value,...`` or ``none``).
 ENV_VAR = "JAXCAL_XLA_OPTIONS"
@@ -43,6 +43,26 @@ CPU_DEFAULTS: dict[str, object] = {"xla_cpu_use_fusion_emitters": False}
 
 #: options jaxcal passes when it compiles for a GPU.
 GPU_DEFAULTS: dict[str, object] = {"xla_gpu_autotune_level": 0}
+
+
+def computed_once(tree, token):
+    """``tree`` (arrays) as buffers that their consumers read, not computations each consumer repeats.
+
+    XLA fuses a producer made of cheap elementwise operations into every consumer, however large
+    the producer: the forward-mode kinematic Jacobian of the paper's robot (~600 operations per
+    entry, ``[N, p]``) with three consumers in the identifiability program (column norms, the
+    scaled copy, the output) was computed three times (its optimised HLO 3 806 → 2 626 lines
+    with this), and twice per step in LM's loop (XLA:CPU, JAX 0.10.2).
+    ``jax.lax.optimization_barrier`` does not stop it on XLA:CPU; the operand of a conditional is
+    a buffer, so ``tree`` passes through one.
+    ``token``: a run-time scalar the predicate reads (XLA removes a conditional with a constant
+    predicate or with identical branches: the branch taken where ``token`` is NaN adds ``0.0``,
+    which leaves every value but −0.0 as it is). Under ``jax.vmap`` with a batched ``token`` the
+    conditional becomes a select and this is a no-op in effect."""
+    import jax
+    import jax.numpy as jnp
+
+    return jax.lax.cond(jnp.isnan(token), lambda t: jax.tree.map(lambda a: a + 0, t), lambda t: t, tree)
 
 
 def _parse_value(text: str):

@@ -518,6 +518,35 @@ def identifiable_columns(J, names, *, prior_std=None, rtol: float | None = None)
     return keep
 
 
+def _padded(measurement, q, y, n_to):
+    """``(measurement, q, y, weight)`` of the identifiability program: padded to the shape bucket
+    of ``q``'s rows (or to ``n_to``) with zero-weight rows; as given with ``weight=None`` where
+    buckets are off and no ``n_to`` is given."""
+    if not (buckets_enabled() or n_to is not None):
+        return measurement, q, y, None
+    n = int(q.shape[0])
+    n_to = bucket_size(n, width=measurement.size) if n_to is None else int(n_to)
+    q, y, w = pad_rows(q, y, n_to)
+    return measurement.pad_rows(n, n_to), q, y, w
+
+
+def start_jacobian(robot, measurement, q, space, deviations, y, *, n_to=None):
+    """``(residual blocks [n, m] NumPy, Jacobian [N, p] device)`` of the data ``y`` at
+    ``deviations`` for the free parameters of ``space``, from the identifiability program
+    (:func:`identify_with_residuals` with the same arguments compiles nothing more), without its
+    host-side selection; for measurements whose Jacobian does not depend on the readings
+    (:attr:`~jaxcal.MeasurementModel.jacobian_free_of_data`; else ``ValueError``). The Jacobian
+    carries zero rows for the padding at its end, as :func:`identify_with_residuals`'s."""
+    if not measurement.jacobian_free_of_data:
+        raise ValueError(f"{type(measurement).__name__}'s Jacobian depends on the readings: no start Jacobian "
+                         "from the identifiability program")
+    q = to_device(q)
+    n = int(q.shape[0])
+    measurement, qp, yp, w = _padded(measurement, q, y, n_to)
+    resid, J = _start_factor(robot, measurement, qp, deviations.astype(q.dtype), space, yp, w)[3:]
+    return np.asarray(resid, np.float64)[:n], J
+
+
 def identify_with_residuals(robot, measurement, q, space=None, deviations=None, y=None, *, rtol=None,
                             prior_std=None, n_to=None, still_deg=None):
     """:func:`identifiability`, and with measurements ``y`` also their residual blocks ``[n, m]``
@@ -545,11 +574,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
         raise ValueError("no free parameters to examine")
     dev0 = Deviations.zeros(layout_for(robot, measurement), q.dtype) if deviations is None else deviations.astype(q.dtype)
     n = int(q.shape[0])
-    qp, yp, w = q, y, None
-    if buckets_enabled() or n_to is not None:
-        n_to = bucket_size(n, width=measurement.size) if n_to is None else int(n_to)
-        qp, yp, w = pad_rows(q, y, n_to)
-        measurement = measurement.pad_rows(n, n_to)
+    measurement, qp, yp, w = _padded(measurement, q, y, n_to)
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
     if resid is not None and w is not None:
         resid = np.asarray(resid)[:n]

@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._core._params import Deviations, ParameterSpace, layout_for
-from .._core._xla import jit
+from .._core._xla import computed_once, jit
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._initialise import residual_rows
@@ -31,10 +31,11 @@ def value_and_jacfwd(f, x: Float[Array, " p"], q: Float[Array, "n dof"]):
     """``(f(x), ∂f/∂x)`` from one ``jax.jacfwd`` pass (the value is its primal), for ``f`` a
     residual of the kinematics at the joint angles ``q``: evaluated inside a
     :func:`~jaxcal._models._kinematics.shared_joint_trig` block, so ``cos``/``sin`` of ``q`` are computed
-    once, not per Jacobian column."""
+    once, not per Jacobian column. Both come out as buffers (:func:`~jaxcal._core._xla.computed_once`):
+    XLA would otherwise differentiate the kinematics once per use of ``J``."""
     with shared_joint_trig(q):
         J, r = jax.jacfwd(lambda x: (f(x),) * 2, has_aux=True)(x)
-    return r, J
+    return computed_once((r, J), jnp.sum(x))
 
 
 class Problem(eqx.Module):

@@ -67,12 +67,17 @@ class ScaledProblem(eqx.Module):
     #: itself and returns (:attr:`RawRun.scale`; :attr:`Method.scales_itself` methods only): the
     #: least-squares loop then differentiates the kinematics at one place in its program (static).
     scale_pending: bool = eqx.field(static=True, default=False)
+    #: with :attr:`scale_pending` and a ``start_jacobian``: a run-time boolean, whether
+    #: ``start_jacobian`` holds the start's data Jacobian (the run takes the scales and its first
+    #: step from it) or zeros standing in (the run computes it), so one compiled program serves
+    #: both (``None``: no start Jacobian is passed).
+    start_jacobian_given: Array | None = None
 
     @classmethod
     def build(cls, problem: Problem, x_start: Float[Array, " p"] | None = None,
               objective: Objective | None = None, jacobian: Float[Array, "N p"] | None = None,
               mask: Float[Array, " p"] | None = None, keep_jacobian: bool = False,
-              defer_scale: bool = False) -> ScaledProblem:
+              defer_scale: bool = False, jacobian_given: Array | None = None) -> ScaledProblem:
         """Scales from the Jacobian ``problem.jacobian(x_start)`` (``x_start`` default
         ``problem.x0()``), or from ``jacobian`` when the caller has computed it (it is then kept
         as ``start_jacobian`` for the least-squares methods' first step).
@@ -83,18 +88,24 @@ class ScaledProblem(eqx.Module):
         parameter space (:attr:`Method.maskable` methods; the others see ``mask=None``).
 
         ``defer_scale`` (and no ``jacobian``): the scales are left to the method's ``run``
-        (:attr:`scale_pending`), which computes the start's Jacobian in its own loop."""
+        (:attr:`scale_pending`), which computes the start's Jacobian in its own loop.
+        ``jacobian_given`` (a run-time boolean, with ``defer_scale`` and ``jacobian``): the scales
+        are left to ``run`` too, which takes the start's Jacobian from ``jacobian`` where
+        ``jacobian_given`` is true and computes it otherwise (:attr:`start_jacobian_given`)."""
         if objective is not None and objective.plain_least_squares:
             objective = None
         x_start = problem.x0() if x_start is None else jnp.asarray(x_start, problem.dtype)
         if jacobian is not None and jacobian.shape != (problem.n_entries, problem.space.n_free):
             raise ValueError(f"start Jacobian has shape {jacobian.shape}, expected "
                              f"{(problem.n_entries, problem.space.n_free)} (residuals × free parameters)")
-        pending = defer_scale and jacobian is None
+        if jacobian_given is not None and (jacobian is None or not defer_scale):
+            raise ValueError("jacobian_given needs a start jacobian and defer_scale=True")
+        pending = defer_scale and (jacobian is None or jacobian_given is not None)
         if mask is not None:
             mask = jnp.asarray(mask, problem.dtype)
         if pending:
-            J, scale = None, jnp.ones_like(x_start)
+            J = None if jacobian is None else jnp.asarray(jacobian, problem.dtype)
+            scale = jnp.ones_like(x_start)
         else:
             J = problem.jacobian(x_start) if jacobian is None else jnp.asarray(jacobian, problem.dtype)
             scale = cls.scale_from_jacobian(problem, J, mask)
@@ -106,7 +117,9 @@ class ScaledProblem(eqx.Module):
                 if objective.prior_whitening is not None:  # no prior rows/columns for a held parameter
                     objective = eqx.tree_at(lambda o: o.prior_whitening, objective,
                                             objective.prior_whitening * mask[:, None] * mask[None, :])
-        return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask, keep_jacobian, pending)
+        given = None if jacobian_given is None else jnp.asarray(jacobian_given, bool)
+        return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask, keep_jacobian, pending,
+                   given)
 
     @staticmethod
     def scale_from_jacobian(problem: Problem, J: Float[Array, "N p"], mask: Float[Array, " p"] | None = None

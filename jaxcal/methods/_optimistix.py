@@ -123,6 +123,8 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     z0 = jnp.zeros(problem.n_free, problem.dtype)
     J0, Jd0 = _start_jacobians(problem)
     keep, pending, plain = problem.keep_jacobian, problem.scale_pending, problem.plain
+    # a start Jacobian given at run time (pending scales only): where it is, the first step takes it
+    given = problem.start_jacobian_given if pending and problem.start_jacobian is not None else None
     # the data residual and Jacobian of the accepted point are carried apart from the objective's
     # only where the two differ (a prior or a robust loss) and the caller asked for them
     carry_data = keep and not plain
@@ -138,19 +140,39 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     def scaled_by(scale):
         return eqx.tree_at(lambda p: p.scale, problem, scale) if pending else problem
 
-    def jacobians_at(args):
-        """``(objective Jacobian, data Jacobian or (), scale)`` at ``z``: the one place of the
-        program that differentiates the kinematics (at the start too when the scales are pending:
-        they come from this Jacobian)."""
-        z, scale, first = args
+    def jacobians_from(z, scale, first, r, Jx):
+        """``(objective Jacobian, data Jacobian or (), scale)`` at ``z`` from the data residual
+        ``r`` and Jacobian ``Jx = ∂r/∂x`` there (the scales from ``Jx`` at the start when they are
+        pending)."""
         pb = scaled_by(scale)
-        r, Jx = value_and_jacfwd(pb.problem.residual, pb.x(z), pb.problem.q)
         if pending:
-            scale = jnp.where(first, ScaledProblem.scale_from_jacobian(pb.problem, Jx, pb.mask), scale)
+            # the scales from the column norms at the first step only, and Jx's one consumer this
+            # conditional: with two (the norms, Jx·scale) XLA:CPU fused the whole kinematic
+            # Jacobian into each, computing it twice per step (the N×p norms ran at every step too)
+            def rescaled(J):
+                s = ScaledProblem.scale_from_jacobian(pb.problem, J, pb.mask)
+                return J * s, s
+
+            Jd, scale = jax.lax.cond(first, rescaled, lambda J: (J * scale, scale), Jx)
             pb = scaled_by(scale)
-        Jd = Jx * scale
+        else:
+            Jd = Jx * scale
         Jo = Jd if plain else pb.objective_from_data(z, r, Jd)[1]
         return Jo, (Jd if carry_data else ()), scale
+
+    def jacobians_at(args):
+        """:func:`jacobians_from` at ``z``: the one place of the program that differentiates the
+        kinematics (at the start too when the scales are pending: they come from this Jacobian)."""
+        z, scale, first, _ = args
+        pb = scaled_by(scale)
+        r, Jx = value_and_jacfwd(pb.problem.residual, pb.x(z), pb.problem.q)
+        return jacobians_from(z, scale, first, r, Jx)
+
+    def jacobians_given(args):
+        """:func:`jacobians_from` at the start from the given start Jacobian
+        (:attr:`ScaledProblem.start_jacobian_given`): no kinematics differentiated."""
+        z, scale, first, r = args
+        return jacobians_from(z, scale, first, r, problem.start_jacobian)
 
     def cond(c):
         k, done, result = c[3], c[-6], c[-5]
@@ -172,12 +194,17 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         need_jac = accept & ~first if keep else accept & ~terminate & ~first
         if pending:  # the start's Jacobian (for the scales) even where the start is already final
             need_jac = need_jac | first
-        J_eval, jd_eval, scale = jax.lax.cond(
-            need_jac, jacobians_at,
-            lambda a: (f_info.jac.matrix if pending else jnp.where(first, J0, f_info.jac.matrix),
-                       data[1] if pending or not carry_data else jnp.where(first, Jd0, data[1]), a[1]),
-            (z_eval, scale, first),
-        )
+
+        def previous(a):
+            return (f_info.jac.matrix if pending else jnp.where(first, J0, f_info.jac.matrix),
+                    data[1] if pending or not carry_data else jnp.where(first, Jd0, data[1]), a[1])
+
+        args = (z_eval, scale, first, rd_eval)
+        if given is None:
+            J_eval, jd_eval, scale = jax.lax.cond(need_jac, jacobians_at, previous, args)
+        else:  # a start Jacobian passed at run time: taken at the first step where it is given
+            branch = jnp.where(first & given, 2, jnp.where(need_jac, 0, 1))
+            J_eval, jd_eval, scale = jax.lax.switch(branch, (jacobians_at, previous, jacobians_given), args)
         eval_info = optx.FunctionInfo.ResidualJac(r_eval, lx.MatrixLinearOperator(J_eval))
         d_state = jax.lax.cond(accept, lambda d: descent.query(z_eval, eval_info, d), lambda d: d, d_state)
         z_acc = jnp.where(accept, z_eval, z)

@@ -184,6 +184,57 @@ def test_start_jacobian_from_identifiability_gives_the_same_fit(experiment):
     assert not jaxcal.Pose().jacobian_free_of_data
 
 
+def _drive(steps):
+    """Run the solves a ``_calibration_steps`` generator asks for, one by one (as ``calibrate``)."""
+    from jaxcal._calibration import _calibrate as cal_mod
+
+    launched = None
+    while True:
+        try:
+            cal, q, y, k = steps.send(launched)
+        except StopIteration as done:
+            return done.value
+        launched = cal_mod._Launched(*cal_mod._launch(cal, q, y, k))
+
+
+def test_masked_solve_takes_the_start_jacobian_at_run_time(experiment):
+    """calibrate()'s masked LM solve carries a start Jacobian with a run-time flag: the
+    identifiability program's (cable data: free of the readings) where the free set was just
+    selected, zeros standing in where it is not (a given space) — one compiled program for both,
+    and each fit equals the one whose solve computes its own start Jacobian (the generator without
+    the shared Jacobian) to round-off: parameters, iterations, RMSE, σ̂ and posterior σ."""
+    from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._fit._identifiability import identify_with_residuals, start_jacobian
+
+    ex = experiment
+    res = calibrate(ex.robot, ex.measurement, ex.train, "lm")  # selected here: the Jacobian is given
+    before = set(cal_mod._COMPILED._d)
+    given = calibrate(ex.robot, ex.measurement, ex.train, "lm", space=res.space)  # not selected: zeros
+    assert set(cal_mod._COMPILED._d) == before, "the given and the computed start Jacobian share one program"
+    own = _drive(cal_mod._calibration_steps(ex.robot, ex.measurement, ex.train, "lm"))
+    for r in (res, given):
+        assert r.space.free_names == own.space.free_names
+        np.testing.assert_allclose(r.x, own.x, rtol=0, atol=1e-10 * max(1.0, np.abs(own.x).max()))
+        assert r.n_iterations == own.n_iterations and r.status == own.status
+        np.testing.assert_allclose(r.train_metrics.rmse, own.train_metrics.rmse, rtol=1e-12)
+        np.testing.assert_allclose(r.uncertainty.noise_std, own.uncertainty.noise_std, rtol=1e-10)
+        np.testing.assert_allclose(r.uncertainty.std, own.uncertainty.std, rtol=1e-8)
+    # the program behind start_jacobian (a re-selection refit's start) is the identifiability's
+    cand = cal_mod.candidate_space(ex.robot, ex.measurement, ())
+    _, resid, J = identify_with_residuals(ex.robot, ex.measurement, ex.train.q, cand, res.start, ex.train.y)
+    resid2, J2 = start_jacobian(ex.robot, ex.measurement, ex.train.q, cand, res.start, ex.train.y)
+    np.testing.assert_array_equal(resid, resid2)
+    np.testing.assert_array_equal(np.asarray(J), np.asarray(J2))
+    with pytest.raises(ValueError, match="depends on the readings"):
+        start_jacobian(ex.robot, jaxcal.Pose(), ex.train.q, cand, res.start, ex.train.y)
+    # ScaledProblem refuses a flag without a Jacobian or outside a method that scales itself
+    prob = Problem(ex.robot, ex.measurement, jnp.asarray(ex.train.q), jnp.asarray(ex.train.y), res.space)
+    with pytest.raises(ValueError, match="jacobian_given needs"):
+        ScaledProblem.build(prob, jacobian_given=jnp.asarray(True), defer_scale=True)
+    with pytest.raises(ValueError, match="jacobian_given needs"):
+        ScaledProblem.build(prob, jacobian=prob.jacobian(prob.x0()), jacobian_given=jnp.asarray(True))
+
+
 @pytest.mark.slow
 def test_lm_qr_whole_solve_agrees(experiment):
     ex = experiment
