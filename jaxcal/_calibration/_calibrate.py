@@ -595,22 +595,21 @@ _AHEAD: dict = {}
 _AHEAD_SEEN: set = set()
 
 
-def _compile_ahead(cal: Calibrator, q, y, key) -> None:
-    """Start compiling ``cal``'s solve on a background thread while :func:`calibrate` does its
-    other work (closed-form extras, the identifiability program): XLA compiles without holding
-    Python's lock, so on a machine with a second core the two programs compile at once.
-    :func:`_launch` waits for it. Nothing happens when the program is compiled already, where
-    ``JAXCAL_COMPILE_AHEAD=off`` or on a single core."""
-    if not ahead_enabled():
-        return
-    # a set-up this process met before has its program already (a warm call): skip the padding
-    # and hashing below, ~1 ms of a ~10 ms warm calibrate; a set-up that shares this summary but
-    # not its program just compiles in the calling thread, as without this function
-    seen = (cal.robot.name, type(cal.measurement).__name__, type(cal.method).__name__, tuple(q.shape), str(q.dtype),
-            cal.space.free_names, None if cal.objective is None else (cal.objective.loss, cal.objective.has_prior))
-    if seen in _AHEAD_SEEN:
+def _compile_ahead(seen, make) -> None:
+    """Start compiling the solve ``make()`` gives (``(Calibrator, q, y, key)``) on a background
+    thread while :func:`calibrate` does its other work (closed-form extras, the identifiability
+    program): XLA compiles without holding Python's lock, so on a machine with a second core the
+    two programs compile at once. :func:`_launch` waits for it. Nothing happens when the program
+    is compiled already, where ``JAXCAL_COMPILE_AHEAD=off`` or on a single core.
+
+    ``seen``: a hashable summary of the set-up; one this process met before has its program
+    already (a warm call), and nothing is made, padded or hashed (~0.3 ms of a ~6 ms warm
+    calibrate). A set-up that shares its summary but not its program just compiles in the
+    calling thread, as without this function."""
+    if not ahead_enabled() or seen in _AHEAD_SEEN:
         return
     _AHEAD_SEEN.add(seen)
+    cal, q, y, key = make()
     with dtype_scope(q.dtype):
         cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key, host=True)
     if ck is None or _COMPILED.get(ck) is not None:
@@ -799,9 +798,10 @@ def _calibration_steps(
     two levels above it (the caller of the driver). ``sensor_noise_std``: the sensor's noise σ (mm)
     that σ̂ is checked against when neither the prior nor the data's metadata give one
     (:func:`~jaxcal._fit._diagnostics.given_noise_std`; :func:`jaxcal.calibrate_many`'s ``noise_std``).
-    ``ahead``: called with ``(Calibrator, q, y, key)`` of the first solve as soon as its program is
-    known (before the closed-form extras and the identifiability): :func:`calibrate` starts
-    compiling it on a background thread (:func:`_compile_ahead`). ``share_start_jacobian``: a
+    ``ahead``: called with a summary of the set-up and a function giving ``(Calibrator, q, y,
+    key)`` of the first solve as soon as its program is known (before the closed-form extras and
+    the identifiability): :func:`calibrate` starts compiling it on a background thread
+    (:func:`_compile_ahead`). ``share_start_jacobian``: a
     plain one-round masked solve (the paper's experiment) is given its start's Jacobian of the
     candidates from the identifiability program (``Calibrator.start_jacobian``: one Jacobian fewer
     in the solve, ~1 of its ~3 ms on 2 CPU cores); a re-selection refit then takes its own start's
@@ -858,8 +858,10 @@ def _calibration_steps(
     if ahead is not None and prog_space is not None and (selecting or given is space):
         # the program of the first solve is known before its free set: the candidates' program
         # space with the free set as a run-time mask (the σ and scale values are run-time data)
-        _, _, mask = _solve_space(prog_space, given, q.dtype)
-        ahead(*solve(start, prog_space, mask, 1.0, 1.0, given, None))
+        seen = (robot.name, type(measurement).__name__, type(meth).__name__, tuple(q.shape), str(q.dtype),
+                prog_space.free_names, None if plain else (loss, prior is not None), carry_jac)
+        ahead(seen, lambda: solve(start, prog_space, _solve_space(prog_space, given, q.dtype)[2], 1.0, 1.0, given,
+                                  None))
     extras_msg = None
     initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
     if init == "auto" and initialisable:

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._host_method import host_method
 from ._precision import canonical_numpy, to_device
 
 
@@ -380,6 +381,7 @@ class Deviations(eqx.Module):
             return jnp.concatenate(parts, axis=-1)
         return to_device(self._ravel_numpy())
 
+    @host_method
     def _ravel_numpy(self) -> np.ndarray:
         """:meth:`ravel` in NumPy (concrete arrays only)."""
         parts = [np.asarray(v).reshape(v.shape[: v.ndim - len(g.shape)] + (g.size,))
@@ -399,6 +401,7 @@ class Deviations(eqx.Module):
             i += g.size
         return cls(parts, layout)
 
+    @host_method
     def astype(self, dtype) -> Deviations:
         if not _traced(*self.arrays) and all(v.dtype == jax.dtypes.canonicalize_dtype(dtype) for v in self.arrays):
             return self

@@ -576,13 +576,14 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
     n = int(q.shape[0])
     measurement, qp, yp, w = _padded(measurement, q, y, n_to)
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
-    if resid is not None and w is not None:
-        resid = np.asarray(resid)[:n]
+    # host work that needs none of its outputs first, while the program runs (dispatched asynchronously)
     rtol = default_rtol(q.dtype) if rtol is None else float(rtol)
     names = space.free_names
     pref = _preference(names)
-    sel = _select(norms, R, piv, rtol, pref)
     still = still_joints(robot, np.asarray(q)) if still_deg is None else still_joints(robot, np.asarray(q), still_deg)
+    if resid is not None and w is not None:
+        resid = np.asarray(resid)[:n]
+    sel = _select(norms, R, piv, rtol, pref)
     unseen: tuple[str, ...] = ()
     if still:
         # judged with the near-still joints standing still at their mean reading: what only their

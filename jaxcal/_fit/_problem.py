@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._xla import computed_once, jit
 from .._models._kinematics import shared_joint_trig
@@ -131,6 +132,7 @@ class Problem(eqx.Module):
         """Real residual entries (``n_real · m``), what the means divide by."""
         return self.n_residuals if self.weight is None else self.n_real * self.measurement.size
 
+    @host_method
     def observed(self) -> np.ndarray | None:
         """``[n, m]`` bool: the real residual entries (:meth:`MeasurementModel.observed`; ``None``:
         every entry of the data is real)."""

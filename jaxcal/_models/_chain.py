@@ -70,6 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 from ._robot import replace_tool
 
@@ -411,6 +412,7 @@ class SerialChain(NonGeometricMixin, eqx.Module):
         """A copy with another nominal tool point ``[3]`` mm in the tip link frame."""
         return replace_tool(self, tool_mm)
 
+    @host_method
     def reach_mm(self) -> float:
         """A generous bound on the distance from the base origin to the tool point (mm):
         origin lengths + prismatic strokes + flange + tool."""

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from .._core._precision import to_device
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 
@@ -168,6 +169,7 @@ class DHRobot(NonGeometricMixin, eqx.Module):
         """A copy with another nominal tool point ``[3]`` mm in the flange frame."""
         return replace_tool(self, tool_mm)
 
+    @host_method
     def reach_mm(self) -> float:
         """A generous bound on the distance from the base origin to the tool point (mm)."""
         return float(

@@ -50,6 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from .._core._params import STANDARD_EXTRAS, Deviations, Group, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import _check_label
@@ -336,6 +337,7 @@ class Relations(MeasurementModel):
         v = self.values(deviations, dtype)
         return ((v - jnp.asarray(y, dtype).reshape(-1)) / self.stds(dtype))[:, None]
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         super().check_measurements(y, n)
         if n != len(self.relations):
@@ -561,6 +563,7 @@ class Combined(MeasurementModel):
             parts.append(jnp.pad(p, ((0, 0), (0, W - p.shape[1]))))
         return self._join(parts)
 
+    @host_method
     def observed(self, y) -> np.ndarray | None:
         """``[N, m]`` bool: each block's real residual entries (its own mask), the padding columns
         of narrower blocks left out."""
@@ -574,6 +577,7 @@ class Combined(MeasurementModel):
         out = self._join(parts, np)
         return None if out.all() else out
 
+    @host_method
     def residual_entries(self, n: int) -> np.ndarray | None:
         """Each row's own block entries (its first ``m_b`` of ``m``; the padding rows are block-0
         rows), flat; ``None`` when every block has ``m`` entries. 30 camera images (108 entries)
@@ -587,6 +591,7 @@ class Combined(MeasurementModel):
             raise ValueError(f"combined model of {per_row.size} rows (padding included) evaluated on {n}")
         return np.flatnonzero(np.arange(m)[None, :] < per_row[:, None])
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         shape = tuple(np.shape(y))
         if shape != (n, *self.sample_shape) or n != self.n_rows + self.pad:
@@ -599,6 +604,7 @@ class Combined(MeasurementModel):
             except ValueError as e:
                 raise ValueError(f"block {self.names[b]!r}: {e}") from None
 
+    @host_method
     def pad_rows(self, n: int, n_to: int) -> Combined:
         """Padding rows repeat row 0 (a block-0 row): block 0's model padded to match."""
         if n_to == n:

@@ -59,6 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._xla import filter_jit
 from .._datasets._dataset import _rotvec_to_matrix
@@ -270,6 +271,7 @@ class Camera(MeasurementModel):
         count = jnp.sum(sq > 0, axis=-1).astype(sq.dtype)
         return jnp.sqrt(jnp.sum(sq, axis=-1) / jnp.maximum(count, 1.0))
 
+    @host_method
     def observed(self, y) -> np.ndarray | None:
         """``[n, 2N]`` bool: the residual entries of detected corners (NaN = not detected), or
         ``None`` when every corner of every image was detected; so σ̂, the robust and outlier
@@ -277,6 +279,7 @@ class Camera(MeasurementModel):
         seen = np.isfinite(np.asarray(y, np.float64)).reshape(np.shape(y)[0], -1)
         return None if seen.all() else seen
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         """``[n, N, 2]``, finite or NaN (not detected); ±inf is an error."""
         shape = tuple(np.shape(y))

@@ -69,6 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import CONTACT_KINDS, _check_label, dataset_labels
@@ -125,6 +126,7 @@ class _LabelModel(MeasurementModel):
         # for the start Jacobian, which is what a contact model needs.
         return True
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         super().check_measurements(y, n)
         y = np.asarray(y)

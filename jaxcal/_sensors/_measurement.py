@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._host_method import host_method
 from .._core._params import Deviations, Group
 from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
 from .._models._robot import DHRobot
@@ -48,6 +49,7 @@ class MeasurementModel(eqx.Module):
         """``prediction − measured`` as ``[n, m]`` (mm)."""
         return (self.predict(robot, deviations, q) - y).reshape(q.shape[0], self.size)
 
+    @host_method
     def pad_rows(self, n: int, n_to: int) -> MeasurementModel:
         """The model for data of ``n`` rows padded to ``n_to`` rows that repeat row 0
         (shape buckets): itself, unless the model holds per-row arrays (e.g.
@@ -62,6 +64,7 @@ class MeasurementModel(eqx.Module):
         identification Jacobian computed for other readings then serves these too."""
         return type(self).residual is MeasurementModel.residual
 
+    @host_method
     def observed(self, y) -> np.ndarray | None:
         """``[n, m]`` bool on the host: the residual entries that are real readings, or ``None``
         (every entry is). A model that masks missing readings (:class:`~jaxcal.SessionMarkers`:
@@ -70,6 +73,7 @@ class MeasurementModel(eqx.Module):
         del y
         return None
 
+    @host_method
     def residual_entries(self, n: int) -> np.ndarray | None:
         """The flat positions ``[k]`` (row-major, into the ``[n, size]`` residual of ``n`` rows)
         that this model can make non-zero, or ``None``: every entry. A model whose rows are
@@ -100,6 +104,7 @@ class MeasurementModel(eqx.Module):
             return residual[:, 0]
         return jnp.linalg.norm(residual, axis=-1)
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         """Raise ``ValueError`` unless ``y`` has shape ``[n, *sample_shape]`` and is finite."""
         shape = tuple(np.shape(y))
@@ -332,6 +337,7 @@ class Markers(MarkerModel):
     def n_markers(self) -> int:
         return int(self.positions.shape[0])
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         """``[n, N, 3]`` and finite: a missing marker (NaN) is masked by
         :class:`~jaxcal.SessionMarkers` (data with session labels), not by this model."""

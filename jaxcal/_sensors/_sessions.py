@@ -42,6 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
 from .._datasets._dataset import marker_gaps
@@ -217,6 +218,7 @@ class SessionMarkers(MarkerModel):
                               np.asarray(self.positions), frame_labels=self.frames, placement_labels=self.placements,
                               markers=self.markers)
 
+    @host_method
     def pad_rows(self, n: int, n_to: int) -> SessionMarkers:
         """The model of the rows padded to ``n_to`` by repeating row 0 (shape buckets)."""
         if n_to == n:
@@ -254,6 +256,7 @@ class SessionMarkers(MarkerModel):
             out += [g.name for g in placement_groups(placement, self.markers[self.placements.index(placement)])]
         return tuple(out)
 
+    @host_method
     def check_measurements(self, y, n: int) -> None:
         """``[n, N, 3]`` for the rows the model was made for; a missing marker is NaN in x, y and z
         (masked, :func:`marker_gaps`); a reading of a marker the row's placement does not have is
@@ -281,6 +284,7 @@ class SessionMarkers(MarkerModel):
             out[j, np.asarray(ks, int) - 1] = True
         return out
 
+    @host_method
     def observed(self, y) -> np.ndarray | None:
         """``[n, 3N]`` bool: the residual entries that are real readings (not a missing marker);
         ``None`` when every marker of every row is there."""

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._core._host_method import host_method
 from .._fit._objective import Objective, robust_factor
 from .._fit._problem import Problem, value_and_jacfwd
 from .._models._kinematics import shared_joint_trig
@@ -380,6 +381,7 @@ class Method(eqx.Module):
     def run(self, problem: ScaledProblem, key: Array) -> RawRun:
         """Calibrate; must be a pure function of ``(problem, key)`` and the method's fields."""
 
+    @host_method
     def hyperparameters(self) -> dict[str, Any]:
         """Settings reported in results (numbers and strings)."""
         out = {}
@@ -391,6 +393,7 @@ class Method(eqx.Module):
                 out[f.name] = v
         return out
 
+    @host_method
     def label(self) -> str:
         return type(self).name
 

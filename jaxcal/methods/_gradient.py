@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import optax
 
 from .. import optim
+from .._core._host_method import host_method
 from .._fit._result import Status
 from .._sensors._measurement import Pose
 from ._base import DIVERGENCE_FACTOR, Method, RawRun, ScaledProblem, register_method
@@ -80,6 +81,7 @@ class OptaxMethod(Method):
     def max_iterations(self) -> int:
         return self.steps
 
+    @host_method
     def label(self) -> str:
         return self.label_
 
@@ -87,6 +89,7 @@ class OptaxMethod(Method):
     def paddable(self) -> bool:
         return self.batch_size is None  # mini-batches are drawn from the rows
 
+    @host_method
     def hyperparameters(self) -> dict[str, Any]:
         return dict(self.settings)
 

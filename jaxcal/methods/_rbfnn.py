@@ -52,6 +52,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from .._core._host_method import host_method
 from .._fit._result import Status
 from .._sensors._measurement import CableLength, Position
 from ._base import Method, RawRun, ScaledProblem, register_method
@@ -207,9 +208,11 @@ class RBFNetworkMethod(Method):
     def max_iterations(self) -> int:
         return len(self.width_scales)
 
+    @host_method
     def hyperparameters(self):
         return super().hyperparameters() | {"width_scales": self.width_scales, "ridges": self.ridges}
 
+    @host_method
     def label(self) -> str:
         return "rbfnn" if self.base == "lm" else f"rbfnn[base={self.base}]"
 

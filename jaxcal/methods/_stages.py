@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Int
 
+from .._core._host_method import host_method
 from .._fit._result import Status, budget_status
 from ._base import METHODS, Method, RawRun, ScaledProblem, finish_history
 
@@ -104,9 +105,11 @@ class Staged(Method):
     def max_iterations(self) -> int:
         return sum(m.max_iterations for m in self.stages)
 
+    @host_method
     def label(self) -> str:
         return SEPARATOR.join(m.label() for m in self.stages)
 
+    @host_method
     def hyperparameters(self) -> dict[str, Any]:
         out: dict[str, Any] = {"stages": self.label()}
         for p, m in zip(self.prefixes, self.stages):
