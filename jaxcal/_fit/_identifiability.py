@@ -14,7 +14,7 @@ from jaxtyping import Array
 from .._core._buckets import LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
-from .._core._xla import jit
+from .._core._xla import computed_once, jit
 from .._models._kinematics import shared_joint_trig
 from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
@@ -343,7 +343,8 @@ def _start_factor(robot, measurement, q, deviations, space, y=None, weight=None)
         sample = jnp.asarray(y, q.dtype) if free else measurement.predict(robot, deviations, q).astype(q.dtype)
         problem = Problem(robot, measurement, q, sample.reshape(q.shape[0], *measurement.sample_shape), space,
                           deviations, weight)
-        r, J = value_and_jacfwd(problem.residual, problem.x0(), q)
+        # J has three uses below (norms, the scaled copy, the output): computed once, not per use
+        r, J = computed_once(value_and_jacfwd(problem.residual, problem.x0(), q), q[0, 0])
         if y is None:
             resid = None
         elif free:

@@ -12,6 +12,7 @@ import lineax as lx
 import optimistix as optx
 from optimistix._misc import cauchy_termination as optx_cauchy_termination
 
+from .._core._xla import computed_once
 from .._fit._problem import value_and_jacfwd
 from .._fit._result import Status
 from .._sensors._measurement import Pose
@@ -165,7 +166,8 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         kinematics (at the start too when the scales are pending: they come from this Jacobian)."""
         z, scale, first, _ = args
         pb = scaled_by(scale)
-        r, Jx = value_and_jacfwd(pb.problem.residual, pb.x(z), pb.problem.q)
+        # computed once, not once per use (the linear solve needs it written out anyway)
+        r, Jx = computed_once(value_and_jacfwd(pb.problem.residual, pb.x(z), pb.problem.q), jnp.sum(z))
         return jacobians_from(z, scale, first, r, Jx)
 
     def jacobians_given(args):
