@@ -184,6 +184,17 @@ def test_start_jacobian_from_identifiability_gives_the_same_fit(experiment):
     assert not jaxcal.Pose().jacobian_free_of_data
 
 
+def assert_same_fit(got, ref, *, x=1e-9, rmse=1e-10, noise=1e-9, std=1e-7):
+    """Two calibrations are the same fit to round-off: free set, parameters (``x``: tolerance
+    relative to the largest), iterations, status, training RMSE, σ̂ and posterior σ (relative)."""
+    assert got.space.free_names == ref.space.free_names
+    np.testing.assert_allclose(got.x, ref.x, rtol=0, atol=x * max(1.0, np.abs(ref.x).max()))
+    assert got.n_iterations == ref.n_iterations and got.status == ref.status
+    np.testing.assert_allclose(got.train_metrics.rmse, ref.train_metrics.rmse, rtol=rmse)
+    np.testing.assert_allclose(got.uncertainty.noise_std, ref.uncertainty.noise_std, rtol=noise)
+    np.testing.assert_allclose(got.uncertainty.std, ref.uncertainty.std, rtol=std)
+
+
 def _drive(steps):
     """Run the solves a ``_calibration_steps`` generator asks for, one by one (as ``calibrate``)."""
     from jaxcal._calibration import _calibrate as cal_mod
@@ -213,12 +224,7 @@ def test_masked_solve_takes_the_start_jacobian_at_run_time(experiment):
     assert set(cal_mod._COMPILED._d) == before, "the given and the computed start Jacobian share one program"
     own = _drive(cal_mod._calibration_steps(ex.robot, ex.measurement, ex.train, "lm"))
     for r in (res, given):
-        assert r.space.free_names == own.space.free_names
-        np.testing.assert_allclose(r.x, own.x, rtol=0, atol=1e-10 * max(1.0, np.abs(own.x).max()))
-        assert r.n_iterations == own.n_iterations and r.status == own.status
-        np.testing.assert_allclose(r.train_metrics.rmse, own.train_metrics.rmse, rtol=1e-12)
-        np.testing.assert_allclose(r.uncertainty.noise_std, own.uncertainty.noise_std, rtol=1e-10)
-        np.testing.assert_allclose(r.uncertainty.std, own.uncertainty.std, rtol=1e-8)
+        assert_same_fit(r, own, x=1e-10, rmse=1e-12, noise=1e-10, std=1e-8)
     # the program behind start_jacobian (a re-selection refit's start) is the identifiability's
     cand = cal_mod.candidate_space(ex.robot, ex.measurement, ())
     _, resid, J = identify_with_residuals(ex.robot, ex.measurement, ex.train.q, cand, res.start, ex.train.y)
@@ -262,13 +268,7 @@ def test_free_set_is_data(experiment, monkeypatch):
     assert masked[0].space.n_free != masked[1].space.n_free != masked[2].space.n_free
     monkeypatch.setenv("JAXCAL_FREE_MASK", "off")
     for kw, m in zip(settings, masked):
-        ref = calibrate(ex.robot, ex.measurement, data, "lm", **kw)
-        assert ref.space.free_names == m.space.free_names
-        np.testing.assert_allclose(m.x, ref.x, rtol=0, atol=1e-9 * max(1.0, np.abs(ref.x).max()))
-        assert m.n_iterations == ref.n_iterations and m.status == ref.status
-        np.testing.assert_allclose(m.train_metrics.rmse, ref.train_metrics.rmse, rtol=1e-10)
-        np.testing.assert_allclose(m.uncertainty.noise_std, ref.uncertainty.noise_std, rtol=1e-9)
-        np.testing.assert_allclose(m.uncertainty.std, ref.uncertainty.std, rtol=1e-7)
+        assert_same_fit(m, calibrate(ex.robot, ex.measurement, data, "lm", **kw))
     # only maskable methods take a mask
     with pytest.raises(ValueError, match="cannot run with a free-parameter mask"):
         Calibrator(ex.robot, ex.measurement, make_method("gn"), masked[0].start, masked[0].space,
