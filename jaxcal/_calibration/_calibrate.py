@@ -546,18 +546,21 @@ def _launch(cal: Calibrator, q, y, key):
     ``(output, compile_s, t_started)``; the caller may do host work, then blocks on ``output``.
     The data are padded to their shape bucket (:func:`_pad_to_bucket`); the output is the
     unpadded run's, except ``gram``'s residual vector, which carries the padding rows (zeros) at
-    its end. A compilation :func:`_compile_ahead` started for the same program is waited for."""
+    its end. A compilation :func:`_compile_ahead` started for the same program is waited for;
+    ``compile_s`` is then its own duration on the background thread (the call may have waited
+    for none of it), not the wait."""
     with dtype_scope(q.dtype):
         cal, q, y, w, dyn, stat, ck = _solve_inputs(cal, q, y, key)
         t0 = time.perf_counter()
-        compiled = take_ahead(_AHEAD, ck)  # a compilation _compile_ahead started: waited for
+        ahead = take_ahead(_AHEAD, ck)  # a compilation _compile_ahead started: waited for
+        compiled = None if ahead is None else ahead[0]
         if compiled is None and ck is not None:
             compiled = _COMPILED.get(ck)
         if compiled is None:
             compiled = _build_solve(cal, dyn, stat, q, y, key, w, ck)
         t1 = time.perf_counter()
         out = compiled(dyn, q, y, key, w)
-    return out, t1 - t0, t1
+    return out, (t1 - t0 if ahead is None else ahead[1]), t1
 
 
 def _solve_inputs(cal: Calibrator, q, y, key, host: bool = False):
@@ -615,9 +618,10 @@ def _compile_ahead(seen, make) -> None:
     if ck is None or _COMPILED.get(ck) is not None:
         return
 
-    def build():
+    def build():  # (program, seconds it took)
+        t = time.perf_counter()
         with dtype_scope(q.dtype):
-            return _build_solve(cal, dyn, stat, q, y, key, w, ck)
+            return _build_solve(cal, dyn, stat, q, y, key, w, ck), time.perf_counter() - t
 
     compile_ahead(_AHEAD, ck, build)
 

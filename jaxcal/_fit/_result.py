@@ -228,6 +228,10 @@ class CalibrationResult:
         wall_time_s: run time after compilation (s), from dispatch until the result is ready;
             :func:`~jaxcal.calibrate` runs ~0.2 ms of host checks meanwhile, so a solve shorter
             than that reads ~0.2 ms. ``compile_time_s`` separately.
+        compile_time_s: seconds spent compiling (or loading compiled) the solve programs of this
+            call, also where :func:`~jaxcal.calibrate` compiled one on its background thread while
+            it did other work (then the call waited for less than this, or nothing); the
+            identifiability and residual programs it compiles are not counted.
         hyperparameters: the method's settings.
         extra: method-specific state (e.g. the RBF network), or ``None``.
         identifiability: the :class:`~jaxcal.IdentifiabilityReport` that chose the free set.

@@ -213,7 +213,8 @@ def _cmd_calibrate(args) -> int:
         t_end = time.perf_counter()
         print(f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
               f"{t_loaded - t_start:.2f} s, "
-              f"calibrate() {t_fit - t_loaded:.2f} s (compilation {res.compile_time_s:.2f} s, solve {res.wall_time_s:.3f} s, "
+              f"calibrate() {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
+              f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
               f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
               f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
               "interpreter's exit come on top)")

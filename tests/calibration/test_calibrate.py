@@ -3,6 +3,7 @@
 import json
 import os
 import threading
+import time
 import warnings
 
 import equinox as eqx
@@ -285,12 +286,27 @@ def test_first_solve_compiles_ahead_once(experiment, monkeypatch):
     ex = experiment
     built = []  # the thread each solve program is built in
     build = cal_mod._build_solve
-    monkeypatch.setattr(cal_mod, "_build_solve", lambda *a: built.append(threading.current_thread().name) or build(*a))
+
+    def slow_build(*a):  # a build of at least 0.3 s, finished before the solve is launched (below)
+        built.append(threading.current_thread().name)
+        time.sleep(0.3)
+        return build(*a)
+
+    launch = cal_mod._launch
+
+    def late_launch(*a):
+        time.sleep(0.6)
+        return launch(*a)
+
+    monkeypatch.setattr(cal_mod, "_build_solve", slow_build)
+    monkeypatch.setattr(cal_mod, "_launch", late_launch)
     before = set(cal_mod._COMPILED._d)
     res = calibrate(ex.robot, ex.measurement, ex.train, "lm", loss="cauchy")  # an objective kind of its own
     assert len(set(cal_mod._COMPILED._d) - before) == 1 and not cal_mod._AHEAD
     ahead = (os.cpu_count() or 1) >= 2 and os.environ.get("JAXCAL_COMPILE_AHEAD", "on") != "off"
     assert len(built) == 1 and built[0].startswith("jaxcal-compile") == ahead, built
+    # the compile time reported is the build's, also where the call waited for none of it
+    assert res.compile_time_s >= 0.3, res.compile_time_s
     monkeypatch.setenv("JAXCAL_COMPILE_AHEAD", "off")
     monkeypatch.setenv("JAXCAL_FREE_MASK", "off")  # a program of its own, compiled in this thread
     ref = calibrate(ex.robot, ex.measurement, ex.train, "lm", loss="cauchy")
