@@ -805,12 +805,12 @@ def _calibration_steps(
     ``ahead``: called with a summary of the set-up and a function giving ``(Calibrator, q, y,
     key)`` of the first solve as soon as its program is known (before the closed-form extras and
     the identifiability): :func:`calibrate` starts compiling it on a background thread
-    (:func:`_compile_ahead`). ``share_start_jacobian``: a
-    plain one-round masked solve (the paper's experiment) is given its start's Jacobian of the
-    candidates from the identifiability program (``Calibrator.start_jacobian``: one Jacobian fewer
-    in the solve, ~1 of its ~3 ms on 2 CPU cores); a re-selection refit then takes its own start's
-    from the same program, so the call runs one compiled solve. :func:`calibrate` sets it; a
-    batched driver does not (it would stack an ``[N, p]`` array per unit)."""
+    (:func:`_compile_ahead`). ``share_start_jacobian``: the masked solves of a measurement whose
+    Jacobian does not depend on the readings carry a start Jacobian with a run-time flag
+    (``Calibrator.start_jacobian``/``start_jacobian_given``): the identifiability program's at the
+    first round of a selection (a re-selection refit's from the same program; one Jacobian fewer in
+    the solve), zeros standing in elsewhere — one compiled solve either way. :func:`calibrate`
+    sets it; a batched driver does not (it would stack an ``[N, p]`` array per unit)."""
     ensure_compilation_cache()  # before the first of this call's programs compiles
     meth = make_method(method, **hyperparameters)
     prior, loss = resolve_objective(objective, prior, loss)  # named presets (issue 24)
@@ -854,10 +854,10 @@ def _calibration_steps(
     def solve(cur, prog, mask, noise, scale, free, start_jacobian):
         """The solve of one round: ``(Calibrator, q, y, key)``."""
         objective = None if plain else Objective.build(prog, prior, noise, loss, scale, q.dtype, free=free)
-        given = np.bool_(start_jacobian is not None) if carry_jac else None
+        flag = np.bool_(start_jacobian is not None) if carry_jac else None
         return Calibrator(robot, measurement, meth, cur, prog,
                           None if objective is None or objective.plain_least_squares else objective, report=True,
-                          start_jacobian=start_jacobian, free=mask, start_jacobian_given=given), q, y, key
+                          start_jacobian=start_jacobian, free=mask, start_jacobian_given=flag), q, y, key
 
     if ahead is not None and prog_space is not None and (selecting or given is space):
         # the program of the first solve is known before its free set: the candidates' program

@@ -112,7 +112,12 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     With ``problem.keep_jacobian`` the final point's Jacobian is computed in the loop too and
     returned as :attr:`RawRun.data_jacobian` (the data residuals' ``∂r/∂z``): a caller that needs
     it (the posterior covariance) then holds the kinematics' derivative once in its program,
-    not twice.
+    not twice. With pending scales and a start Jacobian given at run time
+    (:attr:`ScaledProblem.start_jacobian_given`), the first step takes that Jacobian where the flag
+    is set and computes its own where it is not (one program for both). Each Jacobian the loop
+    computes passes through :func:`~jaxcal._core._xla.computed_once`, and the first step's column
+    norms run in a conditional: XLA:CPU otherwise fused the kinematics into each use of the
+    Jacobian and computed it twice per step.
     """
     pr = problem.problem
     if (pr.weight is not None or problem.mask is not None) and isinstance(solver.search, RoundoffAwareTrustRegion):
