@@ -33,6 +33,7 @@ from .._core._params import EXTRA_GROUPS, Deviations, ParameterSpace, group_kind
 from .._core._precision import cast_floating, dtype_scope, to_device, warn_if_float32
 from .._core._xla import ahead_enabled, compile_ahead, compile_lowered, jit, take_ahead, target_platform
 from .._datasets._dataset import Dataset, mm_joints_metadata
+from .._datasets._split import key_numpy
 from .._fit._diagnostics import (
     Checks,
     Diagnostics,
@@ -1010,8 +1011,9 @@ def _calibration_steps(
 
 @functools.lru_cache(maxsize=1)
 def _default_key():
-    """``jax.random.key(0)``, made once (keys are immutable; making one runs a small program)."""
-    return jax.random.key(0)
+    """``jax.random.key(0)``, made once and on the host (:func:`~jaxcal._datasets._split.key_numpy`:
+    ``jax.random.key`` runs two small programs, which a fresh process compiles or loads)."""
+    return key_numpy(0)
 
 
 def _close(a, b, rtol: float = 0.05) -> bool:

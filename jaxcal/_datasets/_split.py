@@ -55,6 +55,19 @@ def _threefry2x32_numpy(k1, k2, x1, x2):
     return a, b
 
 
+def key_numpy(seed: int):
+    """``jax.random.key(seed)`` made on the host: the typed key wrapping ``[seed >> 32, seed &
+    0xFFFFFFFF]`` (what the threefry seeding program computes), without running that program
+    (``jax.random.key`` compiles and dispatches two small programs per process, ~30–60 ms of a
+    command); ``jax.random.key(seed)`` itself where JAX's settings differ (another PRNG, no x64)
+    or the seed is outside ``[0, 2**63)``."""
+    cfg = jax.config
+    seed = int(seed)
+    if not (cfg.jax_default_prng_impl == "threefry2x32" and cfg.jax_enable_x64 and 0 <= seed < 2 ** 63):
+        return jax.random.key(seed)
+    return jax.random.wrap_key_data(np.asarray([seed >> 32, seed & 0xFFFFFFFF], np.uint32))
+
+
 def seed_split_numpy(seed: int, n: int):
     """``(k_method, permutation of range(n))`` of :func:`seed_split` in NumPy: the same bits as
     ``jax.random.key``/``split`` (partitionable threefry) and ``jax.random.permutation`` (rounds of

@@ -247,9 +247,12 @@ def test_seed_split_on_the_host_is_jax_bit_for_bit():
     (one and two shuffle rounds, 64-bit seeds); fails if JAX changes its PRNG."""
     import jax
 
-    from jaxcal._datasets._split import seed_split_numpy, seed_split_program
+    from jaxcal._datasets._split import key_numpy, seed_split_numpy, seed_split_program
 
     for seed in (0, 3, 2**32 + 5, 2**63 - 1):
+        key, key_ref = key_numpy(seed), jax.random.key(seed)  # calibrate's default key is key_numpy(0)
+        np.testing.assert_array_equal(jax.random.key_data(key), jax.random.key_data(key_ref))
+        assert key.dtype == key_ref.dtype
         for n in (1, 400, 1625, 2000):
             key, perm = seed_split_numpy(seed, n)
             key_ref, perm_ref = seed_split_program()(seed, n)
