@@ -17,12 +17,12 @@ import json
 import pathlib
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._core._json import from_json_number, to_jsonable
 from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
+from .._core._precision import to_device
 from .._datasets._csvfile import read_table
 from .._fit._diagnostics import Uncertainty
 from .._fit._learned_prior import prior_from_dict, prior_to_dict
@@ -257,13 +257,13 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
                       target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
                       calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
     if kind == "cable":
-        return CableLength(jnp.asarray(np.asarray(d["anchor_mm"], np.float64)))
+        return CableLength(to_device(np.asarray(d["anchor_mm"], np.float64)))
     if kind in ("plane", "point", "distance"):  # jaxcal._sensors._contact
         from .._sensors._contact import contact_from_dict
 
         return contact_from_dict(d)
-    frame = {"rotation": jnp.asarray(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
-             "translation": jnp.asarray(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
+    frame = {"rotation": to_device(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
+             "translation": to_device(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
     if kind == "position":
         return Position(**frame)
     if kind == "pose":
@@ -277,7 +277,7 @@ def measurement_from_dict(d: dict) -> MeasurementModel:
                               len(d["positions_mm"][0]), np.asarray(d["positions_mm"], np.float64),
                               frame_labels=fr, placement_labels=pl, markers=se["markers"])
     if kind == "markers":
-        return Markers(jnp.asarray(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
+        return Markers(to_device(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
                        **frame)
     raise ValueError(f"unknown measurement kind {kind!r}")
 
@@ -299,7 +299,7 @@ def _extra_from_dict(d: dict | None):
     if d.get("type") == "RBFNetwork":
         from ..methods import RBFNetwork, RBFNetworkMethod
 
-        net = RBFNetwork(**{f: jnp.asarray(np.asarray(v)) for f, v in d["fields"].items()})
+        net = RBFNetwork(**{f: to_device(np.asarray(v)) for f, v in d["fields"].items()})
         return net, RBFNetworkMethod().predictor()
     raise ValueError(f"unknown saved method state {d.get('type')!r}")
 
@@ -406,7 +406,7 @@ def result_from_dict(d: dict, path="result") -> CalibrationResult:
     missing = [n for n in names if n not in dev]
     if missing:
         raise ValueError(f"{path}: deviations lack {missing}")
-    deviations = Deviations.unravel(jnp.asarray(np.asarray([dev[n] for n in names], np.float64)), layout)
+    deviations = Deviations.unravel(to_device(np.asarray([dev[n] for n in names], np.float64)), layout)
     space = ParameterSpace.from_names(layout, d["free_names"])
     extra, predictor = _extra_from_dict(d.get("method_state"))
     tm = d.get("train_metrics_mm", {})

@@ -77,15 +77,14 @@ def _metrics_table(metrics: dict, unit: str = "mm") -> str:
 def _points(robot_dict, q_deg) -> np.ndarray | None:
     """Tool points of the nominal robot at ``q_deg`` (mm, base frame), or None if the model cannot."""
     try:
-        import jax.numpy as jnp
-
         from .._calibration._evaluate import joints_from_file_units
         from .._calibration._io import robot_from_dict
+        from .._core._precision import to_device
         from .._models._kinematics import fk_position_jit
 
         robot = robot_from_dict(robot_dict)
         q = joints_from_file_units(robot, q_deg)  # degrees (mm at prismatic joints) → rad
-        return fk_position_jit(robot, jnp.asarray(q), tool=True)  # one compiled program, not ~40 small ones
+        return fk_position_jit(robot, to_device(q), tool=True)  # one compiled program, not ~40 small ones
     except Exception:  # noqa: BLE001 - a figure is optional; the page says it is missing
         return None
 

@@ -19,6 +19,7 @@ from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group
+from .._core._precision import to_device
 from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
 from .._models._robot import DHRobot
 
@@ -168,9 +169,10 @@ def _sensor_frame(model, deviations, dtype):
 
 
 def _check_frame(rotation, translation):
-    # defaults made in NumPy: jnp.eye / jnp.zeros would each compile a small program in a fresh process
-    R = jnp.asarray(np.eye(3) if rotation is None else rotation)
-    t = jnp.asarray(np.zeros(3) if translation is None else translation)
+    # by device_put: jnp.eye / jnp.zeros, and jnp.asarray of a NumPy array, would each compile a
+    # small program in a fresh process
+    R = to_device(np.eye(3) if rotation is None else rotation)
+    t = to_device(np.zeros(3) if translation is None else translation)
     if R.shape != (3, 3):
         raise ValueError(f"rotation must be a [3, 3] rotation matrix (sensor <- base), got shape {R.shape}")
     if t.shape != (3,):
