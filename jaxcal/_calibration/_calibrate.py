@@ -20,10 +20,8 @@ from .._core import _exported
 from .._core._buckets import (
     BoundedCache,
     LeanJit,
-    bucket_size,
-    buckets_enabled,
     cache_size,
-    pad_rows,
+    pad_model_rows,
     release_memory,
     signature,
 )
@@ -501,14 +499,13 @@ def _pad_to_bucket(cal: Calibrator, q, y, n_to: int | None = None, host: bool = 
     ``weight`` and a padded start Jacobian as NumPy arrays (a caller that stacks units on the
     host first)."""
     n, measurement = int(q.shape[0]), cal.measurement
-    pad = (buckets_enabled() or n_to is not None) and cal.method.paddable
-    n_to = n if not pad else bucket_size(n, width=cal.measurement.size) if n_to is None else n_to
     w = None
     new = {}  # fields replaced (one dataclasses.replace: ~3x cheaper than eqx.tree_at per field)
-    if pad:
-        q, y, w = pad_rows(q, y, n_to, host=host)
-        if n_to != n:
-            new["measurement"] = measurement.pad_rows(n, n_to)
+    if cal.method.paddable:
+        padded, q, y, w = pad_model_rows(measurement, q, y, n_to, host=host)
+        if padded is not measurement:
+            new["measurement"] = padded
+    n_to = int(q.shape[0])
     J = cal.start_jacobian
     rows, rows_to = entry_count(measurement, n), entry_count(new.get("measurement", measurement), n_to)
     if J is None and cal.start_jacobian_given is not None:  # zeros stand in (Calibrator.start_jacobian_given)
@@ -851,6 +848,10 @@ def _calibration_steps(
     # (share_start_jacobian): the identifiability program's at the start of a selection's first
     # round, zeros standing in elsewhere — one compiled program either way
     carry_jac = share_start_jacobian and prog_space is not None and measurement.jacobian_free_of_data
+    # the identifiability program's Jacobian starts a one-round fit (several rounds share one
+    # compiled program, which then computes it), or the first round of a carried one (the later
+    # rounds' solves compute theirs); else a masked solve computes its own
+    first_round_jac = carry_jac or not (adaptive or masked)
 
     def solve(cur, prog, mask, noise, scale, free, start_jacobian):
         """The solve of one round: ``(Calibrator, q, y, key)``."""
@@ -874,8 +875,7 @@ def _calibration_steps(
         start, extras_msg = est.deviations, est.message
     # the start Jacobian serves a one-round fit only (below), or a carried one's first round
     space, report, resid_start, start_jac = _resolve_candidates(cand, robot, measurement, q, space, start, y, prior,
-                                                                jacobian=carry_jac or not (adaptive or masked),
-                                                                all_columns=carry_jac)
+                                                                jacobian=first_round_jac, all_columns=carry_jac)
     if carry_jac and start_jac is not None:
         start_jac = _program_columns(start_jac, cand, prog_space)
     problem = Problem(robot, measurement, q, y, space, start)
@@ -911,11 +911,7 @@ def _calibration_steps(
                                    or rounds - first >= 4):
                 break
             noise, scale = new_noise, new_scale
-            # the identifiability program's Jacobian serves a one-round fit (several rounds share one
-            # compiled program, which then computes it), or the first round of a carried one (the
-            # later rounds' solves compute theirs); else a masked solve computes its own
-            jac = (start_jac if rounds == first else None) if carry_jac else \
-                None if adaptive or masked else start_jac
+            jac = start_jac if first_round_jac and rounds == first else None
             launched = yield solve(cur, prog, mask, noise, scale, space, jac)
             out, c_s = launched.out, launched.compile_s
             if before_rows is None:  # host work that does not need the fit, while the device runs it

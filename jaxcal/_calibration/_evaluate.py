@@ -34,7 +34,7 @@ from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
 from .._core._precision import to_device, uncommitted
 from .._core._xla import ahead_enabled, compile_ahead, filter_jit, take_ahead
 from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
-from .._sensors._initialise import _residual, _sample_error, plain_row_errors, residual_rows
+from .._sensors._initialise import _residual, _sample_error, has_plain_row_error, plain_row_errors, residual_rows
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
@@ -180,17 +180,8 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     return res.deviations, start.message
 
 
-def _plain_sample_error(measurement) -> bool:
-    """Whether ``measurement``'s per-row error is the plain one of its residual block (the signed
-    entry of a length, the Euclidean norm of a position, a pose's position part), which the host
-    takes from :func:`~jaxcal._fit._problem.signed_residuals` itself."""
-    from .._sensors._measurement import MeasurementModel, Pose
-
-    return type(measurement).sample_error in (MeasurementModel.sample_error, Pose.sample_error)
-
-
 def _host_sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarray:
-    """:func:`sample_errors` of a plain-error model (:func:`_plain_sample_error`) from the residual
+    """:func:`sample_errors` of a plain-error model (:func:`~jaxcal._sensors._initialise.has_plain_row_error`) from the residual
     program of the calibration's host-side checks (one per models and row bucket, loaded where a
     calibration of the set-up compiled it): no program of its own."""
     return plain_row_errors(measurement, residual_rows(measurement, robot, deviations, data.q, data.y))
@@ -201,7 +192,7 @@ def sample_errors(robot, measurement, deviations: Deviations, data) -> np.ndarra
     length, position or pose from the residual program the calibration's checks use)."""
     from .._fit._problem import Problem, sample_errors_at
 
-    if _plain_sample_error(measurement):
+    if has_plain_row_error(measurement):
         return _host_sample_errors(robot, measurement, deviations, data)
     q = to_device(data.q)  # not jnp.asarray: a copy program per shape
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
@@ -219,7 +210,7 @@ def sample_errors_many(robot, measurement, deviations, datasets) -> list[np.ndar
     the compilation cache at every start); a length, position or pose from the residual program
     of the calibration's checks, as :func:`sample_errors`. The datasets are not concatenated:
     XLA:CPU's code for another row count can differ in the last bits."""
-    if _plain_sample_error(measurement):  # no program of its own (see sample_errors)
+    if has_plain_row_error(measurement):  # no program of its own (see sample_errors)
         return [np.stack([_host_sample_errors(robot, measurement, d, ds) for d in deviations]) for ds in datasets]
     # to_device, not jnp.asarray: that compiles a copy program per shape
     qs, ys = tuple(to_device(ds.q) for ds in datasets), tuple(to_device(ds.y) for ds in datasets)

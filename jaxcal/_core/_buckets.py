@@ -50,7 +50,7 @@ import numpy as np
 
 from ._cache import OFF_WORDS
 
-__all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "clear_compiled", "ENV_VAR",
+__all__ = ["bucket_size", "buckets_enabled", "set_buckets", "pad_rows", "pad_model_rows", "clear_compiled", "ENV_VAR",
            "REUSE_FACTOR", "FINE_STEPS", "WIDE_ROW"]
 
 #: environment variable: ``off`` (no padding), ``on`` or the smallest bucket (an integer, default 256).
@@ -224,6 +224,20 @@ def pad_rows(q, y, n_to: int, host: bool = False):
 
 #: the last :func:`pad_rows` of device arrays: ``(weakref q, weakref y or None, n_to, result)``
 _LAST_PADDING: dict = {}
+
+
+def pad_model_rows(measurement, q, y, n_to: int | None = None, host: bool = False):
+    """``(measurement, q, y, weight)`` for a program over the rows of a measurement model: padded
+    to the shape bucket of ``q``'s rows (:func:`bucket_size` at the model's row width ``size``),
+    or to ``n_to``, by :func:`pad_rows`, the model's per-row arrays padded to match
+    (``measurement.pad_rows``); as given with ``weight=None`` where buckets are off and no
+    ``n_to`` is given. ``host``: as :func:`pad_rows`."""
+    if not (buckets_enabled() or n_to is not None):
+        return measurement, q, y, None
+    n = int(q.shape[0])
+    n_to = bucket_size(n, width=measurement.size) if n_to is None else int(n_to)
+    q, y, w = pad_rows(q, y, n_to, host=host)
+    return measurement.pad_rows(n, n_to), q, y, w
 
 
 class BoundedCache:

@@ -27,9 +27,6 @@ class host_method:  # noqa: N801 — used as a decorator, like property
         self.fn = fn
         functools.update_wrapper(self, fn)
 
-    def __set_name__(self, owner, name):
-        self.name = name
-
     def __get__(self, obj, objtype=None):
         if obj is None:
             return self.fn

@@ -51,14 +51,14 @@ def computed_once(tree, token):
     XLA fuses a producer made of cheap elementwise operations into every consumer, however large
     the producer: the forward-mode kinematic Jacobian of the paper's robot (~600 operations per
     entry, ``[N, p]``) with three consumers in the identifiability program (column norms, the
-    scaled copy, the output) was computed three times (its optimised HLO 3 806 → 2 626 lines
+    scaled copy, the output) was computed three times (its optimised HLO 3 806 → 2 615 lines
     with this), and twice per step in LM's loop (XLA:CPU, JAX 0.10.2).
     ``jax.lax.optimization_barrier`` does not stop it on XLA:CPU; the operand of a conditional is
     a buffer, so ``tree`` passes through one.
     ``token``: a run-time scalar the predicate reads (XLA removes a conditional with a constant
     predicate or with identical branches: the branch taken where ``token`` is NaN adds ``0.0``,
     which leaves every value but −0.0 as it is). Under ``jax.vmap`` with a batched ``token`` the
-    conditional becomes a select and this is a no-op in effect."""
+    conditional becomes a select of both branches, which no longer keeps the producer apart."""
     import jax
     import jax.numpy as jnp
 

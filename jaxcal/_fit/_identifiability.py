@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._core._buckets import LeanJit, bucket_size, buckets_enabled, cache_size, pad_rows
+from .._core._buckets import LeanJit, cache_size, pad_model_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
 from .._core._xla import computed_once, jit
@@ -519,18 +519,6 @@ def identifiable_columns(J, names, *, prior_std=None, rtol: float | None = None)
     return keep
 
 
-def _padded(measurement, q, y, n_to):
-    """``(measurement, q, y, weight)`` of the identifiability program: padded to the shape bucket
-    of ``q``'s rows (or to ``n_to``) with zero-weight rows; as given with ``weight=None`` where
-    buckets are off and no ``n_to`` is given."""
-    if not (buckets_enabled() or n_to is not None):
-        return measurement, q, y, None
-    n = int(q.shape[0])
-    n_to = bucket_size(n, width=measurement.size) if n_to is None else int(n_to)
-    q, y, w = pad_rows(q, y, n_to)
-    return measurement.pad_rows(n, n_to), q, y, w
-
-
 def start_jacobian(robot, measurement, q, space, deviations, y, *, n_to=None):
     """``(residual blocks [n, m] NumPy, Jacobian [N, p] device)`` of the data ``y`` at
     ``deviations`` for the free parameters of ``space``, from the identifiability program
@@ -543,7 +531,7 @@ def start_jacobian(robot, measurement, q, space, deviations, y, *, n_to=None):
                          "from the identifiability program")
     q = to_device(q)
     n = int(q.shape[0])
-    measurement, qp, yp, w = _padded(measurement, q, y, n_to)
+    measurement, qp, yp, w = pad_model_rows(measurement, q, y, n_to)
     resid, J = _start_factor(robot, measurement, qp, deviations.astype(q.dtype), space, yp, w)[3:]
     return np.asarray(resid, np.float64)[:n], J
 
@@ -575,7 +563,7 @@ def identify_with_residuals(robot, measurement, q, space=None, deviations=None, 
         raise ValueError("no free parameters to examine")
     dev0 = Deviations.zeros(layout_for(robot, measurement), q.dtype) if deviations is None else deviations.astype(q.dtype)
     n = int(q.shape[0])
-    measurement, qp, yp, w = _padded(measurement, q, y, n_to)
+    measurement, qp, yp, w = pad_model_rows(measurement, q, y, n_to)
     norms, R, piv, resid, J = _start_factor(robot, measurement, qp, dev0, space, yp, w)
     # host work that needs none of its outputs first, while the program runs (dispatched asynchronously)
     rtol = default_rtol(q.dtype) if rtol is None else float(rtol)

@@ -23,6 +23,7 @@ from ._initialise import (
     _sample_error,
     _trim,
     alternate_frames_and_markers,
+    has_plain_row_error,
     kabsch,
     multilaterate,
     plain_row_errors,
@@ -178,10 +179,10 @@ def initial_extras(
     Y = np.asarray(y, np.float64)
 
     def rms(dev):
-        if kind == "markers":
-            e = np.asarray(_sample_error(measurement, _residual(measurement, robot, dev, q, jnp.asarray(y))), np.float64)
-        else:  # the residual program of the calibration's own host-side checks (one per row bucket)
+        if has_plain_row_error(measurement):  # the residual program of the calibration's host-side checks
             e = plain_row_errors(measurement, residual_rows(measurement, robot, dev, q, y))
+        else:  # a marker set's RMS over its markers
+            e = np.asarray(_sample_error(measurement, _residual(measurement, robot, dev, q, jnp.asarray(y))), np.float64)
         return float(np.sqrt(np.mean(e**2)))
 
     before = rms(start)

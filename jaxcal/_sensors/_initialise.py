@@ -53,7 +53,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._core._buckets import LeanJit, bucket_size, buckets_enabled, pad_rows
+from .._core._buckets import LeanJit, pad_model_rows
 from .._core._metrics import robust_scale
 from .._core._params import Deviations
 from .._core._precision import to_device, uncommitted
@@ -105,14 +105,20 @@ def residual_rows(measurement, robot, deviations: Deviations, q, y, *, pad: bool
     padded to their bucket (``pad=False``: as given, rows a caller padded itself) and the deviations
     taken as uncommitted host values (``jax.jit`` compiles per placement too)."""
     n = int(q.shape[0])
-    width = measurement.size
-    dev = uncommitted(deviations)
-    if pad and buckets_enabled() and bucket_size(n, width=width) != n:
-        n_to = bucket_size(n, width=width)
-        qp, yp, _ = pad_rows(q, y, n_to)
-        return np.asarray(_residual_rows(measurement.pad_rows(n, n_to), robot, dev, qp, yp))[:n]
+    if pad:
+        measurement, q, y, _ = pad_model_rows(measurement, q, y)
     q = to_device(q)
-    return np.asarray(_residual_rows(measurement, robot, dev, q, to_device(y, q.dtype)))
+    return np.asarray(_residual_rows(measurement, robot, uncommitted(deviations), q, to_device(y, q.dtype)))[:n]
+
+
+def has_plain_row_error(measurement) -> bool:
+    """Whether ``measurement``'s per-row error (:meth:`~jaxcal.MeasurementModel.sample_error`) is the
+    plain one of its residual block, which :func:`plain_row_errors` takes on the host: the signed
+    entry of a length, the Euclidean norm of a position, a pose's position part (not, e.g., the RMS
+    over a marker set)."""
+    from ._measurement import MeasurementModel, Pose
+
+    return type(measurement).sample_error in (MeasurementModel.sample_error, Pose.sample_error)
 
 
 def plain_row_errors(measurement, r) -> np.ndarray:
@@ -123,6 +129,7 @@ def plain_row_errors(measurement, r) -> np.ndarray:
     if measurement.size == 1:
         return r[:, 0].copy()
     return np.linalg.norm(r[:, :3] if measurement.kind == "pose" else r, axis=1)
+
 
 #: Rows whose closed-form-start residual is beyond this many robust σ are left out of the start.
 TRIM_ROBUST_SIGMAS = 5.0

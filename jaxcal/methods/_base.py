@@ -104,11 +104,11 @@ class ScaledProblem(eqx.Module):
         pending = defer_scale and (jacobian is None or jacobian_given is not None)
         if mask is not None:
             mask = jnp.asarray(mask, problem.dtype)
+        J = None if jacobian is None else jnp.asarray(jacobian, problem.dtype)
         if pending:
-            J = None if jacobian is None else jnp.asarray(jacobian, problem.dtype)
             scale = jnp.ones_like(x_start)
         else:
-            J = problem.jacobian(x_start) if jacobian is None else jnp.asarray(jacobian, problem.dtype)
+            J = problem.jacobian(x_start) if J is None else J
             scale = cls.scale_from_jacobian(problem, J, mask)
         if objective is not None:
             objective = jax.tree.map(lambda a: jnp.asarray(a, problem.dtype), objective)
