@@ -202,12 +202,11 @@ def _direction(terms) -> str:
 
 def _nominal_lengths(robot, model) -> dict[str, float]:
     """``{entry: nominal value}`` (mm) of the length entries of one (non-combined) measurement
-    model's layout: the robot's DH ``a_i``, ``d_i`` and tool point, and the model's own extras
+    model's layout: the robot's own (``robot.nominal_lengths()``: a DH table's ``a_i``, ``d_i``, a
+    chain's joint-origin and flange translations), its tool point, and the model's own extras
     (:meth:`~jaxcal.MeasurementModel.nominal_lengths`). Entries left out have nominal 0 (a base
     translation, a cable's zero offset)."""
-    out = {f"a_{i + 1}": v for i, v in enumerate(np.asarray(robot.a, np.float64))}
-    out |= {f"d_{i + 1}": v for i, v in enumerate(np.asarray(robot.d, np.float64))}
-    out |= xyz_entries("tool_", robot.tool)
+    out = robot.nominal_lengths() | xyz_entries("tool_", robot.tool)
     return out if model is None else out | model.nominal_lengths()
 
 

@@ -127,16 +127,40 @@ def _tool_mm(path, text: str) -> tuple[float, float, float]:
     return tuple(parts)
 
 
-def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
-    """A robot from a DH table file (standard DH; lengths in mm, angles in degrees or radians).
+#: the DH-table file's ``# convention:`` values (case-insensitive) and the convention each names
+_CONVENTION_NAMES = {"standard": "standard", "dh": "standard", "modified": "modified", "craig": "modified"}
+#: the ``# key: value`` settings a DH-table file may carry
+_DH_FILE_SETTINGS = ("name", "tool_mm", "convention")
 
-    Layout: optional ``# name: NAME`` and ``# tool_mm: x,y,z`` comment lines (tool point in the
-    flange frame, mm; default the flange origin), a header row, then one row per joint::
+
+def _convention(path, text: str) -> str:
+    """``# convention: standard|modified`` (``dh``/``craig`` as synonyms) → the robot's convention."""
+    value = text.strip().lower()
+    if value not in _CONVENTION_NAMES:
+        raise ValueError(f"{path}: '# convention: {text.strip()}' must be standard (or dh) or modified (or craig): "
+                         "standard DH puts row i's alpha_i, a_i after joint i, modified (Craig) DH holds "
+                         "alpha_(i-1), a_(i-1) in row i")
+    return _CONVENTION_NAMES[value]
+
+
+def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
+    """A robot from a DH table file (lengths in mm, angles in degrees or radians).
+
+    Layout: optional ``# name: NAME``, ``# tool_mm: x,y,z`` (tool point in the flange frame, mm;
+    default the flange origin) and ``# convention: standard|modified`` comment lines, a header
+    row, then one row per joint::
 
         # name: hsr_jr680
+        # convention: standard
         alpha_deg,a_mm,d_mm,theta_deg,q_min_deg,q_max_deg
         -90,250,653.5,0,-170,170
         ...
+
+    ``# convention``: ``standard`` (Denavit–Hartenberg; also ``dh``; the default) or ``modified``
+    (Craig's convention, in which many vendors publish their arms; also ``craig``): row ``i``
+    then holds Craig's ``α_{i-1}, a_{i-1}`` with ``θ_i, d_i`` (:class:`jaxcal.DHRobot`). Any other
+    ``# key: value`` line is an error naming the settings a DH table file takes (a free comment
+    without a colon is fine), so a setting is never ignored silently.
 
     Columns, in any order, names stripped and case-insensitive:
 
@@ -158,6 +182,11 @@ def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
     t = read_table(path, delimiter=delimiter, what="DH table file", row_name="joint row")
     path = t.path
     meta = {k.lower(): v for k, v in t.meta.items()}
+    if (other := [k for k in meta if k not in _DH_FILE_SETTINGS]):
+        raise ValueError(f"{path}: '# {other[0]}: ...' is not a DH table file setting; the settings are "
+                         + ", ".join(f"'# {k}:'" for k in _DH_FILE_SETTINGS) + " (a comment line without a colon "
+                         "is free text)")
+    convention = _convention(path, meta["convention"]) if "convention" in meta else "standard"
     unknown = [h for h in t.header if h not in _DH_FILE_COLUMNS]
     if unknown:
         raise ValueError(f"{path}: unknown DH table column(s) {unknown}; accepted: {_DH_ACCEPTED}")
@@ -191,17 +220,19 @@ def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
         q_min_deg=cols.get("q_min"), q_max_deg=cols.get("q_max"), beta_deg=beta,
         beta_joints=() if beta is None else (np.flatnonzero(beta) + 1).tolist(),
         tool_mm=_tool_mm(path, meta["tool_mm"]) if "tool_mm" in meta else (0.0, 0.0, 0.0),
-        name=meta.get("name", pathlib.Path(path).stem),
+        name=meta.get("name", pathlib.Path(path).stem), convention=convention,
     )
 
 
 def save_robot_csv(robot: DHRobot, path) -> None:
-    """Write ``robot``'s nominal DH table in the layout of :func:`load_robot_csv` (standard DH)."""
-    if robot.convention != "standard" or robot.beta_joints:
-        raise ValueError("the DH table file format holds standard DH without Hayati beta only")
+    """Write ``robot``'s nominal DH table in the layout of :func:`load_robot_csv` (standard or
+    modified DH, with its ``# convention:`` line)."""
+    if robot.beta_joints:
+        raise ValueError("the DH table file format holds DH tables without Hayati beta joints only "
+                         "(save the robot with the calibration result's JSON instead)")
     d = robot_to_dict(robot)
-    lines = [f"# name: {robot.name}", "# tool_mm: " + ",".join(repr(v) for v in d["tool_mm"]),
-             ",".join(_DH_COLUMNS + ("q_min_deg", "q_max_deg"))]
+    lines = [f"# name: {robot.name}", f"# convention: {robot.convention}",
+             "# tool_mm: " + ",".join(repr(v) for v in d["tool_mm"]), ",".join(_DH_COLUMNS + ("q_min_deg", "q_max_deg"))]
     for j in range(robot.dof):
         lines.append(",".join(repr(float(d[c][j])) for c in _DH_COLUMNS + ("q_min_deg", "q_max_deg")))
     pathlib.Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -51,6 +51,7 @@ from jaxtyping import Array, Float
 from .._core._metrics import robust_scale
 from .._core._params import Deviations, ParameterSpace, group_of
 from .._core._precision import to_device
+from .._models import _chain, _nongeometric  # noqa: F401 — they register their group names (Prior.parse)
 
 __all__ = ["Prior", "Objective", "LOSSES", "robust_factor", "robust_scale", "resolve_prior", "MEASURED_DEFAULTS",
            "OBJECTIVES", "resolve_objective", "describe_objective"]

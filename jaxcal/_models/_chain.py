@@ -91,6 +91,20 @@ TIP_GROUPS: tuple[tuple[str, tuple[str, str, str], str], ...] = (
 )
 _SNAP = 1e-12
 
+
+def _register_group_names() -> None:
+    """Register the chain's group names and kinds, so that ``group_of("offset_1")`` works before
+    any chain's layout is made (a prior file or a previous result of a URDF robot, read first)."""
+    from .._core._params import Group
+
+    for g, _unit in GEOMETRIC_GROUPS:
+        Group.per_joint(g, 1, "rad", kind="geometric")
+    for g, names, unit in TIP_GROUPS:
+        Group.vector(g, names, unit, kind="geometric")
+
+
+_register_group_names()
+
 Vec3 = tuple
 
 
@@ -411,6 +425,18 @@ class SerialChain(NonGeometricMixin, eqx.Module):
     def with_tool(self, tool_mm: Sequence[float]) -> SerialChain:
         """A copy with another nominal tool point ``[3]`` mm in the tip link frame."""
         return replace_tool(self, tool_mm)
+
+    @host_method
+    def nominal_lengths(self) -> dict[str, float]:
+        """``{entry: nominal value}`` (mm) of the chain's length entries: ``dx_i, dy_i, dz_i`` are
+        deviations of joint origin ``i``'s translation (the nominal ``origin_t[i]``), ``tip_dx …
+        tip_dz`` of the flange translation; a prismatic joint's ``offset`` (mm) has nominal 0.
+        What a uniform scaling of every length of a set-up multiplies
+        (:func:`jaxcal._calibration._blocks.length_scale_direction`); the tool point is the
+        layout's ``tool`` group, not the robot's."""
+        t = np.asarray(self.origin_t, np.float64)
+        out = {f"{c}_{i + 1}": float(t[i, k]) for k, c in enumerate(("dx", "dy", "dz")) for i in range(self.dof)}
+        return out | dict(zip(TIP_GROUPS[0][1], (float(v) for v in np.asarray(self.flange_t, np.float64))))
 
     @host_method
     def reach_mm(self) -> float:

@@ -170,6 +170,15 @@ class DHRobot(NonGeometricMixin, eqx.Module):
         return replace_tool(self, tool_mm)
 
     @host_method
+    def nominal_lengths(self) -> dict[str, float]:
+        """``{entry: nominal value}`` (mm) of the robot's length entries: the DH ``a_i`` and
+        ``d_i``. What a uniform scaling of every length of a set-up multiplies
+        (:func:`jaxcal._calibration._blocks.length_scale_direction`); the tool point is the
+        layout's ``tool`` group, not the robot's."""
+        out = {f"a_{i + 1}": float(v) for i, v in enumerate(np.asarray(self.a, np.float64))}
+        return out | {f"d_{i + 1}": float(v) for i, v in enumerate(np.asarray(self.d, np.float64))}
+
+    @host_method
     def reach_mm(self) -> float:
         """A generous bound on the distance from the base origin to the tool point (mm)."""
         return float(

@@ -60,9 +60,11 @@ file's frames and placements (any marker counts) with the robot fixed."""
 
 _ROBOT_FORMAT = """\
 robot: a preset name (hsr_jr680, puma560, ur5, abb_irb120) or a DH table file (CSV): optional
-'# name: NAME' and '# tool_mm: x,y,z' (tool point in the flange frame, mm) lines, a header
-row alpha_deg,a_mm,d_mm,theta_deg[,q_min_deg,q_max_deg] and one row per joint (standard DH:
-A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i); joint limits default to ±180°), or a URDF
+'# name: NAME', '# tool_mm: x,y,z' (tool point in the flange frame, mm) and '# convention:
+standard|modified' lines, a header row alpha_deg,a_mm,d_mm,theta_deg[,q_min_deg,q_max_deg] and
+one row per joint (standard DH, the default: A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i);
+modified (Craig) DH: A_i = Rx(alpha_i) Tx(a_i) Rz(theta_i + q_i) Tz(d_i), row i holding Craig's
+alpha_(i-1), a_(i-1); joint limits default to ±180°), or a URDF
 file (.urdf) with --base LINK and --tip LINK naming the serial chain to calibrate (lengths in the
 URDF are metres; jaxcal reports mm; prismatic joint columns are in mm)."""
 

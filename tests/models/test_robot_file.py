@@ -150,3 +150,37 @@ def test_limits_must_be_ordered_and_file_must_have_rows(tmp_path):
         load_robot_csv(_write(tmp_path, _DH, []))
     with pytest.raises(FileNotFoundError, match="DH table file not found"):
         load_robot_csv(tmp_path / "none.csv")
+
+
+@pytest.mark.parametrize("line, convention", [("", "standard"), ("# convention: standard\n", "standard"),
+                                              ("# Convention: DH\n", "standard"), ("# convention: modified\n", "modified"),
+                                              ("# convention: Craig\n", "modified")])
+def test_convention_line(tmp_path, line, convention):
+    r = load_robot_csv(_write(tmp_path, _DH + ["q_min_deg", "q_max_deg"], head="# name: jr680\n" + line))
+    assert r.convention == convention
+    _assert_table(r)
+
+
+def test_modified_table_round_trips_with_its_convention(tmp_path):
+    from jaxcal._calibration._io import save_robot_csv
+
+    r = load_robot_csv(_write(tmp_path, _DH + ["q_min_deg", "q_max_deg"], head="# convention: modified\n"))
+    save_robot_csv(r, tmp_path / "back.csv")
+    assert "# convention: modified" in (tmp_path / "back.csv").read_text()
+    back = load_robot_csv(tmp_path / "back.csv")
+    assert back.convention == "modified"
+    _assert_table(back)
+
+
+@pytest.mark.parametrize("head, message", [
+    ("# convention: craig-ish\n", r"'# convention: craig-ish' must be standard \(or dh\) or modified \(or craig\)"),
+    ("# dh_convention: modified\n", r"'# dh_convention: \.\.\.' is not a DH table file setting; the settings are "
+                                    r"'# name:', '# tool_mm:', '# convention:'"),
+])
+def test_a_setting_is_never_ignored(tmp_path, head, message):
+    """A ``# key: value`` line the reader does not know is an error, not silently ignored (a
+    modified-DH table read as standard DH puts the tool metres away)."""
+    with pytest.raises(ValueError, match=message):
+        load_robot_csv(_write(tmp_path, _DH, [r[:4] for r in _TABLE], head=head))
+    # free text without a colon is a comment
+    load_robot_csv(_write(tmp_path, _DH, [r[:4] for r in _TABLE], head="# from the vendor's data sheet\n"))
