@@ -254,7 +254,7 @@ def dh_rows(result: SweepResult, method: str | None = None, trial: int = 0) -> l
     true = result.true_deviation(trial)
     robot = result.robot
     free = set(result.space.free_names)
-    if not hasattr(robot, "beta_joints"):  # a generic chain: its per-joint corrections
+    if robot.dh_rows_deg() is None:  # not a DH table (a generic chain): its per-joint corrections
         return _chain_rows(robot, cal, true, free)
     rows = []
     groups = [("alpha", "deg"), ("a", "mm"), ("d", "mm"), ("theta", "deg")]
@@ -283,7 +283,7 @@ def dh_table(result: SweepResult, method: str | None = None, trial: int = 0, *, 
     same per-parameter comparison."""
     label = _default_method(result, method)
     rows = dh_rows(result, label, trial)
-    if not hasattr(result.robot, "beta_joints"):
+    if result.robot.dh_rows_deg() is None:  # not a DH table: a generic chain's corrections
         return _chain_table(result, label, trial, rows, markdown)
     by = {r["parameter"]: r for r in rows}
     dof = result.robot.dof

@@ -59,8 +59,8 @@ from .._fit._result import (
     iterations_to_converge,
     iterations_to_converge_numpy,
 )
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import shared_joint_trig
-from .._models._robot import DHRobot
 from .._sensors._initial_extras import INITIALISABLE, initial_extras
 from .._sensors._measurement import MeasurementModel
 from ..methods import Method, ScaledProblem, make_method
@@ -125,7 +125,7 @@ class Calibrator(eqx.Module):
             ``None``: all of ``space`` moves). :func:`calibrate` runs LM this way.
     """
 
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     method: Method
     start: Deviations
@@ -185,7 +185,7 @@ def _run_calibrator(dynamic, static, q, y, key, weight=None) -> CalibrationOutpu
     return eqx.combine(dynamic, static)(q, y, key, weight)
 
 
-def _as_arrays(data, measurement: MeasurementModel, robot: DHRobot, stacklevel: int = 3):
+def _as_arrays(data, measurement: MeasurementModel, robot: AbstractRobot, stacklevel: int = 3):
     if measurement.kind == "blocks" and isinstance(data, (tuple, list)) and len(data) == 2:
         # stacked blocks (jaxcal._sensors._blocks.combine validated each block's data): checked below
         q = to_device(data[0])
@@ -669,7 +669,7 @@ class _Launched:
 
 
 def calibrate(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     data,
     method="lm",
@@ -770,7 +770,7 @@ def calibrate(
 
 
 def _calibration_steps(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     data,
     method="lm",

@@ -28,7 +28,8 @@ from .._fit._diagnostics import Uncertainty
 from .._fit._learned_prior import prior_from_dict, prior_to_dict
 from .._fit._objective import Prior
 from .._fit._result import CalibrationResult, Status
-from .._models._nongeometric import nongeometric_from_dict, nongeometric_to_dict
+from .._models._abstract import AbstractRobot
+from .._models._nongeometric import nongeometric_from_dict
 from .._models._robot import DHRobot
 from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 
@@ -55,34 +56,14 @@ RESULT_FORMAT = "jaxcal-calibration-result/1"
 # -- models -------------------------------------------------------------------------------------
 
 
-def robot_to_dict(robot: DHRobot) -> dict:
-    """JSON-friendly robot: DH table in degrees/mm, limits in degrees, tool point in mm (a
-    :class:`~jaxcal.SerialChain`: its URDF text with base/tip links, see ``chain_to_dict``)."""
-    if not isinstance(robot, DHRobot):
-        from .._models._urdf import chain_to_dict
-
-        out = chain_to_dict(robot)
-        if (ng := nongeometric_to_dict(robot)) is not None:
-            out["nongeometric"] = ng
-        return out
-    deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
-    return {
-        "name": robot.name,
-        "convention": robot.convention,
-        "beta_joints": list(robot.beta_joints),
-        "alpha_deg": deg(robot.alpha),
-        "a_mm": np.asarray(robot.a, np.float64).tolist(),
-        "d_mm": np.asarray(robot.d, np.float64).tolist(),
-        "theta_deg": deg(robot.theta),
-        "beta_deg": deg(robot.beta),
-        "q_min_deg": deg(robot.q_min),
-        "q_max_deg": deg(robot.q_max),
-        "tool_mm": np.asarray(robot.tool, np.float64).tolist(),
-        **({"nongeometric": ng} if (ng := nongeometric_to_dict(robot)) is not None else {}),
-    }
+def robot_to_dict(robot) -> dict:
+    """JSON-friendly robot (:meth:`~jaxcal._models._abstract.AbstractRobot.to_dict`): a DH table in
+    degrees/mm, limits in degrees, tool point in mm; a :class:`~jaxcal.SerialChain` its URDF text
+    with base/tip links; each with its non-geometric models."""
+    return robot.to_dict()
 
 
-def robot_from_dict(d: dict) -> DHRobot:
+def robot_from_dict(d: dict) -> AbstractRobot:
     """Inverse of :func:`robot_to_dict` (values within rounding of deg↔rad)."""
     if d.get("type") == "serial_chain":
         from .._models._urdf import chain_from_dict
@@ -224,7 +205,7 @@ def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
     )
 
 
-def save_robot_csv(robot: DHRobot, path) -> None:
+def save_robot_csv(robot: AbstractRobot, path) -> None:
     """Write ``robot``'s nominal DH table in the layout of :func:`load_robot_csv` (standard or
     modified DH, with its ``# convention:`` line)."""
     if robot.beta_joints:
@@ -351,7 +332,7 @@ def result_to_dict(result: CalibrationResult, **info: Any) -> dict:
     out["robot"] = robot_to_dict(result.robot)
     out["measurement"] = measurement_to_dict(result.measurement)
     out["free_names"] = list(result.space.free_names)
-    if isinstance(result.robot, DHRobot):
+    if result.robot.dh_rows_deg() is not None:  # a robot described by a DH table
         out["calibrated_dh_table"] = {
             "columns": ["alpha_deg", "a_mm", "d_mm", "theta_deg"],
             "rows": np.asarray(result.dh_table()).tolist(),

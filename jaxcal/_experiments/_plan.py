@@ -33,8 +33,8 @@ from .._core._params import ParameterSpace
 from .._core._xla import jit
 from .._datasets._dataset import Dataset
 from .._fit._problem import Problem
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import fk_position
-from .._models._robot import DHRobot
 from .._sensors._measurement import CableLength, MeasurementModel, Pose, Position
 
 __all__ = [
@@ -151,7 +151,7 @@ def _jac(problem: Problem):
     return problem.to_blocks(problem.jacobian(problem.x0()))
 
 
-def candidate_rows(robot: DHRobot, measurement: MeasurementModel, candidates, y=None):
+def candidate_rows(robot: AbstractRobot, measurement: MeasurementModel, candidates, y=None):
     """``(q [N, dof] rad, y | None)``: the poses and (where they carry information the Jacobian
     needs) the readings of planning candidates.
 
@@ -181,7 +181,7 @@ def candidate_rows(robot: DHRobot, measurement: MeasurementModel, candidates, y=
     return q, (None if y is None else np.asarray(y, np.float64))
 
 
-def planning_jacobian(robot: DHRobot, measurement: MeasurementModel, q, space: ParameterSpace, y=None) -> np.ndarray:
+def planning_jacobian(robot: AbstractRobot, measurement: MeasurementModel, q, space: ParameterSpace, y=None) -> np.ndarray:
     """The identification Jacobian at the nominal robot, ``[n, m, p]`` (mm per rad / mm per mm;
     px per rad / px per mm for a camera), for joint angles ``q`` ``[n, dof]`` (rad; or
     candidates as :func:`candidate_rows` reads them) and the free parameters of ``space``. The
@@ -223,7 +223,7 @@ def _generic_space(robot, measurement, space=None) -> ParameterSpace:
 
 
 def observability_indices(
-    robot: DHRobot, measurement: MeasurementModel, q, *, space: ParameterSpace | None = None, scale=None,
+    robot: AbstractRobot, measurement: MeasurementModel, q, *, space: ParameterSpace | None = None, scale=None,
 ) -> ObservabilityIndices:
     """Observability indices O1–O5 of the pose set ``q`` ``[n, dof]`` (rad) for ``measurement``.
 
@@ -241,7 +241,7 @@ def observability_indices(
 
 def candidate_poses(
     key,
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     n: int,
     *,
@@ -596,7 +596,7 @@ def _compress(Jc: np.ndarray) -> np.ndarray:
 
 
 def select_poses(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     candidates,
     n: int,
@@ -681,7 +681,7 @@ def _multiplicative(Jc, eps, iters: int):
 
 
 def relaxed_design(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     candidates,
     n: int,
@@ -777,7 +777,7 @@ def _error_points(measurement) -> int:
 
 
 def predicted_accuracy(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     q,
     noise_std: float,
@@ -825,7 +825,7 @@ def predicted_accuracy(
                              np.sqrt(np.diag(cov)), cov, int(q.shape[0]), getattr(measurement, "unit", "mm"))
 
 
-def simulate_readings(key, robot: DHRobot, measurement: MeasurementModel, q, noise_std: float, true_deviations=None):
+def simulate_readings(key, robot: AbstractRobot, measurement: MeasurementModel, q, noise_std: float, true_deviations=None):
     """Readings of a "true" robot at the planned poses ``q`` ``[n, dof]`` (rad) as a
     :class:`Dataset`: the truth is drawn as in :func:`jaxcal.simulate_experiment` (the paper's
     Table V magnitudes) unless given; Gaussian noise σ = ``noise_std`` mm on every reading (a
@@ -923,7 +923,7 @@ class AccuracyCurve:
 
 
 def accuracy_curve(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     candidates,
     ns,

@@ -46,7 +46,7 @@ from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import warn_if_float32
 from .._fit._objective import LOSSES, resolve_prior
-from .._models._robot import DHRobot
+from .._models._abstract import AbstractRobot
 from .._sensors._measurement import MeasurementModel
 from .._simulation._simulate import DEFAULT_NOISE_STD
 from ._sweep_chunks import (
@@ -92,7 +92,7 @@ def sweep(
     *,
     seed: int = 0,
     key=None,
-    robot: DHRobot | None = None,
+    robot: AbstractRobot | None = None,
     measurement: MeasurementModel | None = None,
     n_samples: int = 2000,
     noise_std: float | None = DEFAULT_NOISE_STD,
@@ -274,14 +274,8 @@ def _check_n_seeds(n_seeds) -> int:
     return int(n_seeds)
 
 
-def _robot_fingerprint(robot: DHRobot) -> dict:
-    if not isinstance(robot, DHRobot):  # a generic chain: its URDF text, base/tip and tool
-        return robot_to_dict(robot)
-    return {
-        "name": robot.name, "convention": robot.convention, "beta_joints": list(robot.beta_joints),
-        **{f: np.asarray(getattr(robot, f), np.float64).round(12).tolist()
-           for f in ("alpha", "a", "d", "theta", "beta", "q_min", "q_max", "tool")},
-    }
+def _robot_fingerprint(robot) -> dict:
+    return robot.fingerprint()
 
 
 #: the settings every unit's fingerprint includes (a stored chunk is reused only if they match)

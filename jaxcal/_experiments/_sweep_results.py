@@ -17,7 +17,7 @@ from .._calibration._io import measurement_from_dict, robot_from_dict
 from .._core._json import to_jsonable
 from .._core._metrics import Floor, Metrics, statistical_floor
 from .._core._params import Deviations, ParameterSpace, layout_for
-from .._models._robot import DHRobot
+from .._models._abstract import AbstractRobot
 from .._sensors._measurement import MeasurementModel
 from ._sweep_chunks import _Store, _unflatten
 from ._sweep_trials import _TRIAL_LIKE, _DataOut, _Split
@@ -134,7 +134,7 @@ class SweepResult:
     floor: Floor | None
     before_errors: np.ndarray
     space: ParameterSpace
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     start: Deviations
     true_deviations: Deviations | None

@@ -28,7 +28,7 @@ from .._core._params import Deviations, ParameterSpace
 from .._datasets._dataset import Dataset
 from .._fit._objective import Objective
 from .._fit._problem import Problem
-from .._models._robot import DHRobot
+from .._models._abstract import AbstractRobot
 from .._sensors._measurement import CableLength, MeasurementModel
 from .._simulation import _simulate as _simulate_mod
 from .._simulation._simulate import (
@@ -84,7 +84,7 @@ class _Simulated(eqx.Module):
     rows (:func:`~jaxcal._simulation._simulate.simulate_padded`): its real rows are exactly the
     unpadded simulation's, and one compiled program serves every sample count of the bucket."""
 
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     true_deviations: Deviations | None
     options: tuple = eqx.field(static=True)
@@ -163,7 +163,7 @@ class _DataTrial(eqx.Module):
     model) metrics on its test split. Runs once per sweep; every method reuses its output."""
 
     source: eqx.Module
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     start: Deviations
     space: ParameterSpace = eqx.field(static=True)
@@ -193,7 +193,7 @@ class _MethodTrial(eqx.Module):
     from ``static_hyper`` plus the traced values passed to ``__call__``.
     """
 
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     start: Deviations
     method: Method | None

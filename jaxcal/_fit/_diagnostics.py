@@ -562,7 +562,7 @@ def implausible_deviations(names, units, values, checks: Checks) -> tuple:
 
 def joint_units(robot) -> tuple[str, ...]:
     """``"rad"`` per revolute and ``"mm"`` per prismatic joint (DH robots: all revolute)."""
-    return tuple(robot.joint_units()) if hasattr(robot, "joint_units") else ("rad",) * robot.dof
+    return tuple(robot.joint_units())
 
 
 def coverage(robot, q) -> np.ndarray:
@@ -760,7 +760,7 @@ def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_st
         one failed (else ``None``).
     """
     unit = getattr(measurement, "unit", "mm")
-    reach = float(robot.reach_mm()) if hasattr(robot, "reach_mm") else math.nan
+    reach = float(robot.reach_mm())
     out = []
     huge = False
     if unit == "mm" and math.isfinite(reach) and reach > 0 and not noise_std_hat <= checks.residual_fraction * reach:

@@ -15,8 +15,8 @@ from .._core._buckets import LeanJit, cache_size, pad_model_rows
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
 from .._core._xla import computed_once, jit
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import shared_joint_trig
-from .._models._robot import DHRobot
 from .._sensors._measurement import MeasurementModel
 from ._problem import Problem, value_and_jacfwd
 
@@ -66,7 +66,7 @@ def still_joints(robot, q, still_deg: float = STILL_JOINT_DEG) -> tuple[int, ...
     qn = np.asarray(q, np.float64)
     if qn.shape[0] < 2:
         return ()
-    units = tuple(robot.joint_units()) if hasattr(robot, "joint_units") else ("rad",) * robot.dof
+    units = tuple(robot.joint_units())
     span = np.rad2deg(np.ptp(qn, axis=0))
     return tuple(j + 1 for j in range(qn.shape[1]) if units[j] == "rad" and span[j] < still_deg)
 
@@ -365,7 +365,7 @@ _start_factor = LeanJit(_start_factor, static_argnames=("space",), maxsize=cache
 
 
 def identifiability(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     q,
     space: ParameterSpace | None = None,

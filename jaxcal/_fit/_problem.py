@@ -11,8 +11,8 @@ from jaxtyping import Array, Float
 from .._core._host_method import host_method
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._xla import jit
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import shared_joint_trig
-from .._models._robot import DHRobot
 from .._sensors._initialise import residual_rows
 from .._sensors._measurement import MeasurementModel
 
@@ -62,7 +62,7 @@ class Problem(eqx.Module):
             values to round-off.
     """
 
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     q: Float[Array, "n dof"]
     y: Array

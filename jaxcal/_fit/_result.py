@@ -13,7 +13,7 @@ from jaxtyping import Array, Float, Int
 from .._core._json import to_jsonable
 from .._core._metrics import Metrics, metrics_numpy
 from .._core._params import Deviations, ParameterSpace
-from .._models._robot import DHRobot
+from .._models._abstract import AbstractRobot
 from .._sensors._measurement import MeasurementModel
 
 __all__ = ["Status", "CalibrationResult", "DHTable", "iterations_to_converge", "still_improving", "budget_status",
@@ -246,7 +246,7 @@ class CalibrationResult:
     deviations: Deviations
     x: np.ndarray
     space: ParameterSpace
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     history: np.ndarray
     n_iterations: int
@@ -353,17 +353,15 @@ class CalibrationResult:
         ``t[j, col]``)."""
         from .._core._trig import wrap_angle_deg
 
-        r, d = self.robot, self.deviations
-        if not hasattr(r, "dh_table_deg"):
+        r = self.robot
+        rows = r.dh_rows_deg(self.deviations)
+        if rows is None:
             raise TypeError(f"robot {r.name!r} is a generic chain, not a DH table: its calibrated model is "
                             "the per-joint corrections in .deviations; jaxcal.export_urdf writes it as URDF")
         free = dict(zip(self.space.names, np.asarray(self.space.free, bool)))
         fixed = np.asarray([[not free[f"{g}_{j + 1}"] for g in ("alpha", "a", "d", "theta")] for j in range(r.dof)])
-        # nominal + deviation on the host (an eager jnp sum is a compiled program per shape)
-        alpha, a, dd, theta = (np.asarray(getattr(r, g)) + np.asarray(getattr(d, g)) for g in ("alpha", "a", "d", "theta"))
-        return DHTable(np.stack([
-            wrap_angle_deg(np.rad2deg(alpha)), a, dd, wrap_angle_deg(np.rad2deg(theta)),
-        ], axis=1), fixed, title=f"Calibrated DH table ({self.method})")
+        return DHTable(np.stack([wrap_angle_deg(rows[:, 0]), rows[:, 1], rows[:, 2], wrap_angle_deg(rows[:, 3])],
+                                axis=1), fixed, title=f"Calibrated DH table ({self.method})")
 
     def to_dict(self) -> dict:
         """JSON-friendly summary (parameters in rad/mm by name, history, metrics, status)."""

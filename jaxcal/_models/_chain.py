@@ -71,6 +71,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
+from ._abstract import AbstractRobot
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 from ._robot import replace_tool
 
@@ -252,7 +253,7 @@ def _rxyz_j(a, b, c):
     ])
 
 
-class SerialChain(NonGeometricMixin, eqx.Module):
+class SerialChain(NonGeometricMixin, AbstractRobot):
     """A serial chain of revolute and prismatic joints with fixed transforms between them.
 
     Kinematics: joint ``i`` has a constant origin ``O_i = (R_o, t_o)`` from the previous joint
@@ -425,6 +426,38 @@ class SerialChain(NonGeometricMixin, eqx.Module):
     def with_tool(self, tool_mm: Sequence[float]) -> SerialChain:
         """A copy with another nominal tool point ``[3]`` mm in the tip link frame."""
         return replace_tool(self, tool_mm)
+
+    def geometry_dict(self) -> dict:
+        """JSON-friendly chain that :func:`jaxcal._models._urdf.chain_from_dict` rebuilds exactly:
+        base and tip link names, tool point (mm), joint names and types, and the geometry as it
+        came — the URDF text a chain was loaded from (``"urdf"``), the DH table (rad / mm) of a
+        chain built from one (``"dh"``), or, for a chain built by hand (:meth:`build`), its
+        arrays (``"origins"``: joint origins, flange, axis alignments, limits, masses and centres
+        of mass, link names; mm / rad / kg)."""
+        out = {
+            "type": "serial_chain",
+            "name": self.name,
+            "base": self.base,
+            "tip": self.tip,
+            "tool_mm": np.asarray(self.tool, np.float64).tolist(),
+            "joint_names": list(self.joint_names),
+            "joint_types": list(self.joint_types),
+        }
+        if self.dh is not None:
+            conv, alpha, a, d, theta, beta, bj = self.dh
+            out["dh"] = {"convention": conv, "alpha_rad": list(alpha), "a_mm": list(a), "d_mm": list(d),
+                         "theta_rad": list(theta), "beta_rad": list(beta), "beta_joints": list(bj),
+                         "q_min": np.asarray(self.q_min, np.float64).tolist(),
+                         "q_max": np.asarray(self.q_max, np.float64).tolist()}
+        elif self.urdf is not None:
+            out["urdf"] = self.urdf
+        else:
+            f = lambda a: np.asarray(a, np.float64).tolist()  # noqa: E731
+            out["origins"] = {"origin_R": f(self.origin_R), "origin_t_mm": f(self.origin_t),
+                              "flange_R": f(self.flange_R), "flange_t_mm": f(self.flange_t), "align": f(self.align),
+                              "q_min": f(self.q_min), "q_max": f(self.q_max), "mass_kg": f(self.mass),
+                              "com_mm": f(self.com), "link_names": list(self.link_names)}
+        return out
 
     @host_method
     def nominal_lengths(self) -> dict[str, float]:

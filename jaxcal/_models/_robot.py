@@ -12,6 +12,7 @@ from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
 from .._core._precision import to_device
+from ._abstract import AbstractRobot
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 
 __all__ = ["DHRobot", "sample_joint_angles"]
@@ -39,7 +40,7 @@ def replace_tool(robot, tool_mm: Sequence[float]):
     return eqx.tree_at(lambda r: r.tool, robot, tool)
 
 
-class DHRobot(NonGeometricMixin, eqx.Module):
+class DHRobot(NonGeometricMixin, AbstractRobot):
     """A serial robot with revolute joints described by a nominal DH table.
 
     Lengths are in mm and angles in radians. Joint ``i`` (1-based, as in DH tables) has the
@@ -192,6 +193,43 @@ class DHRobot(NonGeometricMixin, eqx.Module):
             [np.rad2deg(np.asarray(self.alpha)), np.asarray(self.a), np.asarray(self.d),
              np.rad2deg(np.asarray(self.theta))], axis=1,
         )
+
+    def dh_rows_deg(self, deviations=None) -> np.ndarray:
+        """The DH table ``[dof, 4]`` (α/°, a/mm, d/mm, θ/°, angles not wrapped) at ``deviations``
+        (nominal + deviation, on the host: an eager ``jnp`` sum is a compiled program per shape);
+        ``None``: the nominal table (:meth:`dh_table_deg`)."""
+        if deviations is None:
+            return self.dh_table_deg()
+        alpha, a, d, theta = (np.asarray(getattr(self, g)) + np.asarray(getattr(deviations, g))
+                              for g in ("alpha", "a", "d", "theta"))
+        return np.stack([np.rad2deg(alpha), a, d, np.rad2deg(theta)], axis=1)
+
+    def geometry_dict(self) -> dict:
+        """JSON-friendly DH table: degrees/mm, limits in degrees, tool point in mm, convention
+        and Hayati joints."""
+        deg = lambda a: np.rad2deg(np.asarray(a, np.float64)).tolist()  # noqa: E731
+        return {
+            "name": self.name,
+            "convention": self.convention,
+            "beta_joints": list(self.beta_joints),
+            "alpha_deg": deg(self.alpha),
+            "a_mm": np.asarray(self.a, np.float64).tolist(),
+            "d_mm": np.asarray(self.d, np.float64).tolist(),
+            "theta_deg": deg(self.theta),
+            "beta_deg": deg(self.beta),
+            "q_min_deg": deg(self.q_min),
+            "q_max_deg": deg(self.q_max),
+            "tool_mm": np.asarray(self.tool, np.float64).tolist(),
+        }
+
+    def fingerprint(self) -> dict:
+        """The table in rad/mm rounded to 1e-12, name, convention and Hayati joints (a sweep's
+        stored chunks are reused for an equal robot)."""
+        return {
+            "name": self.name, "convention": self.convention, "beta_joints": list(self.beta_joints),
+            **{f: np.asarray(getattr(self, f), np.float64).round(12).tolist()
+               for f in ("alpha", "a", "d", "theta", "beta", "q_min", "q_max", "tool")},
+        }
 
 
 def sample_joint_angles(

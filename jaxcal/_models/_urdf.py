@@ -545,31 +545,22 @@ def _add_tool_link(root, tip: str, tool, name: str) -> None:
 
 
 def chain_to_dict(chain: SerialChain) -> dict:
-    """JSON-friendly chain that :func:`chain_from_dict` rebuilds exactly: the URDF text (the
-    loaded file, or the chain written as URDF) with base and tip link names, tool point (mm), and
-    for a chain built from DH its table (rad / mm)."""
-    out = {
-        "type": "serial_chain",
-        "name": chain.name,
-        "base": chain.base,
-        "tip": chain.tip,
-        "tool_mm": np.asarray(chain.tool, np.float64).tolist(),
-        "joint_names": list(chain.joint_names),
-        "joint_types": list(chain.joint_types),
-    }
-    if chain.dh is not None:
-        conv, alpha, a, d, theta, beta, bj = chain.dh
-        out["dh"] = {"convention": conv, "alpha_rad": list(alpha), "a_mm": list(a), "d_mm": list(d),
-                     "theta_rad": list(theta), "beta_rad": list(beta), "beta_joints": list(bj),
-                     "q_min": np.asarray(chain.q_min, np.float64).tolist(),
-                     "q_max": np.asarray(chain.q_max, np.float64).tolist()}
-    else:
-        out["urdf"] = chain.urdf if chain.urdf is not None else export_urdf(chain)
-    return out
+    """JSON-friendly chain that :func:`chain_from_dict` rebuilds exactly
+    (:meth:`SerialChain.geometry_dict`)."""
+    return chain.geometry_dict()
 
 
 def chain_from_dict(d: dict) -> SerialChain:
-    """Inverse of :func:`chain_to_dict`."""
+    """Inverse of :func:`chain_to_dict`: a chain from its ``"dh"`` table, its ``"origins"`` arrays
+    or its ``"urdf"`` text (result files before the ``"origins"`` form held a hand-built chain as
+    URDF text, which still loads)."""
+    if "origins" in d:
+        o = d["origins"]
+        return SerialChain.build(
+            origin_R=o["origin_R"], origin_t=o["origin_t_mm"], joint_types=d["joint_types"], q_min=o["q_min"],
+            q_max=o["q_max"], flange_R=o["flange_R"], flange_t=o["flange_t_mm"], align=o["align"], tool=d["tool_mm"],
+            mass=o["mass_kg"], com=o["com_mm"], joint_names=d["joint_names"], link_names=o["link_names"],
+            base=d["base"], tip=d["tip"], name=d.get("name", "chain"))
     if "dh" in d:
         import jax.numpy as jnp
 

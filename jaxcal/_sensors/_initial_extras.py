@@ -12,8 +12,8 @@ import numpy as np
 
 from .._core._params import Deviations, layout_for
 from .._datasets._dataset import _matrix_to_rotvec, _rotvec_to_matrix
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import fk_pose_jit
-from .._models._robot import DHRobot
 from ._initialise import (
     MIN_FRAME_ROWS,
     TOOL_PRIOR_STD_MM,
@@ -113,7 +113,7 @@ def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est
 
 
 def initial_extras(
-    robot: DHRobot,
+    robot: AbstractRobot,
     measurement: MeasurementModel,
     data,
     *,

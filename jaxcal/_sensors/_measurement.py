@@ -20,8 +20,8 @@ from jaxtyping import Array, Float
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group
 from .._core._precision import to_device
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
-from .._models._robot import DHRobot
 
 __all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
 
@@ -43,7 +43,7 @@ class MeasurementModel(eqx.Module):
     sample_shape: ClassVar[tuple[int, ...]]
 
     @abc.abstractmethod
-    def predict(self, robot: DHRobot, deviations: Deviations | None, q: Float[Array, "n dof"]):
+    def predict(self, robot: AbstractRobot, deviations: Deviations | None, q: Float[Array, "n dof"]):
         """Predicted reading for joint angles ``q`` ``[n, dof]`` (rad)."""
 
     def residual(self, robot, deviations, q, y) -> Float[Array, "n m"]:
@@ -379,14 +379,14 @@ class Markers(MarkerModel):
         return jnp.stack([p @ R.T + t for p in base], axis=1)
 
 
-def predict(measurement: MeasurementModel, robot: DHRobot, deviations: Deviations | None, q):
+def predict(measurement: MeasurementModel, robot: AbstractRobot, deviations: Deviations | None, q):
     """The sensor reading ``measurement`` predicts (same as ``measurement.predict``)."""
     return measurement.predict(robot, deviations, q)
 
 
 def residuals(
     measurement: MeasurementModel,
-    robot: DHRobot,
+    robot: AbstractRobot,
     deviations: Deviations | None,
     q: Float[Array, "n dof"],
     y,

@@ -12,7 +12,7 @@ from jaxtyping import Array
 
 from .._core._params import Deviations
 from .._core._xla import jit
-from .._models._robot import DHRobot
+from .._models._abstract import AbstractRobot
 from .._sensors._measurement import MeasurementModel, Position
 from ._simulate import Experiment, draw_deviations, simulate_experiment
 
@@ -46,7 +46,7 @@ class SimulatedFleet(NamedTuple):
         return np.asarray(z_mean), np.asarray(z_spread)
 
 
-def simulate_fleet(key: Array, robot: DHRobot, *, n_units: int, n_samples: int, measurement: MeasurementModel | None
+def simulate_fleet(key: Array, robot: AbstractRobot, *, n_units: int, n_samples: int, measurement: MeasurementModel | None
                    = None, noise_std: float = 0.05, spread_angle_deg: float = 0.02, spread_length_mm: float = 0.08,
                    mean: Deviations | None = None, test_fraction: float = 0.5, measure_key: Array | None = None,
                    shift: Deviations | None = None, **simulate) -> SimulatedFleet:

@@ -18,8 +18,9 @@ from .._core._precision import to_device, warn_if_float32
 from .._core._xla import filter_jit
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._datasets._split import permutation_rounds
+from .._models._abstract import AbstractRobot
 from .._models._kinematics import tool_point_soa
-from .._models._robot import DHRobot, sample_joint_angles
+from .._models._robot import sample_joint_angles
 from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 
 __all__ = ["Experiment", "simulate_experiment", "default_anchor", "draw_deviations"]
@@ -30,7 +31,7 @@ DEFAULT_ANGLE_STD_DEG = 0.2
 DEFAULT_LENGTH_STD_MM = 0.6
 
 
-def default_anchor(robot: DHRobot) -> Array:
+def default_anchor(robot: AbstractRobot) -> Array:
     """A draw-wire anchor on the base plane in front of the robot: ``(reach/2, 0, 0)`` mm."""
     return to_device([0.5 * robot.reach_mm(), 0.0, 0.0], np.float64)
 
@@ -46,7 +47,7 @@ class Experiment(eqx.Module):
         noise_std: Gaussian measurement noise σ (mm).
     """
 
-    robot: DHRobot
+    robot: AbstractRobot
     measurement: MeasurementModel
     true_deviations: Deviations
     train: Dataset
@@ -67,7 +68,7 @@ def workspace_mask(p, anchor, wire_range: tuple[float, float], min_height_mm: fl
 
 def draw_deviations(
     key: Array,
-    robot: DHRobot,
+    robot: AbstractRobot,
     *,
     angle_std_deg: float = DEFAULT_ANGLE_STD_DEG,
     length_std_mm: float = DEFAULT_LENGTH_STD_MM,
@@ -136,7 +137,7 @@ def check_simulation_settings(n_samples: int, test_fraction: float, noise_std: f
 
 def simulate_experiment(
     key: Array,
-    robot: DHRobot | None = None,
+    robot: AbstractRobot | None = None,
     *,
     n_samples: int = 2000,
     noise_std: float = DEFAULT_NOISE_STD,

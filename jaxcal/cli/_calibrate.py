@@ -176,7 +176,7 @@ def _cmd_calibrate(args) -> int:
     if warning is not None:
         print(f"jaxcal: warning: test file: {warning}", file=sys.stderr)
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
-    if hasattr(robot, "dh_table_deg"):
+    if robot.dh_rows_deg() is not None:  # a DH table; a generic chain prints its per-joint corrections
         _print_dh_table(robot, res, sd)
     else:
         _print_chain_table(robot, res, sd)

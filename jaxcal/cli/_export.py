@@ -10,7 +10,6 @@ from ._common import _Usage
 
 def _cmd_export(args) -> int:
     from .._calibration._io import load_result
-    from .._models._robot import DHRobot
     from .._models._urdf import export_urdf
 
     if not args.out and not args.dh_out:
@@ -23,7 +22,7 @@ def _cmd_export(args) -> int:
         export_urdf(res.robot, res.deviations, args.out)
         print(f"wrote {args.out} (calibrated {res.robot.name}, {res.robot.dof} joints)")
     if args.dh_out:
-        if not isinstance(res.robot, DHRobot):
+        if res.robot.dh_rows_deg() is None:
             raise _Usage("--dh-out: this result's robot is a generic chain, not a DH table; use --out FILE.urdf")
         from .._calibration._io import save_robot_csv
 

@@ -15,6 +15,7 @@ from conftest import central_differences, np_rx, np_rz, numpy_dh_frames
 import jaxcal
 from jaxcal import Deviations, MassModel, ParameterSpace, gravity_torques
 from jaxcal._core._params import layout_for
+from jaxcal._simulation._simulate import default_anchor, draw_deviations
 
 
 def _dh_numpy(robot, q):
@@ -113,7 +114,7 @@ def test_groups_layout_and_defaults():
 def test_zero_nongeometric_groups_are_exactly_the_geometric_fk():
     base = jaxcal.robots.hsr_jr680(tool_mm=(30.0, 20.0, 100.0))
     robot = base.with_compliance().with_harmonics()
-    geo = jaxcal._simulation._simulate.draw_deviations(jax.random.key(2), base)
+    geo = draw_deviations(jax.random.key(2), base)
     dev = Deviations(geo.values, layout_for(robot))
     q = jnp.asarray(np.random.default_rng(3).uniform(-2, 2, (50, 6)))
     np.testing.assert_array_equal(np.asarray(jaxcal.fk_position(robot, q, dev)), np.asarray(jaxcal.fk_position(base, q, geo)))
@@ -142,7 +143,7 @@ def test_corrections_are_joint_space_offsets():
 
 def test_jacobian_matches_finite_differences():
     robot = jaxcal.robots.hsr_jr680(tool_mm=(0.0, 50.0, 80.0)).with_compliance().with_harmonics(joints=(2, 3, 5))
-    meas = jaxcal.CableLength(jaxcal._simulation._simulate.default_anchor(robot))
+    meas = jaxcal.CableLength(default_anchor(robot))
     space = ParameterSpace.for_robot(robot, measurement=meas, dh=False, beta=False)
     assert space.free_names[0] == "compliance_2" and space.n_free == 4 + 12
     q = jnp.asarray(np.random.default_rng(5).uniform(-1.5, 1.5, (30, 6)))
@@ -160,7 +161,7 @@ def test_jacobian_matches_finite_differences():
 
 def _truth(robot, key, c_true, h_scale=0.0):
     base = robot.without_nongeometric()
-    geo = jaxcal._simulation._simulate.draw_deviations(key, base)
+    geo = draw_deviations(key, base)
     lay = layout_for(robot)
     vals = dict(geo.values)
     if robot.nongeometric.compliance_joints:
