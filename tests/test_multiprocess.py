@@ -57,10 +57,13 @@ def _env(**extra):
 def test_two_processes_sweep_equals_one(tmp_path):
     script = tmp_path / "worker.py"
     script.write_text(WORKER)
-    # reference: one process with two forced CPU devices (the same global device count)
+    # reference: one process with two forced CPU devices (the same global device count), run at the
+    # same time as the two processes (they wait on each other's collectives; the reference fills
+    # the gaps)
     ref = tmp_path / "ref.json"
-    subprocess.run([sys.executable, str(script), "", "0", "1", "", str(ref)], check=True, timeout=600,
-                   env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"))
+    reference = subprocess.Popen([sys.executable, str(script), "", "0", "1", "", str(ref)],
+                                 env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     addr = f"127.0.0.1:{_free_port()}"
     out_dir = tmp_path / "sweep"
     procs = [subprocess.Popen([sys.executable, str(script), addr, str(i), "2", str(out_dir), str(tmp_path / f"p{i}.json")],
@@ -70,10 +73,12 @@ def test_two_processes_sweep_equals_one(tmp_path):
     try:
         for p in procs:
             logs.append(p.communicate(timeout=600)[0])
+        ref_log = reference.communicate(timeout=600)[0]
     finally:
-        for p in procs:
+        for p in (*procs, reference):
             if p.poll() is None:
                 p.kill()
+    assert reference.returncode == 0, ref_log[-3000:]
     for p, log in zip(procs, logs):
         if p.returncode != 0 and ("gloo" in log.lower() or "collectives" in log.lower()) and "not" in log.lower():
             pytest.skip(f"this jaxlib has no CPU collectives for multi-process runs: {log.strip().splitlines()[-1]}")

@@ -86,7 +86,7 @@ def test_narrow_coverage_and_implausible_parameters_warn(messy):
     assert "narrow joint coverage: q4 16.0°, q5 16.0°" in text
     assert res.diagnostics.narrow_joints == (4, 5)
     # no prior on narrow data: absurd parameters, flagged; the default prior keeps them plausible
-    assert not res.plausible and "implausible parameters" in text and "prior='default'" in text
+    assert not res.plausible and "implausible parameters" in text and "--prior default" in text
     assert res.evaluate(ex.far).rmse > 2 * _quiet(
         jaxcal.calibrate, ex.robot, ex.measurement, ex.train, "lm", extras="anchor,cable_offset",
         prior="default").evaluate(ex.far).rmse

@@ -323,7 +323,7 @@ def candidate_space(robot, measurement, extras=(), free=None, fix=()) -> Paramet
     if wrong:
         raise ValueError(f"{', '.join(wrong)} do not apply to {measurement.kind} data")
     if not chosen:
-        raise ValueError("no free parameters left after free=/fix=")
+        raise ValueError("no free parameters left after the free and fix choices (--free/--fix on the command line)")
     return ParameterSpace.from_names(layout, [n for n in names if n in chosen])
 
 
@@ -1068,7 +1068,7 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     bad = implausible_deviations(space.names, space.units, flat, checks)
     if bad:
         listed = ", ".join(f"Δ{n} = {v:+.4g} {'°' if u == 'deg' else 'mm'}" for n, v, u in bad[:8])
-        hint = "" if result.prior is not None else "; a prior toward nominal (prior='default') usually fixes this"
+        hint = "" if result.prior is not None else "; a prior toward nominal (--prior default; prior \"default\" in Python) usually fixes this"
         msgs.append(f"implausible parameters (beyond ±{checks.angle_deg:g}° / ±{checks.length_mm:g} mm): {listed}"
                     f"{' …' if len(bad) > 8 else ''} — the model may fit the measured region and be wrong "
                     f"elsewhere{hint}")
@@ -1107,7 +1107,8 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
         unit = getattr(problem.measurement, "unit", "mm")  # px for a camera, σ for combined blocks (whitened)
         msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} {unit} robust σ) at "
                     f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
-                    + ("" if result.loss != "linear" else "; consider loss='huber' or excluding them"))
+                    + ("" if result.loss != "linear" else "; consider a robust loss (--loss huber; loss \"huber\" in "
+                                                             "Python) or excluding them"))
     suspect, cause = result_findings(result, problem, unc, resid, resid_start, checks,
                                      extras_started=extras_msg is not None, noise_std=noise_std)
     if suspect:

@@ -639,7 +639,8 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     why = ""
     if extras == "register" and groups and not enough:
         raise ValueError(f"{data.n} rows are too few to register {', '.join(groups)} ({n_par} parameters) again; "
-                         "pass extras='result' to take them from the calibration")
+                         "keep the calibration's extras instead (--keep-extras on the command line, "
+                         "extras \"result\" in Python)")
     mode = extras if extras != "auto" else ("register" if groups and enough else "result")
     if extras == "auto" and groups and not enough:
         why = f" ({data.n} rows are too few to register them again)"

@@ -122,7 +122,8 @@ class FleetSummary(NamedTuple):
         """The rows as a plain-text (or Markdown) table, with a title line counting the flagged units."""
         tol = "" if self.tolerance_mm is None else f", tolerance {self.tolerance_mm:g} mm train RMSE"
         title = (f"{len(self.rows)} units, {len(self.flagged)} flagged (failed, not converged, implausible{tol}); "
-                 + ("no floor (pass noise_std=)" if self.noise_std_mm is None else
+                 + ("no floor (no sensor σ given: --noise-std MM on the command line, noise_std in Python)"
+                  if self.noise_std_mm is None else
                     f"floor for sensor σ {self.noise_std_mm:g} mm"))
         rows = [(r.unit, r.n, r.status, r.rmse_mm, r.max_mm, r.noise_std_mm, r.floor_mm, r.floor_ratio,
                  "yes" if r.plausible else "NO", "YES" if r.out_of_tolerance else "no", r.warnings, r.error or "") for r in self.rows]

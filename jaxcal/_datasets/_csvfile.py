@@ -128,7 +128,7 @@ def _sniff(path: str, header_line: str) -> str:
     if best and len(found) > 1:
         raise ValueError(
             f"{path}: cannot tell the delimiter from the header line (as many of "
-            f"{' and '.join(_NAMES[d] for d in found)}); pass delimiter="
+            f"{' and '.join(_NAMES[d] for d in found)}); give the delimiter (load_csv's delimiter argument)"
         )
     return found[0]
 

@@ -238,7 +238,8 @@ def load_sweep(out_dir, *, partial: bool = False):
     done = min(sum(c[2] for c in ch) for ch in units.values())
     if done < n and not partial:
         raise ValueError(f"{root}: the sweep is incomplete ({done} of {n} trials in every run); rerun the sweep "
-                         "with the same settings to resume it, or pass partial=True")
+                         "with the same settings to resume it, or use the trials finished so far (jaxcal report --partial, "
+                         "the partial argument in Python)")
     if done == 0:
         raise ValueError(f"{root}: no finished trials")
 

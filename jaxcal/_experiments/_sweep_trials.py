@@ -264,7 +264,7 @@ def _make_source(robot, measurement, n_samples, noise_std, test_fraction, experi
         settings = {"kind": "experiment", "digest": _array_digest(data.train.q, data.train.y, data.test.q, data.test.y)}
         return src, robot, measurement, settings
     if robot is None or measurement is None:
-        raise ValueError("with given data, pass robot= and measurement= (the nominal models the data come from)")
+        raise ValueError("with given data, give the robot and measurement arguments (the nominal models the data come from)")
     if isinstance(data, Dataset):
         _check_kind(data, measurement)
         n_test = int(round(data.n * test_fraction))

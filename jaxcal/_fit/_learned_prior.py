@@ -132,7 +132,7 @@ def _unit_information(result, names: list[str]) -> tuple[np.ndarray, np.ndarray]
     if not np.all(np.isfinite(std)):
         bad = [free[i] for i, s in zip(rob, std) if not np.isfinite(s)]
         raise ValueError(f"unit's posterior leaves {bad} undetermined; calibrate the units under a prior "
-                         "(objective='measured' or prior='default')")
+                         "(the command line's default, or objective \"measured\" / prior \"default\" in Python)")
     C = np.asarray(unc.covariance, np.float64)[np.ix_(rob, rob)]
     x = np.asarray(result.x, np.float64)[rob]
     P = np.linalg.inv(0.5 * (C + C.T))  # posterior information of the robot part (extras marginalised)

@@ -123,7 +123,9 @@ class MassModel(eqx.Module):
         **assumption**, no published inertial data); other robots must pass ``masses``."""
         if masses is None:
             if robot.name not in _PRESET_MASSES:
-                raise ValueError(f"no assumed masses for robot {robot.name!r}; pass masses=[...] (kg per link)")
+                raise ValueError(f"no assumed masses for robot {robot.name!r}: give its mass model (kg per link) as a "
+                                 "file (--compliance FILE on the command line; jaxcal.MassModel.load) or, in "
+                                 "Python, MassModel.default_for's masses argument")
             masses, pm = _PRESET_MASSES[robot.name]
             payload_mass = pm if payload_mass is None else payload_mass
         payload_mass = 0.0 if payload_mass is None else payload_mass

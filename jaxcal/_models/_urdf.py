@@ -133,7 +133,8 @@ def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(
     roots = [n for n in links if n not in joints_by_child]
     if base is None:
         if len(roots) != 1:
-            raise ValueError(f"URDF: choose base= among the root links {roots}")
+            raise ValueError(f"URDF: the file has several root links {roots}: name the chain's base link "
+                             "(--base LINK on the command line, load_urdf's base argument in Python)")
         base = roots[0]
     for label, link in (("base", base), ("tip", tip)):
         if link is not None and link not in links:
@@ -150,7 +151,8 @@ def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(
             else:
                 leaves.append(k)
         if len(leaves) != 1:
-            raise ValueError(f"URDF: the tree below {base!r} branches; choose tip= among its leaf links {sorted(leaves)}")
+            raise ValueError(f"URDF: the tree below {base!r} branches: name the chain's tip link among its leaf links "
+                             f"{sorted(leaves)} (--tip LINK on the command line, load_urdf's tip argument in Python)")
         tip = leaves[0]
     # walk up from the tip to the base
     path: list[ET.Element] = []
@@ -512,7 +514,7 @@ def _write_tip(root, chain: SerialChain, children: dict, T_tip: np.ndarray, name
     if not path:
         if not name:
             raise ValueError(f"the tip errors need a link to carry them: {chain.tip!r} is the last moving "
-                             "joint's child; pass tip_link=")
+                             "joint's child; give export_urdf's tip_link argument (the name of a link to add)")
         ET.SubElement(root, "link", name=name)
         j = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
         ET.SubElement(j, "origin", **_origin_attrs(T_tip))

@@ -83,7 +83,8 @@ class ExtendedKalmanFilter(BoxSearch):
         ob = problem.objective
         if ob is not None and ob.loss != "linear":
             raise ValueError("the EKF assimilates one sample at a time and supports no robust loss; "
-                             "use loss='linear' (or a least-squares/gradient/population method)")
+                             "use the linear loss (--loss linear; loss \"linear\" in Python), or a least-squares, gradient or "
+                             "population method")
         if ob is not None and ob.has_prior:
             # the MAP prior: residual w·(x − m) with w = σ/s  →  std of z = (noise_std/w)/scale
             w_z = ob.prior_precision * problem.scale

@@ -185,7 +185,7 @@ def test_explicit_delimiter(tmp_path, reference):
 
 def test_ambiguous_delimiter_is_an_error(tmp_path):
     p = _write(tmp_path / "amb.csv", "q1_deg;q2_deg,length_mm\n1;2,3\n")
-    with pytest.raises(ValueError, match="cannot tell the delimiter.*pass delimiter="):
+    with pytest.raises(ValueError, match="cannot tell the delimiter.*load_csv.s delimiter argument"):
         load_csv(p)
 
 

@@ -291,7 +291,7 @@ def _mini(t1="revolute", lim='<limit lower="-1" upper="1"/>', mimic=""):
     (dict(base="a", tip="nope"), r"unknown tip link 'nope'; links in this file: \['a', 'b', 'c', 'd'\]"),
     (dict(base="zz", tip="c"), "unknown base link 'zz'"),
     (dict(base="c", tip="d"), "tip link 'd' is not below base link 'c'"),
-    (dict(base="a"), r"branches; choose tip= among its leaf links \['c', 'd'\]"),
+    (dict(base="a"), r"branches: name the chain's tip link among its leaf links \['c', 'd'\] \(--tip LINK"),
 ])
 def test_clear_errors_for_links(kwargs, match):
     with pytest.raises(ValueError, match=match):
