@@ -210,7 +210,7 @@ def test_bad_arguments():
         sweep([], 2, grid={"adamodw": {"no_such_setting": [1.0, 2.0]}})
     with pytest.raises(TypeError, match="experiment option"):
         sweep(["lm"], 2, experiment={"nonsense": 1})
-    with pytest.raises(ValueError, match="robot= and measurement="):
+    with pytest.raises(ValueError, match="give the robot and measurement arguments"):
         sweep(["lm"], 2, data=Dataset(np.zeros((10, 6)), np.zeros(10)))
     with pytest.raises(ValueError, match="labelled"):
         sweep(["lm", "lm"], 2)
