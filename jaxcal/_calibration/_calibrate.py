@@ -399,17 +399,36 @@ def _extras_moved(start: Deviations, cur: Deviations) -> Deviations:
     return start.replace(**extras) if extras else start
 
 
+class TooFewSamples(ValueError):
+    """The data have no more residuals than the parameters they must determine. A ``ValueError``
+    with the counts as attributes: ``n_samples`` given, ``n_residuals`` they give, ``n_needed``
+    the residuals to exceed, ``n_free`` the free parameters, ``samples_needed`` the fewest
+    samples of this kind that exceed ``n_needed`` and ``samples_for_all`` those that exceed
+    ``n_free`` (at these samples' residuals per sample). Under a prior ``n_needed`` is what these
+    few poses determine, which grows with more poses up to ``n_free``: ``samples_needed`` is a
+    lower bound, ``samples_for_all`` enough for any pose set that sees every free parameter."""
+
+    def __init__(self, n_samples: int, n_residuals: int, n_needed: int, n_free: int, what: str):
+        self.n_samples, self.n_residuals, self.n_needed, self.n_free = n_samples, n_residuals, n_needed, n_free
+        per = n_residuals / n_samples if n_samples and n_residuals else 1.0
+        self.samples_needed = int(math.floor(n_needed / per)) + 1
+        self.samples_for_all = int(math.floor(n_free / per)) + 1
+        more = "" if self.samples_for_all == self.samples_needed else (
+            f" ({self.samples_for_all} for the data to determine all {n_free} free parameters)")
+        super().__init__(f"too few samples: {n_samples} sample(s) give {n_residuals} residuals for {what}; need "
+                         f"more residuals than that: at least {self.samples_needed} sample(s){more}")
+
+
 def _check_enough_residuals(n: int, n_res: int, space: ParameterSpace, report=None, prior=None) -> None:
-    """Raise unless the data have more residuals than the parameters they must determine: every
-    free one, or under a prior (MAP) the data-identifiable ones (``report.rank``) — the prior
-    determines the rest, but the noise σ the prior is weighed against needs ``N > rank``."""
+    """Raise :class:`TooFewSamples` unless the data have more residuals than the parameters they
+    must determine: every free one, or under a prior (MAP) the data-identifiable ones
+    (``report.rank``) — the prior determines the rest, but the noise σ the prior is weighed
+    against needs ``N > rank``."""
     need = space.n_free if prior is None or report is None else report.rank
     if n_res <= need:
         what = (f"{need} data-identifiable parameters (of {space.n_free} free under the prior)" if need != space.n_free
                 else f"{space.n_free} free parameters")
-        raise ValueError(
-            f"too few samples: {n} sample(s) give {n_res} residuals for {what}; need more residuals than that"
-        )
+        raise TooFewSamples(n, n_res, need, space.n_free, what)
 
 
 def _program_space(robot, measurement, cand: ParameterSpace, space: ParameterSpace) -> ParameterSpace:

@@ -340,9 +340,13 @@ def _joint_columns(path: str, header, dof: int | None) -> tuple[list[str], str]:
     n = max(by_joint)
     missing = [f"q{j}_{unit}" for j in range(1, n + 1) if j not in by_joint]
     if missing or 0 in by_joint:
+        # a misspelt joint column (q1_dg, Q1_deg, q1 deg) is what the user will look for
+        near = [h for h in header if h not in found and re.match(r"\s*q\s*\d+", h, re.IGNORECASE)]
         raise ValueError(
             f"{path}: joint-angle columns must be numbered 1..N without gaps; "
             + (f"missing {missing}" if missing else "found q0") + f" (have {list(found)})"
+            + (f"; found {near}, not a joint-angle column name (qN_deg, qN_rad, or qN_mm for a prismatic joint)"
+               if near else "")
         )
     if dof is not None and n != dof:
         raise ValueError(f"{path}: file has {n} joint-angle columns but the robot has {dof} joints")

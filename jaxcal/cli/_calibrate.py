@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import math
 import sys
 import time
 import warnings
@@ -32,6 +34,24 @@ def _rows(text: str | None) -> list[int]:
         except ValueError:
             raise _Usage(f"--exclude-rows takes data row numbers (1-based) and ranges like 5-9, got {part!r}") from None
     return out
+
+
+@contextlib.contextmanager
+def _rows_needed(n_file: int, n_train: int, path, split: bool, test_fraction: float):
+    """``jaxcal calibrate``'s "too few samples" in the rows of the user's file: how many of its rows
+    went to the random test split, and how many rows the file needs (exit 2, one line)."""
+    from .._calibration._calibrate import TooFewSamples
+
+    try:
+        yield
+    except TooFewSamples as e:
+        held = n_file - n_train
+        if split and held:
+            need = math.ceil(e.samples_needed / (1.0 - test_fraction))
+            raise _Usage(f"{e}, for training; {path} has {n_file} rows, of which {held} went to the test split "
+                         f"(--test-fraction {test_fraction:g}): give at least {need} rows, or train on every row "
+                         "with --test-fraction 0") from None
+        raise _Usage(f"{e}; {path} has {n_file} rows") from None
 
 
 def _cmd_calibrate(args) -> int:
@@ -104,7 +124,8 @@ def _cmd_calibrate(args) -> int:
     def run(train_set):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
-            with _as_usage(errors=(TypeError,)):  # a --set name the method does not take
+            with _as_usage(errors=(TypeError,)), _rows_needed(data.n, train_set.n, path, test_file is None,
+                                                             test_fraction):  # a --set name the method does not take
                 res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
                                 loss=loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
         for w in caught:

@@ -50,7 +50,8 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
         if not p.exists():
             raise _Usage(f"robot file {spec!r} not found")
         return load_robot_csv(p)
-    raise _Usage(f"unknown robot {spec!r}; presets: {', '.join(robots.PRESETS)} (or a DH table CSV file)")
+    raise _Usage(f"unknown robot {spec!r}; presets: {', '.join(robots.PRESETS)}; or a robot file: a DH table "
+                 "(.csv, see jaxcal calibrate --help) or a URDF (.urdf, with --base LINK and --tip LINK)")
 
 
 def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):

@@ -103,3 +103,20 @@ def test_likely_cause_from_the_data_alone():
     assert "positions look like µm" in likely_cause(robot, Position(), q, pos * 1000, pos - pos * 1000)
     assert "radians read as degrees" in likely_cause(robot, cable, np.deg2rad(q), y, r)
     assert "robot model may not match" in likely_cause(robot, cable, q, y, r, huge_residual=True)
+
+
+def test_counts_in_the_rows_of_the_users_file(wire, tmp_path, capsys):
+    """Too few rows: the one error line says how many of the file's rows went to the test split and
+    how many rows the file needs; a misspelt joint column is named; an unknown robot name says
+    that a robot file (DH table or URDF) works too."""
+    head, rows = wire
+    f = _write(tmp_path / "five.csv", head, rows[:5])
+    err = _calibrate(capsys, [f, "--robot", "hsr_jr680"], 2).strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jaxcal: error: too few samples: 4 sample(s)"), err
+    assert "has 5 rows, of which 1 went to the test split (--test-fraction 0.2): give at least" in err[0], err
+    assert "--test-fraction 0" in err[0]
+    typo = _write(tmp_path / "typo.csv", head[:-1] + [head[-1].replace("q1_deg", "q1_dg")], rows)
+    err = _calibrate(capsys, [typo, "--robot", "hsr_jr680"], 2)
+    assert "missing ['q1_deg']" in err and "found ['q1_dg'], not a joint-angle column name" in err, err
+    err = _calibrate(capsys, [f, "--robot", "kuka_kr16"], 2)
+    assert "unknown robot 'kuka_kr16'" in err and "URDF (.urdf, with --base LINK and --tip LINK)" in err, err
