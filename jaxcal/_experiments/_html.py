@@ -338,6 +338,13 @@ def write_html(source, out) -> pathlib.Path:
     src = pathlib.Path(source)
     d = json.loads(src.read_text(encoding="utf-8"))
     fmt = str(d.get("format", "")) if isinstance(d, dict) else ""
+    if fmt.startswith("jaxcal-combined/"):  # the summary of `jaxcal calibrate --combine`
+        blocks = [str(src.parent / f"{b['name']}.json") for b in d.get("blocks", []) if b.get("kind") != "relations"
+                  and (src.parent / f"{b['name']}.json").exists()]
+        raise ValueError(f"{src} is the summary of a combined fit (jaxcal calibrate --combine), whose report has "
+                         "no page of its own yet: report one of its blocks' results"
+                         + (f" ({', '.join(blocks)})" if blocks else "") + "; the summary's block table is what "
+                         "the calibrate command printed")
     if not (fmt.startswith("jaxcal-calibration-result/") or fmt.startswith("jaxcal-evaluation/")):
         raise ValueError(f"{src} is neither a jaxcal calibration result nor an evaluation (no matching 'format')")
     from .._calibration._io import file_identity, result_data_file

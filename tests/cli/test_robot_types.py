@@ -107,6 +107,9 @@ def test_combined_fit_with_relations(robot_args, tmp_path, capsys):
     for name in ("plane", "bar"):  # each block's σ estimated near the simulated noise
         assert 0.6 * NOISE < combined["sigma"][name] < 1.5 * NOISE, combined["sigma"]
     assert "length scale: set by bar" in out.out
+    # the summary has no report page yet: the refusal names the block results to report instead
+    code, out = _run(["report", str(tmp_path / "fit" / "combined.json"), "--html", str(tmp_path / "r.html")], capsys)
+    assert code == 2 and "summary of a combined fit" in out.err and str(tmp_path / "fit" / "plane.json") in out.err
 
 
 def test_modified_dh_file_at_the_floor_on_independent_data(tmp_path, capsys):
