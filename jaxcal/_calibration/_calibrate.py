@@ -41,7 +41,6 @@ from .._fit._diagnostics import (
     gram_at,
     gram_from_jacobian,
     implausible_deviations,
-    joint_units,
     narrow_joints,
     outlier_rows,
     parameter_uncertainty,
@@ -1098,7 +1097,7 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
                     "some parameter combinations are weakly determined by these poses")
     cov = coverage(result.robot, problem.q) if cov is None else cov
     narrow = narrow_joints(result.robot, cov, checks)
-    unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in joint_units(result.robot))))
+    unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in result.robot.joint_units())))
     weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()
     n_dir, directions = (0, ()) if unc is None or prior_std is None else prior_directions(unc, prior_std, checks)
     if prior_std is not None:

@@ -269,18 +269,14 @@ def before_after_errors(result, robot, measurement, sets) -> tuple[bool, dict]:
 
 def joints_to_file_units(robot, q) -> np.ndarray:
     """Joint readings ``[n, dof]`` (rad, mm at prismatic joints) in the files' units: degrees, mm."""
-    from .._fit._diagnostics import joint_units
-
-    rad = np.asarray([u == "rad" for u in joint_units(robot)])
+    rad = np.asarray([u == "rad" for u in robot.joint_units()])
     q = np.asarray(q, np.float64)
     return np.where(rad[None, :], np.rad2deg(q), q)
 
 
 def joints_from_file_units(robot, q) -> np.ndarray:
     """Inverse of :func:`joints_to_file_units`."""
-    from .._fit._diagnostics import joint_units
-
-    rad = np.asarray([u == "rad" for u in joint_units(robot)])
+    rad = np.asarray([u == "rad" for u in robot.joint_units()])
     q = np.asarray(q, np.float64)
     return np.where(rad[None, :], np.deg2rad(q), q)
 

@@ -205,7 +205,7 @@ def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
     )
 
 
-def save_robot_csv(robot: AbstractRobot, path) -> None:
+def save_robot_csv(robot: DHRobot, path) -> None:
     """Write ``robot``'s nominal DH table in the layout of :func:`load_robot_csv` (standard or
     modified DH, with its ``# convention:`` line)."""
     if robot.beta_joints:

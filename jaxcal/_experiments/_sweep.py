@@ -274,10 +274,6 @@ def _check_n_seeds(n_seeds) -> int:
     return int(n_seeds)
 
 
-def _robot_fingerprint(robot) -> dict:
-    return robot.fingerprint()
-
-
 #: the settings every unit's fingerprint includes (a stored chunk is reused only if they match)
 _COMMON_SETTINGS = ("format_version", "key_data", "dtype", "chunk_size", "source", "robot", "measurement", "start",
                     "keep_errors", "keep_history", "objective")
@@ -297,7 +293,7 @@ def _settings(ex: _Execution, base_key, noise_std, source_settings, robot, measu
         "batching": "map" if ex.sequential else "vmap",
         "noise_std": None if noise_std is None else float(noise_std),
         "source": source_settings,
-        "robot": _robot_fingerprint(robot),
+        "robot": robot.fingerprint(),
         "robot_dict": robot_to_dict(robot),
         "measurement": {"kind": measurement.kind, "repr": repr(jax.tree.map(np.asarray, measurement))},
         "measurement_dict": measurement_to_dict(measurement),

@@ -560,18 +560,13 @@ def implausible_deviations(names, units, values, checks: Checks) -> tuple:
                  if not math.isfinite(v) or abs(v) > (checks.angle_deg if u == "deg" else checks.length_mm))
 
 
-def joint_units(robot) -> tuple[str, ...]:
-    """``"rad"`` per revolute and ``"mm"`` per prismatic joint (DH robots: all revolute)."""
-    return tuple(robot.joint_units())
-
-
 def coverage(robot, q) -> np.ndarray:
     """``[dof, 2]``: how far each joint moved in ``q`` and the width of its limits, in degrees
-    (revolute joints) or mm (prismatic joints, :func:`joint_units`)."""
+    (revolute joints) or mm (prismatic joints, ``robot.joint_units()``)."""
     qn = np.asarray(q, np.float64)
     used = qn.max(axis=0) - qn.min(axis=0) if qn.shape[0] else np.zeros(robot.dof)
     limits = np.asarray(robot.q_max, np.float64) - np.asarray(robot.q_min, np.float64)
-    deg = np.asarray([u == "rad" for u in joint_units(robot)])
+    deg = np.asarray([u == "rad" for u in robot.joint_units()])
     return np.stack([np.where(deg, np.rad2deg(used), used), np.where(deg, np.rad2deg(limits), limits)], axis=1)
 
 
@@ -579,7 +574,7 @@ def narrow_joints(robot, cov: np.ndarray, checks: Checks) -> tuple[int, ...]:
     """1-based joints that moved less than ``checks.narrow_joint_deg`` (revolute) or, prismatic,
     less than the same fraction of a turn of their limit range (the default 30° ↔ 1/12 of it)."""
     out = []
-    for j, u in enumerate(joint_units(robot)):
+    for j, u in enumerate(robot.joint_units()):
         bound = checks.narrow_joint_deg if u == "rad" else checks.narrow_joint_deg / 360.0 * cov[j, 1]
         if cov[j, 0] < bound:
             out.append(j + 1)
@@ -681,7 +676,7 @@ def likely_cause(robot, measurement, q, y, residual, *, huge_residual: bool = Fa
       reach): the robot model may not match the data.
 
     Args:
-        robot: the nominal robot (:func:`joint_units`).
+        robot: the nominal robot (``robot.joint_units()``).
         measurement: the measurement model (its ``kind``).
         q: ``[n, dof]`` joint values (rad; mm at prismatic joints).
         y: ``[n, *sample_shape]`` readings.
@@ -699,7 +694,7 @@ def likely_cause(robot, measurement, q, y, residual, *, huge_residual: bool = Fa
         if s_y > 100 * s_p > 0:
             return (f"the {what} look like µm, expected mm (they vary {s_y / s_p:.0f}× more than the robot "
                     "model predicts)")
-    revolute = [j for j, u in enumerate(joint_units(robot)) if u == "rad"]
+    revolute = [j for j, u in enumerate(robot.joint_units()) if u == "rad"]
     qn = np.asarray(q, np.float64)
     if len(revolute) >= 2 and qn.shape[0] and np.abs(qn[:, revolute]).max() <= math.radians(2 * math.pi):
         return ("the joint angles look like radians read as degrees (every joint within ±6.3°: radians under "
@@ -741,7 +736,7 @@ def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_st
       reaches from its nominal or guessed value (no physical set-up).
 
     Args:
-        robot: the nominal robot (``reach_mm()``, :func:`joint_units`).
+        robot: the nominal robot (``reach_mm()``, ``robot.joint_units()``).
         measurement: the measurement model (``kind``, ``unit``: mm, or px for cameras).
         q: ``[n, dof]`` training joint values (rad; mm at prismatic joints).
         y: ``[n, *sample_shape]`` training readings.

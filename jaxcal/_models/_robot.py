@@ -189,18 +189,14 @@ class DHRobot(NonGeometricMixin, AbstractRobot):
 
     def dh_table_deg(self) -> np.ndarray:
         """The nominal table as ``[dof, 4]`` columns α/°, a/mm, d/mm, θ/° (the paper's Table I)."""
-        return np.stack(
-            [np.rad2deg(np.asarray(self.alpha)), np.asarray(self.a), np.asarray(self.d),
-             np.rad2deg(np.asarray(self.theta))], axis=1,
-        )
+        return self.dh_rows_deg()
 
     def dh_rows_deg(self, deviations=None) -> np.ndarray:
         """The DH table ``[dof, 4]`` (α/°, a/mm, d/mm, θ/°, angles not wrapped) at ``deviations``
         (nominal + deviation, on the host: an eager ``jnp`` sum is a compiled program per shape);
-        ``None``: the nominal table (:meth:`dh_table_deg`)."""
-        if deviations is None:
-            return self.dh_table_deg()
-        alpha, a, d, theta = (np.asarray(getattr(self, g)) + np.asarray(getattr(deviations, g))
+        ``None``: the nominal table."""
+        alpha, a, d, theta = (np.asarray(getattr(self, g)) if deviations is None else
+                              np.asarray(getattr(self, g)) + np.asarray(getattr(deviations, g))
                               for g in ("alpha", "a", "d", "theta"))
         return np.stack([np.rad2deg(alpha), a, d, np.rad2deg(theta)], axis=1)
 

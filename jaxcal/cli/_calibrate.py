@@ -124,8 +124,9 @@ def _cmd_calibrate(args) -> int:
     def run(train_set):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
+            # TypeError: a --set name the method does not take; too few samples: in the file's rows
             with _as_usage(errors=(TypeError,)), _rows_needed(data.n, train_set.n, path, test_file is None,
-                                                             test_fraction):  # a --set name the method does not take
+                                                             test_fraction):
                 res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
                                 loss=loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
         for w in caught:
