@@ -483,9 +483,10 @@ def _mask_output(out: CalibrationOutput, columns: np.ndarray) -> CalibrationOutp
     x = np.asarray(out.x)[columns]
     gram = out.gram
     if gram is not None:
-        d, A, G, rss, r, e = gram
+        d, A, G, rss, r, e, comp = gram
         sub = np.ix_(columns, columns)
-        gram = (np.asarray(d)[columns], np.asarray(A)[sub], np.asarray(G)[sub], rss, r, e)
+        comp = None if comp is None else np.asarray(comp)[:, columns][:, :, columns]
+        gram = (np.asarray(d)[columns], np.asarray(A)[sub], np.asarray(G)[sub], rss, r, e, comp)
     return out._replace(x=x, gram=gram)
 
 
@@ -648,7 +649,8 @@ def _output_structure(cal: Calibrator):
     when a program is stored (:func:`~jaxcal._core._exported.compile_stored`)."""
     z = 0
     robust = cal.objective is not None and cal.objective.loss != "linear"  # gram_at's per-sample errors
-    gram = (z, z, z, z, z, z if robust else None) if cal.report else None
+    comp = z if len(cal.measurement.components) > 1 else None  # gram_at's per-component grams
+    gram = (z, z, z, z, z, z if robust else None, comp) if cal.report else None
     dev = cal.start if cal.report else None
     template = CalibrationOutput(z, z, z, z, z, Metrics(*(z for _ in Metrics._fields)), None, gram, dev)
     return jax.tree_util.tree_structure(template)
@@ -909,6 +911,9 @@ def _calibration_steps(
     dims = math.sqrt(error_dims(measurement, problem.observed())) if loss != "linear" and loss_scale is None else 1.0
     rounds, compile_s, run_s, cur = 0, 0.0, 0.0, start
     noise = scale = None
+    # a σ per residual component estimated from the fit, the model reweighted between the rounds
+    reweight, moved = measurement.estimates_weights(), False
+    adaptive = adaptive or reweight
     histories = []
     reselection = []
     before_rows = cov = None
@@ -925,8 +930,8 @@ def _calibration_steps(
                 new_noise = prior.noise_std if prior is not None and prior.noise_std is not None else s_hat
                 new_scale = (loss_scale if loss_scale is not None else LOSSES[loss] * dims * s_hat
                              if loss != "linear" else None)
-            if rounds > first and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale))
-                                   or rounds - first >= 4):
+            if rounds > first and (not adaptive or (_close(new_noise, noise) and _close(new_scale, scale) and not moved)
+                                   or rounds - first >= (MAX_REWEIGHT_ROUNDS if reweight else 4)):
                 break
             noise, scale = new_noise, new_scale
             jac = start_jac if first_round_jac and rounds == first else None
@@ -943,6 +948,11 @@ def _calibration_steps(
             histories.append(np.asarray(out.history)[: int(out.n_iterations) + 1])
             if int(out.status) in (Status.DIVERGED, Status.FAILED) or not adaptive:
                 break
+            if reweight:  # a σ per residual component (a pose's position, orientation): refit whitened
+                new_m = _reweighted(problem, out, prior, loss, scale)
+                moved = not _close(new_m.component_scales(), measurement.component_scales(), 0.02)
+                measurement = new_m
+                problem = eqx.tree_at(lambda pr: pr.measurement, problem, measurement)
         if not selecting or int(out.status) in (Status.DIVERGED, Status.FAILED) or len(reselection) >= MAX_RESELECTIONS:
             break
         # judge identifiability again where the fit put the extras: a start far from the truth
@@ -1033,7 +1043,37 @@ def _default_key():
 def _close(a, b, rtol: float = 0.05) -> bool:
     if a is None or b is None:
         return a is None and b is None
-    return abs(a - b) <= rtol * abs(b)
+    return bool(np.all(np.abs(np.subtract(a, b)) <= rtol * np.abs(b)))
+
+
+#: at most this many solves per selection while a model's component weights settle
+#: (:meth:`~jaxcal.MeasurementModel.estimates_weights`; exact orientation readings push a pose's
+#: weight to the end of its range, a factor of a few per round)
+MAX_REWEIGHT_ROUNDS = 10
+
+
+def _prior_terms(prior, space):
+    """``(1/s [p], information [p, p] or None)`` of ``prior`` over ``space`` (``(None, None)``
+    without one): what :func:`~jaxcal._fit._diagnostics.parameter_uncertainty` weighs it by."""
+    if prior is None:
+        return None, None
+    s = prior.std(space)
+    return np.where(np.isfinite(s), 1.0 / s, 0.0), prior.information(space)
+
+
+def _reweighted(problem: Problem, out: CalibrationOutput, prior, loss: str, scale):
+    """``problem``'s measurement reweighted by the σ̂ of its residual components at the solve
+    ``out`` (variance components: :attr:`~jaxcal._fit._diagnostics.Uncertainty.component_std`),
+    or as it is where they cannot be estimated."""
+    inv, info = _prior_terms(prior, problem.space)
+    unc, _ = parameter_uncertainty(problem, np.asarray(out.x, np.float64), prior_inv_std=inv, prior_information=info,
+                                   loss=loss, loss_scale=scale or 1.0, gram=out.gram)
+    m = problem.measurement
+    if unc.component_std is None:
+        return m
+    return m.reweighted([unc.component_std[c[0]] for c in m.components])
+
+
 
 
 def _given_noise(data, prior, measurement, sensor_noise_std):
@@ -1066,10 +1106,9 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     space = result.space
     x = np.asarray(result.x, np.float64)
     prior_std = result.prior.std(space) if result.prior is not None else None
-    inv = None if prior_std is None else np.where(np.isfinite(prior_std), 1.0 / prior_std, 0.0)
     msgs = []
     try:
-        info = None if result.prior is None else result.prior.information(space)  # a full prior covariance
+        inv, info = _prior_terms(result.prior, space)  # info: a full prior covariance
         unc, cond, resid = parameter_uncertainty(problem, x, prior_inv_std=inv, prior_information=info,
                                                  loss=result.loss,
                                                  loss_scale=result.loss_scale_mm or 1.0, return_residuals=True,

@@ -249,7 +249,9 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
     frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
              "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
     if isinstance(m, Pose):
-        return {"kind": "pose", "orientation_scale": float(m.orientation_scale)} | frame
+        # the weight the fit used (estimated unless given: read back, it is taken as given)
+        return {"kind": "pose", "orientation_scale": float(m.orientation_scale),
+                "orientation_scale_estimated": not m.orientation_scale_given} | frame
     if isinstance(m, Position):
         return {"kind": "position"} | frame
     if isinstance(m, Markers):

@@ -18,6 +18,7 @@ Under a robust loss ``Σ w r²`` is replaced by its bounded-influence counterpar
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 
@@ -33,7 +34,8 @@ from .._core._xla import jit
 from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
 
-__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows",
+__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "variance_component",
+           "component_entries",
            "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings", "error_dims"]
 
 
@@ -103,6 +105,11 @@ class Uncertainty:
             consistent for Gaussian noise (:class:`RobustNoise`).
         effective_parameters: ``p_eff``.
         n_residuals: ``N``.
+        component_std: ``{component: σ̂}`` in the component's own unit (a pose's ``"position"``
+            mm and ``"orientation"`` rad: :attr:`~jaxcal.MeasurementModel.components`), each by
+            variance components (:func:`variance_component`); ``noise_std`` is then the first
+            one's (the unit the sample errors are in). ``None`` for a model with one σ.
+        component_units: ``{component: unit}`` of ``component_std``.
     """
 
     names: tuple[str, ...]
@@ -112,6 +119,15 @@ class Uncertainty:
     noise_std: float
     effective_parameters: float
     n_residuals: int
+    component_std: dict | None = None
+    component_units: dict | None = None
+
+    def component_lines(self) -> str:
+        """``"position 0.5 mm, orientation 0.02°"`` (angles in degrees), or ``""``."""
+        if not self.component_std:
+            return ""
+        return ", ".join(f"{c} {math.degrees(v):.4g}°" if self.component_units[c] == "rad" else
+                         f"{c} {v:.4g} {self.component_units[c]}" for c, v in self.component_std.items())
 
     def std_display(self) -> dict[str, tuple[float, str]]:
         """``{name: (σ, unit)}`` with angles in degrees (other units as they are: mm, rad/(N*m)...)."""
@@ -126,7 +142,8 @@ class Uncertainty:
             "effective_parameters": self.effective_parameters,
             "n_residuals": self.n_residuals,
             "covariance": np.asarray(self.covariance).tolist(),
-        }
+        } | ({} if not self.component_std else {"noise_std_components": component_entries(
+            self.component_std, self.component_units)})
 
     @classmethod
     def from_dict(cls, d: dict | None, names, units) -> Uncertainty | None:
@@ -139,8 +156,38 @@ class Uncertainty:
         cov = np.asarray([[num(v) for v in row] for row in d["covariance"]], np.float64)
         if cov.shape != (len(names), len(names)) or set(d.get("std", {})) != set(names):
             return None
+        comps = {k.rpartition("_")[0]: (num(v), k.rpartition("_")[2])
+                 for k, v in (d.get("noise_std_components") or {}).items() if not k.endswith("_deg")}
         return cls(tuple(names), tuple(units), np.asarray([num(d["std"][n]) for n in names], np.float64), cov,
-                   num(d.get("noise_std_mm")), num(d.get("effective_parameters")), int(d.get("n_residuals", 0)))
+                   num(d.get("noise_std_mm")), num(d.get("effective_parameters")), int(d.get("n_residuals", 0)),
+                   {c: v for c, (v, _) in comps.items()} or None, {c: u for c, (_, u) in comps.items()} or None)
+
+
+def component_entries(std: dict, units: dict) -> dict:
+    """``{component_unit: σ̂}`` of :attr:`Uncertainty.component_std` as the JSON writes it
+    (``position_mm``, ``orientation_rad`` and, for angles, also ``orientation_deg``)."""
+    out = {}
+    for c, v in std.items():
+        out[f"{c}_{units[c]}"] = float(v)
+        if units[c] == "rad":
+            out[f"{c}_deg"] = math.degrees(float(v))
+    return out
+
+
+def variance_component(rss: float, n: float, covariance, gram) -> tuple[float, float]:
+    """``(σ̂_b, r_b)`` of one block ``b`` of residual entries by variance components (Förstner 1979;
+    Koch 1999, §3.6): the redundancy ``r_b = n_b − tr(C·G_b)`` (the sum of ``1 − h_ii`` over its
+    ``n`` entries; ``C`` the whitened posterior covariance ``(Σ_b G_b + Λ)⁻¹``, ``G_b`` the block's
+    ``JᵀJ``, both in one column scaling) and ``σ̂_b = sqrt(RSS_b / r_b)`` (``nan`` where ``r_b ≤ 0``),
+    unbiased for a linear model. :func:`jaxcal.calibrate_blocks` estimates a σ per data block this
+    way, :func:`parameter_uncertainty` one per residual component (a pose's position and
+    orientation)."""
+    red = float(n - np.sum(np.asarray(covariance) * np.asarray(gram)))
+    return (math.sqrt(rss / red) if red > 0 else float("nan")), red
+
+
+
+
 
 
 def gram_at(problem, x, loss: str, loss_scale):
@@ -164,12 +211,26 @@ def gram_from_jacobian(problem, r, J, loss: str, loss_scale):
     G = Js.T @ Js
     blocks = problem.to_blocks(r)  # the residual returned is [n·m] (zeros where the model has no entry)
     if loss == "linear":
-        return d, G, G, jnp.sum(r * r), blocks.reshape(-1), None
+        return d, G, G, jnp.sum(r * r), blocks.reshape(-1), None, _component_grams(problem, Js, None)
     e = problem.measurement.sample_error(blocks)
     f = robust_factor(loss, e * e, loss_scale)
     rows = problem.entry_rows()
     w = jnp.repeat(f * f, problem.measurement.size) if rows is None else (f * f)[rows]
-    return d, (Js * w[:, None]).T @ Js, G, jnp.sum(w * r * r), blocks.reshape(-1), e
+    return (d, (Js * w[:, None]).T @ Js, G, jnp.sum(w * r * r), blocks.reshape(-1), e,
+            _component_grams(problem, Js, w))
+
+
+def _component_grams(problem, Js, w):
+    """``[C, p, p]`` each residual component's share of ``JsᵀWJs`` (:attr:`MeasurementModel.components`:
+    a pose's position and orientation rows; ``W`` the robust weights ``w`` ``[N]``, or 1), or
+    ``None`` for a model with one σ (its solve's program is unchanged)."""
+    comps = problem.measurement.components
+    if len(comps) < 2:
+        return None
+    Jb = problem.to_blocks(Js if w is None else Js * jnp.sqrt(w)[:, None])  # [n, m, p]
+    return jnp.stack([jnp.einsum("imp,imq->pq", Jb[:, a:b], Jb[:, a:b]) for _, _, a, b in comps])
+
+
 
 
 _gram = jit(gram_at, static_argnames="loss")
@@ -306,8 +367,11 @@ class RobustNoise:
         n_residuals: ``N``, the real residual entries.
     """
 
-    def __init__(self, resid_var: float, kappa: float, n_residuals: int):
+    def __init__(self, resid_var: float, kappa: float, n_residuals: int, cap: float = math.inf):
         self.resid_var, self.kappa, self.n_residuals = resid_var, kappa, n_residuals
+        #: the cap ``k`` (units of σ) on a block's error
+        self.cap = cap
+
 
     @classmethod
     def build(cls, loss: str, loss_scale, problem, blocks, r, e) -> RobustNoise | None:
@@ -329,7 +393,7 @@ class RobustNoise:
         # position's norm; at 1.345 itself, 61 % of positions and σ̂ ~1.4× as variable)
         cap = k
         N = problem.n_observed_residuals
-        return cls(_capped_fixed_point(e2, sq, cap, N * cons.capped(cap)), cons(k), N)
+        return cls(_capped_fixed_point(e2, sq, cap, N * cons.capped(cap)), cons(k), N, cap)
 
     def noise_var(self, dof: float) -> float:
         """σ̂² (mm²) over ``dof = N − p_eff`` degrees of freedom."""
@@ -378,7 +442,7 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     """
     if gram is None:
         gram = _gram(problem, to_device(x, problem.dtype), loss, to_device(loss_scale, problem.dtype))
-    d, A, G, rss, r, e = gram
+    d, A, G, rss, r, e, comp_grams = gram
     d, A, G = (np.asarray(v, np.float64) for v in (d, A, G))
     N, p = problem.n_observed_residuals, A.shape[0]  # real readings (masked ones left out)
     rss = float(rss)
@@ -401,11 +465,11 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     d = np.where(tiny | (d <= 0), 1.0, d)
     ev_g = np.linalg.eigvalsh(G)  # squared singular values of the column-scaled Jacobian
     cond = float(np.sqrt(ev_g[-1] / ev_g[0])) if ev_g[0] > 0 else math.inf
-    p_eff = float(p)
-    sigma2 = objective_var(max(N - p, 1))
-    for _ in range(3):
-        H = A / sigma2 + (np.diag(lam / (d * d)) if prior_information is None
-                          else np.asarray(prior_information, np.float64) / np.outer(d, d))
+    prior_h = (np.diag(lam / (d * d)) if prior_information is None
+               else np.asarray(prior_information, np.float64) / np.outer(d, d))
+
+    def posterior(sigma2):  # (eigenvalues, eigenvectors, their inverses, column-scaled Cov, p_eff)
+        H = A / sigma2 + prior_h
         try:
             ev, V = np.linalg.eigh(H)
         except np.linalg.LinAlgError:
@@ -413,12 +477,32 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
         tol = ev.max() * p * np.finfo(np.float64).eps if ev.size else 0.0
         inv = np.where(ev > tol, 1.0 / np.where(ev > tol, ev, 1.0), np.inf)
         Cs = (V * np.where(np.isfinite(inv), inv, 0.0)) @ V.T
-        p_eff = float(np.trace(A / sigma2 @ Cs))
-        new = objective_var(max(N - p_eff, 1.0))
+        return ev, V, inv, Cs, float(np.trace(A / sigma2 @ Cs))
+
+    sigma2 = objective_var(max(N - p, 1))
+    for _ in range(3):
+        ev, V, inv, Cs, p_eff = posterior(sigma2)
+        used, new = sigma2, objective_var(max(N - p_eff, 1.0))
         if abs(new - sigma2) <= 1e-6 * sigma2:
             sigma2 = new
             break
         sigma2 = new
+    comp_std = comp_units = None
+    if comp_grams is not None:
+        grams = np.asarray(comp_grams, np.float64)
+        if tiny.any():
+            grams = grams * np.outer(keep, keep)
+        sig = _component_sigmas(problem, r, grams, Cs / used, robust)
+        if np.all(np.isfinite(sig)) and np.all(sig > 0):
+            m = problem.measurement
+            scales = m.component_scales()
+            comp_std = {c[0]: float(v / w) for c, v, w in zip(m.components, sig, scales)}
+            comp_units = {c[0]: c[1] for c in m.components}
+            # the covariance at the largest whitened σ̂: the components' common σ at the weights'
+            # fixed point, conservative where a weight is held at the end of its range (exact
+            # orientation readings); σ̂ itself is the first component's (the sample errors' unit)
+            sigma2 = float(np.max(sig)) ** 2 * (1.0 if robust is None else robust.kappa)
+            ev, V, inv, Cs, p_eff = posterior(sigma2)
     if prior_inv_std is not None and np.any(lam > 0) and ev.size:
         # under a prior the MAP solve inverts the data information plus the prior's: the data
         # Jacobian alone is rank deficient by design (cond = inf), so report the posterior's
@@ -429,10 +513,43 @@ def parameter_uncertainty(problem, x, *, prior_inv_std=None, loss: str = "linear
     std = np.where(undetermined, np.inf, std)
     space = problem.space
     noise = math.sqrt(max(sigma2, 0.0) if robust is None else sigma2 / robust.kappa)
-    unc = Uncertainty(space.free_names, space.free_units, std, C, noise, p_eff, N)
+    if comp_std is not None:
+        noise = float(sig[0])
+    unc = Uncertainty(space.free_names, space.free_units, std, C, noise, p_eff, N, comp_std, comp_units)
     if not return_residuals:
         return unc, cond
     return unc, cond, blocks
+
+
+def _component_sigmas(problem, r, grams, hat, robust) -> np.ndarray:
+    """``[C]`` σ̂ of each residual component (:attr:`~jaxcal.MeasurementModel.components`) of the
+    whitened residual ``r`` ``[n·m]``: :func:`variance_component` with the component's share
+    ``grams[c]`` of the (robust-weighted) information and ``hat`` the covariance it is weighed
+    by. Under a robust loss the component's residual sum is its bounded-influence counterpart
+    (:class:`RobustNoise`'s capped fixed point on the component's own norms, at the same cap)."""
+    m = problem.measurement
+    n = problem.n_samples
+    rr = np.asarray(r, np.float64)[: n * m.size].reshape(n, m.size)
+    out = []
+    for (_, _, a, b), G in zip(m.components, grams):
+        blk = rr[:, a:b]
+        if robust is None:
+            rss = float(np.sum(blk * blk))
+        else:
+            e2 = np.sum(blk * blk, axis=1)
+            rss = blk.size * _capped_fixed_point(e2, e2, robust.cap, blk.size * _norm_consistency(b - a).capped(
+                robust.cap))
+        out.append(variance_component(rss, blk.size, hat, G)[0])
+    return np.asarray(out)
+
+
+@functools.lru_cache(maxsize=8)
+def _norm_consistency(dims: int) -> Consistency:
+    """:class:`Consistency` of the norm of ``dims`` unit-normal entries (NumPy draws, fixed seed:
+    no program), for a residual component's capped sum."""
+    z = np.random.default_rng(0).standard_normal((40_000, dims))
+    e2 = np.sum(z * z, axis=1)
+    return Consistency("huber", e2, e2)
 
 
 def outlier_rows(problem, x, k: float = 5.0, *, residuals=None) -> tuple[np.ndarray, np.ndarray, float]:

@@ -9,6 +9,7 @@ least-squares solvers and gradient methods work on.
 from __future__ import annotations
 
 import abc
+import math
 from typing import ClassVar
 
 import equinox as eqx
@@ -26,6 +27,14 @@ from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotv
 __all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
 
 
+#: :class:`Pose`'s orientation weight (mm/rad) where none is given: the start of its estimate
+DEFAULT_ORIENTATION_SCALE = 1000.0
+#: the range (mm/rad) of an estimated orientation weight ``σ̂_pos / σ̂_rot``: exact orientation
+#: readings (a simulation without orientation noise) give σ̂_rot → 0; the upper end keeps the
+#: whitened Jacobian well conditioned (a 1 mm lever then weighs like 1000 mm at the default)
+ORIENTATION_SCALE_RANGE = (1e-3, 1e6)
+
+
 def xyz_entries(prefix: str, values, suffix: str = "") -> dict[str, float]:
     """``{prefix x suffix: v_x, ...}`` of a ``[3]`` position (mm): the entry names of a vector
     group (``anchor_x``, ``point_y@a0``)."""
@@ -41,6 +50,16 @@ class MeasurementModel(eqx.Module):
     size: ClassVar[int]
     #: measurement shape per sample (``()`` for a scalar).
     sample_shape: ClassVar[tuple[int, ...]]
+
+    #: residual components with a noise σ each, ``((name, unit, first, stop), ...)`` over a row's
+    #: ``size`` entries (:class:`Pose`: position mm, orientation rad); empty: one σ for every entry.
+    components: ClassVar[tuple[tuple[str, str, int, int], ...]] = ()
+
+    @host_method
+    def estimates_weights(self) -> bool:
+        """Whether :func:`jaxcal.calibrate` estimates a σ per :attr:`components` and refits with
+        the residual whitened by them (:meth:`reweighted`). No by default."""
+        return False
 
     @abc.abstractmethod
     def predict(self, robot: AbstractRobot, deviations: Deviations | None, q: Float[Array, "n dof"]):
@@ -221,20 +240,59 @@ class Pose(MeasurementModel):
 
     The residual per sample is ``[Δp (mm, 3), orientation_scale · δθ (3)]`` with
     ``δθ = ½ vee(R_mᵀR_p − R_pᵀR_m)`` the small-angle rotation error (rad): ``orientation_scale``
-    (mm/rad) sets how many mm of position error one radian of orientation error is worth.
+    (mm/rad) sets how many mm of position error one radian of orientation error is worth, i.e. it
+    whitens the orientation entries to the position σ when it equals ``σ_pos / σ_rot``.
+    Position and orientation are two :attr:`components` with a σ each. Not given (default),
+    :func:`jaxcal.calibrate` estimates both σ from the data by variance components (Förstner 1979;
+    the same estimate as a combined fit's per-block σ, :func:`jaxcal.calibrate_blocks`) and refits
+    with ``orientation_scale = σ̂_pos / σ̂_rot`` until it settles (within
+    :data:`ORIENTATION_SCALE_RANGE`; the result's measurement carries the final weight and
+    ``uncertainty.component_std`` both σ̂). Given, the weight stays as it is.
     ``sample_error`` is the position error norm (mm).
+
+    Attributes:
+        orientation_scale: the weight (mm/rad), a run-time scalar: refits with another weight run
+            the same compiled program.
+        orientation_scale_given: whether the weight was given (static).
     """
 
     rotation: Float[Array, "3 3"]
     translation: Float[Array, " 3"]
-    orientation_scale: float = eqx.field(static=True, default=1000.0)
+    orientation_scale: Float[Array, ""]
+    orientation_scale_given: bool = eqx.field(static=True, default=True)
     kind: ClassVar[str] = "pose"
     size: ClassVar[int] = 6
     sample_shape: ClassVar[tuple[int, ...]] = (4, 4)
+    components: ClassVar[tuple[tuple[str, str, int, int], ...]] = (("position", "mm", 0, 3),
+                                                                  ("orientation", "rad", 3, 6))
 
-    def __init__(self, orientation_scale: float = 1000.0, rotation=None, translation=None):
-        self.orientation_scale = float(orientation_scale)
+    def __init__(self, orientation_scale: float | None = None, rotation=None, translation=None):
+        given = orientation_scale is not None
+        scale = float(DEFAULT_ORIENTATION_SCALE if orientation_scale is None else orientation_scale)
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"orientation_scale must be a positive weight in mm/rad, got {orientation_scale!r}")
+        self.orientation_scale = to_device(np.asarray(scale, np.float64))
+        self.orientation_scale_given = given
         self.rotation, self.translation = _check_frame(rotation, translation)
+
+    @host_method
+    def component_scales(self) -> np.ndarray:
+        """``[2]`` what each component's raw residual is multiplied by: 1 (mm) and the weight
+        (mm/rad)."""
+        return np.asarray([1.0, float(self.orientation_scale)])
+
+    @host_method
+    def estimates_weights(self) -> bool:
+        """Whether :func:`jaxcal.calibrate` estimates the components' σ and reweights."""
+        return not self.orientation_scale_given
+
+    @host_method
+    def reweighted(self, sigma) -> Pose:
+        """This model with ``orientation_scale = σ_pos / σ_rot`` (``sigma``: ``[2]`` mm, rad),
+        clipped to :data:`ORIENTATION_SCALE_RANGE`; the flag ``orientation_scale_given`` kept."""
+        lo, hi = ORIENTATION_SCALE_RANGE
+        w = float(np.clip(sigma[0] / sigma[1], lo, hi)) if sigma[1] > 0 else hi
+        return eqx.tree_at(lambda m: m.orientation_scale, self, to_device(np.asarray(w, np.float64)))
 
     def predict(self, robot, deviations, q) -> Float[Array, "n 4 4"]:
         from .._models._kinematics import fk_pose
@@ -257,7 +315,7 @@ class Pose(MeasurementModel):
         Rm, pm = y[:, :3, :3], y[:, :3, 3]
         E = jnp.einsum("nji,njk->nik", Rm, Rp)  # R_mᵀ R_p
         w = 0.5 * jnp.stack([E[:, 2, 1] - E[:, 1, 2], E[:, 0, 2] - E[:, 2, 0], E[:, 1, 0] - E[:, 0, 1]], -1)
-        return jnp.concatenate([p - pm, self.orientation_scale * w], axis=-1)
+        return jnp.concatenate([p - pm, self.orientation_scale.astype(w.dtype) * w], axis=-1)
 
     def sample_error(self, residual):
         return jnp.linalg.norm(residual[:, :3], axis=-1)

@@ -19,11 +19,11 @@ from .._core._xla import filter_jit
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._datasets._split import permutation_rounds
 from .._models._abstract import AbstractRobot
-from .._models._kinematics import tool_point_soa
+from .._models._kinematics import rotvec_to_matrix, tool_point_soa
 from .._models._robot import sample_joint_angles
 from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 
-__all__ = ["Experiment", "simulate_experiment", "default_anchor", "draw_deviations"]
+__all__ = ["Experiment", "simulate_experiment", "default_anchor", "draw_deviations", "add_orientation_noise"]
 
 #: Defaults, chosen to resemble the paper's Table V deviations and Table III errors.
 DEFAULT_NOISE_STD = 0.5  # mm; the paper does not give its sensor noise (see simulate_experiment)
@@ -265,6 +265,22 @@ class _Config(eqx.Module):
             anchor_std_mm=f(self.anchor_std_mm), tool_std_mm=f(self.tool_std_mm),
             cable_offset_std_mm=f(self.cable_offset_std_mm), coverage=f(self.coverage),
             wire_range=tuple(map(f, self.wire_range)), min_height_mm=f(self.min_height_mm))
+
+
+def add_orientation_noise(y, std_rad: float, seed: int) -> np.ndarray:
+    """Pose readings ``y`` ``[n, 4, 4]`` (NumPy) with each orientation turned by ``exp([σ·u]×)``
+    about the tool frame's axes, ``u ~ N(0, I₃)`` per row from ``numpy.random.default_rng([seed,
+    1])``: an orientation noise of σ = ``std_rad`` (rad) per axis, which the pose residual's
+    ``δθ`` sees as such. :func:`simulate_experiment` leaves orientations exact (noise on the
+    position only); ``jaxcal simulate --orientation-noise-deg`` adds this after it (the positions
+    as before). ``y`` itself where ``std_rad`` is 0."""
+    y = np.asarray(y, np.float64)
+    if not std_rad > 0:
+        return y
+    u = np.random.default_rng([int(seed), 1]).standard_normal((y.shape[0], 3))
+    out = y.copy()
+    out[:, :3, :3] = y[:, :3, :3] @ np.asarray(rotvec_to_matrix(to_device(float(std_rad) * u)), np.float64)
+    return out
 
 
 def noise_on(measurement: MeasurementModel) -> str:

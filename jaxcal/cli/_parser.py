@@ -299,6 +299,10 @@ def _add_simulate(sub, fmt) -> None:
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--noise-std", type=float, default=None,
                    help="sensor noise σ in mm (default 0.5; --like: the first file's)")
+    s.add_argument("--orientation-noise-deg", type=float, default=None, metavar="DEG",
+                   help="pose: noise σ per axis of the orientation readings, deg (a rotation about the tool "
+                        "frame's axes; default 0: exact orientations, noise on the position only; --like: the "
+                        "first file's)")
     s.add_argument("--robot", default=None, help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 import pathlib
 
 from ._common import _as_usage, _robot, _robot_and_sensor, _Usage
@@ -49,13 +50,34 @@ def _cmd_simulate(args) -> int:
 
     q = jnp.concatenate([ex.train.q, ex.test.q])
     y = jnp.concatenate([ex.train.y, ex.test.y])
+    rot = _orientation_noise_deg(args, measurement, meta)
     meta = {"source": "jaxcal simulate", "robot": robot.name, **meta, "noise_std_mm": noise,
             **_setup_metadata(measurement, truth, args.unknown_anchor), **mm_joints_metadata(robot)}
+    rot_text = ""
+    if rot:
+        from .._simulation._simulate import add_orientation_noise
+
+        y = add_orientation_noise(y, math.radians(rot), args.seed)
+        meta["orientation_noise_std_deg"] = rot
+        rot_text = f", {rot}° per axis on the orientation"
     Dataset(q, y, measurement.kind, meta).to_csv(args.out)
     like = f", the robot and set-up of {args.like}" if args.like else ""
-    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {noise} mm, "
+    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {noise} mm{rot_text}, "
           f"seed {args.seed}{like}) to {args.out}")
     return 0
+
+
+def _orientation_noise_deg(args, measurement, meta: dict) -> float:
+    """``--orientation-noise-deg`` (deg; ``--like``: the first file's unless given), checked:
+    pose data only, not negative."""
+    rot = args.orientation_noise_deg
+    if rot is None:
+        rot = float(meta.pop("orientation_noise_std_deg", 0.0))
+    if rot and measurement.kind != "pose":
+        raise _Usage(f"--orientation-noise-deg applies to --measurement pose, not {measurement.kind}")
+    if not (math.isfinite(rot) and rot >= 0):
+        raise _Usage(f"--orientation-noise-deg must be a σ ≥ 0 in degrees, got {rot}")
+    return rot
 
 
 def _true_setup(robot, measurement, robot_seed: int, unknown_anchor: bool, cable_offset_mm: float | None = None):
@@ -150,8 +172,10 @@ def _like(args):
     measurement, truth = _true_setup(res.robot, measurement, robot_seed, False, offset)
     args.unknown_anchor = unknown  # the new file keeps the set-up's lines as the first one had them
     noise = float(meta.get("noise_std_mm", 0.5)) if args.noise_std is None else args.noise_std
+    rot = {} if "orientation_noise_std_deg" not in meta else {
+        "orientation_noise_std_deg": float(meta["orientation_noise_std_deg"])}  # taken by _orientation_noise_deg
     return res.robot, measurement, truth, noise, {"seed": args.seed, "true_robot_seed": robot_seed,
-                                                  "like": f"{src.name} (data {path.name})"}
+                                                  "like": f"{src.name} (data {path.name})", **rot}
 
 
 def _simulate_camera(args) -> int:

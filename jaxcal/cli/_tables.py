@@ -126,6 +126,11 @@ def _print_estimates(res, sd: dict, extras, unit: str) -> None:
                 parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
         print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
     if res.uncertainty is not None:
+        if res.uncertainty.component_std:  # a pose: a σ̂ per component, the orientation weighed by their ratio
+            w = float(res.measurement.orientation_scale)
+            how = "given" if res.measurement.orientation_scale_given else "estimated: σ̂ position / σ̂ orientation"
+            print(f"residual σ̂ per component: {res.uncertainty.component_lines()}; orientation weight "
+                  f"{w:.4g} mm/rad ({how})")
         print(f"residual σ̂ {res.uncertainty.noise_std:.4f} {unit}, effective parameters "
               f"{res.uncertainty.effective_parameters:.1f}; condition number {res.diagnostics.condition_number:.3g}"
               + (" (data and prior together)" if res.prior is not None else ""))
