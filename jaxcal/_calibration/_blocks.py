@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 
 import jax.numpy as jnp
@@ -310,16 +311,25 @@ _UNSEEN_SCALE = ("length scale: not seen by any block (scaling every length of t
                  "the prior, a length held at nominal or a known length sets it)")
 
 
-def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3) -> tuple[str, ...]:
+def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3, verdicts=None) -> tuple[str, ...]:
     """Lines naming, per block, the free parameters it alone (nearly) determines (information share
     ≥ ``threshold``, :attr:`BlockStats.information`), the directions of several parameters only it
     determines (:attr:`BlockStats.directions`; more than ``max_directions`` are counted, not listed:
     a block that carries nearly all the information determines most directions alone), what
     removing it leaves unidentifiable, which block sets the length scale (:func:`scale_line`) and
-    the parameters no block dominates."""
+    the parameters no block dominates.
+
+    ``verdicts``: the fit's :class:`~jaxcal._fit._verdicts.Verdicts`. A block's share of a
+    parameter's information says which block sees it, not that the data determine it (plane data
+    see ``d_1`` only together with the planes' offsets, so the prior holds it): with the verdicts
+    the per-block lists name only the parameters the data determine, and the parameters the prior
+    holds get lines of their own (:func:`~jaxcal._fit._verdicts.prior_lines`)."""
+    from .._fit._verdicts import DATA, prior_lines
+
+    by_data = (lambda n: True) if verdicts is None else (lambda n: verdicts.verdict.get(n) == DATA)  # noqa: E731
     lines, seen = [], set()
     for s in stats:
-        own = [n for n, v in s.information.items() if v >= threshold]
+        own = [n for n, v in s.information.items() if v >= threshold and by_data(n)]
         seen |= set(own)
         if own:
             lines.append(f"{s.name} alone determines: {', '.join(own)}")
@@ -336,7 +346,9 @@ def who_sees_what(stats, threshold: float = 0.9, max_directions: int = 3) -> tup
     if scale is not None:
         lines.append(scale)
     if stats:
-        shared = [n for n in stats[0].information if n not in seen]
+        shared = [n for n in stats[0].information if n not in seen and by_data(n)]
+        if verdicts is not None:
+            lines += prior_lines(verdicts, list(stats[0].information))
         if shared:
             lines.append("shared by several blocks: " + ", ".join(
                 f"{n} ({' / '.join(f'{s.name} {s.information[n]:.0%}' for s in stats if s.information[n] >= 0.05)})"
@@ -582,8 +594,10 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
     q_dev, y_dev = to_device(q), to_device(y)
     while True:
         m = model.with_sigma(sigma)
-        res = calibrate(robot, m, (q_dev, y_dev), method, start=cur, init="none", extras=extras,
-                        fix=[*fix, *user_fix], **kwargs)
+        with warnings.catch_warnings(record=True) as caught:  # issued below for the final fit only
+            warnings.simplefilter("always")
+            res = calibrate(robot, m, (q_dev, y_dev), method, start=cur, init="none", extras=extras,
+                            fix=[*fix, *user_fix], **kwargs)
         rounds += 1
         stats = block_statistics(res, m, q, y)
         new = np.asarray([s.sigma_hat if est and np.isfinite(s.sigma_hat) and s.sigma_hat > 0 else s.sigma
@@ -593,12 +607,14 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         if done:
             break
         sigma = new
+    for w in caught:  # the final fit's warnings: the earlier rounds' σ were not the final ones
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     stats = tuple(dataclasses.replace(s, sigma_given=not est) for s, est in zip(stats, estimated))
     object.__setattr__(res, "blocks", stats)
     object.__setattr__(res, "sigma", {s.name: s.sigma for s in stats})
     object.__setattr__(res, "variance_rounds", rounds)
     object.__setattr__(res, "block_messages", tuple(msgs))
-    object.__setattr__(res, "block_report", who_sees_what(stats))
+    object.__setattr__(res, "block_report", who_sees_what(stats, verdicts=res.diagnostics.verdicts))
     return res
 
 
@@ -643,7 +659,10 @@ def block_result(result, name: str):
                           float(len(idx)), stats.n_residuals)
     object.__setattr__(out, "uncertainty", unc)
     object.__setattr__(out, "identifiability", None)
-    object.__setattr__(out, "diagnostics", getattr(result, "diagnostics", None))
+    diag = getattr(result, "diagnostics", None)
+    if diag is not None and diag.verdicts is not None:  # the combined fit's verdicts under the block's names
+        diag = dataclasses.replace(diag, verdicts=diag.verdicts.renamed(to_comb))
+    object.__setattr__(out, "diagnostics", diag)
     return out
 
 

@@ -49,6 +49,7 @@ from .._fit._diagnostics import (
     weak_parameters,
 )
 from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals, start_jacobian
+from .._fit._verdicts import fit_verdicts, fixable_text
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from .._fit._problem import Problem, entry_count, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import (
@@ -1028,6 +1029,8 @@ def _calibration_steps(
                           _given_noise(data, prior, measurement, sensor_noise_std), resid_start)
     object.__setattr__(result, "diagnostics", diag)
     object.__setattr__(result, "uncertainty", unc)
+    if result.identifiability is not None and diag.verdicts is not None:  # its lines in the verdicts' words
+        object.__setattr__(result, "identifiability", dataclasses.replace(result.identifiability, verdicts=diag.verdicts))
     for w in diag.warnings:
         warnings.warn(w, CalibrationWarning, stacklevel=3)
     return result
@@ -1137,15 +1140,17 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     cov = coverage(result.robot, problem.q) if cov is None else cov
     narrow = narrow_joints(result.robot, cov, checks)
     unit = dict(zip(range(1, result.robot.dof + 1), ("°" if u == "rad" else " mm" for u in result.robot.joint_units())))
-    weak = weak_parameters(unc, prior_std, checks) if unc is not None else ()
+    # one verdict per parameter (data / prior / not calibrated) for every output of the result
+    verdicts = None if unc is None else fit_verdicts(space, unc, result.prior, result.identifiability,
+                                                     checks.prior_share)
     n_dir, directions = (0, ()) if unc is None or prior_std is None else prior_directions(unc, prior_std, checks)
     if prior_std is not None:
-        # under a prior, name the few combinations the data leave to it, not every parameter they touch
-        weak_text = (f"the prior, not the data, determines {n_dir} combination(s) of parameters ({len(weak)} "
-                     f"parameter(s) with posterior σ above {checks.weak_fraction:g}× the prior σ), e.g. "
-                     + "; ".join(directions) + (" …" if n_dir > len(directions) else "")) if n_dir else ""
-        weak_text = weak_text or (f"weakly determined by the data: {', '.join(weak)}" if weak else "")
+        # a warning only for what the user can change (poses): what the sensor cannot see by
+        # construction is said once in the normal output (the identifiability lines)
+        weak = () if verdicts is None else verdicts.by_prior
+        weak_text = fixable_text(verdicts)
     else:
+        weak = weak_parameters(unc, checks) if unc is not None else ()
         weak_text = f"weakly determined by the data: {', '.join(weak)}" if weak else ""
     if narrow:
         moved = ", ".join(f"q{j} {cov[j - 1, 0]:.1f}{unit[j]}" for j in narrow)
@@ -1172,5 +1177,5 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
         msgs.append("the result fails its checks: " + "; ".join(suspect) + (f" — likely cause: {cause}" if cause else ""))
     diag = Diagnostics(tuple(msgs), bad, cond, cov, narrow, weak, tuple(int(r) for r in before_rows),
                        tuple(int(r) for r in after_rows), s_after, extras_msg, rounds, tuple(reselection), directions,
-                       suspect, cause)
+                       suspect, cause, verdicts=verdicts)
     return diag, unc

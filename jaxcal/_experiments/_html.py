@@ -89,20 +89,35 @@ def _points(robot_dict, q_deg) -> np.ndarray | None:
         return None
 
 
+def _verdicts(d: dict):
+    """The result's verdicts (:class:`~jaxcal._fit._verdicts.Verdicts`), or ``None`` in a file
+    written before they were saved."""
+    from .._fit._verdicts import Verdicts
+
+    return Verdicts.from_dict((d.get("diagnostics") or {}).get("verdicts"))
+
+
 def _set_by_prior(d: dict) -> set[str]:
-    """Names of the free parameters the prior rather than the data set in a result dict: those
-    the diagnostics call weak (posterior σ above ``Checks.weak_fraction`` of the prior σ), as the
-    command line marks them with †; none without a prior."""
+    """Names of the free parameters the prior rather than the data holds in a result dict: their
+    verdict (:func:`_verdicts`), as the command line marks them with †; in an older file, the
+    diagnostics' weak parameters; none without a prior."""
+    v = _verdicts(d)
+    if v is not None:
+        return set(v.by_prior)
     return set((d.get("diagnostics") or {}).get("weak_parameters") or []) if d.get("prior") else set()
 
 
 def _marks_legend(by_prior: set[str]) -> str:
-    """The legend of † (set by the prior) and * (not calibrated), as ``jaxcal calibrate`` prints it."""
-    from .._fit._diagnostics import Checks
+    """The legend of † (held by the prior) and * (not calibrated), as ``jaxcal calibrate`` prints it."""
+    from .._fit._verdicts import HELD_MARK, PRIOR_MARK
 
-    marks = [f"† set by the prior rather than the data (posterior σ above {Checks().weak_fraction:g}× the prior σ)"
-             ] if by_prior else []
-    return "; ".join(marks + ["* not calibrated: held at its start value (not identifiable without a prior, or fixed)"])
+    return "; ".join(([PRIOR_MARK] if by_prior else []) + [HELD_MARK])
+
+
+def _fixed(v) -> str:
+    """A value in ° or mm at the tables' precision (4 decimals; one that rounds to zero as
+    ``0.0000``, not ``-7.435e-09``)."""
+    return f"{round(float(v), 4) + 0.0:.4f}" if math.isfinite(float(v)) else str(v)
 
 
 def _parameters(d: dict) -> str:
@@ -122,14 +137,15 @@ def _parameters(d: dict) -> str:
         f = math.degrees if u == "rad" else (lambda x: x)
         s = std.get(n)
         value = float(wrap_angle_deg(f(v))) if u == "rad" else v
-        rows.append([n + ("†" if n in by_prior else ""), "°" if u == "rad" else u, _num(value),
+        rows.append([n + ("†" if n in by_prior else ""), "°" if u == "rad" else u,
+                     _fixed(value) if u in ("rad", "mm") else _num(value),
                      "—" if s is None else _num(f(s), 3),
                      "" if s in (None, 0) or not math.isfinite(s) else f"{abs(v) / s:.1f}"])
     parts = [f"<p>{len(free)} calibrated parameters: deviation Δ from the nominal value (sensor extras: from the "
              "guess) and one posterior standard deviation σ"
              + (f"; residual σ̂ {_num(unc.get('noise_std_mm'))} mm" if unc.get("noise_std_mm") is not None else "")
-             + (f"; {len(by_prior)} of them (†) set by the prior rather than the data: their values are the prior's, "
-                "not results" if by_prior else "")
+             + (f"; {len(by_prior)} of them (†) held by the prior rather than determined by the data: their values "
+                "are the prior's, not results" if by_prior else "")
              + ".</p>", _table(["parameter", "unit", "Δ", "σ", "|Δ|/σ"], rows)]
     dh = d.get("calibrated_dh_table")
     if dh:
@@ -137,7 +153,7 @@ def _parameters(d: dict) -> str:
 
         def cell(g, j, v):
             name = f"{g}_{j + 1}"
-            return _num(v) + ("†" if name in by_prior else "" if name in free else "*")
+            return _fixed(v) + ("†" if name in by_prior else "" if name in free else "*")
 
         parts.append("<p>Calibrated DH table (angles in (−180°, 180°]):</p>" + _table(
             ["joint", *dh["columns"]], [[j + 1, *(cell(g, j, v) for g, v in zip(groups, r))]
@@ -149,7 +165,10 @@ def _parameters(d: dict) -> str:
     return "".join(parts)
 
 
-def _identifiability(ident: dict | None) -> str:
+def _identifiability(ident: dict | None, verdicts=None) -> str:
+    """The identifiability section: the rank, each candidate's verdict (``verdicts``, as
+    ``jaxcal calibrate`` prints it; an older file: the rank test's subset) and what the
+    parameters left out act like."""
     if not ident:
         return "<p>No identifiability report in this file.</p>"
     deps = ident.get("dependencies", {})
@@ -162,8 +181,23 @@ def _identifiability(ident: dict | None) -> str:
     head = ["parameter", "a change δ acts like (coefficient · parameter · δ; angles in rad, lengths in mm)"]
     out = [f"<p>Identification Jacobian rank {ident.get('rank')} of {ident.get('n_free')} candidate parameters "
            f"(column-scaled, rtol {ident.get('rtol')}); condition number of the identifiable subset "
-           f"{_num(ident.get('condition_number'), 3)}.</p>",
-           f"<p>Identifiable from the data (calibrated): {_e(', '.join(ident.get('identifiable', [])))}</p>"]
+           f"{_num(ident.get('condition_number'), 3)}.</p>"]
+    if verdicts is not None:
+        from .._fit._verdicts import DATA, HELD, PRIOR, prior_lines
+
+        names = list(ident.get("identifiable", [])) + list(ident.get("unidentifiable", []))
+        names = [n for n in verdicts.verdict if n in set(names)]  # the space's order
+        of = {n: verdicts.verdict[n] for n in names}
+        out.append(f"<p>Determined by the data: {_e(', '.join(n for n in names if of[n] == DATA) or 'none')}</p>")
+        out += [f"<p>{_e(line[0].upper() + line[1:])}</p>" for line in prior_lines(verdicts, names)]
+        held = [n for n in names if of[n] == HELD]
+        if held:
+            out.append(f"<p>Not calibrated (*), held at their start value: {_e(', '.join(held))}</p>")
+        left = [n for n in ident.get("unidentifiable", []) if of.get(n) in (PRIOR, HELD)]
+        if left:
+            out.append("<p>What the parameters the data cannot tell apart act like:</p>" + _table(head, rows(left), left=2))
+        return "".join(out)
+    out.append(f"<p>Identifiable from the data (calibrated): {_e(', '.join(ident.get('identifiable', [])))}</p>")
     # as the text report: under a prior (MAP) the prior sets these directions; only the rest is held
     by_prior = [n for n in ident.get("unidentifiable", []) if n in covered]
     held = [n for n in ident.get("unidentifiable", []) if n not in covered]
@@ -321,7 +355,7 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
     body.append(_figures(parts_rows, robot))
     if res_d:
         body += ["<h2>Parameters</h2>", _parameters(res_d), "<h2>Identifiability</h2>",
-                 _identifiability(res_d.get("identifiability"))]
+                 _identifiability(res_d.get("identifiability"), _verdicts(res_d))]
     else:
         body.append("<p>The calibration result file was not found: no parameter sections.</p>")
     body += ["<h2>Outlier rows</h2>", '<p class="small">Rows whose residual after calibration exceeds 5 robust '

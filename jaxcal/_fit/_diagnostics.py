@@ -33,6 +33,7 @@ from .._core._trig import wrap_angle_deg
 from .._core._xla import jit
 from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
+from ._verdicts import PRIOR_SHARE, Verdicts
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "variance_component",
            "component_entries",
@@ -51,8 +52,10 @@ class Checks:
         narrow_joint_deg: warn when a joint moved less than this in the data (default 30°).
         outlier_k: a sample is an outlier when its residual exceeds ``k`` robust standard
             deviations (1.4826·MAD) from the median residual (default 5).
-        weak_fraction: with a prior, a parameter whose posterior σ exceeds this fraction of its
-            prior σ is "weakly determined" by the data (default 0.5).
+        prior_share: with a prior, a free parameter is held by the prior rather than determined by
+            the data when the prior gives more than this share of its posterior variance (default
+            0.5: the prior tells more about it than the data; for one parameter alone, a posterior
+            σ above 0.71 of its prior σ). See :func:`~jaxcal._fit._verdicts.parameter_verdicts`.
 
     Checks of the result as a whole (:func:`fit_findings`; readings in mm):
 
@@ -78,7 +81,7 @@ class Checks:
     condition_number: float = 1e4
     narrow_joint_deg: float = 30.0
     outlier_k: float = 5.0
-    weak_fraction: float = 0.5
+    prior_share: float = PRIOR_SHARE
     residual_fraction: float = 0.01
     noise_factor: float = 10.0
     extra_fraction: float = 0.25
@@ -594,7 +597,8 @@ class Diagnostics:
         coverage_deg: ``[dof, 2]`` per joint: range moved in the data and range of the limits (°;
             mm for prismatic joints).
         narrow_joints: 1-based joints that moved less than ``Checks.narrow_joint_deg``.
-        weak_parameters: free parameters the data barely determine (see :class:`Checks`).
+        weak_parameters: free parameters the data barely determine: with a prior, those it holds
+            (:attr:`verdicts`); without one, posterior σ above a third of the plausibility bound.
         outliers_before, outliers_after: training rows (0-based) flagged as outliers at the start
             and after the fit; ``outlier_scale_mm``: the robust residual scale after the fit.
         extras: the message of the extras initialisation, if one ran.
@@ -603,8 +607,8 @@ class Diagnostics:
         reselection: one line per refit after identifiability was judged again at the solution
             (parameters the start could not see and the solution can).
         prior_directions: with a prior, the few combinations of parameters that the prior
-            rather than the data determines (posterior variance above ``weak_fraction²`` of the
-            prior variance), each named by its largest members in units of the prior σ, e.g.
+            rather than the data determines (the prior's share of their posterior variance above
+            ``Checks.prior_share``), each named by its largest members in units of the prior σ, e.g.
             ``"0.71·d_2 + 0.71·d_3"``; the weakest first.
         suspect: failed checks of the result as a whole (:func:`fit_findings`: σ̂ against the
             robot's reach and the sensor's given noise, the fit against its start, the extras
@@ -612,6 +616,9 @@ class Diagnostics:
         likely_cause: what the data point to when ``suspect`` is not empty (readings in metres,
             joint angles in radians read as degrees, a robot model that does not match), or
             ``None``.
+        verdicts: each parameter's verdict, determined by the data, held by the prior or not
+            calibrated (:class:`~jaxcal._fit._verdicts.Verdicts`), which every output of the
+            result uses; ``None`` where the uncertainty could not be computed.
     """
 
     warnings: tuple[str, ...]
@@ -629,6 +636,7 @@ class Diagnostics:
     prior_directions: tuple[str, ...] = ()
     suspect: tuple[str, ...] = ()
     likely_cause: str | None = None
+    verdicts: Verdicts | None = None
 
     @property
     def plausible(self) -> bool:
@@ -653,6 +661,7 @@ class Diagnostics:
             "prior_directions": list(self.prior_directions),
             "suspect": list(self.suspect),
             "likely_cause": self.likely_cause,
+            "verdicts": None if self.verdicts is None else self.verdicts.to_dict(),
         }
 
 
@@ -705,8 +714,10 @@ def prior_directions(unc: Uncertainty, prior_std, checks: Checks, *, max_listed:
     The data's information about the parameters with a prior is the posterior precision
     ``C⁻¹`` minus the prior precision ``diag(1/s²)``, with the parameters without a prior
     marginalised out (Schur complement). In units of the prior σ (``M = S·D·S``), a direction
-    with eigenvalue ``λ`` has posterior variance ``1/(1 + λ)`` of its prior variance, so it is
-    prior-determined when ``1/(1 + λ) > weak_fraction²``.
+    with eigenvalue ``λ`` has posterior variance ``1/(1 + λ)`` of its prior variance, which is
+    also the prior's share of it, so it is prior-determined when ``1/(1 + λ) > prior_share``
+    (``λ < 1``: the data tell less about it than the prior; the rule of
+    :func:`~jaxcal._fit._verdicts.parameter_verdicts`).
 
     Returns:
         ``(count, listed)``: how many such directions, and up to ``max_listed`` of them (the
@@ -728,7 +739,7 @@ def prior_directions(unc: Uncertainty, prior_std, checks: Checks, *, max_listed:
         D = D - P[np.ix_(c, n)] @ np.linalg.solve(P[np.ix_(n, n)], P[np.ix_(n, c)])
     M = D * np.outer(s[c], s[c])
     lam, V = np.linalg.eigh((M + M.T) / 2)
-    weak = lam < 1.0 / checks.weak_fraction**2 - 1.0
+    weak = lam < 1.0 / checks.prior_share - 1.0
     names = [unc.names[i] for i in c]
     listed = []
     for k in np.flatnonzero(weak)[:max_listed]:
@@ -739,17 +750,14 @@ def prior_directions(unc: Uncertainty, prior_std, checks: Checks, *, max_listed:
     return int(weak.sum()), tuple(listed)
 
 
-def weak_parameters(unc: Uncertainty, prior_std, checks: Checks) -> tuple[str, ...]:
-    """Free parameters the data barely determine: posterior σ above ``weak_fraction`` of the prior
-    σ, or (no prior) above a third of the plausibility bound; undetermined ones always."""
+def weak_parameters(unc: Uncertainty, checks: Checks) -> tuple[str, ...]:
+    """Free parameters the data barely determine in a fit without a prior: posterior σ above a
+    third of the plausibility bound (``checks.angle_deg``, ``checks.length_mm``); undetermined
+    ones always. (Under a prior: the parameters it holds, :class:`~jaxcal._fit._verdicts.Verdicts`.)"""
     out = []
-    prior_std = np.full(len(unc.names), np.inf) if prior_std is None else np.asarray(prior_std, np.float64)
-    for n, u, s, s0 in zip(unc.names, unc.units, unc.std, prior_std):
+    for n, u, s in zip(unc.names, unc.units, unc.std):
         if not math.isfinite(s):
             out.append(n)
-        elif math.isfinite(s0):
-            if s > checks.weak_fraction * s0:
-                out.append(n)
         elif u in ("rad", "mm") and group_kind(n) != "extra":
             bound = math.radians(checks.angle_deg) if u == "rad" else checks.length_mm
             if s > bound / 3:

@@ -19,6 +19,7 @@ from .._models._abstract import AbstractRobot
 from .._models._kinematics import shared_joint_trig
 from .._sensors._measurement import MeasurementModel
 from ._problem import Problem, value_and_jacfwd
+from ._verdicts import DATA, HELD, UNDETERMINED, Verdicts, prior_lines
 
 __all__ = ["IdentifiabilityReport", "identifiability", "KEEP_PREFERENCE", "default_rtol", "select_free",
            "STILL_JOINT_DEG", "still_joints"]
@@ -138,6 +139,11 @@ class IdentifiabilityReport:
         still_unseen: the names the data would identify only through the near-still joints'
             motion (identifiable with the readings as they are, not with those joints still):
             held at their start, with or without a prior.
+        verdicts: the verdict of each parameter after a fit (:class:`~jaxcal._fit._verdicts.Verdicts`:
+            determined by the data, held by the prior, not calibrated), which ``str()`` then
+            reports in place of the rank test's subset; ``None`` before a fit. The rank test picks
+            one of each group of dependent parameters (``d_2`` of ``d_2``, ``d_3``), while under a
+            prior neither is determined by the data alone: the verdict says so.
     """
 
     names: tuple[str, ...]
@@ -152,6 +158,7 @@ class IdentifiabilityReport:
     prior_covered: tuple[str, ...] = ()
     still_joints: tuple[int, ...] = ()
     still_unseen: tuple[str, ...] = ()
+    verdicts: Verdicts | None = dataclasses.field(default=None, repr=False)
 
     @property
     def held(self) -> tuple[str, ...]:
@@ -159,24 +166,49 @@ class IdentifiabilityReport:
         free = set(self.space.free_names)
         return tuple(n for n in self.names if n not in free)
 
+    def _describe(self, n: str) -> str:
+        """The dependency line of a left-out parameter: what a change of it acts like."""
+        unit = dict(zip(self.space.layout.names, self.space.layout.units))
+        deps = self.dependencies.get(n, [])
+        if not deps:
+            return f"  {n}: has no effect on the measurements"
+        combo = " ".join(f"{c:+.4g} {unit[m]}/{unit[n]}·{m}" for c, m in deps)
+        return (f"  {n}: a change δ acts like {combo}·δ" if len(deps) == 1
+                else f"  {n}: a change δ acts like ({combo})·δ")
+
+    def _verdict_lines(self) -> list[str]:
+        """The lines after a fit: each candidate's verdict (:attr:`verdicts`), the dependencies
+        explaining what the prior holds or what is held at its start."""
+        v = self.verdicts
+        of = {n: v.verdict.get(n, HELD) for n in self.names}
+        lines = ["determined by the data: " + (", ".join(n for n in self.names if of[n] == DATA) or "none")]
+        left_out = set(self.unidentifiable)
+        lines += prior_lines(v, self.names, lambda n: self._describe(n) if n in left_out else None)
+        undetermined = [n for n in self.names if of[n] == UNDETERMINED]
+        if undetermined:
+            lines.append("determined neither by the data nor by a prior (σ infinite): " + ", ".join(undetermined))
+        if self.still_joints:
+            lines.append(f"joint(s) {', '.join(str(j) for j in self.still_joints)} barely move in the data: judged as "
+                         "standing still" + (f"; seen only through their motion, held at their start value: "
+                                             f"{', '.join(self.still_unseen)}" if self.still_unseen else ""))
+        held = [n for n in self.names if of[n] == HELD]
+        if held:
+            lines.append("not calibrated (*), held at their start value: " + ", ".join(held))
+            lines += [self._describe(n) for n in held if n in left_out]
+        return lines
+
     def __str__(self) -> str:
         lines = [
             f"identification Jacobian rank {self.rank} of {len(self.names)} candidate parameters "
             f"(column-scaled, rtol={self.rtol:g}); condition number of the identifiable "
             f"subset {self.condition_number:.3g}",
-            "identifiable from the data: " + ", ".join(self.identifiable),
         ]
+        if self.verdicts is not None:
+            return "\n".join(lines + self._verdict_lines())
+        lines.append("identifiable from the data: " + ", ".join(self.identifiable))
         covered = set(self.prior_covered)
         held = set(self.held)
-        unit = dict(zip(self.space.layout.names, self.space.layout.units))
-
-        def describe(n):
-            deps = self.dependencies.get(n, [])
-            if not deps:
-                return f"  {n}: has no effect on the measurements"
-            combo = " ".join(f"{c:+.4g} {unit[m]}/{unit[n]}·{m}" for c, m in deps)
-            return (f"  {n}: a change δ acts like {combo}·δ" if len(deps) == 1
-                    else f"  {n}: a change δ acts like ({combo})·δ")
+        describe = self._describe
 
         by_prior = [n for n in self.unidentifiable if n in covered and n not in held]
         if by_prior:
@@ -195,6 +227,25 @@ class IdentifiabilityReport:
         if extra_free:  # pragma: no cover - select_free never frees a no-prior name the data cannot see
             lines.append("free: " + ", ".join(extra_free))
         return "\n".join(lines)
+
+    def unseen_directions(self, names) -> np.ndarray:
+        """``[len(names), k]``: the directions the data cannot see, over the parameters ``names``
+        (physical units): per left-out parameter ``j``, ``e_j − Σ_k c_jk e_k`` with its
+        :attr:`dependencies` (a change of ``j`` acts like changing each ``k`` by ``c_jk`` times
+        it), the entries outside ``names`` left out; none for a left-out parameter not in
+        ``names`` (held)."""
+        at = {n: i for i, n in enumerate(names)}
+        cols = []
+        for j in self.unidentifiable:
+            if j not in at:
+                continue
+            v = np.zeros(len(at))
+            v[at[j]] = 1.0
+            for c, k in self.dependencies.get(j, []):
+                if k in at:
+                    v[at[k]] -= c
+            cols.append(v)
+        return np.stack(cols, axis=1) if cols else np.zeros((len(at), 0))
 
     def equivalent(self, deviations, held=None) -> np.ndarray:
         """The values ``[p_identifiable]`` the identifiable parameters take when the unidentifiable

@@ -6,15 +6,23 @@ from __future__ import annotations
 import math
 import sys
 
+from .._fit._verdicts import MARKS_LEGEND, PRIOR
+
 
 def _metrics_rows(pairs):
     return [[name, m.rmse, m.mean, m.max] for name, m in pairs]
 
 
+def _fixed(v: float, sign: str = "") -> str:
+    """``v`` at the tables' precision (4 decimals), a value that rounds to zero as ``0.0000``,
+    never ``-0.0000`` (a deviation the prior holds at nominal comes out at round-off size)."""
+    return f"{round(float(v), 4) + 0.0:{sign}.4f}"
+
+
 def _fmt_value(v: float, sd: float | None, unit: str) -> str:
     if sd is None:
-        return f"{v:+.4f}"
-    return f"{v:+.4f} ± {sd:.2g}" if sd < float("inf") else f"{v:+.4f} ± ∞"
+        return _fixed(v, "+")
+    return f"{_fixed(v, '+')} ± {sd:.2g}" if sd < float("inf") else f"{_fixed(v, '+')} ± ∞"
 
 
 def _print_dh_table(robot, res, sd) -> None:
@@ -23,7 +31,7 @@ def _print_dh_table(robot, res, sd) -> None:
 
     nominal = robot.dh_table_deg()
     cal = res.dh_table()
-    by_prior = _set_by_prior(res)
+    mark = _marks(res)
     trows = []
     for j in range(robot.dof):
         cells = [str(j + 1)]
@@ -33,27 +41,21 @@ def _print_dh_table(robot, res, sd) -> None:
             if col in (0, 3):
                 delta = float(wrap_angle_deg(delta))
             if name in sd:
-                mark = "†" if name in by_prior else ""
-                cells.append(f"{cal[j, col]:.4f}{mark} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
+                cells.append(f"{_fixed(cal[j, col])}{mark(name)} ({_fmt_value(delta, sd[name][0], sd[name][1])})")
             else:
-                cells.append(f"{cal[j, col]:.4f}* ({delta:+.4f})")
+                cells.append(f"{_fixed(cal[j, col])}* ({_fixed(delta, '+')})")
         trows.append(cells)
     print()
     print(format_table(trows, ["joint", "α/° (Δ ± σ)", "a/mm (Δ ± σ)", "d/mm (Δ ± σ)", "θ/° (Δ ± σ)"],
                        title="Calibrated DH table (Δ = calibrated − nominal, ± one posterior standard deviation; "
-                             + _TABLE_MARKS))
+                             + MARKS_LEGEND + ")"))
 
 
-#: the legend of the parameter tables' marks
-_TABLE_MARKS = ("† set by the prior rather than the data (posterior σ above half the prior σ); "
-                "* not calibrated: held at its start value (not identifiable without a prior, or fixed)")
-
-
-def _set_by_prior(res) -> set:
-    """Free parameters whose posterior σ is above ``Checks.weak_fraction`` of their prior σ."""
-    if res.prior is None or res.diagnostics is None:
-        return set()
-    return set(res.diagnostics.weak_parameters)
+def _marks(res):
+    """``name → "†" | ""`` of the free parameters: † where the result's verdict
+    (:class:`~jaxcal._fit._verdicts.Verdicts`) is "held by the prior"."""
+    verdicts = None if res.diagnostics is None else res.diagnostics.verdicts
+    return lambda name: "†" if verdicts is not None and verdicts.verdict.get(name) == PRIOR else ""
 
 
 def _print_chain_table(robot, res, sd) -> None:
@@ -65,15 +67,14 @@ def _print_chain_table(robot, res, sd) -> None:
 
     free = set(res.space.free_names)
     value = {n: v for n, v, _ in correction_entries(robot, res.deviations)}
-
-    by_prior = _set_by_prior(res)
+    mark = _marks(res)
 
     def cell(name):
         if name not in value:  # drz at a revolute joint: the joint offset
             return ""
         if name not in free:
-            return f"{value[name]:+.4f}*"
-        return _fmt_value(value[name], sd.get(name, (None,))[0], "") + ("†" if name in by_prior else "")
+            return f"{_fixed(value[name], '+')}*"
+        return _fmt_value(value[name], sd.get(name, (None,))[0], "") + mark(name)
 
     rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
             for j in range(robot.dof)]
@@ -81,7 +82,7 @@ def _print_chain_table(robot, res, sd) -> None:
     print()
     print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
                        title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "
-                             f"posterior standard deviation; {_TABLE_MARKS}; `jaxcal export` writes the corrected URDF)"))
+                             f"posterior standard deviation; {MARKS_LEGEND}; `jaxcal export` writes the corrected URDF)"))
 
 
 def _print_estimates(res, sd: dict, extras, unit: str) -> None:
