@@ -126,8 +126,10 @@ def _blocks(section: str, lang: str) -> list[str]:
 
 
 def test_the_tutorial_runs_as_written_and_prints_its_numbers(tmp_path, monkeypatch, capsys):
-    """Every command of the page's bash blocks (comments stripped) exits 0 in a fresh folder, and every
-    line of its text blocks is a line the commands printed: the page cannot drift from the program."""
+    """Every command of the page's bash blocks (comments stripped) exits 0 in a fresh folder, every
+    line of its text blocks is a line the commands printed, and every warning they printed is on the
+    page (issue 53: a warning the page did not show ended every run): the page cannot drift from the
+    program."""
     pytest.importorskip("matplotlib")  # jaxcal report --html
     section = _tutorial_section()
     commands = [shlex.split(line, comments=True) for block in _blocks(section, "bash")
@@ -135,12 +137,17 @@ def test_the_tutorial_runs_as_written_and_prints_its_numbers(tmp_path, monkeypat
     assert [c[:2] for c in commands] == [["jaxcal", "simulate"], ["jaxcal", "calibrate"], ["jaxcal", "simulate"],
                                          ["jaxcal", "evaluate"], ["jaxcal", "report"], ["jaxcal", "export"]]
     monkeypatch.chdir(tmp_path)
-    printed = set()
+    printed, warned = set(), []
     for argv in commands:
         assert main(argv[1:]) == 0, argv
-        printed |= {line.rstrip() for line in capsys.readouterr().out.splitlines()}
+        out = capsys.readouterr()
+        printed |= {line.rstrip() for line in out.out.splitlines()}
+        warned += [line.rstrip() for line in out.err.splitlines() if line.startswith("jaxcal: warning")]
     shown = [line.rstrip() for block in _blocks(section, "text") for line in block.splitlines() if line.strip()]
-    assert len(shown) > 10 and [line for line in shown if line not in printed] == []
+    assert len(shown) > 10 and [line for line in shown if line not in printed | set(warned)] == []
+    assert [w for w in warned if w not in shown] == []
+    # one verdict per parameter: the identifiability lines and the DH table's † say the same
+    assert "determined by the data: alpha_1" in section and "0.5758† (+0.5758 ± 1.3)" in section
 
     # the simulated set-up is unknown to calibrate: no anchor line, its truth quoted on the page
     meta = jaxcal.load_csv(tmp_path / "data.csv").meta
@@ -158,7 +165,7 @@ def test_the_tutorial_runs_as_written_and_prints_its_numbers(tmp_path, monkeypat
 
     # the report: † marks, the colour clip, version/date/input identity, no empty header row, angles wrapped
     page = (tmp_path / "result.html").read_text(encoding="utf-8")
-    assert "theta_1†" in page and "set by the prior rather than the data" in page
+    assert "theta_1†" in page and "held by the prior: the prior, not the data" in page
     assert "clipped at the 98th percentile" in page
     assert f"jaxcal {jaxcal.__version__} report, made 20" in page and "result.json (sha256 " in page
     assert "data data.csv (sha256 " in page and "<th></th>" not in page and 'class="l"></th>' not in page

@@ -167,10 +167,10 @@ def test_choosing_parameters_and_settings(data_csv, capsys):
     d = str(data_csv)
     assert main(["calibrate", d, "--robot", "hsr_jr680", "--free", "anchor,offset", "--test-fraction", "0"]) == 0
     out = capsys.readouterr().out
-    assert "identifiable from the data: anchor_x, anchor_y, anchor_z, cable_offset" in out
+    assert "determined by the data: anchor_x, anchor_y, anchor_z, cable_offset" in out
     assert main(["calibrate", d, "--robot", "hsr_jr680", "--fix", "d_6,theta", "--test-fraction", "0"]) == 0
     out = capsys.readouterr().out
-    ident = next(line for line in out.splitlines() if line.startswith("identifiable from the data:"))
+    ident = next(line for line in out.splitlines() if line.startswith("determined by the data:"))
     assert "d_6" not in ident and "theta" not in ident and "a_2" in ident
     _one_error_line(capsys, 2, ["calibrate", d, "--robot", "hsr_jr680", "--set", "foo=1"],
                     "unknown setting(s) ['foo'] for method lm; its settings: atol, linear_solver, max_steps, rtol")
