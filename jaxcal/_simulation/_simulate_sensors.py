@@ -16,7 +16,7 @@ from .._models._kinematics import tool_point_soa
 from .._sensors._camera import Camera, _log, _predict_jit, _setup_frames, default_camera
 from .._sensors._contact import DistanceBar, _sample_q, default_setup
 
-__all__ = ["simulate_contact", "save_simulated_contact", "simulate_distance", "simulate_camera"]
+__all__ = ["simulate_contact", "simulated_contact_data", "simulate_distance", "simulate_camera"]
 
 
 
@@ -149,7 +149,9 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     ``~ N(0, σ²)``; point: ``p − c ~ N(0, σ²I₃)``; sphere: ``‖p − c‖ − r ~ N(0, σ²)``), so the
     statistical floor is :func:`jaxcal.statistical_floor` with ``size`` = the model's residual
     size. Rows that leave the joint limits or do not converge are not used; ``tries`` rows per
-    wanted row are moved (raise it where many fail).
+    wanted row are moved (raise it where many fail). The drawn tool deviation is this
+    simulation's own: ``jaxcal simulate`` passes the seed's set-up shared by every kind instead
+    (:func:`simulated_contact_data`).
 
     Returns:
         :class:`jaxcal.Experiment` with ``train`` / ``test`` datasets (``y``: label indices;
@@ -199,28 +201,36 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
                       jnp.asarray(noise_std, dtype))
 
 
-def save_simulated_contact(args, robot, measurement) -> None:
-    """``jaxcal simulate --measurement plane|point``: :func:`simulate_contact` → ``args.out``."""
-    from .._datasets._dataset import Dataset, mm_joints_metadata
+def simulated_contact_data(seed: int, robot, measurement, *, n_samples: int, noise_std: float):
+    """The rows ``jaxcal simulate --measurement plane|point|distance`` writes: all ``n_samples``
+    rows of :func:`simulate_contact` (``measurement`` a :class:`~jaxcal.PlaneContact` or
+    :class:`~jaxcal.FixedPoint`) or :func:`simulate_distance` (a :class:`DistanceBar`: bars of 150
+    and 300 mm) of ``jax.random.key(seed)``, on the seed's true set-up
+    (:func:`~jaxcal._simulation._truth.simulated_truth`: the same robot, tool and sensor frame as
+    every other kind's file of that seed, so the files can be combined), noise σ ``noise_std`` (mm).
 
-    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std,
+    Returns:
+        :class:`~jaxcal.Dataset` with the file's metadata: ``source: jaxcal simulate``, the robot,
+        the seed, ``noise_std_mm``, the labels (plane / point) and a sphere's ``radius_mm``.
+    """
+    from .._datasets._dataset import Dataset, mm_joints_metadata
+    from ._truth import simulated_truth
+
+    key = jax.random.key(seed)
+    truth = simulated_truth(key, robot, measurement)
+    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": seed, "noise_std_mm": noise_std,
             **mm_joints_metadata(robot)}
     if measurement.kind == "distance":
-        ex = simulate_distance(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=args.noise_std,
-                               test_fraction=0.0)
-        what = "bar lengths 150 and 300 mm"
+        ex = simulate_distance(key, robot, n_samples=n_samples, noise_std=noise_std, test_fraction=0.0,
+                               true_deviations=truth)
     else:
-        ex = simulate_contact(jax.random.key(args.seed), robot, measurement, n_samples=args.samples,
-                              noise_std=args.noise_std, test_fraction=0.0)
+        ex = simulate_contact(key, robot, measurement, n_samples=n_samples, noise_std=noise_std, test_fraction=0.0,
+                              true_deviations=truth)
         meta[label_metadata_key(measurement.kind)] = ",".join(measurement.labels)
-        what = f"{len(measurement.labels)} {measurement.kind}s: {', '.join(measurement.labels)}"
         if getattr(measurement, "sphere", False):
             r = np.asarray(measurement.radii, np.float64)
             meta["radius_mm"] = ",".join(f"{v:g}" for v in r) if np.ptp(r) > 0 else f"{r[0]:g}"
-            what = f"{len(measurement.labels)} spheres of radius {meta['radius_mm']} mm: {', '.join(measurement.labels)}"
-    Dataset(ex.train.q, ex.train.y, measurement.kind, meta).to_csv(args.out)
-    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
-          f"seed {args.seed}, {what}) to {args.out}")
+    return Dataset(ex.train.q, ex.train.y, measurement.kind, meta)
 
 
 def _pair_constraint(robot, dev, qa, qb):

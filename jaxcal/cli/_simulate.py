@@ -38,10 +38,7 @@ def _cmd_simulate(args) -> int:
             return _simulate_camera(args)
         robot, measurement = _robot_and_sensor(args)
         if measurement.kind in ("plane", "point", "distance"):
-            from .._simulation._simulate_sensors import save_simulated_contact
-
-            save_simulated_contact(args, robot, measurement)
-            return 0
+            return _simulate_contact(args, robot, measurement)
         measurement, truth = _true_setup(robot, measurement, args.seed, args.unknown_anchor)
         meta = {"seed": args.seed}
     ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=noise,
@@ -83,8 +80,10 @@ def _orientation_noise_deg(args, measurement, meta: dict) -> float:
 def _true_setup(robot, measurement, robot_seed: int, unknown_anchor: bool, cable_offset_mm: float | None = None):
     """``(measurement, true_deviations)`` of the simulated robot of ``robot_seed``.
 
-    The DH deviations are those :func:`jaxcal.simulate_experiment` draws from
-    ``jax.random.key(robot_seed)`` (so a file's rows follow from its seed alone). The measurement
+    The deviations are the seed's true set-up (:func:`~jaxcal._simulation._truth.simulated_truth`:
+    those :func:`jaxcal.simulate_experiment` draws from ``jax.random.key(robot_seed)``, the tool
+    and sensor frame nominal, as for every kind), so a file's rows follow from its seed alone and
+    files of one seed can be combined. The measurement
     carries the true anchor (cable). ``unknown_anchor``: the anchor is moved by
     ``N(0, UNKNOWN_ANCHOR_STD_MM²)`` per axis and the wire gets a zero offset
     ``N(0, UNKNOWN_OFFSET_STD_MM²)`` (mm), drawn from the same key; ``cable_offset_mm`` instead
@@ -94,11 +93,10 @@ def _true_setup(robot, measurement, robot_seed: int, unknown_anchor: bool, cable
 
     from .._core._params import Deviations
     from .._sensors._measurement import CableLength
-    from .._simulation._simulate import draw_deviations
+    from .._simulation._truth import simulated_truth
 
-    k_dev = jax.random.split(jax.random.key(robot_seed), 4)[0]  # simulate_experiment's deviation key
-    std = UNKNOWN_ANCHOR_STD_MM if unknown_anchor else 0.0
-    dev = draw_deviations(k_dev, robot, anchor_std_mm=std,
+    dev = simulated_truth(jax.random.key(robot_seed), robot,
+                          anchor_std_mm=UNKNOWN_ANCHOR_STD_MM if unknown_anchor else 0.0,
                           cable_offset_std_mm=UNKNOWN_OFFSET_STD_MM if unknown_anchor else 0.0)
     vals = dict(dev.values)
     if measurement.kind == "cable":  # the true anchor in the model; the deviation's anchor back to 0
@@ -178,6 +176,25 @@ def _like(args):
                                                   "like": f"{src.name} (data {path.name})", **rot}
 
 
+def _simulate_contact(args, robot, measurement) -> int:
+    """``jaxcal simulate --measurement plane|point|distance``:
+    :func:`~jaxcal._simulation._simulate_sensors.simulated_contact_data` → ``args.out``."""
+    from .._simulation._simulate_sensors import simulated_contact_data
+
+    data = simulated_contact_data(args.seed, robot, measurement, n_samples=args.samples, noise_std=args.noise_std)
+    data.to_csv(args.out)
+    labels = getattr(measurement, "labels", ())
+    if measurement.kind == "distance":
+        what = "bar lengths 150 and 300 mm"
+    elif getattr(measurement, "sphere", False):
+        what = f"{len(labels)} spheres of radius {data.meta['radius_mm']} mm: {', '.join(labels)}"
+    else:
+        what = f"{len(labels)} {measurement.kind}s: {', '.join(labels)}"
+    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
+          f"seed {args.seed}, {what}) to {args.out}")
+    return 0
+
+
 def _simulate_camera(args) -> int:
     """``jaxcal simulate --measurement camera``: :func:`jaxcal.simulate_camera` (a 9×6 checkerboard of
     20 mm squares, 1280×1024 px, f = 1000 px), written with the target, intrinsics and mount lines."""
@@ -187,6 +204,7 @@ def _simulate_camera(args) -> int:
     from .._datasets._dataset import Dataset, mm_joints_metadata
     from .._sensors._camera import Camera, checkerboard
     from .._simulation._simulate_sensors import simulate_camera
+    from .._simulation._truth import simulated_truth
 
     robot = _robot(args.robot, args.base, args.tip)
     if args.anchor:
@@ -199,8 +217,9 @@ def _simulate_camera(args) -> int:
     intr = [1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0]
     cam = Camera(checkerboard(9, 6, 20.0), intr, args.mount.replace("-", "_"), image_size=(1280, 1024))
     with _as_usage():
-        q, y, cam, truth = simulate_camera(jax.random.key(args.seed), robot, cam, n_views=args.samples,
-                                           noise_px=args.noise_std, missing=args.missing_corners)
+        key = jax.random.key(args.seed)  # the seed's robot and tool, as every kind's (simulated_truth)
+        q, y, cam, truth = simulate_camera(key, robot, cam, n_views=args.samples, noise_px=args.noise_std,
+                                           missing=args.missing_corners, true_deviations=simulated_truth(key, robot))
     n_masked = int(np.isnan(np.asarray(y)).any(axis=-1).sum())
     meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_px": args.noise_std,
             "target": target, "camera_intrinsics": ",".join(repr(v) for v in intr), "mount": cam.mount,

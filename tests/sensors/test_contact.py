@@ -13,8 +13,9 @@ from jaxcal import FixedPoint, PlaneContact, simulate_contact, statistical_floor
 from jaxcal._calibration._io import load_result_dict
 from jaxcal._core._params import Deviations, ParameterSpace, layout_for
 from jaxcal._datasets._dataset import relabel
-from jaxcal._sensors._contact import default_setup, initial_contact, unobservable_directions
+from jaxcal._sensors._contact import DistanceBar, default_setup, initial_contact, unobservable_directions
 from jaxcal._simulation._simulate_sensors import simulate_distance
+from jaxcal._simulation._truth import simulated_truth
 
 SIGMA = 0.05
 
@@ -39,14 +40,14 @@ def _cli_at_floor(robot, kind, tmp_path, seed=3, radius_mm=None, calibrate_args=
     assert rc == 0
     res = jaxcal.load_result(out)
     if kind == "distance":
-        truth = simulate_distance(jax.random.key(seed), robot, n_samples=300, noise_std=SIGMA).true_deviations
+        truth = simulated_truth(jax.random.key(seed), robot, DistanceBar(robot.dof))  # the file's set-up
         big = simulate_distance(jax.random.key(1000 + seed), robot, n_samples=3000, noise_std=SIGMA,
                                 true_deviations=truth, test_fraction=0.0).train
     else:
         m = default_setup(kind, robot)
         if radius_mm is not None:
             m = FixedPoint(m.labels, np.asarray(m.centres), radii_mm=radius_mm)
-        truth = simulate_contact(jax.random.key(seed), robot, m, n_samples=300, noise_std=SIGMA).true_deviations
+        truth = simulated_truth(jax.random.key(seed), robot, m)
         big = simulate_contact(jax.random.key(1000 + seed), robot, m, n_samples=3000, noise_std=SIGMA,
                                true_deviations=truth, test_fraction=0.0).train
         big = relabel(big, res.measurement.labels)
