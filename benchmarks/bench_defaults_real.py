@@ -122,7 +122,7 @@ def run_tracker(seed: int, n: int, gross_in_test: bool, compliance_scale: float 
         row = {"test split": r.evaluate(ex.test).rmse}
         if gross_in_test:
             row["test split without the gross row"] = r.evaluate(ex.test.subset(jnp.arange(1, ex.test.n))).rmse
-        row["other session (frame registered)"] = r.evaluate(other, extras="register").rmse
+        row["other session (frame registered)"] = jaxcal.evaluate_result(r, other, extras="register").rmse
         out[name] = row
     return out
 

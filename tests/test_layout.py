@@ -22,8 +22,8 @@ while not (PKG / "__init__.py").exists():  # tests moved into a subfolder: look 
 FLOORS = {
     "_core": 0, "optim": 0,  # precision, parameter groups, metrics, xla, json, buckets, joint trigonometry
     "_models": 1, "robots": 1,  # DH robot, non-geometric errors, kinematics, chains, URDF
-    "_datasets": 2,  # Dataset, the CSV reader, the CSV format of every sensor
-    "_sensors": 3,  # measurement models and the closed-form starts of their extras
+    "_sensors": 2,  # measurement models, each sensor kind's data-file form, the closed-form starts of their extras
+    "_datasets": 3,  # Dataset and the CSV reader/writer, which loop over the sensor kinds
     "_simulation": 4,  # simulated experiments and sensor data
     "_fit": 5,  # objective, problem, identifiability, diagnostics, result
     "methods": 6,
@@ -33,8 +33,10 @@ FLOORS = {
 }
 
 #: Upward imports kept on purpose, by module name (importer, imported) and why. Each must exist
-#: (the test fails on a stale entry). None is left: ``CalibrationResult.evaluate(data, extras=...)``
-#: (floor 5) reaches ``evaluate_result`` (floor 7) through a hook the calibration package sets.
+#: (the test fails on a stale entry). None is left, and no hook either: the sensor kinds sit below
+#: the data sets that loop over them, and ``CalibrationResult.evaluate(data)`` (floor 5) reaches
+#: nothing above it (the evaluation with the extras registered again is ``evaluate_result``, floor 7).
+#: The one lazy import is the sensor-kind registry's (``jaxcal._sensors._kind._BUILTIN``), within its floor.
 KEPT: dict[tuple[str, str], str] = {}
 
 
@@ -223,10 +225,18 @@ def test_the_graph_sees_every_kind_of_import(tmp_path):
     assert circle[0] == circle[-1] and set(circle) >= {"jaxcal._a", "jaxcal._b", "jaxcal.sub._c"}
 
 
-def test_result_evaluate_with_extras_is_set_by_the_calibration_package():
-    """``CalibrationResult.evaluate(data, extras=...)`` (floor 5) calls ``evaluate_result`` (floor 7)
-    through the hook the calibration package sets on import (no upward import)."""
-    import jaxcal._calibration as calibration
+def test_result_evaluate_has_one_return_type_and_no_hook():
+    """``CalibrationResult.evaluate(data)`` (floor 5) returns Metrics and reaches nothing above it;
+    the evaluation on new data with the extras registered again is :func:`jaxcal.evaluate_result`
+    (floor 7), and the old ``extras=`` keyword says so instead of calling upward."""
+    import inspect
+
+    import pytest
+
+    from jaxcal._core._metrics import Metrics
     from jaxcal._fit import _result
 
-    assert _result._extras_evaluator is calibration._evaluate_result
+    assert not hasattr(_result, "set_extras_evaluator") and not hasattr(_result, "_extras_evaluator")
+    assert inspect.signature(_result.CalibrationResult.evaluate).return_annotation in (Metrics, "Metrics")
+    with pytest.raises(TypeError, match="evaluate_result"):
+        _result.CalibrationResult.evaluate(object(), None, extras="auto")

@@ -28,7 +28,7 @@ from .._core._precision import to_device
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._fit._problem import Problem, value_and_jacfwd
 from .._sensors._blocks import Block, Combined, Relations, combine
-from .._sensors._initial_extras import INITIALISABLE, initial_extras
+from .._sensors._initial_extras import initial_extras
 from .._sensors._measurement import xyz_entries
 
 __all__ = ["calibrate_blocks", "BlockStats", "block_statistics", "block_information", "block_directions",
@@ -43,7 +43,7 @@ _EXTRA_GROUPS = {"tool": ("tool",), "base": ("base_rotation", "base_translation"
 
 def block_extras(names) -> list[str]:
     """The entries of ``names`` (extras as :func:`jaxcal.calibrate` names them, e.g. what
-    :func:`~jaxcal._calibration._setup.measured_extras` chose for a data file) that a
+    :func:`jaxcal.measurement_for` chose for a data file) that a
     :class:`jaxcal.Block` takes as its ``extras``, sorted; a sensor's own unknowns (planes,
     points, hand-eye, ...) are always estimated and are not named."""
     return sorted(e for e in names if e in _EXTRA_GROUPS)
@@ -512,7 +512,7 @@ def _initial_start(robot, model: Combined, blocks: Sequence[Block], q, y, start:
         mod = blk.measurement
         names = _groups_of(model, b)
         asked = {g for e in blk.extras for g in _EXTRA_GROUPS.get(e.strip().lower(), ())}
-        can = INITIALISABLE.get(mod.kind, ())
+        can = mod.initialisable
         est = [e for e in can if e in _OWN_INIT]
         est += [e for e in can if e not in _OWN_INIT and set(_EXTRA_GROUPS.get(e, (e,))) & asked]
         if "tool" in est and names["tool"] in tool_done:

@@ -49,7 +49,6 @@ from .._fit._diagnostics import (
     weak_parameters,
 )
 from .._fit._identifiability import STILL_JOINT_DEG, identify_with_residuals, start_jacobian
-from .._fit._verdicts import fit_verdicts, fixable_text
 from .._fit._objective import LOSSES, Objective, Prior, resolve_objective, resolve_prior, robust_scale
 from .._fit._problem import Problem, entry_count, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import (
@@ -59,9 +58,10 @@ from .._fit._result import (
     iterations_to_converge,
     iterations_to_converge_numpy,
 )
+from .._fit._verdicts import fit_verdicts, fixable_text
 from .._models._abstract import AbstractRobot
 from .._models._kinematics import shared_joint_trig
-from .._sensors._initial_extras import INITIALISABLE, initial_extras
+from .._sensors._initial_extras import initial_extras
 from .._sensors._measurement import MeasurementModel
 from ..methods import Method, ScaledProblem, make_method
 
@@ -890,7 +890,7 @@ def _calibration_steps(
         ahead(seen, lambda: solve(start, prog_space, _solve_space(prog_space, given, q.dtype)[2], 1.0, 1.0, given,
                                   None))
     extras_msg = None
-    initialisable = [e for e in INITIALISABLE[measurement.kind] if flags.get(e)]
+    initialisable = [e for e in measurement.initialisable if flags.get(e)]
     if init == "auto" and initialisable:
         est = initial_extras(robot, measurement, (q, y), estimate=initialisable, start=start)
         start, extras_msg = est.deviations, est.message

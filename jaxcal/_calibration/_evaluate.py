@@ -5,7 +5,7 @@ usually taken with the sensor set up again: the draw-wire anchor, the tracker's 
 plate are not where they were, so the robot is judged with those *extras* registered again on
 the new rows, the robot itself fixed (closed form, :func:`jaxcal.initial_extras`, then a fit of
 only the extras) — for the nominal robot ("before") and the calibrated one ("after") alike.
-:func:`evaluate_result` (``result.evaluate(data, extras=...)``, ``jaxcal evaluate``) does that and
+:func:`evaluate_result` (``jaxcal evaluate``) does that and
 says which extras were registered or taken from the result.
 
 "Before" everywhere (``jaxcal calibrate``, ``jaxcal evaluate``, :func:`jaxcal.holdout_session`) is
@@ -523,8 +523,8 @@ def _registered_terms(result, data, registered, deviations):
     obs = m.observed(np.asarray(data.y))
     size = m.size
     keep = np.ones(J.shape[0], bool) if obs is None else np.asarray(obs, bool).reshape(-1)
-    if m.kind == "pose":  # the position part, as the sample error
-        keep &= np.tile(np.arange(size) < 3, q.shape[0])
+    if m.error_entries is not None:  # a pose's position part, as the sample error
+        keep &= np.tile(np.arange(size) < m.error_entries, q.shape[0])
     J = np.where(keep[:, None], J, 0.0)
     idx = {n: i for i, n in enumerate(pr.space.free_names)}
     JE, Jt = J[:, [idx[n] for n in e_names]], J[:, [idx[n] for n in theta]]
@@ -566,7 +566,7 @@ def expected_rmse(result, data, registered=(), deviations=None) -> float | None:
     unc = result.uncertainty
     m = result.measurement
     c = robust_consistency(m, "linear", m.observed(data.y)).mean_sq_error
-    coords = 3 if m.kind == "pose" else m.size
+    coords = m.size if m.error_entries is None else m.error_entries
     if registered:
         mean_var, p_e, n_entries = _registered_terms(result, data, registered, deviations)
         noise = unc.noise_std ** 2 * max(0.0, 1.0 - p_e / max(n_entries, 1))
@@ -583,8 +583,8 @@ def match_labels(result, data):
     result relabelled to the data's labels (:func:`relabelled_result`: labels it has not seen,
     ``new``, get zero values, to be registered on the data) and the data's label indices
     renumbered to the result's label order. Anything else comes back unchanged (``new`` empty)."""
-    from .._datasets._dataset import Dataset, dataset_labels, label_metadata_key, relabel
-    from .._sensors._contact import FixedPoint, PlaneContact
+    from .._datasets._dataset import Dataset, relabel
+    from .._sensors._contact import FixedPoint, PlaneContact, dataset_labels, label_metadata_key
 
     m = result.measurement
     if not (isinstance(data, Dataset) and isinstance(m, (PlaneContact, FixedPoint)) and data.kind == m.kind

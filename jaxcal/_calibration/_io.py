@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
+from .._core._csvfile import read_table
 from .._core._json import from_json_number, to_jsonable
 from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
-from .._datasets._csvfile import read_table
 from .._fit._diagnostics import Uncertainty
 from .._fit._learned_prior import prior_from_dict, prior_to_dict
 from .._fit._objective import Prior
@@ -31,7 +31,7 @@ from .._fit._result import CalibrationResult, Status
 from .._models._abstract import AbstractRobot
 from .._models._nongeometric import nongeometric_from_dict
 from .._models._robot import DHRobot
-from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
+from .._sensors._measurement import MeasurementModel
 
 __all__ = [
     "RESULT_FORMAT",
@@ -227,73 +227,20 @@ def measurement_to_dict(m: MeasurementModel) -> dict:
     ``"sessions": {"frames", "placements", "markers", "frame_index", "placement_index"}`` (its
     labels, each placement's marker numbers and the training rows' indices) and per-placement
     ``positions_mm`` ``[P, N, 3]``."""
-    if isinstance(m, CableLength):
-        return {"kind": "cable", "anchor_mm": np.asarray(m.anchor, np.float64).tolist()}
-    if getattr(m, "kind", None) == "camera":  # jaxcal._sensors._camera.Camera
-        f = lambda a: np.asarray(a, np.float64).tolist()  # noqa: E731
-        return {"kind": "camera", "points_mm": f(m.points), "intrinsics": f(m.intrinsics), "mount": m.mount,
-                "handeye_rotation": f(m.handeye_rotation), "handeye_translation_mm": f(m.handeye_translation),
-                "target_rotation": f(m.target_rotation), "target_translation_mm": f(m.target_translation),
-                "image_size": None if m.image_size is None else list(m.image_size),
-                "calibrate_intrinsics": bool(m.calibrate_intrinsics)}
-    if m.kind in ("plane", "point", "distance"):  # jaxcal._sensors._contact
-        from .._sensors._contact import contact_to_dict
+    from .._sensors._kind import sensor_kind
 
-        return contact_to_dict(m)
-    if hasattr(m, "frame_index"):  # jaxcal.SessionMarkers: labels, marker sets and the rows it was made for
-        return {"kind": "markers", "positions_mm": np.asarray(m.positions, np.float64).tolist(),
-                "sessions": {"frames": list(m.frames), "placements": list(m.placements),
-                             "markers": [list(k) for k in m.markers],
-                             "frame_index": np.asarray(m.frame_index).tolist(),
-                             "placement_index": np.asarray(m.placement_index).tolist()}}
-    frame = {"rotation": np.asarray(getattr(m, "rotation", np.eye(3)), np.float64).tolist(),
-             "translation_mm": np.asarray(getattr(m, "translation", np.zeros(3)), np.float64).tolist()}
-    if isinstance(m, Pose):
-        # the weight the fit used (estimated unless given: read back, it is taken as given)
-        return {"kind": "pose", "orientation_scale": float(m.orientation_scale),
-                "orientation_scale_estimated": not m.orientation_scale_given} | frame
-    if isinstance(m, Position):
-        return {"kind": "position"} | frame
-    if isinstance(m, Markers):
-        return {"kind": "markers", "positions_mm": np.asarray(m.positions, np.float64).tolist(),
-                "known": bool(m.known)} | frame
-    raise TypeError(f"cannot serialise measurement model {type(m).__name__}")
+    try:
+        kind = sensor_kind(str(getattr(m, "kind", "")))
+    except ValueError:
+        raise TypeError(f"cannot serialise measurement model {type(m).__name__}") from None
+    return kind.model_to_dict(m)
 
 
 def measurement_from_dict(d: dict) -> MeasurementModel:
     """Inverse of :func:`measurement_to_dict`."""
-    kind = d.get("kind")
-    if kind == "camera":
-        from .._sensors._camera import Camera
+    from .._sensors._kind import sensor_kind
 
-        return Camera(d["points_mm"], d["intrinsics"], d["mount"], handeye_rotation=d["handeye_rotation"],
-                      handeye_translation=d["handeye_translation_mm"], target_rotation=d["target_rotation"],
-                      target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
-                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
-    if kind == "cable":
-        return CableLength(to_device(np.asarray(d["anchor_mm"], np.float64)))
-    if kind in ("plane", "point", "distance"):  # jaxcal._sensors._contact
-        from .._sensors._contact import contact_from_dict
-
-        return contact_from_dict(d)
-    frame = {"rotation": to_device(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
-             "translation": to_device(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
-    if kind == "position":
-        return Position(**frame)
-    if kind == "pose":
-        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame)
-    if kind == "markers" and "sessions" in d:
-        from .._sensors._sessions import SessionMarkers
-
-        se = d["sessions"]
-        fr, pl = se["frames"], se["placements"]
-        return SessionMarkers([fr[i] for i in se["frame_index"]], [pl[i] for i in se["placement_index"]],
-                              len(d["positions_mm"][0]), np.asarray(d["positions_mm"], np.float64),
-                              frame_labels=fr, placement_labels=pl, markers=se["markers"])
-    if kind == "markers":
-        return Markers(to_device(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
-                       **frame)
-    raise ValueError(f"unknown measurement kind {kind!r}")
+    return sensor_kind(str(d.get("kind")), "measurement kind").model_from_dict(d)
 
 
 def _extra_to_dict(extra) -> dict | None:

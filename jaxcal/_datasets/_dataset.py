@@ -16,31 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._csvfile import read_table
+from .._core._csvfile import rad_to_deg_roundtrip, read_table
+from .._sensors._contact import dataset_labels, label_metadata_key
+from .._sensors._kind import kind_names, sensor_kind, sensor_kinds
 
-__all__ = ["Dataset", "load_csv", "save_csv", "KINDS", "marker_columns", "CONTACT_KINDS",
-    "label_metadata_key", "dataset_labels", "contact_label_cells", "contact_labels_from_cells", "relabel",
-    "distance_columns", "save_distance_csv", "load_distance_table", "camera_columns", "marker_gaps"]
-
-#: measurement kinds and their value columns in CSV files.
-KINDS: dict[str, tuple[str, ...]] = {
-    "cable": ("length_mm",),
-    "position": ("x_mm", "y_mm", "z_mm"),
-    "pose": ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"),
-    "markers": (),  # marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ... (N from the file)
-    "camera": (),  # u_1_px, v_1_px, u_2_px, ... (N target points from the file; empty = not detected)
-    "plane": (),  # a text column `plane` (jaxcal._sensors._contact): y = the label's index
-    "point": (),  # a text column `point` (jaxcal._sensors._contact): y = the label's index
-    "distance": ("distance_mm",),  # q1a_deg…, q1b_deg…, distance_mm (jaxcal._sensors._contact.DistanceBar)
-}
-_SAMPLE_SHAPE = {"cable": (), "position": (3,), "pose": (4, 4), "plane": (), "point": ()}
-_MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
-_CAMERA = re.compile(r"([uv])_(\d+)_px")
+__all__ = ["Dataset", "load_csv", "save_csv", "relabel", "joint_columns_out", "joint_values", "mm_joints",
+    "mm_joints_metadata", "MM_JOINTS"]
 
 
-def marker_columns(n_markers: int) -> list[str]:
-    """CSV columns of ``n_markers`` marker positions in the sensor frame (mm)."""
-    return [f"marker_{k}_{c}_mm" for k in range(1, n_markers + 1) for c in "xyz"]
 #: |q| beyond this (rad) cannot be a joint angle of a real robot: it looks like degrees.
 _MAX_RAD = 4 * math.pi
 
@@ -98,12 +81,11 @@ class Dataset(eqx.Module):
     labels: tuple[tuple[str, str, str], ...] = eqx.field(static=True, default=())
 
     def __init__(self, q, y, kind: str = "cable", metadata: Mapping | tuple = (), labels=()):
-        if kind not in KINDS:
-            raise ValueError(f"unknown measurement kind {kind!r}; expected one of {list(KINDS)}")
+        spec = sensor_kind(kind)
         self.kind = kind
         items = metadata.items() if isinstance(metadata, Mapping) else metadata
         self.metadata = tuple((str(k), str(v)) for k, v in items)
-        self.labels = _session_labels(labels, int(np.shape(q)[0]), kind)
+        self.labels = _session_labels(labels, int(np.shape(q)[0]), spec)
         if _is_tracer(q) or _is_tracer(y):
             self.q, self.y = q, y
             return
@@ -111,7 +93,7 @@ class Dataset(eqx.Module):
         if not jnp.issubdtype(q.dtype, jnp.floating):
             q = q.astype(jnp.result_type(float))
         y = jnp.asarray(y, dtype=q.dtype)
-        _validate(np.asarray(q), np.asarray(y), kind, mm_joints(self.metadata))
+        _validate(np.asarray(q), np.asarray(y), spec, mm_joints(self.metadata))
         self.q, self.y = q, y
 
     @property
@@ -157,16 +139,12 @@ class Dataset(eqx.Module):
         return load_csv(path, **kwargs)
 
 
-#: CSV columns of session labels (marker data of several sessions; text, not numbers)
-LABEL_COLUMNS = ("session", "frame", "placement")
-
-
-def _session_labels(labels, n: int, kind: str) -> tuple[tuple[str, str, str], ...]:
+def _session_labels(labels, n: int, kind) -> tuple[tuple[str, str, str], ...]:
     """Per-row ``(session, frame, placement)``; a row given as one string means all three."""
     if labels is None or len(labels) == 0:
         return ()
-    if kind != "markers":
-        raise ValueError(f"session labels apply to marker data, not {kind!r}")
+    if not kind.session_labels:
+        raise ValueError(f"session labels apply to marker data, not {kind.name!r}")
     out = []
     for r, lab in enumerate(labels):
         lab = (lab,) * 3 if isinstance(lab, str) else tuple(lab)
@@ -178,33 +156,13 @@ def _session_labels(labels, n: int, kind: str) -> tuple[tuple[str, str, str], ..
     return tuple(out)
 
 
-def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ()) -> None:
+def _validate(q: np.ndarray, y: np.ndarray, kind, mm: tuple[int, ...] = ()) -> None:
+    """Shapes, NaN/inf and the degrees check of a data set's ``q`` and ``y`` (``kind``: its
+    :class:`~jaxcal._sensors._kind.SensorKind`, which checks the readings' shape and masks)."""
     if q.ndim != 2 or q.shape[1] < 1:
         raise ValueError(f"joint angles must have shape [n, dof], got {list(q.shape)}")
     n = q.shape[0]
-    if kind == "camera":
-        if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 2 or y.shape[1] < 1:
-            raise ValueError(f"camera measurements must have shape [{n}, N, 2] (u, v px of N target points), "
-                             f"got {list(y.shape)}")
-        if np.isinf(y).any():
-            raise ValueError("camera measurements contain ±inf; a corner that was not detected is NaN (an empty "
-                             "CSV cell)")
-        y = np.where(np.isnan(y), 0.0, y)  # NaN = not detected: masked by the camera model, not an error
-    elif kind == "distance":  # y = [pose b (rad), bar length (mm)]
-        if y.ndim != 2 or y.shape != (n, q.shape[1] + 1):
-            raise ValueError(f"distance readings must have shape [{n}, {q.shape[1] + 1}] (pose b, length), "
-                             f"got {list(y.shape)}")
-    elif kind == "markers":
-        if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
-            raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
-        if np.isnan(y).any():  # a missing marker (NaN x, y, z): masked by SessionMarkers, refused by Markers
-
-            marker_gaps(y)  # partial points, ±inf, rows without any marker: errors
-            y = np.where(np.isnan(y), 0.0, y)
-    else:
-        want = (n, *_SAMPLE_SHAPE[kind])
-        if y.shape != want:
-            raise ValueError(f"{kind} measurements must have shape {list(want)}, got {list(y.shape)}")
+    y = kind.checked_readings(y, n, q.shape[1])
     bad_q = ~np.isfinite(q).all(axis=1)
     bad_y = ~np.isfinite(y.reshape(n, -1)).all(axis=1) if n else np.zeros(0, bool)
     if bad_q.any() or bad_y.any():
@@ -221,55 +179,12 @@ def _validate(q: np.ndarray, y: np.ndarray, kind: str, mm: tuple[int, ...] = ())
         )
 
 
-# -- rotation vector <-> matrix (pose files) ------------------------------------------------
-def _rotvec_to_matrix(w) -> np.ndarray:
-    """``[..., 3, 3]`` rotation matrices of rotation vectors ``w`` ``[..., 3]`` (rad; Rodrigues),
-    in NumPy: host-side callers (pose files, closed-form starts, a camera's pose fit) run no
-    device program per call."""
-    w = np.asarray(w, np.float64)
-    th = np.linalg.norm(w, axis=-1, keepdims=True)
-    k = np.where(th > 0, w / np.where(th > 0, th, 1.0), 0.0)
-    K = np.zeros(w.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -k[..., 2], k[..., 1], -k[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
-    th = th[..., None]
-    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
-
-
-def _matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
-    c = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)
-    th = np.arccos(c)
-    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    s = np.sin(th)
-    small = s < 1e-9
-    factor = np.where(small, 0.5, th / (2 * np.where(small, 1.0, s)))
-    return v * factor[..., None]
-
-
 # -- CSV ------------------------------------------------------------------------------------
-def _rad_to_deg_roundtrip(q: np.ndarray) -> np.ndarray:
-    """Degrees ``d`` near ``rad2deg(q)`` with ``deg2rad(d) == q`` wherever such a float exists
-    (a neighbour within two ulps), so that data loaded from a degree file saves back to the
-    identical file."""
-    d = np.rad2deg(q)
-    for k in (1, 2):
-        bad = np.deg2rad(d) != q
-        if not bad.any():
-            break
-        for direction in (np.inf, -np.inf):
-            c = d.copy()
-            for _ in range(k):
-                c = np.nextafter(c, direction)
-            d = np.where(bad & (np.deg2rad(c) == q), c, d)
-            bad = np.deg2rad(d) != q
-    return d
-
-
 def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     """Write ``data`` as CSV: ``# key: value`` metadata lines, then a header row.
 
     Columns: ``q1_deg … qN_deg`` (or ``q1_rad …`` with ``angle_unit="rad"``), then the value
-    columns of :data:`KINDS` (``length_mm``; ``x_mm,y_mm,z_mm``; poses add a rotation vector
+    columns of the data's kind (``length_mm``; ``x_mm,y_mm,z_mm``; poses add a rotation vector
     ``rx_deg,ry_deg,rz_deg``; markers ``marker_1_x_mm,marker_1_y_mm,marker_1_z_mm,marker_2_x_mm…``).
     Numbers are written as the shortest decimal that reads back
     to the same float64. Radian files round-trip exactly; degree files give joint angles
@@ -278,25 +193,11 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
     """
     if angle_unit not in ("deg", "rad"):
         raise ValueError(f"angle_unit must be 'deg' or 'rad', got {angle_unit!r}")
-    if data.kind == "distance":
-
-        return save_distance_csv(data, path, angle_unit)
+    kind = sensor_kind(data.kind)
+    if kind.own_table:
+        return kind.write_file(data, path, angle_unit)
     qnames, qcols = joint_columns_out(np.asarray(data.q, dtype=np.float64), mm_joints(data.metadata), angle_unit)
-    y = np.asarray(data.y, dtype=np.float64)
-    if data.kind == "cable":
-        vals = y[:, None]
-    elif data.kind == "position":
-        vals = y
-    elif data.kind in ("markers", "camera"):
-        vals = y.reshape(y.shape[0], -1)
-    elif data.kind in CONTACT_KINDS:
-        vals = np.zeros((y.shape[0], 0))
-    else:
-        vals = np.concatenate([y[:, :3, 3], np.rad2deg(_matrix_to_rotvec(y[:, :3, :3]))], axis=1)
-    value_cols = marker_columns(y.shape[1]) if data.kind == "markers" else list(KINDS[data.kind])
-    if data.kind == "camera":
-
-        value_cols = camera_columns(y.shape[1])
+    value_cols, vals, text_cols, text = kind.write_values(data)
     header = qnames + value_cols
     buf = io.StringIO()
     buf.write("# jaxcal dataset v1\n")
@@ -305,12 +206,10 @@ def save_csv(data: Dataset, path, *, angle_unit: str = "deg") -> None:
         if k != "kind":
             buf.write(f"# {k}: {v}\n")
     w = csv.writer(buf, lineterminator="\n")
-    contact = contact_label_cells(data) if data.kind in CONTACT_KINDS else None
-    w.writerow(header + (list(LABEL_COLUMNS) if data.labels else []) + ([CONTACT_KINDS[data.kind]] if contact else []))
+    w.writerow(header + text_cols)
     for r, row in enumerate(np.concatenate([qcols, vals], axis=1)):
         # NaN (a camera corner not detected) is written as an empty cell
-        w.writerow([repr(float(x)) if x == x else "" for x in row] + (list(data.labels[r]) if data.labels else [])
-                   + ([contact[r]] if contact else []))
+        w.writerow([repr(float(x)) if x == x else "" for x in row] + text[r])
     with open(os.fspath(path), "w", encoding="utf-8") as f:
         f.write(buf.getvalue())
 
@@ -357,7 +256,7 @@ def joint_columns_out(q: np.ndarray, mm, angle_unit: str = "deg") -> tuple[list[
     """Inverse of :func:`joint_values`: the joint column names (``q<j>_deg``/``q<j>_rad``, and
     ``q<j>_mm`` for the 0-based prismatic joints ``mm``) and their values ``[n, dof]`` — degrees
     as the shortest decimals that read back to the same radians, mm as they are."""
-    cols = _rad_to_deg_roundtrip(q) if angle_unit == "deg" else q.copy()
+    cols = rad_to_deg_roundtrip(q) if angle_unit == "deg" else q.copy()
     for j in mm:
         cols[:, j] = q[:, j]
     return [f"q{j + 1}_{'mm' if j in mm else angle_unit}" for j in range(q.shape[1])], cols
@@ -390,7 +289,7 @@ def load_csv(
 
     * joint angles ``q1_deg … qN_deg`` or ``q1_rad … qN_rad`` (one unit for all), numbered
       1..N without gaps or duplicates;
-    * the measurement columns of :data:`KINDS`: ``length_mm`` (cable); ``x_mm,y_mm,z_mm``
+    * the measurement columns of the data's kind: ``length_mm`` (cable); ``x_mm,y_mm,z_mm``
       (position); poses add a rotation vector ``rx_deg,ry_deg,rz_deg``; marker data
       ``marker_k_x_mm,marker_k_y_mm,marker_k_z_mm`` for k = 1..N (sensor frame, mm; every
       marker of 1..N must have all three columns);
@@ -433,7 +332,6 @@ def load_csv(
             column), radian columns whose values look like degrees, or a ``kind`` other than the
             file's ``# kind:`` line.
     """
-    n_markers_expected = n_markers
     t = read_table(path, delimiter=delimiter, what="data file", row_name="data row")
     path, header, meta = t.path, t.header, dict(t.meta)
     meta_kind = next((k for k in meta if k.lower() == "kind"), None)
@@ -442,65 +340,32 @@ def load_csv(
         raise ValueError(f"{path}: the file says '# {meta_kind}: {meta[meta_kind]}' but {kind} data were asked for "
                          f"({asked}); " + ("use a file of that kind" if kind_from else "ask for the file's kind")
                          + f", or correct its '# {meta_kind}:' line")
-    if kind == "distance" or (kind is None and "distance_mm" in header):  # two poses per row (jaxcal._sensors._contact)
-
-        if meta_kind is not None:
-            meta.pop(meta_kind)
-        qa, yd = load_distance_table(path, t, meta, dof)
-        dt = dtype or jnp.result_type(float)
-        return Dataset(jnp.asarray(qa, dt), jnp.asarray(yd, dt), "distance", meta)
+    if meta_kind is not None:
+        kind = kind or meta[meta_kind].strip().lower()
+        meta.pop(meta_kind)
+    if kind is None:  # recognised from the columns, in the registry's order
+        spec = next((k for k in sensor_kinds() if k.found_in(header)), None)
+        if spec is None:
+            _joint_columns(path, header, dof)  # a file without joint columns is told so first
+            raise ValueError(f"{path}: no measurement columns found; expected one of "
+                             + "; ".join(f"{k.name}: {k.column_hint()}" for k in sensor_kinds() if k.column_hint())
+                             + f"; header: {list(header)}")
+    else:
+        try:
+            spec = sensor_kind(kind)
+        except ValueError:
+            raise ValueError(f"{path}: unknown measurement kind {kind!r}; expected one of {list(kind_names())}") from None
+    dt = dtype or jnp.result_type(float)
+    if spec.own_table:
+        q, y = spec.read_table(path, t, meta, dof)
+        return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), spec.name, meta)
     qcols, unit = _joint_columns(path, header, dof)
-    if kind is None and meta_kind is not None:
-        kind = meta[meta_kind].lower()
-    markers_found = {h: _MARKER.fullmatch(h) for h in header}
-    markers_found = {h: (int(m[1]), m[2]) for h, m in markers_found.items() if m}
-    if kind is None and markers_found:
-        kind = "markers"
-    camera_found = {m for m in (_CAMERA.fullmatch(h) for h in header) if m}
-    if kind is None and camera_found:
-        kind = "camera"
-    if kind is None:
-        kind = next((k for k, col in CONTACT_KINDS.items() if col in header), None)
-    if kind is None:
-        kind = next((k for k in ("pose", "position", "cable") if all(c in header for c in KINDS[k])), None)
-        if kind is None:
-            raise ValueError(
-                f"{path}: no measurement columns found; expected one of "
-                + "; ".join(f"{k}: {','.join(c or ('marker_1_x_mm', 'marker_1_y_mm', '...'))}" for k, c in KINDS.items())
-                + f"; header: {list(header)}"
-            )
-    if kind not in KINDS:
-        raise ValueError(f"{path}: unknown measurement kind {kind!r}; expected one of {list(KINDS)}")
-    value_cols = list(KINDS[kind])
-    if kind == "markers":
-        if not markers_found:
-            raise ValueError(f"{path}: no marker columns (expected marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, "
-                             f"marker_2_x_mm, ...); header: {list(header)}")
-        n_markers = max(k for k, _ in markers_found.values())
-        if n_markers_expected is not None and n_markers != n_markers_expected:
-            raise ValueError(f"{path}: file has {n_markers} marker(s) but {n_markers_expected} were expected")
-        value_cols = marker_columns(n_markers)
-    elif n_markers_expected is not None and kind != "camera":
-        raise ValueError(f"{path}: n_markers applies to marker (and camera) data, not {kind!r}")
-    if kind == "camera":  # u_k_px, v_k_px for k = 1..N (N from the file, or n_markers = target points)
-
-        if not camera_found:
-            raise ValueError(f"{path}: no image-point columns (expected u_1_px, v_1_px, u_2_px, ...); "
-                             f"header: {list(header)}")
-        n_pts = max(int(m[2]) for m in camera_found)
-        if n_markers_expected is not None and n_pts != n_markers_expected:
-            raise ValueError(f"{path}: file has {n_pts} target point(s) but {n_markers_expected} were expected")
-        value_cols = camera_columns(n_pts)
+    value_cols = spec.value_columns(path, header, n_markers)
     missing = [c for c in value_cols if c not in header]
     if missing:
-        raise ValueError(f"{path}: missing column(s) {missing} for {kind} data; header: {list(header)}")
+        raise ValueError(f"{path}: missing column(s) {missing} for {spec.name} data; header: {list(header)}")
     used = qcols + value_cols
-    label_cols = [c for c in LABEL_COLUMNS if c in header] if kind == "markers" else []
-    if kind in CONTACT_KINDS:
-        label_cols = [CONTACT_KINDS[kind]]
-        if label_cols[0] not in header:
-            raise ValueError(f"{path}: {kind} data need a text column {label_cols[0]!r} naming each row's "
-                             f"{label_cols[0]}; header: {list(header)}")
+    label_cols = spec.label_columns(path, header)
     unused = [h for h in header if h not in used and h not in label_cols]
     if unused:
         odd = [h for h in unused if h not in _BOOKKEEPING]
@@ -508,147 +373,17 @@ def load_csv(
         named = " and ".join(
             part for part in (odd and f"unknown column(s) {odd}", book and f"bookkeeping column(s) {book}") if part
         )
-        msg = f"{path}: {named} are not used; {kind} data uses {','.join(used)}"
+        msg = f"{path}: {named} are not used; {spec.name} data uses {','.join(used)}"
         if strict:
             raise ValueError(msg + " (strict=True)")
         warnings.warn(msg + " (strict=True makes this an error)", UserWarning, stacklevel=2)
     if not t.rows:
         raise ValueError(f"{path}: no data rows")
-    n_joints = len(qcols)
-    if kind == "camera":  # empty cells (corners not detected) → NaN, masked by the camera model
-        table = np.concatenate([t.floats(qcols), _gap_cells(t, value_cols, 2)], axis=1)
-    elif kind == "markers":  # empty cells (a marker the session does not have) → NaN, masked by SessionMarkers
-        table = np.concatenate([t.floats(qcols), _gap_cells(t, value_cols, 3)], axis=1)
-    else:
-        table = t.floats(used)
-    q, mm = joint_values(path, table[:, :n_joints], qcols, unit)
+    q, mm = joint_values(path, t.floats(qcols), qcols, unit)
     if mm:
         meta[MM_JOINTS] = ",".join(str(j + 1) for j in mm)
-    vals = table[:, n_joints:]
-    if kind == "cable":
-        y = vals[:, 0]
-    elif kind == "position":
-        y = vals
-    elif kind == "markers":
-        y = vals.reshape(vals.shape[0], -1, 3)
-    elif kind == "camera":
-        y = vals.reshape(vals.shape[0], -1, 2)
-    elif kind in CONTACT_KINDS:
-        y, meta = contact_labels_from_cells(path, t, header, kind, meta)
-        label_cols = []
-    else:
-        y = np.zeros((vals.shape[0], 4, 4))
-        y[:, :3, :3] = _rotvec_to_matrix(np.deg2rad(vals[:, 3:6]))
-        y[:, :3, 3] = vals[:, :3]
-        y[:, 3, 3] = 1.0
-    labels = ()
-    if label_cols:
-        cells = {c: [row[header.index(c)].strip() for row in t.rows] for c in label_cols}
-        for c, vals_c in cells.items():
-            empty = [r for r, v in enumerate(vals_c) if not v]
-            if empty:
-                raise ValueError(f"{path}: {t.where(empty[0], c)}: empty label ({len(empty)} row(s) without a {c})")
-        n_rows = len(t.rows)
-        fr = cells.get("frame") or cells.get("session")
-        pl = cells.get("placement") or cells.get("session")
-        if fr is None or pl is None:
-            raise ValueError(f"{path}: give a 'session' column, or both 'frame' and 'placement' (have {label_cols})")
-        se = cells.get("session") or [f"{fr[r]}/{pl[r]}" for r in range(n_rows)]
-        labels = tuple(zip(se, fr, pl))
-    if meta_kind is not None:
-        meta.pop(meta_kind)
-    dt = dtype or jnp.result_type(float)
-    return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), kind, meta, labels)
-
-
-def _gap_cells(t, columns, width: int) -> np.ndarray:
-    """``[n_rows, len(columns)]`` readings of a file whose points may be missing: an empty cell is
-    NaN; the ``width`` columns of one point (``u, v`` of a camera corner: a corner not detected;
-    ``x, y, z`` of a marker: a marker the session does not have, or not seen) must be empty
-    together; other text that is not a number, NaN/inf text, is an error naming row, line and
-    column."""
-    what = "corner was not detected" if width == 2 else "marker is missing"
-    idx = [t.header.index(c) for c in columns]
-    out = np.full((len(t.rows), len(idx)), np.nan)
-    for r, row in enumerate(t.rows):
-        for k, i in enumerate(idx):
-            text = row[i].strip()
-            if not text:
-                continue
-            try:
-                if "_" in text:
-                    raise ValueError
-                v = float(text.replace(",", ".") if t.decimal_comma else text)
-            except ValueError:
-                raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r} is not a number") from None
-            if not math.isfinite(v):
-                raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r}; leave the cell empty where a "
-                                 f"{what}")
-            out[r, k] = v
-        gap = np.isnan(out[r].reshape(-1, width))
-        odd = np.flatnonzero(gap.any(axis=1) & ~gap.all(axis=1))
-        if odd.size:
-            cols = columns[odd[0] * width:(odd[0] + 1) * width]
-            name = "point" if width == 2 else "marker"
-            raise ValueError(f"{t.path}: {t.where(r)}: {name} {odd[0] + 1} has only some of {', '.join(cols)} "
-                             f"(leave {'both' if width == 2 else 'all three'} empty where a {what})")
-    return out
-
-
-#: measurement kinds of this module and the CSV label column of each
-CONTACT_KINDS = {"plane": "plane", "point": "point"}
-
-
-def label_metadata_key(kind: str) -> str:
-    """The Dataset metadata key holding the comma-separated label names (``plane_labels``)."""
-    return f"{CONTACT_KINDS[kind]}_labels"
-
-
-def _check_label(label) -> str:
-    s = str(label).strip()
-    if not s or any(c in s for c in "@,\n\r") or s != str(label):
-        raise ValueError(f"label {label!r} must be a non-empty string without '@', ',', line breaks or "
-                         "surrounding spaces")
-    return s
-
-
-def dataset_labels(data) -> tuple[str, ...]:
-    """The label names of a contact :class:`~jaxcal.Dataset` (``plane_labels``/``point_labels``)."""
-    key = label_metadata_key(data.kind)
-    names = data.meta.get(key, "")
-    labels = tuple(s for s in names.split(",") if s)
-    if not labels:
-        raise ValueError(f"{data.kind} data carry no '{key}' metadata naming the labels")
-    return labels
-
-
-def contact_label_cells(data) -> list[str]:
-    """The label text of every row of a contact :class:`~jaxcal.Dataset` (for its CSV column)."""
-    labels = dataset_labels(data)
-    return [labels[int(i)] for i in np.round(np.asarray(data.y, np.float64)).astype(int)]
-
-
-def contact_labels_from_cells(path, table, header, kind: str, meta: dict):
-    """``(y [n] label indices, metadata with the label names)`` from a CSV file's ``plane`` /
-    ``point`` text column. Labels are numbered in the order of the file's ``# plane_labels:``
-    line when there is one (labels missing from it are appended), else in order of appearance."""
-    col = CONTACT_KINDS[kind]
-    key = label_metadata_key(kind)
-    j = header.index(col)
-    cells = [row[j].strip() for row in table.rows]
-    empty = [r for r, v in enumerate(cells) if not v]
-    if empty:
-        raise ValueError(f"{path}: {table.where(empty[0], col)}: empty label ({len(empty)} row(s) without a {col})")
-    for r, v in enumerate(cells):
-        try:
-            _check_label(v)
-        except ValueError as e:
-            raise ValueError(f"{path}: {table.where(r, col)}: {e}") from None
-    known = [s for s in meta.get(key, "").split(",") if s]
-    names = list(dict.fromkeys(known + cells))
-    meta = dict(meta)
-    meta[key] = ",".join(names)
-    return np.asarray([names.index(v) for v in cells], np.float64), meta
+    y, meta, labels = spec.readings(spec.read_values(t, value_cols), path, t, meta)
+    return Dataset(jnp.asarray(q, dt), jnp.asarray(y, dt), spec.name, meta, labels)
 
 
 def relabel(data, labels: Sequence[str]):
@@ -670,95 +405,3 @@ def relabel(data, labels: Sequence[str]):
     return Dataset(data.q, jnp.asarray(y, data.q.dtype), data.kind, meta)
 
 
-def distance_columns(dof: int, unit: str = "deg") -> list[str]:
-    """``q1a_<unit> … qNa_<unit>, q1b_<unit> … qNb_<unit>, distance_mm``."""
-    return ([f"q{j}a_{unit}" for j in range(1, dof + 1)] + [f"q{j}b_{unit}" for j in range(1, dof + 1)]
-            + ["distance_mm"])
-
-
-def save_distance_csv(data, path, angle_unit: str = "deg") -> None:
-    """Write distance-bar data: ``# key: value`` lines, then :func:`distance_columns`."""
-    import csv
-    import io
-    import os
-
-
-    q = np.asarray(data.q, np.float64)
-    y = np.asarray(data.y, np.float64)
-    dof = q.shape[1]
-    conv = _rad_to_deg_roundtrip if angle_unit == "deg" else (lambda a: a)
-    buf = io.StringIO()
-    buf.write("# jaxcal dataset v1\n# kind: distance\n")
-    for k, v in data.metadata:
-        if k != "kind":
-            buf.write(f"# {k}: {v}\n")
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(distance_columns(dof, angle_unit))
-    for row in np.concatenate([conv(q), conv(y[:, :dof]), y[:, dof:]], axis=1):
-        w.writerow([repr(float(x)) for x in row])
-    with open(os.fspath(path), "w", encoding="utf-8") as f:
-        f.write(buf.getvalue())
-
-
-def load_distance_table(path, t, meta: dict, dof: int | None):
-    """``(q_a [n, dof] rad, y [n, dof + 1])`` from a read table with :func:`distance_columns`."""
-    import re
-
-    cols = {h: re.fullmatch(r"q(\d+)([ab])_(deg|rad)", h) for h in t.header}
-    cols = {h: mt for h, mt in cols.items() if mt}
-    units = {mt[3] for mt in cols.values()}
-    if len(units) != 1:
-        raise ValueError(f"{path}: distance data need q1a_deg … qNa_deg and q1b_deg … qNb_deg (one angle unit); "
-                         f"header: {list(t.header)}")
-    unit = units.pop()
-    n_dof = max(int(mt[1]) for mt in cols.values())
-    if dof is not None and n_dof != dof:
-        raise ValueError(f"{path}: file has {n_dof} joints per pose but the robot has {dof} joints")
-    want = distance_columns(n_dof, unit)
-    missing = [c for c in want if c not in t.header]
-    if missing:
-        raise ValueError(f"{path}: missing column(s) {missing} for distance data; header: {list(t.header)}")
-    unused = [h for h in t.header if h not in want]
-    if unused:
-        import warnings
-
-        warnings.warn(f"{path}: column(s) {unused} are not used; distance data uses {','.join(want)}", UserWarning,
-                      stacklevel=3)
-    if not t.rows:
-        raise ValueError(f"{path}: no data rows")
-    v = t.floats(want)
-    ang = np.deg2rad(v[:, : 2 * n_dof]) if unit == "deg" else v[:, : 2 * n_dof]
-    return ang[:, :n_dof], np.concatenate([ang[:, n_dof:], v[:, 2 * n_dof:]], axis=1)
-
-
-def camera_columns(n_points: int) -> list[str]:
-    """CSV columns of ``n_points`` target points' image coordinates: ``u_1_px, v_1_px, u_2_px…``."""
-    return [f"{c}_{k}_px" for k in range(1, n_points + 1) for c in "uv"]
-
-
-def marker_gaps(y) -> np.ndarray:
-    """``[n, N]`` bool: the marker readings of ``y`` ``[n, N, 3]`` that are missing (NaN in all
-    three coordinates: a marker the session does not have, or one not seen in that row).
-
-    Raises:
-        ValueError: a reading with only some coordinates NaN (a partial point is a broken file,
-            not a missing marker), ±inf, or a row without any marker reading.
-    """
-    Y = np.asarray(y, np.float64)
-    if Y.ndim != 3 or Y.shape[2] != 3:
-        raise ValueError(f"marker readings must be [n, N, 3] (mm), got shape {list(Y.shape)}")
-    if np.isinf(Y).any():
-        raise ValueError("marker readings contain ±inf; a missing marker is NaN in x, y and z (empty CSV cells)")
-    nan = np.isnan(Y)
-    gap = nan.all(axis=-1)
-    part = nan.any(axis=-1) & ~gap
-    if part.any():
-        i, k = (int(v) for v in np.argwhere(part)[0])
-        raise ValueError(f"marker readings: {int(part.sum())} reading(s) have only some of x, y, z missing (first: "
-                         f"row {i}, marker {k + 1}); a missing marker is NaN in all three coordinates, a partial "
-                         "point is an error in the data")
-    empty = gap.all(axis=1)
-    if empty.any():
-        raise ValueError(f"marker readings: {int(empty.sum())} row(s) have no marker reading at all (rows "
-                         f"{np.flatnonzero(empty)[:10].tolist()}, 0-based); remove them")
-    return gap

@@ -989,12 +989,14 @@ def save_plan_csv(path, q, kind: str, metadata=()) -> None:
     ``mm_joints`` metadata entry names) as a data file with empty measurement columns: once the
     readings are filled in, :func:`jaxcal.load_csv` and ``jaxcal calibrate`` read it (joint
     angles in degrees, the shortest decimals that read back to the same float)."""
-    from .._datasets._dataset import KINDS, joint_columns_out, mm_joints
+    from .._datasets._dataset import joint_columns_out, mm_joints
+    from .._sensors._kind import sensor_kind
 
+    columns = sensor_kind(kind).columns
     names, cols = joint_columns_out(np.asarray(q, np.float64), mm_joints(metadata))
     lines = ["# jaxcal dataset v1", f"# kind: {kind}"] + [f"# {k}: {v}" for k, v in metadata]
-    lines.append(",".join(names + list(KINDS[kind])))
-    blanks = "," * len(KINDS[kind])
+    lines.append(",".join(names + list(columns)))
+    blanks = "," * len(columns)
     lines += [",".join(repr(float(v)) for v in row) + blanks for row in cols]
     with open(path, "w", encoding="utf-8") as f:
         f.write("\n".join(lines) + "\n")
@@ -1004,7 +1006,7 @@ def load_joint_angles(path, dof: int) -> np.ndarray:
     """Joint coordinates ``[n, dof]`` from a CSV file: columns ``q1_deg … qN_deg`` (or ``q1_rad …``),
     prismatic joints as ``q<j>_mm`` (kept in mm), read like :func:`jaxcal.load_csv` (delimiter,
     byte-order mark, case, any column order); other columns are ignored. Angles in rad."""
-    from .._datasets._csvfile import read_table
+    from .._core._csvfile import read_table
     from .._datasets._dataset import _joint_columns, joint_values
 
     t = read_table(path, what="joint-angle file", row_name="row")

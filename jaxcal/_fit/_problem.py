@@ -232,7 +232,8 @@ def residual_blocks_numpy(problem: Problem, r) -> np.ndarray:
     """Residual blocks ``[n, m]`` as the NumPy entries :func:`signed_residuals` returns (float64;
     the position part ``[n, 3]`` of a pose)."""
     r = np.asarray(r, np.float64)
-    return r[:, :3] if problem.measurement.kind == "pose" else r
+    k = problem.measurement.error_entries
+    return r if k is None else r[:, :k]
 
 
 @jit
@@ -248,8 +249,8 @@ def prediction_variance_at(problem: Problem, x: Float[Array, " p"], covariance: 
     covariance ``covariance`` ``[p, p]``: ``diag(J·Cov·Jᵀ)`` summed over the sample's coordinates
     (the position part of a pose), jitted (one program per shape; the N×p Jacobian stays in XLA)."""
     J = problem.to_blocks(problem.jacobian(x))
-    if problem.measurement.kind == "pose":
-        J = J[:, :3]
+    if (k := problem.measurement.error_entries) is not None:
+        J = J[:, :k]
     return jnp.einsum("nmp,pk,nmk->n", J, covariance, J)
 
 

@@ -30,21 +30,6 @@ FINAL_FRACTION = 0.1
 STILL_IMPROVING_ATOL = 1e-3
 
 
-#: What ``CalibrationResult.evaluate(data, extras=...)`` delegates to: the evaluation on new data
-#: with the sensor extras registered again (:func:`jaxcal.evaluate_result`). Registering the extras
-#: is a calibration of them (``calibrate``, two floors above this module), so the calibration
-#: package sets this when it is imported (:func:`set_extras_evaluator`); every result the library
-#: makes (``calibrate``, ``load_result``, the block fits) comes from that package.
-_extras_evaluator = None
-
-
-def set_extras_evaluator(evaluate) -> None:
-    """Set what ``CalibrationResult.evaluate(data, extras=...)`` calls: ``evaluate(result, data,
-    extras=...)`` (:mod:`jaxcal._calibration` sets :func:`jaxcal.evaluate_result`)."""
-    global _extras_evaluator
-    _extras_evaluator = evaluate
-
-
 class Status(enum.IntEnum):
     """Outcome of a calibration run."""
 
@@ -330,20 +315,20 @@ class CalibrationResult:
         r = (self.predict(data.q) - data.y).reshape(q.shape[0], self.measurement.size)
         return self.measurement.sample_error(r)
 
-    def evaluate(self, data, *, extras: str | None = None):
+    def evaluate(self, data, **kwargs) -> Metrics:
         """RMSE/MEAN/MAX (mm) on ``data`` (e.g. the held-out test split of the training session),
         with the result's own sensor extras: a :class:`~jaxcal._core._metrics.Metrics`.
 
-        With ``extras=`` (``"auto"``, ``"register"`` or ``"result"``): the calibration checked on
-        new measurements, before and after, the sensor extras (anchor, frame, markers) registered
-        again on ``data`` or taken from the result — a :class:`jaxcal.Evaluation` (its
-        ``rmse``/``mean``/``max`` are the after numbers); see :func:`jaxcal.evaluate_result`.
+        On new measurements, where the sensor was set up again (a new anchor, frame or marker
+        plate), :func:`jaxcal.evaluate_result` ``(result, data, extras="auto")`` registers the
+        sensor extras again and reports before and after (a :class:`jaxcal.Evaluation`).
+
+        Raises:
+            TypeError: a keyword such as ``extras=`` (that is :func:`jaxcal.evaluate_result`).
         """
-        if extras is not None:
-            if _extras_evaluator is None:  # only a result built by hand, jaxcal._calibration never imported
-                raise RuntimeError("evaluate(extras=...) registers the sensor extras with a calibration: "
-                                   "import jaxcal._calibration (or call jaxcal.evaluate_result) first")
-            return _extras_evaluator(self, data, extras=extras)
+        if kwargs:
+            raise TypeError(f"CalibrationResult.evaluate(data) takes no {', '.join(map(repr, kwargs))}: to register "
+                            "the sensor extras on new data, call jaxcal.evaluate_result(result, data, extras=...)")
         return metrics_numpy(self.sample_errors(data))
 
     def dh_table(self) -> DHTable:

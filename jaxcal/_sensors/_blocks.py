@@ -53,8 +53,8 @@ from jaxtyping import Array, Float
 from .._core._host_method import host_method
 from .._core._params import STANDARD_EXTRAS, Deviations, Group, layout_for
 from .._core._precision import to_device
-from .._datasets._dataset import _check_label
 from ._contact import FixedPoint, PlaneContact, _per_label
+from ._kind import check_label
 from ._measurement import MeasurementModel
 
 __all__ = ["Block", "Combined", "Relations", "KnownDistance", "PlaneDistance", "PlaneAngle", "PointOnPlane",
@@ -247,7 +247,7 @@ def load_relations(path) -> list:
 
 def _check_relation(rel, labels, value, std, allow_zero: bool = False) -> None:
     for s in labels:
-        _check_label(s)
+        check_label(s)
     if labels[0] == labels[1]:
         raise ValueError(f"{type(rel).__name__}: the two labels must differ, got {labels[0]!r} twice")
     if not (isinstance(value, (int, float)) and math.isfinite(value) and (allow_zero or value > 0)):
@@ -371,7 +371,7 @@ class Block:
     own_tool: bool = False
 
     def __post_init__(self):
-        _check_label(self.name)
+        check_label(self.name)
         if not isinstance(self.measurement, MeasurementModel) or isinstance(self.measurement, (Combined, Relations)):
             raise TypeError(f"block {self.name!r}: measurement must be a sensor's measurement model, "
                             f"got {type(self.measurement).__name__}")

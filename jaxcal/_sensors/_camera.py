@@ -61,9 +61,10 @@ from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
+from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._core._xla import filter_jit
-from .._datasets._dataset import _rotvec_to_matrix
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
+from ._kind import PointsKind, register_kind
 from ._measurement import MeasurementModel, xyz_entries
 
 __all__ = ["Camera", "MOUNTS", "INTRINSIC_NAMES", "project_points", "undistort_points", "solve_pnp",
@@ -150,6 +151,7 @@ class Camera(MeasurementModel):
     image_size: tuple[int, int] | None = eqx.field(static=True, default=None)
     calibrate_intrinsics: bool = eqx.field(static=True, default=False)
     kind: ClassVar[str] = "camera"
+    initialisable: ClassVar[tuple[str, ...]] = ("handeye", "target")
     #: unit of the residual and of the per-sample errors
     unit: ClassVar[str] = "px"
 
@@ -468,12 +470,12 @@ def _refine_pose(R, t, pts, uv, k, iterations: int = 30):
         for j in range(6):
             e = np.zeros(6)
             e[j] = 1e-7 if j < 3 else 1e-5
-            J[:, j] = (_pose_residual(_rotvec_to_matrix(e[:3]) @ R, t + e[3:], pts, uv, k)
-                       - _pose_residual(_rotvec_to_matrix(-e[:3]) @ R, t - e[3:], pts, uv, k)) / (2 * e[j])
+            J[:, j] = (_pose_residual(rotvec_to_matrix_np(e[:3]) @ R, t + e[3:], pts, uv, k)
+                       - _pose_residual(rotvec_to_matrix_np(-e[:3]) @ R, t - e[3:], pts, uv, k)) / (2 * e[j])
         H, g = J.T @ J, J.T @ r
         while True:
             step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g)
-            Rn, tn = _rotvec_to_matrix(step[:3]) @ R, t + step[3:]
+            Rn, tn = rotvec_to_matrix_np(step[:3]) @ R, t + step[3:]
             rn = _pose_residual(Rn, tn, pts, uv, k)
             if rn @ rn < r @ r:
                 done = r @ r - rn @ rn < 1e-14 * (r @ r) + 1e-24
@@ -599,7 +601,7 @@ def load_target(spec: str, base_dir=None) -> np.ndarray:
     with columns ``x_mm, y_mm, z_mm`` (one row per point, in the order of the ``u_k/v_k`` data
     columns; ``#`` comment lines allowed). A relative file path is taken relative to ``base_dir``
     when it does not exist as given."""
-    from .._datasets._csvfile import read_table
+    from .._core._csvfile import read_table
 
     spec = spec.strip()
     m = re.fullmatch(r"checkerboard:(\d+)x(\d+):([0-9.eE+-]+)", spec, flags=re.I)
@@ -738,11 +740,11 @@ def _setup_frames(robot, camera: Camera, deviations, home, distance_mm: float):
     pts = np.asarray(camera.points, np.float64)
     centre = pts.mean(axis=0)
     if camera.mount == "eye_in_hand":
-        X = _T(_rotvec_to_matrix([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
-        Ch = _T(_rotvec_to_matrix([0.05, 0.04, 0.1]), -_rotvec_to_matrix([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
+        X = _T(rotvec_to_matrix_np([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
+        Ch = _T(rotvec_to_matrix_np([0.05, 0.04, 0.1]), -rotvec_to_matrix_np([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
         B = Fh @ X @ Ch  # T_base_target
     else:
-        B = _T(_rotvec_to_matrix([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
+        B = _T(rotvec_to_matrix_np([0.02, 0.03, 0.3]), np.array([60.0, -20.0, 30.0]))  # T_flange_target
         tgt_world = Fh @ B
         c_world = tgt_world[:3, :3] @ centre + tgt_world[:3, 3]
         n_world = tgt_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
@@ -780,3 +782,105 @@ def target_in_view(robot, camera: Camera, q, deviations: Deviations | None = Non
     uv, pz = (np.asarray(a, np.float64) for a in _predict_jit(camera, robot, deviations, q))
     w, h = camera.image_size
     return (pz > min_depth_mm) & (uv[..., 0] >= 0) & (uv[..., 0] <= w) & (uv[..., 1] >= 0) & (uv[..., 1] <= h)
+
+
+# -- the data-file form of camera data -----------------------------------------------------------
+def camera_columns(n_points: int) -> list[str]:
+    """CSV columns of ``n_points`` target points' image coordinates: ``u_1_px, v_1_px, u_2_px…``."""
+    return [f"{c}_{k}_px" for k in range(1, n_points + 1) for c in "uv"]
+
+
+@register_kind
+class CameraKind(PointsKind):
+    """Camera data (:class:`Camera`): columns ``u_k_px, v_k_px`` for the k = 1..N target points
+    (N from the file; empty cells: a corner not detected, masked), readings ``[n, N, 2]`` px."""
+
+    name = "camera"
+    noise_unit = "px"
+    pattern = re.compile(r"([uv])_(\d+)_px")
+    number_group, width = 2, 2
+    columns_word, count_word = "image-point", "target point(s)"
+    expected_hint = "u_1_px, v_1_px, u_2_px, ..."
+
+    def point_columns(self, n_points):
+        return camera_columns(n_points)
+
+    def check_options(self, estimate, options):
+        if estimate - {"intrinsics"}:
+            raise ValueError(f"--estimate for camera data takes intrinsics only (the hand-eye transform and the "
+                             f"target pose are always estimated); got {sorted(estimate - {'intrinsics'})}")
+        self.refuse_point_options(options)
+        self.refuse_anchor(options.anchor_mm)
+
+    def model_to_dict(self, model):
+        f = lambda a: np.asarray(a, np.float64).tolist()  # noqa: E731
+        return {"kind": "camera", "points_mm": f(model.points), "intrinsics": f(model.intrinsics), "mount": model.mount,
+                "handeye_rotation": f(model.handeye_rotation), "handeye_translation_mm": f(model.handeye_translation),
+                "target_rotation": f(model.target_rotation), "target_translation_mm": f(model.target_translation),
+                "image_size": None if model.image_size is None else list(model.image_size),
+                "calibrate_intrinsics": bool(model.calibrate_intrinsics)}
+
+    def model_from_dict(self, d):
+        return Camera(d["points_mm"], d["intrinsics"], d["mount"], handeye_rotation=d["handeye_rotation"],
+                      handeye_translation=d["handeye_translation_mm"], target_rotation=d["target_rotation"],
+                      target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
+                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
+
+    def setup(self, data, robot, estimate, options):
+        """The :class:`Camera` of camera data from ``options.target``, ``options.camera_intrinsics``,
+        ``options.mount`` (or the file's ``# target:``, ``# camera_intrinsics:``, ``# mount:`` lines;
+        ``# image_size_px:`` always), hand-eye and target pose unknown (started from the data).
+        No extra to estimate: the intrinsics (``--estimate intrinsics``) are a group of the model."""
+        from .._core._csvfile import number_list
+
+        self.check_options(estimate, options)
+        meta, path = data.meta, options.path
+        target = _given(options.target, meta.get("target"))
+        if target is None:
+            raise ValueError("--measurement camera needs the target layout: --target checkerboard:COLSxROWS:SQUARE_MM or "
+                             "--target FILE.csv (x_mm,y_mm,z_mm per point), or a '# target: …' line in the data file")
+        if isinstance(target, str):
+            try:
+                points = load_target(target, base_dir=None if path is None else pathlib.Path(path).parent)
+            except (ValueError, OSError) as e:
+                raise ValueError(f"--target: {e}") from None
+        else:
+            points = np.asarray(target, np.float64)
+        if points.shape[0] != data.y.shape[1]:
+            raise ValueError(f"the target has {points.shape[0]} points but {'the data' if path is None else path} "
+                             f"{'have' if path is None else 'has'} image columns for {data.y.shape[1]} (u_k_px, v_k_px)")
+        spec = _given(options.camera_intrinsics, meta.get("camera_intrinsics"))
+        if spec is None:
+            raise ValueError("--measurement camera needs the camera's intrinsics: --camera fx,fy,cx,cy[,k1,k2,p1,p2[,k3]] "
+                             "(px; OpenCV's camera matrix and distortion) or a '# camera_intrinsics: …' line")
+        if isinstance(spec, str):
+            parts = [p for p in spec.replace(";", ",").split(",") if p.strip()]
+            if len(parts) not in (4, 8, 9):
+                raise ValueError(f"--camera takes 4, 8 or 9 numbers fx,fy,cx,cy[,k1,k2,p1,p2[,k3]], got {spec!r}")
+            spec = number_list(spec, len(parts), "--camera")
+        mount = (_given(_given(options.mount, meta.get("mount")), "eye_in_hand")).replace("-", "_").lower()
+        size = meta.get("image_size_px")
+        size = tuple(int(v) for v in number_list(size, 2, "the file's image_size_px")) if size else None
+        model = Camera(points, spec, mount, image_size=size, calibrate_intrinsics="intrinsics" in estimate)
+        n_mask, n_all, n_img = masked_corners(data.y)
+        note = (f"camera ({model.mount}): hand-eye transform and target pose estimated (per-image PnP, "
+                "Park–Martin hand-eye, then the joint fit)"
+                f"{'; intrinsics estimated' if model.calibrate_intrinsics else ''}; "
+                f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "
+                "(zero weight), not dropped")
+        return model, set(), [note]
+
+    def checked_readings(self, y, n, dof):
+        if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 2 or y.shape[1] < 1:
+            raise ValueError(f"camera measurements must have shape [{n}, N, 2] (u, v px of N target points), "
+                             f"got {list(y.shape)}")
+        if np.isinf(y).any():
+            raise ValueError("camera measurements contain ±inf; a corner that was not detected is NaN (an empty "
+                             "CSV cell)")
+        return np.where(np.isnan(y), 0.0, y)  # NaN = not detected: masked by the camera model, not an error
+
+
+def _given(value, default):
+    """``value``, or ``default`` where ``value`` is ``None`` or an empty text (an option not given)."""
+    return default if value is None or (isinstance(value, str) and not value) else value
+

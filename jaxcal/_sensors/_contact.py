@@ -59,7 +59,12 @@ directions above are also unseen; the prior then keeps them at the nominal value
 
 from __future__ import annotations
 
+import csv
+import io
 import math
+import os
+import re
+import warnings
 from collections.abc import Sequence
 from typing import ClassVar
 
@@ -69,11 +74,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core._csvfile import rad_to_deg_roundtrip
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
-from .._datasets._dataset import CONTACT_KINDS, _check_label, dataset_labels
 from .._models._kinematics import check_joint_angles, fk_pose_jit, rotvec_to_matrix, tool_point_soa
+from ._kind import SensorKind, check_label, register_kind
 from ._measurement import MeasurementModel, xyz_entries
 
 __all__ = ["PlaneContact", "FixedPoint", "plane_group", "point_groups", "initial_contact",
@@ -161,10 +167,11 @@ class PlaneContact(_LabelModel):
     basis_v: Float[Array, "K 3"]
     labels: tuple[str, ...] = eqx.field(static=True)
     kind: ClassVar[str] = "plane"
+    initialisable: ClassVar[tuple[str, ...]] = ("plane", "tool")
     size: ClassVar[int] = 1
 
     def __init__(self, labels: Sequence[str], normals=None, offsets_mm=None):
-        labels = tuple(_check_label(s) for s in labels)
+        labels = tuple(check_label(s) for s in labels)
         if not labels or len(set(labels)) != len(labels):
             raise ValueError(f"PlaneContact needs distinct plane labels, got {list(labels)}")
         K = len(labels)
@@ -249,9 +256,10 @@ class FixedPoint(_LabelModel):
     sphere: bool = eqx.field(static=True, default=False)
     estimate_radius: bool = eqx.field(static=True, default=False)
     kind: ClassVar[str] = "point"
+    initialisable: ClassVar[tuple[str, ...]] = ("point", "tool")
 
     def __init__(self, labels: Sequence[str], centres_mm=None, radii_mm=None, estimate_radius: bool = False):
-        labels = tuple(_check_label(s) for s in labels)
+        labels = tuple(check_label(s) for s in labels)
         if not labels or len(set(labels)) != len(labels):
             raise ValueError(f"FixedPoint needs distinct point labels, got {list(labels)}")
         K = len(labels)
@@ -701,3 +709,260 @@ class DistanceBar(MeasurementModel):
         y = jnp.asarray(y)
         pa, pb = self._ends(robot, deviations, q, y[:, : self.dof])
         return (jnp.sqrt(sum((pa[k] - pb[k]) ** 2 for k in range(3))) - y[:, self.dof].astype(pa[0].dtype))[:, None]
+
+
+# -- the data-file form of contact data ------------------------------------------------------------
+#: the contact kinds and the CSV label column of each
+CONTACT_KINDS = {"plane": "plane", "point": "point"}
+
+
+def label_metadata_key(kind: str) -> str:
+    """The Dataset metadata key holding the comma-separated label names (``plane_labels``)."""
+    return f"{CONTACT_KINDS[kind]}_labels"
+
+
+def dataset_labels(data) -> tuple[str, ...]:
+    """The label names of a contact :class:`~jaxcal.Dataset` (``plane_labels``/``point_labels``)."""
+    key = label_metadata_key(data.kind)
+    names = data.meta.get(key, "")
+    labels = tuple(s for s in names.split(",") if s)
+    if not labels:
+        raise ValueError(f"{data.kind} data carry no '{key}' metadata naming the labels")
+    return labels
+
+
+def contact_label_cells(data) -> list[str]:
+    """The label text of every row of a contact :class:`~jaxcal.Dataset` (for its CSV column)."""
+    labels = dataset_labels(data)
+    return [labels[int(i)] for i in np.round(np.asarray(data.y, np.float64)).astype(int)]
+
+
+def contact_labels_from_cells(path, table, header, kind: str, meta: dict):
+    """``(y [n] label indices, metadata with the label names)`` from a CSV file's ``plane`` /
+    ``point`` text column. Labels are numbered in the order of the file's ``# plane_labels:``
+    line when there is one (labels missing from it are appended), else in order of appearance."""
+    col = CONTACT_KINDS[kind]
+    key = label_metadata_key(kind)
+    j = header.index(col)
+    cells = [row[j].strip() for row in table.rows]
+    empty = [r for r, v in enumerate(cells) if not v]
+    if empty:
+        raise ValueError(f"{path}: {table.where(empty[0], col)}: empty label ({len(empty)} row(s) without a {col})")
+    for r, v in enumerate(cells):
+        try:
+            check_label(v)
+        except ValueError as e:
+            raise ValueError(f"{path}: {table.where(r, col)}: {e}") from None
+    known = [s for s in meta.get(key, "").split(",") if s]
+    names = list(dict.fromkeys(known + cells))
+    meta = dict(meta)
+    meta[key] = ",".join(names)
+    return np.asarray([names.index(v) for v in cells], np.float64), meta
+
+
+class _ContactKind(SensorKind):
+    """The contact kinds' plain-data form (:func:`contact_to_dict`, :func:`contact_from_dict`)."""
+
+    def model_to_dict(self, model):
+        return contact_to_dict(model)
+
+    def model_from_dict(self, d):
+        return contact_from_dict(d)
+
+
+class _LabelledContactKind(_ContactKind):
+    """Contact data whose rows name what the probe touched: a text column (``plane`` / ``point``)
+    and no value column; readings ``[n]`` label indices, the names in the ``<column>_labels``
+    metadata (:func:`dataset_labels`)."""
+
+    labelled = True
+
+    def found_in(self, header) -> bool:
+        return CONTACT_KINDS[self.name] in header
+
+    def column_hint(self) -> str:
+        return f"a text column {CONTACT_KINDS[self.name]!r}"
+
+    def label_columns(self, path, header):
+        col = CONTACT_KINDS[self.name]
+        if col not in header:
+            raise ValueError(f"{path}: {self.name} data need a text column {col!r} naming each row's "
+                             f"{col}; header: {list(header)}")
+        return [col]
+
+    def readings(self, values, path, table, meta):
+        y, meta = contact_labels_from_cells(path, table, table.header, self.name, meta)
+        return y, meta, ()
+
+    def write_values(self, data):
+        n = int(np.shape(data.y)[0])
+        return [], np.zeros((n, 0)), [CONTACT_KINDS[self.name]], [[c] for c in contact_label_cells(data)]
+
+    def sample_shape(self, dof):
+        return ()
+
+    def check_options(self, estimate, options):
+        if "base" in estimate:
+            raise ValueError(f"--estimate base does not apply to {self.name} data: the {self.name}s are "
+                             "in the robot base frame and carry any base-frame error")
+        super().check_options(estimate, options)
+
+    def required_extras(self, estimate, *, sphere=False, estimate_radius=False, radius_mm=None, **_):
+        estimate, notes = set(estimate), []
+        if sphere:
+            notes.append("point data as spheres: residual = distance to the centre minus the radius, "
+                         + ("radius unknown: estimated per point (sphere fit to the data, then the joint fit)"
+                            if estimate_radius else "radius " + ("known" if radius_mm is None else f"{radius_mm:g} mm (known)")))
+        if "tool" not in estimate:
+            estimate.add("tool")
+            notes.append(f"{self.name} data: the {self.name}s and the tool point are estimated "
+                         "(closed-form start from the data, then the joint fit); "
+                         + length_reference_note(self.name, known_radius=sphere and not estimate_radius))
+        return estimate, notes
+
+    def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
+        self.refuse_anchor(anchor_mm)
+        return contact_model(self.name, robot, data)
+
+
+@register_kind
+class PlaneKind(_LabelledContactKind):
+    """Plane-contact data (:class:`PlaneContact`): a text column ``plane`` naming the touched plane."""
+
+    name = "plane"
+
+
+@register_kind
+class PointKind(_LabelledContactKind):
+    """Fixed-point (or sphere) contact data (:class:`FixedPoint`): a text column ``point``; spheres
+    with a radius given (``--radius-mm``, the file's ``# radius_mm:`` line) or estimated."""
+
+    name = "point"
+
+    def check_options(self, estimate, options):
+        if "base" in estimate:
+            raise ValueError("--estimate base does not apply to point data: the points are "
+                             "in the robot base frame and carry any base-frame error")
+        self.check_estimate_names(estimate)
+        self.refuse_anchor(options.anchor_mm)
+
+    def setup(self, data, robot, estimate, options):
+        from .._core._csvfile import number_list
+
+        self.check_options(estimate, options)
+        sphere = options.radius_mm is not None or options.estimate_radius or "radius_mm" in data.meta
+        radius = options.radius_mm
+        if sphere and radius is None and "radius_mm" in data.meta:
+            radius = number_list(data.meta["radius_mm"], 1, "the file's radius_mm")[0]
+        estimate, notes = self.required_extras(estimate, sphere=sphere, estimate_radius=options.estimate_radius,
+                                               radius_mm=radius)
+        model = self.default_model(robot, data=data)
+        return (self.spheres(model, radius, options.estimate_radius) if sphere else model), estimate, notes
+
+    def spheres(self, model, radius_mm, estimate_radius):
+        """The point model as spheres of radius ``radius_mm`` (mm; the start where ``estimate_radius``).
+
+        Raises:
+            ValueError: the radius is negative or not finite.
+        """
+        r = 0.0 if radius_mm is None else float(radius_mm)
+        if not (math.isfinite(r) and r >= 0):
+            raise ValueError(f"--radius-mm must be a finite number >= 0 (mm), got {radius_mm}")
+        return FixedPoint(model.labels, model.centres, radii_mm=r, estimate_radius=estimate_radius)
+
+
+def distance_columns(dof: int, unit: str = "deg") -> list[str]:
+    """``q1a_<unit> … qNa_<unit>, q1b_<unit> … qNb_<unit>, distance_mm``."""
+    return ([f"q{j}a_{unit}" for j in range(1, dof + 1)] + [f"q{j}b_{unit}" for j in range(1, dof + 1)]
+            + ["distance_mm"])
+
+
+def save_distance_csv(data, path, angle_unit: str = "deg") -> None:
+    """Write distance-bar data: ``# key: value`` lines, then :func:`distance_columns`."""
+    q = np.asarray(data.q, np.float64)
+    y = np.asarray(data.y, np.float64)
+    dof = q.shape[1]
+    conv = rad_to_deg_roundtrip if angle_unit == "deg" else (lambda a: a)
+    buf = io.StringIO()
+    buf.write("# jaxcal dataset v1\n# kind: distance\n")
+    for k, v in data.metadata:
+        if k != "kind":
+            buf.write(f"# {k}: {v}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(distance_columns(dof, angle_unit))
+    for row in np.concatenate([conv(q), conv(y[:, :dof]), y[:, dof:]], axis=1):
+        w.writerow([repr(float(x)) for x in row])
+    with open(os.fspath(path), "w", encoding="utf-8") as f:
+        f.write(buf.getvalue())
+
+
+def load_distance_table(path, t, meta: dict, dof: int | None):
+    """``(q_a [n, dof] rad, y [n, dof + 1])`` from a read table with :func:`distance_columns`."""
+    cols = {h: re.fullmatch(r"q(\d+)([ab])_(deg|rad)", h) for h in t.header}
+    cols = {h: mt for h, mt in cols.items() if mt}
+    units = {mt[3] for mt in cols.values()}
+    if len(units) != 1:
+        raise ValueError(f"{path}: distance data need q1a_deg … qNa_deg and q1b_deg … qNb_deg (one angle unit); "
+                         f"header: {list(t.header)}")
+    unit = units.pop()
+    n_dof = max(int(mt[1]) for mt in cols.values())
+    if dof is not None and n_dof != dof:
+        raise ValueError(f"{path}: file has {n_dof} joints per pose but the robot has {dof} joints")
+    want = distance_columns(n_dof, unit)
+    missing = [c for c in want if c not in t.header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing} for distance data; header: {list(t.header)}")
+    unused = [h for h in t.header if h not in want]
+    if unused:
+        warnings.warn(f"{path}: column(s) {unused} are not used; distance data uses {','.join(want)}", UserWarning,
+                      stacklevel=3)
+    if not t.rows:
+        raise ValueError(f"{path}: no data rows")
+    v = t.floats(want)
+    ang = np.deg2rad(v[:, : 2 * n_dof]) if unit == "deg" else v[:, : 2 * n_dof]
+    return ang[:, :n_dof], np.concatenate([ang[:, n_dof:], v[:, 2 * n_dof:]], axis=1)
+
+
+@register_kind
+class DistanceKind(_ContactKind):
+    """Distance-bar data (:class:`DistanceBar`): two poses per row, ``q1a_deg … qNa_deg, q1b_deg …
+    qNb_deg, distance_mm`` (:func:`distance_columns`); readings ``[n, dof + 1]`` (pose b in rad,
+    the bar length in mm), ``q`` is pose a. The file has its own joint columns, so the kind reads
+    and writes the whole table (:attr:`own_table`)."""
+
+    name = "distance"
+    columns = ("distance_mm",)
+    own_table = True
+
+    def check_options(self, estimate, options):
+        if "base" in estimate:
+            raise ValueError("--estimate base does not apply to distance data: distances never see the base frame")
+        super().check_options(estimate, options)
+
+    def required_extras(self, estimate, **_):
+        estimate = set(estimate)
+        if "tool" in estimate:
+            return estimate, []
+        return estimate | {"tool"}, [
+            "distance data: the tool point is estimated (from its nominal value); distances never see the robot's "
+            "base frame (d_1, theta_1 and the base's position and orientation stay at nominal or are set by the prior)"]
+
+    def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
+        self.refuse_anchor(anchor_mm)
+        return DistanceBar(robot.dof)
+
+    def read_table(self, path, table, meta: dict, dof: int | None):
+        return load_distance_table(path, table, meta, dof)
+
+    def write_file(self, data, path, angle_unit: str) -> None:
+        save_distance_csv(data, path, angle_unit)
+
+    def sample_shape(self, dof):
+        return (dof + 1,)
+
+    def checked_readings(self, y, n, dof):
+        if y.ndim != 2 or y.shape != (n, dof + 1):
+            raise ValueError(f"distance readings must have shape [{n}, {dof + 1}] (pose b, length), "
+                             f"got {list(y.shape)}")
+        return y
+

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core._params import Deviations, layout_for
-from .._datasets._dataset import _matrix_to_rotvec, _rotvec_to_matrix
+from .._core._rotvec import matrix_to_rotvec, rotvec_to_matrix
 from .._models._abstract import AbstractRobot
 from .._models._kinematics import fk_pose_jit
 from ._initialise import (
@@ -34,14 +34,7 @@ from ._initialise import (
 )
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 
-__all__ = ["INITIALISABLE", "initial_extras"]
-
-
-#: extras :func:`initial_extras` can start from data, per measurement kind.
-INITIALISABLE = {"cable": ("anchor", "cable_offset", "tool"), "position": ("base", "tool"), "pose": ("base", "tool"),
-                 "markers": ("base", "markers"), "camera": ("handeye", "target"), "plane": ("plane", "tool"),
-                 "point": ("point", "tool"), "distance": (),
-                 "blocks": (), "relations": ()}  # combined blocks: each block's own start (calibrate_blocks)
+__all__ = ["initial_extras"]
 
 
 def _pose_start(P, F, Ym, R0, b0, t0, est_base: bool, est_tool: bool, prior_std: float = TOOL_PRIOR_STD_MM):
@@ -102,7 +95,7 @@ def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est
     """``(R, t, M [N, 3], keep)``: one sensor frame and the marker layout of a :class:`Markers`
     model (:func:`alternate_frames_and_markers` with one frame and one placement)."""
     T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
-    R = _rotvec_to_matrix(start.base_rotation) @ np.asarray(measurement.rotation, np.float64)
+    R = rotvec_to_matrix(start.base_rotation) @ np.asarray(measurement.rotation, np.float64)
     t = np.asarray(measurement.translation, np.float64) + np.asarray(start.base_translation, np.float64)
     M = np.asarray(measurement.marker_points(start), np.float64)
     zero = np.zeros(Y.shape[0], int)
@@ -138,8 +131,8 @@ def initial_extras(
     from ._sessions import SessionMarkers, initial_sessions
 
     if isinstance(measurement, SessionMarkers):  # per-session frames and marker placements
-        est = set(INITIALISABLE["markers"] if estimate is None else estimate)
-        bad = est - set(INITIALISABLE["markers"])
+        est = set(measurement.initialisable if estimate is None else estimate)
+        bad = est - set(measurement.initialisable)
         if bad:
             raise ValueError(f"cannot initialise {sorted(bad)} for session marker data; possible: base, markers")
         return initial_sessions(robot, measurement, data, start=start, frames=None if "base" in est else [],
@@ -158,15 +151,15 @@ def initial_extras(
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
     kind = measurement.kind
     if estimate is None:  # the tool point only when asked for (it is often known)
-        estimate = tuple(e for e in INITIALISABLE[kind] if e != "tool")
+        estimate = tuple(e for e in measurement.initialisable if e != "tool")
         if kind == "markers" and measurement.known:
             estimate = ("base",)
     estimate = set(estimate)
     if kind == "markers" and measurement.known and "markers" in estimate:
         raise ValueError("the marker positions are known (Markers(known=True)): only 'base' can be initialised")
-    bad = estimate - set(INITIALISABLE[kind])
+    bad = estimate - set(measurement.initialisable)
     if bad:
-        raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(INITIALISABLE[kind])}")
+        raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(measurement.initialisable)}")
     est_tool = "tool" in estimate
     tool0 = np.asarray(robot.tool, np.float64) + np.asarray(start.tool, np.float64)  # flange frame, mm
     P = Pl = Fl = None  # tool points; flange origins and rotations (base frame)
@@ -222,7 +215,7 @@ def initial_extras(
         est_base = "base" in estimate
         R0 = np.asarray(measurement.rotation, np.float64)
         t0 = np.asarray(measurement.translation, np.float64)
-        R_guess = _rotvec_to_matrix(start.base_rotation) @ R0
+        R_guess = rotvec_to_matrix(start.base_rotation) @ R0
         b_guess = t0 + np.asarray(start.base_translation, np.float64)
         if kind == "pose":
             R, t, tool, keep = _pose_start(Pl, Fl, Y, R_guess, b_guess, tool0, est_base, est_tool)
@@ -238,9 +231,9 @@ def initial_extras(
                 keep = new_keep
         dev, what = start, []
         if est_base:
-            dev = dev.replace(base_rotation=jnp.asarray(_matrix_to_rotvec(R @ R0.T), dtype),
+            dev = dev.replace(base_rotation=jnp.asarray(matrix_to_rotvec(R @ R0.T), dtype),
                               base_translation=jnp.asarray(t - t0, dtype))
-            angle = math.degrees(float(np.linalg.norm(_matrix_to_rotvec(R @ R_guess.T))))
+            angle = math.degrees(float(np.linalg.norm(matrix_to_rotvec(R @ R_guess.T))))
             what.append(f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame, "
                         f"rotated {angle:.2f}° from the guess")
     elif isinstance(measurement, Markers):
@@ -251,7 +244,7 @@ def initial_extras(
         dev = start
         what = []
         if est_base:
-            dev = dev.replace(base_rotation=jnp.asarray(_matrix_to_rotvec(R @ R0.T), dtype),
+            dev = dev.replace(base_rotation=jnp.asarray(matrix_to_rotvec(R @ R0.T), dtype),
                               base_translation=jnp.asarray(t - t0, dtype))
             what.append(f"sensor frame: base origin at ({', '.join(f'{v:.1f}' for v in t)}) mm in the sensor frame")
         if est_markers:

@@ -21,8 +21,11 @@ from jaxtyping import Array, Float
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group
 from .._core._precision import to_device
+from .._core._rotvec import matrix_to_rotvec
+from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._models._abstract import AbstractRobot
 from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
+from ._kind import SensorKind, register_kind
 
 __all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
 
@@ -46,6 +49,12 @@ class MeasurementModel(eqx.Module):
 
     #: short name used in data files and on the command line.
     kind: ClassVar[str]
+    #: extras :func:`~jaxcal._sensors._initial_extras.initial_extras` can start from the data
+    #: (closed form), by group name; ``()``: none.
+    initialisable: ClassVar[tuple[str, ...]] = ()
+    #: how many leading entries of a residual row the sample error (mm) is made of and the
+    #: evaluation's expectation counts (a pose's position part, ``3``); ``None``: every entry.
+    error_entries: ClassVar[int | None] = None
     #: residual entries per sample (``m``).
     size: ClassVar[int]
     #: measurement shape per sample (``()`` for a scalar).
@@ -151,6 +160,7 @@ class CableLength(MeasurementModel):
 
     anchor: Float[Array, " 3"]
     kind: ClassVar[str] = "cable"
+    initialisable: ClassVar[tuple[str, ...]] = ("anchor", "cable_offset", "tool")
     size: ClassVar[int] = 1
     sample_shape: ClassVar[tuple[int, ...]] = ()
 
@@ -221,6 +231,7 @@ class Position(MeasurementModel):
     rotation: Float[Array, "3 3"]
     translation: Float[Array, " 3"]
     kind: ClassVar[str] = "position"
+    initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
     size: ClassVar[int] = 3
     sample_shape: ClassVar[tuple[int, ...]] = (3,)
 
@@ -261,6 +272,8 @@ class Pose(MeasurementModel):
     orientation_scale: Float[Array, ""]
     orientation_scale_given: bool = eqx.field(static=True, default=True)
     kind: ClassVar[str] = "pose"
+    error_entries: ClassVar[int | None] = 3
+    initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
     size: ClassVar[int] = 6
     sample_shape: ClassVar[tuple[int, ...]] = (4, 4)
     components: ClassVar[tuple[tuple[str, str, int, int], ...]] = (("position", "mm", 0, 3),
@@ -331,6 +344,8 @@ class MarkerModel(MeasurementModel):
     """Shared by the marker models (:class:`Markers`, :class:`~jaxcal.SessionMarkers`): ``N``
     markers per sample, readings ``[n, N, 3]`` mm, residual ``[n, 3N]``; the sample error is the
     RMS over the sample's markers of the 3-D distance error (mm)."""
+
+    initialisable: ClassVar[tuple[str, ...]] = ("base", "markers")
 
     @property
     @abc.abstractmethod
@@ -455,3 +470,127 @@ def residuals(
     identification Jacobian (the paper's ``U`` in eq. 5).
     """
     return measurement.residual(robot, deviations, q, y).reshape(-1)
+
+
+def default_anchor(robot: AbstractRobot) -> Array:
+    """A draw-wire anchor on the base plane in front of the robot: ``(reach/2, 0, 0)`` mm (the
+    start of an anchor estimated from the data, and the simulations' anchor)."""
+    return to_device([0.5 * robot.reach_mm(), 0.0, 0.0], np.float64)
+
+
+def frame_to_dict(model) -> dict:
+    """A sensor frame as plain data: ``{"rotation": R [3, 3], "translation_mm": t [3]}`` (the
+    nominal sensor-from-base transform of :class:`Position`, :class:`Pose`, :class:`Markers`)."""
+    return {"rotation": np.asarray(model.rotation, np.float64).tolist(),
+            "translation_mm": np.asarray(model.translation, np.float64).tolist()}
+
+
+def frame_from_dict(d: dict) -> dict:
+    """``{"rotation", "translation"}`` keywords of :func:`frame_to_dict`'s plain data (identity where absent)."""
+    return {"rotation": to_device(np.asarray(d.get("rotation", np.eye(3)), np.float64)),
+            "translation": to_device(np.asarray(d.get("translation_mm", np.zeros(3)), np.float64))}
+
+
+# -- the data-file form of the draw wire, the tracker and the pose sensor ------------------------
+@register_kind
+class CableKind(SensorKind):
+    """Draw-wire data (:class:`CableLength`): column ``length_mm``, readings ``[n]`` mm."""
+
+    name = "cable"
+    columns = ("length_mm",)
+    fleet = True
+
+    def check_options(self, estimate, options):
+        self.refuse_point_options(options)
+        self.check_estimate_names(estimate - {"anchor", "offset", "cable_offset"})
+        if "base" in estimate:
+            raise ValueError("--estimate base applies to --measurement position only")
+
+    def required_extras(self, estimate, *, anchor_known=True, **_):
+        estimate = set(estimate)
+        if anchor_known:
+            return estimate, []
+        # nothing known about the anchor: estimate it (and the cable offset) from the data
+        return estimate | {"anchor", "offset"}, [
+            "no --anchor given and none in the file: the anchor and the cable offset are estimated from the data "
+            "(multilateration on the nominal robot, then the joint fit)"]
+
+    def model_to_dict(self, model):
+        return {"kind": "cable", "anchor_mm": np.asarray(model.anchor, np.float64).tolist()}
+
+    def model_from_dict(self, d):
+        return CableLength(to_device(np.asarray(d["anchor_mm"], np.float64)))
+
+    def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
+        if anchor_mm is None:
+            return CableLength(default_anchor(robot))
+        return CableLength(to_device(anchor_mm))  # as jnp.asarray, without a compiled conversion program
+
+    def setup(self, data, robot, estimate, options):
+        from .._core._csvfile import number_list
+
+        self.check_options(estimate, options)
+        anchor = options.anchor_mm
+        if anchor is None and "anchor_mm" in data.meta:
+            anchor = number_list(data.meta["anchor_mm"], 3, "the file's anchor_mm")
+        estimate, notes = self.required_extras(estimate, anchor_known=anchor is not None)
+        return self.default_model(robot, anchor_mm=anchor), estimate, notes
+
+
+@register_kind
+class PositionKind(SensorKind):
+    """Tool positions (:class:`Position`, a laser tracker): columns ``x_mm, y_mm, z_mm``,
+    readings ``[n, 3]`` mm in the sensor frame."""
+
+    name = "position"
+    columns = ("x_mm", "y_mm", "z_mm")
+    fleet = True
+
+    def model_to_dict(self, model):
+        return {"kind": "position"} | frame_to_dict(model)
+
+    def model_from_dict(self, d):
+        return Position(**frame_from_dict(d))
+
+    def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
+        self.refuse_anchor(anchor_mm)
+        return Position()
+
+
+@register_kind
+class PoseKind(SensorKind):
+    """Tool poses (:class:`Pose`): columns ``x_mm, y_mm, z_mm`` and a rotation vector
+    ``rx_deg, ry_deg, rz_deg`` (degrees at the file's edge), readings ``[n, 4, 4]`` homogeneous
+    transforms (mm, rad inside)."""
+
+    name = "pose"
+    columns = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
+    fleet = True
+
+    def model_to_dict(self, model):
+        # the weight the fit used (estimated unless given: read back, it is taken as given)
+        return {"kind": "pose", "orientation_scale": float(model.orientation_scale),
+                "orientation_scale_estimated": not model.orientation_scale_given} | frame_to_dict(model)
+
+    def model_from_dict(self, d):
+        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame_from_dict(d))
+
+    def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
+        self.refuse_anchor(anchor_mm)
+        return Pose()
+
+    def readings(self, values, path, table, meta):
+        y = np.zeros((values.shape[0], 4, 4))
+        y[:, :3, :3] = rotvec_to_matrix_np(np.deg2rad(values[:, 3:6]))
+        y[:, :3, 3] = values[:, :3]
+        y[:, 3, 3] = 1.0
+        return y, meta, ()
+
+    def write_values(self, data):
+        y = np.asarray(data.y, np.float64)
+        vals = np.concatenate([y[:, :3, 3], np.rad2deg(matrix_to_rotvec(y[:, :3, :3]))], axis=1)
+        return list(self.columns), vals, [], [[] for _ in range(y.shape[0])]
+
+    def sample_shape(self, dof):
+        return (4, 4)
+

@@ -34,6 +34,7 @@ in only some coordinates of a marker is an error (:func:`marker_gaps`).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from typing import ClassVar
 
@@ -45,7 +46,6 @@ from jaxtyping import Array, Float, Int
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
-from .._datasets._dataset import marker_gaps
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, rotvec_to_matrix
 from ._initialise import (
     MIN_FRAME_ROWS,
@@ -54,7 +54,8 @@ from ._initialise import (
     marker_errors,
     trimmed_note,
 )
-from ._measurement import MarkerModel, xyz_entries
+from ._kind import PointsKind, register_kind
+from ._measurement import MarkerModel, Markers, frame_from_dict, frame_to_dict, xyz_entries
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "session_labels",
     "masked_markers"]
@@ -428,12 +429,12 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
     before = float(np.sqrt(np.mean(marker_errors(F, P, Y, fi, pi, R_all, t_all, M) ** 2)))
     R_all, t_all, M, keep = alternate_frames_and_markers(F, P, Y, fi, pi, R_all, t_all, M, fidx, pidx,
                                                          iterations=iterations, trim=trim)
-    from .._datasets._dataset import _matrix_to_rotvec
+    from .._core._rotvec import matrix_to_rotvec
 
     vals = {}
     for j in fidx:
         f = m.frames[j]
-        vals[f"base_rotation@{f}"] = to_device(_matrix_to_rotvec(R_all[j]), dtype)
+        vals[f"base_rotation@{f}"] = to_device(matrix_to_rotvec(R_all[j]), dtype)
         vals[f"base_translation@{f}"] = to_device(t_all[j], dtype)
     M0 = np.asarray(m.positions, np.float64)
     for j in pidx:
@@ -449,3 +450,154 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
            + (f"; {n_miss} of {n_all} marker readings missing (NaN: markers a placement does not have, or not seen) "
               f"in {n_rows} row(s): masked (zero weight), not dropped" if n_miss else ""))
     return ExtrasEstimate(dev, before, after, n_trim, msg)
+
+
+def marker_gaps(y) -> np.ndarray:
+    """``[n, N]`` bool: the marker readings of ``y`` ``[n, N, 3]`` that are missing (NaN in all
+    three coordinates: a marker the session does not have, or one not seen in that row).
+
+    Raises:
+        ValueError: a reading with only some coordinates NaN (a partial point is a broken file,
+            not a missing marker), ±inf, or a row without any marker reading.
+    """
+    Y = np.asarray(y, np.float64)
+    if Y.ndim != 3 or Y.shape[2] != 3:
+        raise ValueError(f"marker readings must be [n, N, 3] (mm), got shape {list(Y.shape)}")
+    if np.isinf(Y).any():
+        raise ValueError("marker readings contain ±inf; a missing marker is NaN in x, y and z (empty CSV cells)")
+    nan = np.isnan(Y)
+    gap = nan.all(axis=-1)
+    part = nan.any(axis=-1) & ~gap
+    if part.any():
+        i, k = (int(v) for v in np.argwhere(part)[0])
+        raise ValueError(f"marker readings: {int(part.sum())} reading(s) have only some of x, y, z missing (first: "
+                         f"row {i}, marker {k + 1}); a missing marker is NaN in all three coordinates, a partial "
+                         "point is an error in the data")
+    empty = gap.all(axis=1)
+    if empty.any():
+        raise ValueError(f"marker readings: {int(empty.sum())} row(s) have no marker reading at all (rows "
+                         f"{np.flatnonzero(empty)[:10].tolist()}, 0-based); remove them")
+    return gap
+
+
+# -- the data-file form of marker data -----------------------------------------------------------
+_MARKER = re.compile(r"marker_(\d+)_([xyz])_mm")
+#: CSV columns of session labels (marker data of several sessions; text, not numbers)
+LABEL_COLUMNS = ("session", "frame", "placement")
+
+
+def marker_columns(n_markers: int) -> list[str]:
+    """CSV columns of ``n_markers`` marker positions in the sensor frame (mm)."""
+    return [f"marker_{k}_{c}_mm" for k in range(1, n_markers + 1) for c in "xyz"]
+
+
+@register_kind
+class MarkersKind(PointsKind):
+    """Motion-capture marker data (:class:`~jaxcal.Markers`, :class:`SessionMarkers`): columns
+    ``marker_k_x_mm, marker_k_y_mm, marker_k_z_mm`` for k = 1..N (N from the file; empty cells:
+    a marker missing, masked), readings ``[n, N, 3]`` mm in the sensor frame; optional text columns
+    ``session``, ``frame``, ``placement`` (:attr:`jaxcal.Dataset.labels`)."""
+
+    name = "markers"
+    session_labels = True
+    plannable = False
+    pattern = _MARKER
+    number_group, width = 1, 3
+    columns_word, count_word = "marker", "marker(s)"
+    expected_hint = "marker_1_x_mm, marker_1_y_mm, marker_1_z_mm, marker_2_x_mm, ..."
+
+    def point_columns(self, n_points):
+        return marker_columns(n_points)
+
+    def check_options(self, estimate, options):
+        super().check_options(estimate, options)
+        if "tool" in estimate:
+            raise ValueError("--estimate tool does not apply to marker data: the marker positions are the tool")
+
+    def required_extras(self, estimate, *, sessions=False, **_):
+        estimate = set(estimate)
+        if "base" in estimate or sessions:  # sessions: every frame is estimated
+            return estimate, []
+        return estimate | {"base"}, [
+            "marker data: the motion-capture frame (base extras) and the marker positions on the flange are estimated "
+            "(closed-form Kabsch start from the data, then the joint fit)"]
+
+    def model_to_dict(self, model):
+        """:class:`~jaxcal.Markers`: positions, ``known`` and the sensor frame; a
+        :class:`SessionMarkers` adds ``"sessions"`` (its labels, each placement's marker numbers and
+        the training rows' indices) and per-placement ``positions_mm`` ``[P, N, 3]``."""
+        positions = np.asarray(model.positions, np.float64).tolist()
+        if isinstance(model, SessionMarkers):
+            return {"kind": "markers", "positions_mm": positions,
+                    "sessions": {"frames": list(model.frames), "placements": list(model.placements),
+                                 "markers": [list(k) for k in model.markers],
+                                 "frame_index": np.asarray(model.frame_index).tolist(),
+                                 "placement_index": np.asarray(model.placement_index).tolist()}}
+        return {"kind": "markers", "positions_mm": positions, "known": bool(model.known)} | frame_to_dict(model)
+
+    def model_from_dict(self, d):
+        if "sessions" not in d:
+            return Markers(to_device(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
+                           **frame_from_dict(d))
+        se = d["sessions"]
+        fr, pl = se["frames"], se["placements"]
+        return SessionMarkers([fr[i] for i in se["frame_index"]], [pl[i] for i in se["placement_index"]],
+                              len(d["positions_mm"][0]), np.asarray(d["positions_mm"], np.float64),
+                              frame_labels=fr, placement_labels=pl, markers=se["markers"])
+
+    def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
+        # marker positions on the flange unknown: they start from the data (closed form) and are calibrated
+        self.refuse_anchor(anchor_mm)
+        n = int(np.shape(data.y)[1]) if n_markers is None else int(n_markers)
+        return Markers(np.zeros((n, 3)))
+
+    def setup(self, data, robot, estimate, options):
+        self.check_options(estimate, options)
+        estimate, notes = self.required_extras(estimate, sessions=bool(data.labels))
+        if not data.labels:
+            return self.default_model(robot, data=data), estimate, notes
+        # marker data of several sessions: one frame / placement per label
+        measurement = SessionMarkers.from_dataset(data)
+        n_miss, n_all, n_rows = masked_markers(data.y)
+        places = ", ".join(f"{p} ({len(k)})" for p, k in zip(measurement.placements, measurement.markers))
+        notes.append(f"{len(dict.fromkeys(s for s, _, _ in data.labels))} recording sessions: frames "
+                     f"{', '.join(measurement.frames)}; placements (markers) {places}; shared robot errors"
+                     + (f"; {n_miss} of {n_all} marker readings missing (empty cells) in {n_rows} row(s): masked "
+                        "(zero weight), not dropped" if n_miss else ""))
+        return measurement, estimate, notes
+
+    def label_columns(self, path, header):
+        return [c for c in LABEL_COLUMNS if c in header]
+
+    def readings(self, values, path, table, meta):
+        header = table.header
+        cols = self.label_columns(path, header)
+        y = values.reshape(values.shape[0], -1, 3)  # empty cells: a marker the session does not have (NaN)
+        if not cols:
+            return y, meta, ()
+        cells = {c: [row[header.index(c)].strip() for row in table.rows] for c in cols}
+        for c, vals_c in cells.items():
+            empty = [r for r, v in enumerate(vals_c) if not v]
+            if empty:
+                raise ValueError(f"{path}: {table.where(empty[0], c)}: empty label ({len(empty)} row(s) without a {c})")
+        fr = cells.get("frame") or cells.get("session")
+        pl = cells.get("placement") or cells.get("session")
+        if fr is None or pl is None:
+            raise ValueError(f"{path}: give a 'session' column, or both 'frame' and 'placement' (have {cols})")
+        se = cells.get("session") or [f"{fr[r]}/{pl[r]}" for r in range(len(table.rows))]
+        return y, meta, tuple(zip(se, fr, pl))
+
+    def write_values(self, data):
+        y = np.asarray(data.y, np.float64)
+        text = list(LABEL_COLUMNS) if data.labels else []
+        cells = [list(lab) for lab in data.labels] if data.labels else [[] for _ in range(y.shape[0])]
+        return marker_columns(y.shape[1]), y.reshape(y.shape[0], -1), text, cells
+
+    def checked_readings(self, y, n, dof):
+        if y.ndim != 3 or y.shape[0] != n or y.shape[2] != 3 or y.shape[1] < 1:
+            raise ValueError(f"markers measurements must have shape [{n}, N, 3] (N >= 1 markers), got {list(y.shape)}")
+        if np.isnan(y).any():  # a missing marker (NaN x, y, z): masked by SessionMarkers, refused by Markers
+            marker_gaps(y)  # partial points, ±inf, rows without any marker: errors
+            y = np.where(np.isnan(y), 0.0, y)
+        return y
+

@@ -21,7 +21,7 @@ from .._datasets._split import permutation_rounds
 from .._models._abstract import AbstractRobot
 from .._models._kinematics import rotvec_to_matrix, tool_point_soa
 from .._models._robot import sample_joint_angles
-from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position
+from .._sensors._measurement import CableLength, Markers, MeasurementModel, Pose, Position, default_anchor
 
 __all__ = ["Experiment", "simulate_experiment", "default_anchor", "draw_deviations", "add_orientation_noise"]
 
@@ -29,11 +29,6 @@ __all__ = ["Experiment", "simulate_experiment", "default_anchor", "draw_deviatio
 DEFAULT_NOISE_STD = 0.5  # mm; the paper does not give its sensor noise (see simulate_experiment)
 DEFAULT_ANGLE_STD_DEG = 0.2
 DEFAULT_LENGTH_STD_MM = 0.6
-
-
-def default_anchor(robot: AbstractRobot) -> Array:
-    """A draw-wire anchor on the base plane in front of the robot: ``(reach/2, 0, 0)`` mm."""
-    return to_device([0.5 * robot.reach_mm(), 0.0, 0.0], np.float64)
 
 
 class Experiment(eqx.Module):

@@ -11,10 +11,9 @@ import numpy as np
 from .._core._buckets import pad_rows
 from .._core._params import Deviations, layout_for
 from .._core._xla import filter_jit
-from .._datasets._dataset import label_metadata_key
 from .._models._kinematics import tool_point_soa
 from .._sensors._camera import Camera, _log, _predict_jit, _setup_frames, default_camera
-from .._sensors._contact import DistanceBar, _sample_q, default_setup
+from .._sensors._contact import DistanceBar, _sample_q, default_setup, label_metadata_key
 
 __all__ = ["simulate_contact", "simulated_contact_data", "simulate_distance", "simulate_camera"]
 

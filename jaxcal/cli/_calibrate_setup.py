@@ -50,6 +50,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     from .._datasets._dataset import load_csv
     from .._fit._diagnostics import Checks
     from .._fit._objective import LOSSES, Prior
+    from .._sensors._kind import sensor_kind
 
     robot = _nongeometric_robot(_robot(args.robot, args.base, args.tip), args.compliance, args.harmonics)
     path = pathlib.Path(data_file)
@@ -91,12 +92,12 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         tpath = pathlib.Path(args.test)
         if not tpath.exists():
             raise _Usage(f"test file {args.test!r} not found")
-        test_file = load_csv(tpath, kind=data.kind, n_markers=data.y.shape[1] if data.kind == "markers" else None)
+        test_file = load_csv(tpath, kind=data.kind, n_markers=sensor_kind(data.kind).n_points(data.y))
         if test_file.dof != robot.dof:
             raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
         if test_file.labels:
             raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
-        if test_file.kind in ("plane", "point"):
+        if sensor_kind(test_file.kind).labelled:
             from .._datasets._dataset import relabel
 
             test_file = relabel(test_file, measurement.labels)

@@ -10,7 +10,7 @@ import warnings
 from ._calibrate_setup import _calibration_setup
 from ._common import _EXIT_FAILED, _as_usage, _today, _Usage
 
-__all__ = ["FLEET_KINDS"]
+__all__ = ["fleet_kinds"]
 
 
 def _same_tree(a, b) -> bool:
@@ -22,8 +22,11 @@ def _same_tree(a, b) -> bool:
     return ta == tb and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
 
 
-#: measurement kinds `jaxcal calibrate` takes several files of (one sensor set-up per fleet)
-FLEET_KINDS = ("cable", "position", "pose")
+def fleet_kinds() -> list[str]:
+    """The measurement kinds `jaxcal calibrate` takes several files of (one sensor set-up per fleet)."""
+    from .._sensors._kind import sensor_kinds
+
+    return [k.name for k in sensor_kinds() if k.fleet]
 
 
 def _cmd_calibrate_combined(args, method: str) -> int:
@@ -111,13 +114,13 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
             raise _Usage(f"{flag} applies to one data file; several files write one result each to --out-dir DIR")
     if not args.out_dir:
         raise _Usage("several data files: give --out-dir DIR (one RESULT.json per file and the summary table)")
-    if args.measurement is not None and args.measurement not in FLEET_KINDS:
-        raise _Usage(f"several data files take --measurement {', '.join(FLEET_KINDS)}; calibrate "
+    if args.measurement is not None and args.measurement not in fleet_kinds():
+        raise _Usage(f"several data files take --measurement {', '.join(fleet_kinds())}; calibrate "
                      f"{args.measurement} data one file at a time")
     setups = [_calibration_setup(args, method, f) for f in args.data]
     first = setups[0]
-    if first.kind not in FLEET_KINDS:
-        raise _Usage(f"several data files take {', '.join(FLEET_KINDS)} data; calibrate {first.kind} data "
+    if first.kind not in fleet_kinds():
+        raise _Usage(f"several data files take {', '.join(fleet_kinds())} data; calibrate {first.kind} data "
                      "(from the files' '# kind:' lines or columns) one file at a time")
     for s in setups[1:]:
         if s.kind != first.kind:

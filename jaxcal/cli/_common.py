@@ -25,7 +25,7 @@ def _as_usage(prefix: str = "", errors: tuple[type[BaseException], ...] = (Value
 
 
 def _floats(text: str, n: int, what: str) -> list[float]:
-    from .._datasets._csvfile import number_list
+    from .._core._csvfile import number_list
 
     with _as_usage():
         return number_list(text, n, what)
@@ -55,11 +55,12 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
 
 
 def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):
-    """:func:`~jaxcal._calibration._setup.measurement_of_kind` (bad input: :class:`_Usage`)."""
-    from .._calibration._setup import measurement_of_kind
+    """The kind's measurement model at its default set-up (``SensorKind.default_model``; bad input:
+    :class:`_Usage`)."""
+    from .._sensors._kind import sensor_kind
 
     with _as_usage():
-        return measurement_of_kind(kind, robot, anchor_mm=anchor, n_markers=n_markers, data=data)
+        return sensor_kind(kind).default_model(robot, anchor_mm=anchor, n_markers=n_markers, data=data)
 
 
 def _robot_and_sensor(args):
@@ -81,12 +82,12 @@ def _robot_and_sensor(args):
 
 
 def _sphere_model(kind: str, measurement, radius_mm, estimate: bool):
-    """``--radius-mm`` / ``--estimate radius``: the point model as spheres
-    (:func:`~jaxcal._calibration._setup.as_spheres`; bad input: :class:`_Usage`)."""
-    from .._calibration._setup import as_spheres
+    """``--radius-mm`` / ``--estimate radius``: the point model as spheres (``SensorKind.spheres``;
+    bad input: :class:`_Usage`)."""
+    from .._sensors._kind import sensor_kind
 
     with _as_usage():
-        return as_spheres(kind, measurement, radius_mm, estimate)
+        return sensor_kind(kind).spheres(measurement, radius_mm, estimate)
 
 
 def _write_outputs(res, out, *, figures: bool) -> dict:

@@ -27,6 +27,7 @@ def _cmd_evaluate(args) -> int:
     from .._calibration._io import load_result, load_result_dict, measurement_to_dict, robot_to_dict
     from .._core._json import to_jsonable
     from .._datasets._dataset import load_csv
+    from .._sensors._kind import sensor_kind
 
     src, path = pathlib.Path(args.result), pathlib.Path(args.data)
     if not src.exists():
@@ -44,7 +45,7 @@ def _cmd_evaluate(args) -> int:
                      f"{res.robot.dof} joints")
     if data.labels and not sessions:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
-    if data.kind in ("plane", "point"):
+    if sensor_kind(data.kind).labelled:
         from .._calibration._evaluate import match_labels
 
         res, data, new = match_labels(res, data)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from .._sensors._kind import kind_names
 from ._calibrate import _cmd_calibrate
 from ._evaluate import _cmd_evaluate
 from ._export import _cmd_export
@@ -148,8 +149,7 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
     c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
                                                  "is given in its frame)")
-    c.add_argument("--measurement", choices=("cable", "position", "pose", "markers", "camera", "plane", "point",
-                                             "distance"), default=None,
+    c.add_argument("--measurement", choices=kind_names(), default=None,
                    help="the sensor (default: the data file's '# kind:' line, else the kind its columns show; a "
                         "--measurement that contradicts the file's '# kind:' line is an error). "
                         "cable: draw-wire length from a fixed anchor (mm); position: tool point x,y,z (mm) in the "

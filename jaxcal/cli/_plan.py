@@ -184,9 +184,9 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     import numpy as np
 
     from .._calibration._blocks import block_extras
-    from .._calibration._setup import measured_extras
     from .._experiments._plan_blocks import plan_blocks
     from .._sensors._blocks import Block
+    from .._sensors._kind import sensor_kind
 
     if args.plot:
         raise _Usage("--plot does not apply to --with (the curve is of one sensor alone)")
@@ -202,8 +202,7 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     if len(set(names)) != len(names):
         raise _Usage(f"--with: the files' names (their blocks) must differ, got {names}")
     name = args.measurement if args.measurement not in names else f"planned_{args.measurement}"
-    extras, _ = measured_extras(measurement.kind, set(), anchor_known=True,
-                                sphere=bool(getattr(measurement, "sphere", False)))
+    extras, _ = sensor_kind(measurement.kind).required_extras(set(), sphere=bool(getattr(measurement, "sphere", False)))
     planned = Block(name, measurement, cand, sigma=args.noise_std, extras=block_extras(extras))
     with _as_usage():
         plan = plan_blocks(robot, planned, args.poses, fixed=fixed, criterion=args.criterion,

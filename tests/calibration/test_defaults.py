@@ -90,8 +90,8 @@ def test_near_still_joint_is_held_without_a_prior(tracker, fits):
     # under the default prior, and far below the nominal robot's error
     prior_fit, _ = fits["prior"]
     assert not set(prior_fit.identifiability.still_unseen) & set(prior_fit.space.free_names)
-    ev = res.evaluate(b.train, extras="register")
-    assert ev.rmse < 1.05 * prior_fit.evaluate(b.train, extras="register").rmse
+    ev = jaxcal.evaluate_result(res, b.train, extras="register")
+    assert ev.rmse < 1.05 * jaxcal.evaluate_result(prior_fit, b.train, extras="register").rmse
     assert ev.rmse < 0.2 * ev.before.rmse
 
 
@@ -116,6 +116,6 @@ def test_defaults_within_two_percent_of_the_best(tracker, fits):
     default prior} on the held-out split and on the other session: within 2 % of the best."""
     a, b = tracker
     test = {name: res.evaluate(a.test).rmse for name, (res, _) in fits.items()}
-    other = {name: res.evaluate(b.train, extras="register").rmse for name, (res, _) in fits.items()}
+    other = {name: jaxcal.evaluate_result(res, b.train, extras="register").rmse for name, (res, _) in fits.items()}
     assert test["defaults"] <= 1.02 * min(test.values()), test
     assert other["defaults"] <= 1.02 * min(other.values()), other

@@ -77,7 +77,7 @@ def test_evaluate_registers_a_new_frame_and_reaches_the_floor(two_days, capsys):
     assert ev["worse_than_expected"] is False and "expected from the calibration" in out and "WARNING" not in out
     # the same through the Python API
     day2 = jaxcal.load_csv(d / "day2.csv")
-    e = res.evaluate(day2, extras="auto")
+    e = jaxcal.evaluate_result(res, day2, extras="auto")
     assert e.extras == "registered" and math.isclose(e.rmse, m["after"]["rmse"], rel_tol=1e-6)
 
 
@@ -123,12 +123,12 @@ def test_evaluation_programs_are_shared(two_days, monkeypatch):
     program = ev_mod._jacobian_program()
     monkeypatch.setattr(ev_mod, "_jacobian_program",
                         lambda: (lambda pr: threads.append(threading.current_thread().name) or program(pr)))
-    e = res.evaluate(day2, extras="register")
+    e = jaxcal.evaluate_result(res, day2, extras="register")
     ahead = (os.cpu_count() or 1) >= 2 and os.environ.get("JAXCAL_COMPILE_AHEAD", "on") != "off"
     assert len(threads) == 1 + ahead and threads[0].startswith("jaxcal-compile") == ahead, threads
     assert not ev_mod._JACOBIAN_AHEAD
     monkeypatch.setenv("JAXCAL_COMPILE_AHEAD", "off")
-    ref = res.evaluate(day2, extras="register")
+    ref = jaxcal.evaluate_result(res, day2, extras="register")
     assert e.expected_rmse == ref.expected_rmse and np.array_equal(e.after_errors, ref.after_errors)
 
     # committed to the device, as a compiled program's outputs are (device_put with a device)

@@ -13,10 +13,10 @@ import jaxcal
 from jaxcal import Dataset, Deviations, Markers, ParameterSpace, Problem, load_csv, robots
 from jaxcal._calibration._io import measurement_from_dict, measurement_to_dict
 from jaxcal._core._params import layout_for
-from jaxcal._datasets._dataset import marker_columns
 from jaxcal._models._kinematics import rotvec_to_matrix
 from jaxcal._sensors._initial_extras import initial_extras
 from jaxcal._sensors._initialise import kabsch, pose_from_markers
+from jaxcal._sensors._sessions import marker_columns
 
 #: true marker layout in the flange frame (mm): three markers on a small plate
 LAYOUT = np.array([[0.0, 0.0, 80.0], [60.0, 0.0, 60.0], [0.0, 70.0, 50.0]])

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DELIMITERS", "Table", "read_table"]
+__all__ = ["DELIMITERS", "Table", "gap_floats", "rad_to_deg_roundtrip", "read_table"]
 
 #: delimiters recognised from the header line when none is given.
 DELIMITERS = (",", ";", "\t")
@@ -215,3 +215,55 @@ def read_table(path, *, delimiter: str | None = None, what: str = "file", row_na
     if dup:
         raise ValueError(f"{path}: duplicate column(s) {dup} (names are compared ignoring case and spaces)")
     return Table(path, meta, tuple(header), rows, lines, delimiter, row_name)
+
+
+def rad_to_deg_roundtrip(q: np.ndarray) -> np.ndarray:
+    """Degrees ``d`` near ``rad2deg(q)`` with ``deg2rad(d) == q`` wherever such a float exists
+    (a neighbour within two ulps), so that data loaded from a degree file saves back to the
+    identical file."""
+    d = np.rad2deg(q)
+    for k in (1, 2):
+        bad = np.deg2rad(d) != q
+        if not bad.any():
+            break
+        for direction in (np.inf, -np.inf):
+            c = d.copy()
+            for _ in range(k):
+                c = np.nextafter(c, direction)
+            d = np.where(bad & (np.deg2rad(c) == q), c, d)
+            bad = np.deg2rad(d) != q
+    return d
+
+
+def gap_floats(t: Table, columns, width: int) -> np.ndarray:
+    """``[n_rows, len(columns)]`` readings of a file whose points may be missing: an empty cell is
+    NaN; the ``width`` columns of one point (``u, v`` of a camera corner: a corner not detected;
+    ``x, y, z`` of a marker: a marker the session does not have, or not seen) must be empty
+    together; other text that is not a number, NaN/inf text, is an error naming row, line and
+    column."""
+    what = "corner was not detected" if width == 2 else "marker is missing"
+    idx = [t.header.index(c) for c in columns]
+    out = np.full((len(t.rows), len(idx)), np.nan)
+    for r, row in enumerate(t.rows):
+        for k, i in enumerate(idx):
+            text = row[i].strip()
+            if not text:
+                continue
+            try:
+                if "_" in text:
+                    raise ValueError
+                v = float(text.replace(",", ".") if t.decimal_comma else text)
+            except ValueError:
+                raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r} is not a number") from None
+            if not math.isfinite(v):
+                raise ValueError(f"{t.path}: {t.where(r, columns[k])}: {row[i]!r}; leave the cell empty where a "
+                                 f"{what}")
+            out[r, k] = v
+        gap = np.isnan(out[r].reshape(-1, width))
+        odd = np.flatnonzero(gap.any(axis=1) & ~gap.all(axis=1))
+        if odd.size:
+            cols = columns[odd[0] * width:(odd[0] + 1) * width]
+            name = "point" if width == 2 else "marker"
+            raise ValueError(f"{t.path}: {t.where(r)}: {name} {odd[0] + 1} has only some of {', '.join(cols)} "
+                             f"(leave {'both' if width == 2 else 'all three'} empty where a {what})")
+    return out
