@@ -90,6 +90,10 @@ class BlockStats:
             residuals' own, ``J·v = r``) and do not see it.
         scale_seen: whether the data (all blocks together) see the length scale at all
             (:func:`scale_shares`); ``None`` where not computed. The same in each block's stats.
+        sigma_stated: the noise σ the block's data file states (its ``# noise_std_mm:`` /
+            ``# noise_std_px:`` line; its unit), ``None`` without one; σ̂ at or above
+            :attr:`~jaxcal.Checks.noise_warn_factor` times it is warned about
+            (:meth:`noise_warning`).
     """
 
     name: str
@@ -111,6 +115,16 @@ class BlockStats:
     rank: int = -1
     scale_share: float = float("nan")
     scale_seen: bool | None = None
+    sigma_stated: float | None = None
+
+    def noise_warning(self, where: str | None = None, factor: float | None = None) -> str | None:
+        """:func:`~jaxcal._fit._diagnostics.stated_noise_warning` of this block: the warning when
+        its σ̂ is at least ``factor`` (default :attr:`~jaxcal.Checks.noise_warn_factor`) times the
+        noise its file states, else ``None``; ``where`` names it (default ``block 'name'``)."""
+        from .._fit._diagnostics import Checks, stated_noise_warning
+
+        return stated_noise_warning(where or f"block {self.name!r}", self.sigma_hat, self.sigma_stated, self.unit,
+                                    Checks.noise_warn_factor if factor is None else factor)
 
     def line(self) -> str:
         given = "given" if self.sigma_given else "estimated"
@@ -609,7 +623,17 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         sigma = new
     for w in caught:  # the final fit's warnings: the earlier rounds' σ were not the final ones
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    stats = tuple(dataclasses.replace(s, sigma_given=not est) for s, est in zip(stats, estimated))
+    from .._fit._diagnostics import Checks, given_noise_std
+    from ._calibrate import StatedNoiseWarning
+
+    stated = [given_noise_std(blk.data, None, blk.measurement) for blk in blocks] + [None]  # the files' lines
+    stats = tuple(dataclasses.replace(s, sigma_given=not est, sigma_stated=st)
+                  for s, est, st in zip(stats, estimated, stated))
+    factor = (kwargs.get("checks") or Checks()).noise_warn_factor
+    for s in stats:  # a block far above the noise its file states: another set-up, or a wrong noise line
+        msg = s.noise_warning(factor=factor)
+        if msg is not None:
+            warnings.warn(msg, StatedNoiseWarning, stacklevel=2)
     object.__setattr__(res, "blocks", stats)
     object.__setattr__(res, "sigma", {s.name: s.sigma for s in stats})
     object.__setattr__(res, "variance_rounds", rounds)

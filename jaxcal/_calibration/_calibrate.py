@@ -73,6 +73,12 @@ class CalibrationWarning(RuntimeWarning):
     """A calibration diverged or failed (the result's ``status`` says how)."""
 
 
+class StatedNoiseWarning(CalibrationWarning):
+    """A block of a combined fit whose residual σ̂ is at least :attr:`~jaxcal.Checks.noise_warn_factor`
+    times the noise its data file states (:meth:`~jaxcal.BlockStats.noise_warning`); the command
+    line prints it naming the file instead."""
+
+
 class CalibrationError(RuntimeError):
     """Raised instead of :class:`CalibrationWarning` with ``calibrate(..., throw=True)``."""
 

@@ -37,7 +37,8 @@ from ._verdicts import PRIOR_SHARE, Verdicts
 
 __all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "variance_component",
            "component_entries",
-           "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings", "error_dims"]
+           "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings", "error_dims",
+           "stated_noise_warning"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +67,10 @@ class Checks:
             ~0.5 mm).
         noise_factor: σ̂ above this multiple of the sensor's given noise σ (``Prior.noise_std``,
             or a data file's ``# noise_std_mm:`` line) fails (default 10).
+        noise_warn_factor: σ̂ at or above this multiple of the noise a data file states (its
+            ``# noise_std_mm:`` / ``# noise_std_px:`` line) is warned about, naming the file
+            (:func:`stated_noise_warning`; default 2): data of another set-up, or a noise line
+            that understates the noise.
         extra_fraction, extra_angle_deg: a sensor/set-up extra started from the data in closed
             form (anchor, cable offset, tool, sensor frame, …) that the fit moved further than
             this fraction of the reach (mm) or this angle (°) fails (default 0.25, 10°: a tool
@@ -84,6 +89,7 @@ class Checks:
     prior_share: float = PRIOR_SHARE
     residual_fraction: float = 0.01
     noise_factor: float = 10.0
+    noise_warn_factor: float = 2.0
     extra_fraction: float = 0.25
     extra_angle_deg: float = 10.0
     worse_rtol: float = 0.01
@@ -843,6 +849,29 @@ def given_noise_std(data, prior, measurement) -> float | None:
     except ValueError:
         return None
     return v if v is not None and math.isfinite(v) and v > 0 else None
+
+
+def stated_noise_warning(where: str, sigma_hat: float, stated: float | None, unit: str = "mm",
+                         factor: float = Checks.noise_warn_factor) -> str | None:
+    """One warning when a fit's residual σ̂ is at least ``factor`` times the noise σ its data file
+    states (:func:`given_noise_std` of the data alone: its ``# noise_std_mm:`` / ``# noise_std_px:``
+    line), else ``None``. A file whose readings fit the others' robot only at several times its
+    stated noise was made on another set-up (another robot or seed, another tool or sensor
+    frame), or its noise line understates the noise; this names it. The same check for one file
+    (``jaxcal calibrate``) and for each block of a combined fit (:func:`jaxcal.calibrate_blocks`).
+
+    Args:
+        where: the data's name in the message (a file path, ``block 'name'``).
+        sigma_hat: σ̂, the residual noise estimated by the fit (the readings' unit: mm, px).
+        stated: the noise σ the file states (same unit), or ``None`` (no line: no warning).
+        unit: the readings' unit. factor: the threshold (:attr:`Checks.noise_warn_factor`).
+    """
+    if stated is None or not (math.isfinite(sigma_hat) and sigma_hat >= factor * stated):
+        return None
+    return (f"{where}: residual σ̂ {sigma_hat:.3g} {unit} is {sigma_hat / stated:.2g}× the noise its file states "
+            f"('# noise_std_{unit}: {stated:g}'; warned at {factor:g}×) — check that these readings come from the "
+            "set-up the fit assumes (the same robot, the same tool and sensor frame as the other files: a different "
+            "set-up or seed?) and that the noise line states the sensor's real noise")
 
 
 def fit_findings(robot, measurement, q, y, residual, residual_start, *, noise_std_hat: float, extras=(),

@@ -71,6 +71,7 @@ def _cmd_calibrate(args) -> int:
     from .._core._metrics import format_table, metrics_numpy
     from .._core._params import Deviations
     from .._datasets._split import seed_split
+    from .._fit._diagnostics import given_noise_std, stated_noise_warning
     from ..methods._stages import check_method_name
 
     with _as_usage():
@@ -204,6 +205,10 @@ def _cmd_calibrate(args) -> int:
         _print_chain_table(robot, res, sd)
     _print_estimates(res, sd, extras, unit)
     _print_outliers_and_warnings(res, args, checks, file_row)
+    stated = stated_noise_warning(str(path), res.uncertainty.noise_std if res.uncertainty is not None else math.nan,
+                                  given_noise_std(data, None, measurement), unit, checks.noise_warn_factor)
+    if stated is not None:  # σ̂ far above the file's noise line: another set-up, or a wrong line
+        print(f"jaxcal: warning: {stated}", file=sys.stderr)
     test_outliers = []
     if test_file is None and test.n:
         # the held-out rows' gross errors, named as the training rows' are (they enter the test

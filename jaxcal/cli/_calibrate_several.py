@@ -37,7 +37,7 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     relations, σ, the deviations)."""
 
     from .._calibration._blocks import block_extras, block_result, calibrate_blocks, save_combined_result
-    from .._calibration._calibrate import CalibrationWarning
+    from .._calibration._calibrate import CalibrationWarning, StatedNoiseWarning
     from .._calibration._io import save_result
     from .._sensors._blocks import Block, load_relations
 
@@ -70,8 +70,8 @@ def _cmd_calibrate_combined(args, method: str) -> int:
         with _as_usage():
             res = calibrate_blocks(first.robot, blocks, relations, method, prior=first.prior, loss=first.loss,
                                    checks=first.checks, free=args.free, fix=args.fix or (), **first.hyper)
-    for w in caught:
-        if issubclass(w.category, CalibrationWarning):
+    for w in caught:  # a block's σ̂ against its noise line: below, naming the file
+        if issubclass(w.category, CalibrationWarning) and not issubclass(w.category, StatedNoiseWarning):
             print(f"jaxcal: warning: {w.message}", file=sys.stderr)
     for m in res.block_messages:
         print(f"start: {m}")
@@ -81,6 +81,10 @@ def _cmd_calibrate_combined(args, method: str) -> int:
         print("  " + st.line())
     for line in res.block_report:
         print("  " + line)
+    for st, s in zip(res.blocks, setups):
+        msg = st.noise_warning(str(s.path), getattr(first.checks, "noise_warn_factor", None))
+        if msg is not None:
+            print(f"jaxcal: warning: {msg}", file=sys.stderr)
     out = pathlib.Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for n, s in zip(names, setups):

@@ -21,6 +21,7 @@ from jaxcal.cli import main
 
 URDF = pathlib.Path(__file__).parents[1] / "data" / "urdf" / "ur10e.urdf"
 NOISE = 0.5  # mm, `jaxcal simulate`'s default
+NOISE_PX = 0.3  # px, the camera files' noise here
 
 # Franka Emika Panda as published in Craig's (modified DH) convention: alpha_{i-1} (deg), a_{i-1}
 # (mm), d_i (mm), theta_i (deg); joint limits (deg); the flange 107 mm along the last z
@@ -180,3 +181,85 @@ def test_chain_parameter_names_known_before_any_chain_is_made():
             "p = Prior.parse('offset_1=0.01,dx_2=0.5,tip_dx=1,tip_drz=0.001'); print(len(p.overrides))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "4"
+
+
+@pytest.fixture(scope="module")
+def seed_files(robot_args, tmp_path_factory):
+    """`jaxcal simulate` files of one seed (position, point contact, plane contact, distance bar),
+    and a point-contact file of another seed (another true robot): ``{name: path}``."""
+    d = tmp_path_factory.mktemp("seed_files")
+    files = {}
+    for name, kind, seed, n in (("pos", "position", 1, 300), ("point", "point", 1, 300), ("plane", "plane", 1, 300),
+                                ("bar", "distance", 1, 200), ("point_seed2", "point", 2, 300)):
+        files[name] = d / f"{name}.csv"
+        assert main(["simulate", *robot_args, "--measurement", kind, "--seed", str(seed), "--samples", str(n),
+                     "--out", str(files[name])]) == 0
+    return files
+
+
+def _combined_sigma(robot_args, files, names, out_dir, capsys):
+    """`jaxcal calibrate FILES --combine`: ``({block: σ̂}, stderr)``."""
+    code, out = _run(["calibrate", *(str(files[n]) for n in names), "--combine", *robot_args,
+                      "--out-dir", str(out_dir)], capsys)
+    assert code == 0, out.err
+    blocks = json.loads((out_dir / "combined.json").read_text())["blocks"]
+    return {b["name"]: b["sigma_hat"] for b in blocks}, out.err
+
+
+NOISE_LINE = "noise its file states"  # the words of the warning about a block's σ̂ (stated_noise_warning)
+
+
+@pytest.mark.parametrize("robot_args", ["preset", "dh_file", "urdf"], indirect=True)
+@pytest.mark.parametrize("names", [("pos", "point"), ("plane", "bar")])
+def test_files_of_one_seed_combine_at_their_noise(robot_args, seed_files, names, tmp_path, capsys):
+    """Files of every kind that `jaxcal simulate` writes with one seed share one true set-up (the
+    robot, the tool, the sensor frame): combined, each block's σ̂ is the simulated noise (within
+    20 %; the contact files once had a tool 2.3 mm off that the position file lacked: σ̂ 0.95 mm on
+    both blocks for 0.5 mm noise), and no block is warned about."""
+    sigma, err = _combined_sigma(robot_args, seed_files, names, tmp_path / "fit", capsys)
+    for name in names:
+        assert abs(sigma[name] / NOISE - 1) < 0.2, sigma
+    assert NOISE_LINE not in err, err
+
+
+@pytest.mark.parametrize("robot_args", ["preset", "dh_file"], indirect=True)
+def test_camera_file_of_the_seed_combines_at_its_noise(robot_args, seed_files, tmp_path, capsys):
+    """A camera file of the seed (10 images, 0.3 px) with its position file: each block's σ̂ at its
+    noise within 20 % (the camera was once simulated on another robot than the other kinds of its
+    seed: σ̂ 1.57 px for 0.3 px). Not the URDF chain: its camera program alone compiles for ~17 s
+    on a busy 2-core host; the chain's set-up is the position file's (`test_files_of_one_seed…`)."""
+    cam = tmp_path / "cam.csv"
+    assert main(["simulate", *robot_args, "--measurement", "camera", "--seed", "1", "--samples", "10",
+                 "--noise-std", str(NOISE_PX), "--out", str(cam)]) == 0
+    sigma, err = _combined_sigma(robot_args, {**seed_files, "cam": cam}, ("pos", "cam"), tmp_path / "fit", capsys)
+    assert abs(sigma["pos"] / NOISE - 1) < 0.2 and abs(sigma["cam"] / NOISE_PX - 1) < 0.2, sigma
+    assert NOISE_LINE not in err, err
+
+
+@pytest.mark.parametrize("robot_args", ["preset", "dh_file", "urdf"], indirect=True)
+def test_block_of_another_set_up_is_named(robot_args, seed_files, tmp_path, capsys):
+    """A point-contact file of another seed (another true robot) combined with a position file:
+    one warning, naming that file with its σ̂ and stated noise; the position file is not named."""
+    sigma, err = _combined_sigma(robot_args, seed_files, ("pos", "point_seed2"), tmp_path / "fit", capsys)
+    assert sigma["point_seed2"] >= 2 * NOISE, sigma  # the misfit the warning is about
+    warned = [line for line in err.splitlines() if NOISE_LINE in line]
+    assert len(warned) == 1 and str(seed_files["point_seed2"]) in warned[0], err
+    assert f"{sigma['point_seed2']:.3g} mm" in warned[0] and "noise_std_mm: 0.5" in warned[0], warned
+
+
+@pytest.mark.parametrize("robot_args", ["preset", "dh_file", "urdf"], indirect=True)
+def test_noise_line_that_understates_is_named(robot_args, seed_files, tmp_path, capsys):
+    """A file whose '# noise_std_mm:' line says 0.15 mm for 0.5 mm noise: `jaxcal calibrate` of it
+    alone, and of it combined with a file of its seed, warns naming it; its stated σ is quoted."""
+    low = tmp_path / "point_low.csv"
+    low.write_text(seed_files["point"].read_text().replace("# noise_std_mm: 0.5\n", "# noise_std_mm: 0.15\n"))
+    assert "noise_std_mm: 0.15" in low.read_text()
+    code, out = _run(["calibrate", str(low), *robot_args], capsys)
+    assert code == 0, out.err
+    warned = [line for line in out.err.splitlines() if NOISE_LINE in line]
+    assert len(warned) == 1 and str(low) in warned[0] and "noise_std_mm: 0.15" in warned[0], out.err
+    files = {**seed_files, "point_low": low}
+    sigma, err = _combined_sigma(robot_args, files, ("pos", "point_low"), tmp_path / "fit", capsys)
+    assert abs(sigma["point_low"] / NOISE - 1) < 0.2, sigma  # the data are fine: only the line is wrong
+    warned = [line for line in err.splitlines() if NOISE_LINE in line]
+    assert len(warned) == 1 and str(low) in warned[0], err
