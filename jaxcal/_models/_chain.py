@@ -106,6 +106,42 @@ def _register_group_names() -> None:
 
 _register_group_names()
 
+
+def joint_error_groups(joint_units: Sequence[str]) -> list:
+    """The per-joint geometric groups (:data:`GEOMETRIC_GROUPS`: ``offset, dx, dy, dz, drx, dry,
+    drz``), one entry per joint of ``joint_units`` (``"rad"`` / ``"mm"`` per joint; ``offset`` takes
+    the joint's unit), entries ``<group>_<joint>`` (1-based)."""
+    from .._core._params import Group
+
+    return [Group.per_joint(g, len(joint_units), tuple(joint_units) if unit == "rad|mm" else unit, kind="geometric")
+            for g, unit in GEOMETRIC_GROUPS]
+
+
+def tip_error_groups(label: str | None = None) -> list:
+    """The tip transform's groups (:data:`TIP_GROUPS`); with a ``label`` (a tip of a kinematic
+    tree) renamed ``<group>@<label>`` with entries ``<entry>@<label>`` (``tip_dx@left_tool``), so
+    that every tip has its own errors and they still rank and select as their family."""
+    from .._core._params import Group
+
+    at = "" if label is None else f"@{label}"
+    return [Group.vector(g + at, tuple(n + at for n in names), unit, kind="geometric") for g, names, unit in TIP_GROUPS]
+
+
+def joint_free_by_default(prismatic: Sequence[bool], entry_name: str) -> bool:
+    """``drz_j`` at a revolute joint ``j`` duplicates the joint offset: never free by default;
+    every other entry is (``prismatic``: per joint, static)."""
+    group, _, j = entry_name.rpartition("_")
+    if group == "drz" and j.isdigit():
+        return prismatic[int(j) - 1]
+    return True
+
+
+def origin_lengths(origin_t) -> dict[str, float]:
+    """``{dx_i, dy_i, dz_i: nominal value}`` (mm) of joint origins ``origin_t`` ``[dof, 3]``: the
+    per-joint length entries of :meth:`SerialChain.nominal_lengths`."""
+    t = np.asarray(origin_t, np.float64)
+    return {f"{c}_{i + 1}": float(t[i, k]) for k, c in enumerate(("dx", "dy", "dz")) for i in range(t.shape[0])}
+
 Vec3 = tuple
 
 
@@ -406,22 +442,12 @@ class SerialChain(NonGeometricMixin, AbstractRobot):
         transform's ``tip_translation`` ``[3]`` mm (``tip_dx, tip_dy, tip_dz``) and
         ``tip_rotation`` ``[3]`` rad (``tip_drx, tip_dry, tip_drz``), then the non-geometric groups.
         Their default prior σ is :class:`jaxcal.Prior`'s by unit (0.5°, 2 mm)."""
-        from .._core._params import Group
-
-        out = []
-        for g, unit in GEOMETRIC_GROUPS:
-            units = self.joint_units() if unit == "rad|mm" else unit
-            out.append(Group.per_joint(g, self.dof, units, kind="geometric"))
-        out += [Group.vector(g, names, unit, kind="geometric") for g, names, unit in TIP_GROUPS]
-        return tuple(out) + nongeometric_groups(self)
+        return tuple(joint_error_groups(self.joint_units()) + tip_error_groups()) + nongeometric_groups(self)
 
     def free_by_default(self, entry_name: str) -> bool:
         """``drz`` at a revolute joint duplicates the joint offset: never free by default (every
         other joint and tip entry is)."""
-        group, _, j = entry_name.rpartition("_")
-        if group == "drz" and j.isdigit():
-            return self.prismatic[int(j) - 1]
-        return True
+        return joint_free_by_default(self.prismatic, entry_name)
 
     def with_tool(self, tool_mm: Sequence[float]) -> SerialChain:
         """A copy with another nominal tool point ``[3]`` mm in the tip link frame."""
@@ -467,9 +493,7 @@ class SerialChain(NonGeometricMixin, AbstractRobot):
         What a uniform scaling of every length of a set-up multiplies
         (:func:`jaxcal._calibration._blocks.length_scale_direction`); the tool point is the
         layout's ``tool`` group, not the robot's."""
-        t = np.asarray(self.origin_t, np.float64)
-        out = {f"{c}_{i + 1}": float(t[i, k]) for k, c in enumerate(("dx", "dy", "dz")) for i in range(self.dof)}
-        return out | dict(zip(TIP_GROUPS[0][1], (float(v) for v in np.asarray(self.flange_t, np.float64))))
+        return origin_lengths(self.origin_t) | dict(zip(TIP_GROUPS[0][1], (float(v) for v in np.asarray(self.flange_t, np.float64))))
 
     @host_method
     def reach_mm(self) -> float:

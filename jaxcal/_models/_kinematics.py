@@ -94,10 +94,22 @@ def _joint_terms(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"
     return dh_joint_terms(robot, dev, effective_joint_angles(robot, dev, q))
 
 
-def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
-    """Flange frame as SoA: columns X, Y, Z and origin P, each a triple of ``[n]`` arrays."""
+def _tip_kwargs(robot, tip) -> dict:
+    """``{"tip": tip}`` for a robot with named tips (:class:`~jaxcal.KinematicTree`), ``{}`` for
+    ``tip=None`` (the robot's one tip, or a tree's default tip)."""
+    if tip is None:
+        return {}
+    if not hasattr(robot, "tips"):
+        raise ValueError(f"robot {robot.name!r} has one tip: tip={tip!r} names a tip of a kinematic tree "
+                         "(jaxcal.load_urdf with tips)")
+    return {"tip": tip}
+
+
+def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], tip: str | None = None):
+    """Flange frame as SoA: columns X, Y, Z and origin P, each a triple of ``[n]`` arrays
+    (``tip``: that tip's link frame, for a robot with named tips)."""
     if hasattr(robot, "frame_soa"):  # other robot types bring their own kernel
-        return robot.frame_soa(dev, q)
+        return robot.frame_soa(dev, q, **_tip_kwargs(robot, tip))
     ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
     X: Vec3 = (1.0, 0.0, 0.0)
     Y: Vec3 = (0.0, 1.0, 0.0)
@@ -124,22 +136,26 @@ def _chain(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"]):
     return full(X), full(Y), full(Z), full(P)
 
 
-def _tool_vector(robot: DHRobot, dev: Deviations | None, dtype) -> Float[Array, " 3"]:
-    """The tool point in the flange frame (nominal + Δtool, mm)."""
+def _tool_vector(robot: DHRobot, dev: Deviations | None, dtype, tip: str | None = None) -> Float[Array, " 3"]:
+    """The tool point in the flange frame (nominal + Δtool, mm); ``tip``: that tip's
+    (:meth:`jaxcal.KinematicTree.tool_vector`)."""
+    if tip is not None:
+        kw = _tip_kwargs(robot, tip)
+        return robot.tool_vector(dev, dtype, **kw)
     t = jnp.asarray(robot.tool).astype(dtype)
     if dev is not None:
         t = t + jnp.asarray(dev.tool).astype(dtype)
     return t
 
 
-def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype) -> Vec3:
+def _tool_offset(robot: DHRobot, dev: Deviations | None, frame, dtype, tip: str | None = None) -> Vec3:
     X, Y, Z, P = frame
-    t = _tool_vector(robot, dev, dtype)
+    t = _tool_vector(robot, dev, dtype, tip)
     return tuple(P[k] + t[0] * X[k] + t[1] * Y[k] + t[2] * Z[k] for k in range(3))
 
 
 def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], point, *,
-                   scalar_consumer: bool = False) -> Vec3:
+                   scalar_consumer: bool = False, tip: str | None = None) -> Vec3:
     """A point given in the flange frame (``[3]``, mm), expressed in the base frame: three ``[n]``.
 
     Applied from the flange inward, ``p ← A_i(q_i)·p`` for ``i = dof … 1``, each joint
@@ -151,7 +167,7 @@ def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n do
     :func:`tool_point_soa`).
     """
     if hasattr(robot, "point_in_base"):
-        return robot.point_in_base(dev, q, point, fused=scalar_consumer)
+        return robot.point_in_base(dev, q, point, fused=scalar_consumer, **_tip_kwargs(robot, tip))
     ct, st, ca, sa, cb, sb, a, d = _joint_terms(robot, dev, q)
     x, y, z = (point[k] for k in range(3))
     standard = robot.convention == "standard"
@@ -175,16 +191,18 @@ def _point_in_base(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n do
 
 
 def tool_point_soa(robot: DHRobot, dev: Deviations | None, q: Float[Array, "n dof"], *, tool: bool = True,
-                   scalar_consumer: bool = False) -> Vec3:
+                   scalar_consumer: bool = False, tip: str | None = None) -> Vec3:
     """Tool point (or, with ``tool=False``, the flange origin) in the base frame as three
     ``[n]`` arrays (mm). ``q`` must be ``[n, dof]``.
 
     ``scalar_consumer=True`` promises that the caller folds the three coordinates into one value
     per sample (a distance): robots with a choice of kernels (:class:`~jaxcal.SerialChain`) then
     use their fully fused elementwise one, which is fast under ``jax.jacfwd`` for one output but
-    which XLA CPU recomputes per output when three coordinates are kept."""
-    t = _tool_vector(robot, dev, q.dtype) if tool else jnp.zeros(3, q.dtype)
-    return _point_in_base(robot, dev, q, t, scalar_consumer=scalar_consumer)
+    which XLA CPU recomputes per output when three coordinates are kept. ``tip``: that tip of a
+    :class:`~jaxcal.KinematicTree` (its tool point and its tip link origin; default: the
+    robot's one tip, a tree's default tip)."""
+    t = _tool_vector(robot, dev, q.dtype, tip) if tool else jnp.zeros(3, q.dtype)
+    return _point_in_base(robot, dev, q, t, scalar_consumer=scalar_consumer, tip=tip)
 
 
 def fk_position(
@@ -193,6 +211,7 @@ def fk_position(
     deviations: Deviations | None = None,
     *,
     tool: bool = True,
+    tip: str | None = None,
 ) -> Float[Array, "n 3"]:
     """Position of the tool point (``tool=True``) or flange origin in the base frame.
 
@@ -203,6 +222,8 @@ def fk_position(
         q: joint angles ``[n, dof]`` or ``[dof]`` (rad).
         deviations: Δ from nominal (``None`` = nominal robot).
         tool: include the tool point offset (nominal + Δtool).
+        tip: a tip of a :class:`~jaxcal.KinematicTree` (``None``: the robot's one tip, a
+            tree's default tip).
 
     Returns:
         ``[n, 3]`` (or ``[3]``) positions in mm, in the dtype of ``q``.
@@ -210,7 +231,7 @@ def fk_position(
     q = check_joint_angles(robot, q)
     single = q.ndim == 1
     q2 = q[None] if single else q
-    out = jnp.stack(tool_point_soa(robot, deviations, q2, tool=tool), axis=-1)
+    out = jnp.stack(tool_point_soa(robot, deviations, q2, tool=tool, tip=tip), axis=-1)
     return out[0] if single else out
 
 
@@ -220,6 +241,7 @@ def fk_pose(
     deviations: Deviations | None = None,
     *,
     tool: bool = False,
+    tip: str | None = None,
 ) -> Float[Array, "n 4 4"]:
     """Homogeneous transform ``T_base_flange`` (paper eq. 2), or ``T_base_tool`` with ``tool=True``
     (flange orientation, origin at the tool point).
@@ -229,6 +251,8 @@ def fk_pose(
         q: joint angles ``[n, dof]`` or ``[dof]`` (rad).
         deviations: Δ from nominal (``None`` = nominal robot).
         tool: move the origin to the tool point.
+        tip: a tip of a :class:`~jaxcal.KinematicTree` (``None``: the robot's one tip, a
+            tree's default tip).
 
     Returns:
         ``[n, 4, 4]`` (or ``[4, 4]``) transforms, translation in mm.
@@ -236,9 +260,9 @@ def fk_pose(
     q = check_joint_angles(robot, q)
     single = q.ndim == 1
     q2 = q[None] if single else q
-    X, Y, Z, P = frame = _chain(robot, deviations, q2)
+    X, Y, Z, P = frame = _chain(robot, deviations, q2, tip)
     if tool:
-        P = _tool_offset(robot, deviations, frame, q2.dtype)
+        P = _tool_offset(robot, deviations, frame, q2.dtype, tip)
     R = jnp.stack([jnp.stack(X, -1), jnp.stack(Y, -1), jnp.stack(Z, -1)], axis=-1)  # [n,3,3]
     top = jnp.concatenate([R, jnp.stack(P, -1)[..., None]], axis=-1)  # [n,3,4]
     bottom = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], q.dtype), top.shape[:-2] + (1, 4))

@@ -24,13 +24,15 @@ from __future__ import annotations
 import os
 import pathlib
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from ._chain import SerialChain, _dev_get, align_z, matrix_rpy, rpy_matrix, snap
+from ._tree import KinematicTree
 
-__all__ = ["load_urdf", "chain_from_dh", "export_urdf", "urdf_chain_links", "chain_to_dict", "chain_from_dict"]
+__all__ = ["load_urdf", "chain_from_dh", "export_urdf", "urdf_chain_links", "chain_to_dict", "chain_from_dict",
+           "tree_from_urdf", "tree_from_dict"]
 
 _M_TO_MM = 1000.0
 
@@ -89,29 +91,9 @@ def urdf_chain_links(source) -> dict:
     }
 
 
-def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(0.0, 0.0, 0.0),
-              name: str | None = None) -> SerialChain:
-    """Load the serial chain from link ``base`` to link ``tip`` of a URDF.
-
-    Args:
-        source: a path to a ``.urdf`` file or the URDF XML text.
-        base: base link name (default: the tree's root link).
-        tip: tip link name (default: the single leaf below ``base`` if there is exactly one).
-        tool: nominal tool point ``[3]`` in the tip link frame (**mm**).
-        name: display name (default: the ``<robot name>``).
-
-    Returns:
-        A :class:`~jaxcal.SerialChain` in mm / rad whose base frame is the ``base`` link frame and
-        whose flange frame is the ``tip`` link frame; joint ``i`` of ``q`` is the ``i``-th moving
-        joint from base to tip (``chain.joint_names``). Per moving joint the mass [kg] and centre
-        of mass [mm, joint frame] of its child link, merged with links fixed to it along the
-        path, are kept in ``chain.mass`` / ``chain.com``.
-
-    Raises:
-        ValueError: unknown link names (the message lists the valid ones); ``tip`` not below
-            ``base``; a link with two parents; a ``mimic``, ``floating`` or ``planar`` joint on the
-            path; a revolute/prismatic joint without ``<limit lower upper>``; no moving joint.
-    """
+def _parse_tree(source):
+    """The URDF's tree: ``(root element, text, {link: element}, {child link: joint element},
+    root links)``; a link with two parent joints is refused."""
     root, text = _parse_root(source)
     links = {}
     for el in root.findall("link"):
@@ -129,32 +111,34 @@ def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(
                 f"{jname!r}); a kinematic loop is not a serial chain"
             )
         joints_by_child[child] = j
-    valid = sorted(links)
     roots = [n for n in links if n not in joints_by_child]
-    if base is None:
-        if len(roots) != 1:
-            raise ValueError(f"URDF: the file has several root links {roots}: name the chain's base link "
-                             "(--base LINK on the command line, load_urdf's base argument in Python)")
-        base = roots[0]
-    for label, link in (("base", base), ("tip", tip)):
-        if link is not None and link not in links:
-            raise ValueError(f"URDF: unknown {label} link {link!r}; links in this file: {valid}")
-    if tip is None:
-        children: dict[str, list[str]] = {}
-        for c, j in joints_by_child.items():
-            children.setdefault(j.find("parent").get("link"), []).append(c)
-        leaves, stack = [], [base]
-        while stack:
-            k = stack.pop()
-            if children.get(k):
-                stack.extend(children[k])
-            else:
-                leaves.append(k)
-        if len(leaves) != 1:
-            raise ValueError(f"URDF: the tree below {base!r} branches: name the chain's tip link among its leaf links "
-                             f"{sorted(leaves)} (--tip LINK on the command line, load_urdf's tip argument in Python)")
-        tip = leaves[0]
-    # walk up from the tip to the base
+    return root, text, links, joints_by_child, roots
+
+
+def _default_base(roots) -> str:
+    if len(roots) != 1:
+        raise ValueError(f"URDF: the file has several root links {roots}: name the chain's base link "
+                         "(--base LINK on the command line, load_urdf's base argument in Python)")
+    return roots[0]
+
+
+def _leaves_below(joints_by_child, base: str) -> list[str]:
+    """The leaf links of the subtree below link ``base``."""
+    children: dict[str, list[str]] = {}
+    for c, j in joints_by_child.items():
+        children.setdefault(j.find("parent").get("link"), []).append(c)
+    leaves, stack = [], [base]
+    while stack:
+        k = stack.pop()
+        if children.get(k):
+            stack.extend(children[k])
+        else:
+            leaves.append(k)
+    return leaves
+
+
+def _path(joints_by_child, base: str, tip: str) -> list[ET.Element]:
+    """The joints from link ``base`` down to link ``tip``, base first."""
     path: list[ET.Element] = []
     link = tip
     while link != base:
@@ -172,7 +156,66 @@ def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(
         path.append(j)
         link = j.find("parent").get("link")
     path.reverse()
+    return path
 
+
+def load_urdf(source, *, base: str | None = None, tip: str | None = None, tips: Sequence[str] | None = None,
+              tool=(0.0, 0.0, 0.0), name: str | None = None):
+    """Load the serial chain from link ``base`` to link ``tip`` of a URDF, or with ``tips`` the
+    kinematic tree from ``base`` to several tip links.
+
+    Args:
+        source: a path to a ``.urdf`` file or the URDF XML text.
+        base: base link name (default: the tree's root link).
+        tip: tip link name (default: the single leaf below ``base`` if there is exactly one).
+        tips: several tip link names (instead of ``tip``): returns a
+            :class:`~jaxcal.KinematicTree` of the union of the paths from ``base`` to each tip
+            (its joint order and error groups: :class:`~jaxcal.KinematicTree`); the first tip is
+            the tree's default tip.
+        tool: nominal tool point ``[3]`` in the tip link frame (**mm**); with ``tips``, one ``[3]``
+            for every tip or a mapping ``{tip: [3]}`` (tips not named: the tip link origin).
+        name: display name (default: the ``<robot name>``).
+
+    Returns:
+        A :class:`~jaxcal.SerialChain` in mm / rad whose base frame is the ``base`` link frame and
+        whose flange frame is the ``tip`` link frame; joint ``i`` of ``q`` is the ``i``-th moving
+        joint from base to tip (``chain.joint_names``). Per moving joint the mass [kg] and centre
+        of mass [mm, joint frame] of its child link, merged with links fixed to it along the
+        path, are kept in ``chain.mass`` / ``chain.com``. With ``tips``: a
+        :class:`~jaxcal.KinematicTree` (:func:`tree_from_urdf`).
+
+    Raises:
+        ValueError: unknown link names (the message lists the valid ones); ``tip`` not below
+            ``base``; a link with two parents; a ``mimic``, ``floating`` or ``planar`` joint on the
+            path; a revolute/prismatic joint without ``<limit lower upper>``; no moving joint;
+            with ``tips``: an unknown tip (the message lists the leaf links), two tips on one
+            path, a repeated tip, or ``tip`` and ``tips`` both given.
+    """
+    if tips is not None:
+        if tip is not None:
+            raise ValueError("load_urdf: give either tip (a serial chain) or tips (a kinematic tree), not both")
+        return tree_from_urdf(source, base=base, tips=tips, tool=tool, name=name)
+    root, text, links, joints_by_child, roots = _parse_tree(source)
+    if base is None:
+        base = _default_base(roots)
+    for label, link in (("base", base), ("tip", tip)):
+        if link is not None and link not in links:
+            raise ValueError(f"URDF: unknown {label} link {link!r}; links in this file: {sorted(links)}")
+    if tip is None:
+        leaves = _leaves_below(joints_by_child, base)
+        if len(leaves) != 1:
+            raise ValueError(f"URDF: the tree below {base!r} branches: name the chain's tip link among its leaf links "
+                             f"{sorted(leaves)} (--tip LINK on the command line, load_urdf's tip argument in Python)")
+        tip = leaves[0]
+    rows = _path_rows(_path(joints_by_child, base, tip), links, base, tip)
+    return SerialChain.build(**rows, tool=tool, base=base, tip=tip, name=name or root.get("name") or "urdf", urdf=text)
+
+
+def _path_rows(path: list[ET.Element], links: dict, base: str, tip: str) -> dict:
+    """The chain of the URDF joints ``path`` (base → tip) as :meth:`SerialChain.build` arguments:
+    per moving joint its aligned origin, type, limits, names and body inertials, and the flange
+    (fixed joints folded into the next origin or the flange). A joint's values depend only on the
+    path above it, so paths sharing their first joints give those joints identical rows."""
     origin_R, origin_t, align, types, q_min, q_max, jnames, lnames = [], [], [], [], [], [], [], []
     mass, com = [], []
     pending = np.eye(4)  # fixed transforms since the last moving joint's frame (or the base)
@@ -236,12 +279,73 @@ def load_urdf(source, *, base: str | None = None, tip: str | None = None, tool=(
     com.append(acc_mc / acc_mass if acc_mass > 0 else np.zeros(3))
     flange_R = R_prev.T @ pending[:3, :3]
     flange_t = R_prev.T @ pending[:3, 3]
-    return SerialChain.build(
-        origin_R=origin_R, origin_t=origin_t, joint_types=types, q_min=q_min, q_max=q_max,
-        flange_R=flange_R, flange_t=flange_t, align=align, tool=tool, mass=mass, com=com,
-        joint_names=jnames, link_names=lnames, base=base, tip=tip,
-        name=name or root.get("name") or "urdf", urdf=text,
-    )
+    return dict(origin_R=origin_R, origin_t=origin_t, joint_types=types, q_min=q_min, q_max=q_max,
+                flange_R=flange_R, flange_t=flange_t, align=align, mass=mass, com=com,
+                joint_names=jnames, link_names=lnames)
+
+
+def tree_from_urdf(source, *, base: str | None = None, tips: Sequence[str], tool=(0.0, 0.0, 0.0),
+                   name: str | None = None) -> KinematicTree:
+    """The :class:`~jaxcal.KinematicTree` of a URDF from link ``base`` to the links ``tips``
+    (``load_urdf(source, tips=...)``): the union of the base → tip paths, each computed as
+    :func:`load_urdf` computes the chain to that tip (fixed, continuous and prismatic joints as
+    there), a joint on several paths kept once. Joints in order of first appearance along the
+    tips' paths (tips in the given order, each path from the base outward); ``tips[0]`` is the
+    default tip. ``tool``: one ``[3]`` mm for every tip or ``{tip: [3]}``. Inertials are not
+    kept (compliance is not modelled on trees).
+
+    Raises:
+        ValueError: no tips, a repeated tip, a tip that is not a link of the file (the message
+            lists the leaf links below ``base``), a tip not below ``base``, two tips on one path
+            (one above the other), an unknown ``tool`` key, and the chain loader's errors.
+    """
+    root, text, links, joints_by_child, roots = _parse_tree(source)
+    if base is None:
+        base = _default_base(roots)
+    if base not in links:
+        raise ValueError(f"URDF: unknown base link {base!r}; links in this file: {sorted(links)}")
+    tips = [tips] if isinstance(tips, str) else list(tips)
+    leaves = sorted(_leaves_below(joints_by_child, base))
+    if not tips or len(set(tips)) != len(tips):
+        raise ValueError(f"URDF: tips must be one or more different links, got {tips}; leaf links below {base!r}: "
+                         f"{leaves}")
+    for t in tips:
+        if t not in links:
+            raise ValueError(f"URDF: unknown tip link {t!r}; leaf links below {base!r}: {leaves} "
+                             f"(every link of the file: {sorted(links)})")
+    paths = {t: _path(joints_by_child, base, t) for t in tips}
+    for a in tips:
+        for b in tips:
+            if a != b and any(j.find("child").get("link") == a for j in paths[b]):
+                raise ValueError(f"URDF: tips {a!r} and {b!r} lie on one path ({a!r} is above {b!r}): the tips of a "
+                                 "tree end different branches; keep one of them")
+    if isinstance(tool, Mapping):
+        unknown = sorted(set(tool) - set(tips))
+        if unknown:
+            raise ValueError(f"tool points given for {unknown}, which are not among the tips {tips}")
+        tools = [tool.get(t, (0.0, 0.0, 0.0)) for t in tips]
+    else:
+        tools = [tool] * len(tips)
+    index: dict[str, int] = {}
+    cols: dict[str, list] = {}
+    parents, tip_parents, flange_R, flange_t = [], [], [], []
+    for t in tips:
+        rows = _path_rows(paths[t], links, base, t)
+        prev = -1
+        for i, jname in enumerate(rows["joint_names"]):
+            if jname not in index:
+                index[jname] = len(parents)
+                parents.append(prev)
+                for key in ("origin_R", "origin_t", "align", "joint_types", "q_min", "q_max", "joint_names",
+                            "link_names"):
+                    cols.setdefault(key, []).append(rows[key][i])
+            prev = index[jname]
+        tip_parents.append(prev)
+        flange_R.append(rows["flange_R"])
+        flange_t.append(rows["flange_t"])
+    return KinematicTree.build(**cols, parents=parents, tips=tips, tip_parents=tip_parents, flange_R=flange_R,
+                               flange_t=flange_t, tools=tools, base=base, name=name or root.get("name") or "urdf",
+                               urdf=text)
 
 
 def _add_inertial(link_el, R_align, T_link, m_acc, mc_acc):
@@ -403,6 +507,8 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
     """
     from ._robot import DHRobot
 
+    if isinstance(model, KinematicTree):
+        return _export_tree(model, deviations, path, tool_link=tool_link, tip_link=tip_link)
     dh_table = None
     tool = np.asarray(model.tool, np.float64)
     if _dev_get(deviations, "tool") is not None:
@@ -424,24 +530,8 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
             f"{n}={float(v):.9g} {u}" for n, v, u in zip(chain.joint_names, np.asarray(offsets), chain.joint_units()))
     if chain.urdf is not None:
         root = ET.fromstring(chain.urdf)
-        joints = {j.get("name"): j for j in root.findall("joint")}
         children = {j.find("child").get("link"): j for j in root.findall("joint")}
-        for i, jname in enumerate(chain.joint_names):
-            j = joints[jname]
-            # fixed transforms from the previous moving joint's child link to this joint's parent
-            pending = np.eye(4)
-            link = j.find("parent").get("link")
-            stop = chain.link_names[i - 1] if i > 0 else chain.base
-            while link != stop:
-                fj = children[link]
-                pending = _origin(fj, "") @ pending
-                link = fj.find("parent").get("link")
-            T = np.linalg.solve(pending, origins[i])
-            o = j.find("origin")
-            if o is None:
-                o = ET.SubElement(j, "origin")
-            for k, v in _origin_attrs(T).items():
-                o.set(k, v)
+        _replace_origins(root, chain, origins, children)
         tool_parent = chain.tip
         if _has_tip_error(deviations):
             tool_parent = _write_tip(root, chain, children, _flange_urdf(chain, deviations), tip_link)
@@ -500,17 +590,46 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
     return text
 
 
-def _write_tip(root, chain: SerialChain, children: dict, T_tip: np.ndarray, name: str) -> str:
+def _replace_origins(root, chain: SerialChain, origins: list[np.ndarray], children: dict) -> None:
+    """Write the corrected URDF-frame origins ``origins`` (``[4, 4]`` mm per moving joint of
+    ``chain``, :func:`_urdf_origins`) into the loaded URDF ``root``: the fixed transforms between
+    the previous moving joint's child link (or the base) and the joint are taken out again."""
+    joints = {j.get("name"): j for j in root.findall("joint")}
+    for i, jname in enumerate(chain.joint_names):
+        j = joints[jname]
+        # fixed transforms from the previous moving joint's child link to this joint's parent
+        pending = np.eye(4)
+        link = j.find("parent").get("link")
+        stop = chain.link_names[i - 1] if i > 0 else chain.base
+        while link != stop:
+            fj = children[link]
+            pending = _origin(fj, "") @ pending
+            link = fj.find("parent").get("link")
+        T = np.linalg.solve(pending, origins[i])
+        o = j.find("origin")
+        if o is None:
+            o = ET.SubElement(j, "origin")
+        for k, v in _origin_attrs(T).items():
+            o.set(k, v)
+
+
+def _write_tip(root, chain: SerialChain, children: dict, T_tip: np.ndarray, name: str,
+               shared: frozenset = frozenset()) -> str:
     """Write the calibrated tip transform ``T_tip`` (URDF frames, mm) into the loaded URDF
-    ``root``: into the first fixed joint below the last moving link, solved so that the product
-    of the fixed joints down to the tip is ``T_tip``; returns the tip link's name. Without a fixed
-    joint there, add link ``name`` fixed to the tip at ``T_tip`` and return ``name``."""
+    ``root``: into the first fixed joint below the last moving link that is not in ``shared``
+    (joint names other tips of a tree pass through), solved so that the product of the fixed
+    joints down to the tip is ``T_tip``; returns the tip link's name. Without such a fixed joint,
+    add link ``name`` fixed to the tip at ``T_tip`` and return ``name``."""
     path = []  # fixed joints from the last moving link down to the tip, top first
     link = chain.tip
     while link != chain.link_names[-1]:
         fj = children[link]
         path.insert(0, fj)
         link = fj.find("parent").get("link")
+    above = np.eye(4)  # the shared fixed joints on top stay as they are
+    while path and path[0].get("name") in shared:
+        above = above @ _origin(path.pop(0), "")
+    T_tip = np.linalg.solve(above, T_tip)
     if not path:
         if not name:
             raise ValueError(f"the tip errors need a link to carry them: {chain.tip!r} is the last moving "
@@ -531,6 +650,76 @@ def _write_tip(root, chain: SerialChain, children: dict, T_tip: np.ndarray, name
     for k, v in _origin_attrs(T).items():
         o.set(k, v)
     return chain.tip
+
+
+def _export_tree(tree: KinematicTree, deviations, path, *, tool_link: str, tip_link: str) -> str:
+    """:func:`export_urdf` of a :class:`~jaxcal.KinematicTree`: each tip's path written as a
+    chain's (:func:`_replace_origins`, :func:`_write_tip`, per tip through
+    :meth:`~jaxcal.KinematicTree.path_chain` and its deviations; a shared joint gets the same
+    corrected origin from every path). A tip's correction goes into the first fixed joint below
+    its last moving link that no other tip's path passes through; added links are named
+    ``<tip_link>_<tip>`` and ``<tool_link>_<tip>``. A tree built by hand is written as a minimal
+    URDF: ``base``, one link per joint (``link_names``), each tip fixed to its last joint's link."""
+    note = "jaxcal calibrated kinematic tree: moving joint origins corrected"
+    offsets = _dev_get(deviations, "offset")
+    if offsets is not None:
+        note += "; joint offsets folded into the origins: " + ", ".join(
+            f"{n}={float(v):.9g} {u}" for n, v, u in zip(tree.joint_names, np.asarray(offsets), tree.joint_units()))
+    n_tips = len(tree.tips)
+    views = [(tree.path_chain(k), tree.path_deviations(deviations, k)) for k in range(n_tips)]
+    tools = []
+    for k in range(n_tips):
+        dt = _dev_get(deviations, tree.tool_group(k))
+        tools.append(np.asarray(tree.tools[k], np.float64) + (0.0 if dt is None else np.asarray(dt, np.float64)))
+    suffixed = lambda base_name, k: base_name and f"{base_name}_{tree.tips[k]}"  # noqa: E731
+    if tree.urdf is not None:
+        root = ET.fromstring(tree.urdf)
+        children = {j.find("child").get("link"): j for j in root.findall("joint")}
+        on_path = []  # URDF joint names from the base to each tip
+        for view, sub in views:
+            _replace_origins(root, view, _urdf_origins(view, sub), children)
+            on_path.append({j.get("name") for j in _path(children, view.base, view.tip)})
+        for k, (view, sub) in enumerate(views):
+            tool_parent = view.tip
+            if _has_tip_error(sub):
+                shared = frozenset().union(*(on_path[m] for m in range(n_tips) if m != k))
+                tool_parent = _write_tip(root, view, children, _flange_urdf(view, sub), suffixed(tip_link, k), shared)
+                note += f"; tip transform ({view.link_names[-1]} → {view.tip}) corrected"
+                if tool_parent != view.tip:
+                    note += f" in the added link {tool_parent!r}"
+            _add_tool_link(root, tool_parent, tools[k], suffixed(tool_link, k))
+        root.insert(0, ET.Comment(" " + note + " "))
+    else:
+        root = ET.Element("robot", name=tree.name)
+        root.append(ET.Comment(" " + note + " "))
+        ET.SubElement(root, "link", name=tree.base)
+        origins = {}
+        for k, (view, sub) in enumerate(views):
+            origins.update(zip(tree.path(k), _urdf_origins(view, sub)))
+        al = np.asarray(tree.align)
+        for j in range(tree.dof):
+            typ = tree.joint_types[j]
+            ET.SubElement(root, "link", name=tree.link_names[j])
+            el = ET.SubElement(root, "joint", name=tree.joint_names[j], type=typ)
+            ET.SubElement(el, "origin", **_origin_attrs(origins[j]))
+            ET.SubElement(el, "parent", link=tree.base if tree.parents[j] < 0 else tree.link_names[tree.parents[j]])
+            ET.SubElement(el, "child", link=tree.link_names[j])
+            ET.SubElement(el, "axis", xyz=_fmt(snap(al[j][:, 2])))
+            scale = _M_TO_MM if typ == "prismatic" else 1.0
+            ET.SubElement(el, "limit", lower=repr(float(tree.q_min[j]) / scale),
+                          upper=repr(float(tree.q_max[j]) / scale), effort="0", velocity="0")
+        for k, (view, sub) in enumerate(views):
+            ET.SubElement(root, "link", name=view.tip)
+            el = ET.SubElement(root, "joint", name=f"{view.tip}_joint", type="fixed")
+            ET.SubElement(el, "origin", **_origin_attrs(_flange_urdf(view, sub)))
+            ET.SubElement(el, "parent", link=view.link_names[-1])
+            ET.SubElement(el, "child", link=view.tip)
+            _add_tool_link(root, view.tip, tools[k], suffixed(tool_link, k))
+        ET.indent(root)
+    text = '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+    if path is not None:
+        pathlib.Path(path).write_text(text)
+    return text
 
 
 def _add_tool_link(root, tip: str, tool, name: str) -> None:
@@ -576,3 +765,18 @@ def chain_from_dict(d: dict) -> SerialChain:
         )
         return chain_from_dh(robot)
     return load_urdf(d["urdf"], base=d["base"], tip=d["tip"], tool=d["tool_mm"], name=d.get("name"))
+
+
+def tree_from_dict(d: dict) -> KinematicTree:
+    """Inverse of :meth:`KinematicTree.geometry_dict <jaxcal.KinematicTree.geometry_dict>`: a tree
+    from its ``"urdf"`` text (base, tips, tool points) or its ``"origins"`` arrays (the
+    non-geometric models of ``to_dict`` are ``nongeometric_from_dict``'s, as for chains)."""
+    if "origins" in d:
+        o = d["origins"]
+        return KinematicTree.build(
+            origin_R=o["origin_R"], origin_t=o["origin_t_mm"], joint_types=d["joint_types"], q_min=o["q_min"],
+            q_max=o["q_max"], parents=o["parents"], tips=d["tips"], tip_parents=o["tip_parents"],
+            flange_R=o["flange_R"], flange_t=o["flange_t_mm"], align=o["align"], tools=d["tools_mm"],
+            joint_names=d["joint_names"], link_names=o["link_names"], base=d["base"], name=d.get("name", "tree"))
+    return tree_from_urdf(d["urdf"], base=d["base"], tips=d["tips"], tool=dict(zip(d["tips"], d["tools_mm"])),
+                          name=d.get("name"))
