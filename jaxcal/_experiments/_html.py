@@ -114,6 +114,14 @@ def _marks_legend(by_prior: set[str]) -> str:
     return "; ".join(([PRIOR_MARK] if by_prior else []) + [HELD_MARK])
 
 
+def _evidence(d: dict) -> str | None:
+    """The prior's scale the evidence chose (``--prior evidence``), with its uncertainty, or ``None``."""
+    from .._fit._evidence import EvidenceScales
+
+    ev = EvidenceScales.from_dict(d.get("prior_evidence"))
+    return None if ev is None else ev.describe()
+
+
 def _fixed(v) -> str:
     """A value in ° or mm at the tables' precision (4 decimals; one that rounds to zero as
     ``0.0000``, not ``-7.435e-09``)."""
@@ -343,6 +351,7 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
         body += [_summary([("data", data), ("model", model), ("method", f"{d.get('method')}, {d.get('n_iterations')} "
                                                                          "iterations"),
                            ("objective", s.get("objective") or f"{d.get('loss')} loss; {d.get('prior') or 'no prior'}"),
+                           ("prior scale", _evidence(d)),
                            ("status", status), ("sensor extras", diag.get("extras")),
                            ("test-file extras", (d.get("test_extras") or {}).get("message"))])]
         body += ["<h2>Before / after</h2>",

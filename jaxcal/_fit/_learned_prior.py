@@ -44,6 +44,7 @@ import numpy as np
 from .._core._json import to_jsonable
 from .._core._metrics import format_table
 from .._core._params import ParameterSpace, group_kind
+from ._evidence import EvidenceScales
 
 if TYPE_CHECKING:  # the Prior class is passed in (Prior's own methods call these): no import circle
     from ._objective import Prior
@@ -348,6 +349,10 @@ def prior_to_dict(prior: Prior) -> dict:
         out["covariance"] = {"names": list(prior.covariance[0]), "matrix": [list(r) for r in prior.covariance[1]]}
     if prior.population is not None:
         out["population"] = prior.population.to_dict()
+    if prior.scale_by != "fixed":
+        out["scale_by"] = prior.scale_by
+    if prior.evidence is not None:  # the scales the evidence chose (the σ above are the chosen ones)
+        out["evidence"] = prior.evidence.to_dict()
     return to_jsonable(out)
 
 
@@ -365,7 +370,8 @@ def prior_from_dict(d: dict, cls: type[Prior], where: str = "prior") -> Prior:
                      mean=None if d.get("mean") is None else tuple((str(n), float(v)) for n, v in d["mean"].items()),
                      covariance=() if cov is None else (tuple(cov["names"]), tuple(map(tuple, cov["matrix"]))),
                      source=str(d.get("source", "")),
-                     population=None if d.get("population") is None else FleetPopulation.from_dict(d["population"]))
+                     population=None if d.get("population") is None else FleetPopulation.from_dict(d["population"]),
+                     scale_by=str(d.get("scale_by", "fixed")), evidence=EvidenceScales.from_dict(d.get("evidence")))
     except (KeyError, TypeError) as e:
         raise ValueError(f"{where}: malformed prior file ({type(e).__name__}: {e})") from None
 
@@ -408,6 +414,8 @@ def prior_from_file(path, cls: type[Prior]) -> Prior:
         base = prior_from_dict(spec, cls, str(path)) if spec else cls()
         if base.covariance:  # the previous fit's own learned prior: keep its generic σ for the rest
             base = dataclasses.replace(base, covariance=(), mean=None, population=None)
+        # σ chosen by the evidence stay as the generic σ of the rest; the new prior's scale is fixed
+        base = dataclasses.replace(base, scale_by="fixed", evidence=None)
         name = (d.get("robot") or {}).get("name", "robot")
         return _result_prior(free, units, x, unc["covariance"], d["deviations"], base,
                              f"previous calibration of {name} ({pathlib.Path(path).name})", unc.get("noise_std_mm"))

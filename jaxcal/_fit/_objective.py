@@ -56,6 +56,9 @@ from .._models import _chain, _nongeometric  # noqa: F401 — they register thei
 __all__ = ["Prior", "Objective", "LOSSES", "robust_factor", "robust_scale", "resolve_prior", "MEASURED_DEFAULTS",
            "OBJECTIVES", "resolve_objective", "describe_objective"]
 
+#: how a :class:`Prior`'s scale is set (:attr:`Prior.scale_by`): as given, or by the evidence
+SCALE_BY = ("fixed", "evidence")
+
 #: robust losses and their 95 %-efficiency tuning constants ``k`` (scale ``c = k·σ̂``).
 LOSSES: dict[str, float] = {"linear": math.inf, "huber": 1.345, "cauchy": 2.385}
 
@@ -91,6 +94,16 @@ class Prior:
         source: where a learned prior comes from (printed by :meth:`describe`).
         population: a prior learned from a fleet: the :class:`~jaxcal.FleetPopulation` estimate
             (population mean and spread with their uncertainties), else ``None``.
+        scale_by: ``"fixed"`` (the σ as given) or ``"evidence"``: :func:`jaxcal.calibrate` chooses
+            the scale from the data (type-II maximum likelihood: :mod:`jaxcal._fit._evidence`), one
+            factor per family — the σ of the angle deviations (:attr:`angle_deg`), the σ of the
+            length deviations (:attr:`length_mm`), or, for a prior with a :attr:`covariance`, one
+            factor on that covariance — starting from the σ given here. Per-parameter
+            :attr:`overrides`, the sensor extras' σ and groups with their own default σ keep theirs.
+            ``prior="evidence"`` (CLI ``--prior evidence``) is the default prior's σ chosen so.
+        evidence: the choice (:class:`~jaxcal._fit._evidence.EvidenceScales`: factors, their
+            uncertainty, how many parameters the data determine) on the prior of a result
+            calibrated with ``scale_by="evidence"``, whose σ are then the chosen ones; else ``None``.
     """
 
     angle_deg: float = 0.5
@@ -104,8 +117,12 @@ class Prior:
     covariance: tuple = ()
     source: str = ""
     population: Any = None
+    scale_by: str = "fixed"
+    evidence: Any = None
 
     def __post_init__(self):
+        if self.scale_by not in SCALE_BY:
+            raise ValueError(f"Prior.scale_by must be one of {list(SCALE_BY)}, got {self.scale_by!r}")
         for name in ("angle_deg", "length_mm", "extras_mm", "extras_deg"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
@@ -137,8 +154,16 @@ class Prior:
         commas (keys: the attribute names, e.g. ``angle_deg=0.5,length_mm=2,extras_mm=500``;
         a parameter name sets that parameter's σ, e.g. ``d_1=10``), or a ``.json`` file: a prior
         file (:meth:`save`, ``jaxcal fleet-prior``) or a previous calibration result of the unit
-        (:meth:`from_result`)."""
+        (:meth:`from_result`). ``evidence`` is the default prior with its scale chosen by the data
+        (:attr:`scale_by`); ``evidence:SPEC`` any of the above so (``evidence:MODEL.prior.json``:
+        one factor on a learned prior's covariance)."""
         text = text.strip()
+        head, sep, rest = text.partition(":")
+        if head.strip().lower() == "evidence":
+            base = cls() if not sep else cls.parse(rest)
+            if base is None:
+                raise ValueError("prior: 'evidence' chooses the scale of a prior; 'none' has none")
+            return dataclasses.replace(base, scale_by="evidence")
         if text.lower().endswith(".json"):  # a prior file (jaxcal fleet-prior) or a previous result
             from ._learned_prior import prior_from_file
 
@@ -181,6 +206,16 @@ class Prior:
     def std(self, space: ParameterSpace) -> np.ndarray:
         """σ ``[p]`` of the free parameters in their units (rad, mm); ``inf`` = no prior (with a
         ``covariance``: its marginal σ for the parameters it names)."""
+        return self._std_families(space)[0]
+
+    def families(self, space: ParameterSpace) -> np.ndarray:
+        """``[p]`` the family of each free parameter whose σ a ``scale_by="evidence"`` choice
+        scales: ``"angles"`` (σ from :attr:`angle_deg`), ``"lengths"`` (from :attr:`length_mm`),
+        ``"covariance"`` (named by a learned :attr:`covariance`; the others then keep their σ),
+        ``""`` for the rest (an override, a sensor extra, a group's own σ, no prior)."""
+        return self._std_families(space)[1]
+
+    def _std_families(self, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray]:
         over = dict(self.overrides)
         unknown = set(over) - set(space.names)
         if unknown:
@@ -189,25 +224,38 @@ class Prior:
         if self.covariance:
             names, rows = self.covariance
             learned = dict(zip(names, np.sqrt(np.diag(np.asarray(rows, np.float64)))))
-        out = []
+        out, fam = [], []
         for name, unit in zip(space.free_names, space.free_units):
+            family = ""
             if name in over:
-                out.append(float(over[name]))
-                continue
-            if name in learned:
-                out.append(float(learned[name]))
-                continue
-            group = space.layout.group(space.layout.group_of(name))
-            if group.kind == "extra":
-                own = math.radians(self.extras_deg) if unit == "rad" else self.extras_mm
-                out.append(own if unit in ("rad", "mm") else math.inf)
-            elif group.prior_std is not None:
-                out.append(group.prior_std / self.strength)
-            elif unit in ("rad", "mm"):
-                out.append(math.radians(self.angle_deg) if unit == "rad" else self.length_mm)
+                s = float(over[name])
+            elif name in learned:
+                s, family = float(learned[name]), "covariance"
             else:
-                out.append(math.inf)
-        return np.asarray(out, dtype=np.float64)
+                group = space.layout.group(space.layout.group_of(name))
+                if group.kind == "extra":
+                    own = math.radians(self.extras_deg) if unit == "rad" else self.extras_mm
+                    s = own if unit in ("rad", "mm") else math.inf
+                elif group.prior_std is not None:
+                    s = group.prior_std / self.strength
+                elif unit in ("rad", "mm"):
+                    s = math.radians(self.angle_deg) if unit == "rad" else self.length_mm
+                    family = "" if learned else "angles" if unit == "rad" else "lengths"
+                else:
+                    s = math.inf
+            out.append(s)
+            fam.append(family if math.isfinite(s) else "")
+        return np.asarray(out, dtype=np.float64), np.asarray(fam, dtype=object)
+
+    def rescaled(self, factors: dict) -> Prior:
+        """The prior with its families' σ multiplied by ``factors`` ``{family: k}`` (see
+        :meth:`families`: ``angle_deg``, ``length_mm`` times ``k``, a learned covariance times ``k²``)."""
+        cov = self.covariance
+        k = factors.get("covariance", 1.0)
+        if cov and k != 1.0:
+            cov = (cov[0], tuple(tuple(v * k * k for v in row) for row in cov[1]))
+        return dataclasses.replace(self, angle_deg=self.angle_deg * factors.get("angles", 1.0),
+                                   length_mm=self.length_mm * factors.get("lengths", 1.0), covariance=cov)
 
     def mean_vector(self, space: ParameterSpace) -> np.ndarray:
         """Prior means ``[p]`` of the free parameters (rad, mm)."""
@@ -309,27 +357,36 @@ class Prior:
         return load_prior(path, cls)
 
     def describe(self) -> str:
+        """One line: the prior's σ (or its learned covariance), and the evidence's choice of scale."""
+        fmt = (lambda v: f"{v:.3g}") if self.evidence is not None else (lambda v: f"{v:g}")  # noqa: E731
         if self.covariance:
             k = len(self.covariance[0])
             text = f"learned Gaussian prior ({self.source or 'a learned prior'}): mean and covariance of {k} parameters"
-            return text + (f", the others σ = {self.angle_deg:g}°, {self.length_mm:g} mm toward nominal"
-                           if math.isfinite(self.angle_deg) or math.isfinite(self.length_mm) else "")
-        parts = [f"{self.angle_deg:g}°", f"{self.length_mm:g} mm on the robot's geometric deviations"]
-        if math.isfinite(self.extras_mm) or math.isfinite(self.extras_deg):
-            parts.append(f"extras {self.extras_mm:g} mm / {self.extras_deg:g}°")
-        if self.overrides:
-            parts.append("overrides " + ", ".join(f"{n}={s:g}" for n, s in self.overrides))
-        return "Gaussian prior toward nominal: σ = " + ", ".join(parts)
+            text += (f", the others σ = {fmt(self.angle_deg)}°, {fmt(self.length_mm)} mm toward nominal"
+                     if math.isfinite(self.angle_deg) or math.isfinite(self.length_mm) else "")
+        else:
+            parts = [f"{fmt(self.angle_deg)}°", f"{fmt(self.length_mm)} mm on the robot's geometric deviations"]
+            if math.isfinite(self.extras_mm) or math.isfinite(self.extras_deg):
+                parts.append(f"extras {self.extras_mm:g} mm / {self.extras_deg:g}°")
+            if self.overrides:
+                parts.append("overrides " + ", ".join(f"{n}={s:g}" for n, s in self.overrides))
+            text = "Gaussian prior toward nominal: σ = " + ", ".join(parts)
+        if self.evidence is not None:
+            return f"{text} — {self.evidence.describe()}"
+        return text + ("; its scale to be chosen by the evidence (type-II maximum likelihood)"
+                       if self.scale_by == "evidence" else "")
 
 
 def resolve_prior(prior) -> Prior | None:
-    """``None``/``"none"`` → ``None``; ``"default"`` → :class:`Prior` (); a :class:`Prior` as given;
-    a string of ``key=value`` pairs → :meth:`Prior.parse`."""
+    """``None``/``"none"`` → ``None``; ``"default"`` → :class:`Prior` (); ``"evidence"`` → the
+    default prior with its scale chosen by the evidence (:attr:`Prior.scale_by`); a :class:`Prior`
+    as given; a string of ``key=value`` pairs (or ``evidence:SPEC``) → :meth:`Prior.parse`."""
     if prior is None or isinstance(prior, Prior):
         return prior
     if isinstance(prior, str):
         return Prior.parse(prior)
-    raise TypeError(f"prior must be None, 'default', a jaxcal.Prior or a 'key=value,...' string, got {type(prior)}")
+    raise TypeError(f"prior must be None, 'default', 'evidence', a jaxcal.Prior or a 'key=value,...' string, got "
+                    f"{type(prior)}")
 
 
 class Objective(eqx.Module):

@@ -367,6 +367,7 @@ class CalibrationResult:
             "ok": self.ok,
             "plausible": self.plausible,
             "prior": None if self.prior is None else self.prior.describe(),
+            "prior_evidence": None if getattr(self.prior, "evidence", None) is None else self.prior.evidence.to_dict(),
             "loss": self.loss,
             "loss_scale_mm": self.loss_scale_mm,
             "diagnostics": None if self.diagnostics is None else self.diagnostics.to_dict(),

@@ -149,6 +149,8 @@ def _cmd_calibrate(args) -> int:
         res = run(train)
     if res.identifiability is not None:
         print(res.identifiability)
+    if res.prior is not None and res.prior.evidence is not None:  # --prior evidence: the scale the data chose
+        print(res.prior.evidence.describe() + " (the verdicts above are under this prior)")
     for line in res.diagnostics.reselection:
         print(line)
     if res.diagnostics.extras:

@@ -204,7 +204,10 @@ def _add_calibrate(sub, fmt) -> None:
                    help="parameters to keep at nominal (same names/groups), e.g. --fix d_6 or --fix theta")
     c.add_argument("--prior", default="default", metavar="SPEC",
                    help="Gaussian prior toward the nominal robot (MAP): 'default' (σ 0.5° on angles, 2 mm on DH "
-                        "lengths, none on extras; the default), 'none' (plain least squares), or key=value pairs: "
+                        "lengths, none on extras; the default), 'evidence' (the same prior with its scale, one σ on "
+                        "angles and one on lengths, chosen from the data by type-II maximum likelihood; "
+                        "'evidence:SPEC' chooses the scale of any SPEC below, one factor on a learned covariance), "
+                        "'none' (plain least squares), or key=value pairs: "
                         "angle_deg=0.5,length_mm=2,extras_mm=500,noise_std=0.3 or a parameter name, e.g. d_1=10; "
                         "or a .json file: a robot model's prior learned from its fleet (`jaxcal fleet-prior --out "
                         "MODEL.prior.json`), or the unit's previous RESULT.json (mean = its estimate, covariance = "
