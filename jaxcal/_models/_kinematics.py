@@ -296,17 +296,19 @@ def _host_kinematics(fn):
     padded to their shape bucket (:func:`~jaxcal._core._buckets.bucket_size`; ``JAXCAL_BUCKETS=off``:
     as given) so that one program serves the training rows, the held-out rows and every other
     count of a bucket; NumPy out (``[n, 3]`` mm, ``[n, 4, 4]``). ``tool`` defaults as in ``fn``
-    (the tool point for :func:`fk_position`, the flange for :func:`fk_pose`)."""
-    compiled = jit(fn, static_argnames="tool")
+    (the tool point for :func:`fk_position`, the flange for :func:`fk_pose`); ``tip``: a tip of a
+    :class:`~jaxcal.KinematicTree` (``None``: the robot's one tip, a tree's default tip)."""
+    compiled = jit(fn, static_argnames=("tool", "tip"))
     default = inspect.signature(fn).parameters["tool"].default  # fk_position: the tool point; fk_pose: the flange
 
-    def call(robot, q, deviations=None, *, tool: bool = default) -> np.ndarray:
+    def call(robot, q, deviations=None, *, tool: bool = default, tip: str | None = None) -> np.ndarray:
         n = int(q.shape[0])
         n_to = bucket_size(n) if buckets_enabled() else n
         if n_to != n:
             q = pad_rows(q, None, n_to)[0]
+        at = {} if tip is None else {"tip": tip}  # a kinematic tree's tip (static: one program per tip)
         # uncommitted: a fit's deviations and fresh ones run one program (jax.jit compiles per placement)
-        return np.asarray(compiled(robot, q, uncommitted(deviations), tool=tool))[:n]
+        return np.asarray(compiled(robot, q, uncommitted(deviations), tool=tool, **at))[:n]
 
     call.__name__ = call.__qualname__ = f"{fn.__name__}_jit"
     call.__doc__ = f":func:`{fn.__name__}` for host-side callers (compiled once per shape bucket; NumPy out)."

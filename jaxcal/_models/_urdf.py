@@ -160,7 +160,7 @@ def _path(joints_by_child, base: str, tip: str) -> list[ET.Element]:
 
 
 def load_urdf(source, *, base: str | None = None, tip: str | None = None, tips: Sequence[str] | None = None,
-              tool=(0.0, 0.0, 0.0), name: str | None = None):
+              tool=(0.0, 0.0, 0.0), name: str | None = None) -> SerialChain | KinematicTree:
     """Load the serial chain from link ``base`` to link ``tip`` of a URDF, or with ``tips`` the
     kinematic tree from ``base`` to several tip links.
 
@@ -482,7 +482,10 @@ def export_urdf(model, deviations=None, path=None, *, tool_link: str = "jaxcal_t
     """Write a calibrated model as URDF; returns the text (and writes it to ``path`` if given).
 
     Args:
-        model: a :class:`~jaxcal.SerialChain` or a :class:`~jaxcal.DHRobot`.
+        model: a :class:`~jaxcal.SerialChain`, a :class:`~jaxcal.DHRobot` or a
+            :class:`~jaxcal.KinematicTree` (every tip's path written as a chain's, each tip's
+            tool point moved by its ``tree.tool_group(tip)``; added links named
+            ``<tip_link>_<tip>``, ``<tool_link>_<tip>``: :func:`_export_tree`).
         deviations: calibrated deviations (chain groups ``offset, dx … drz`` and the tip errors
             ``tip_translation``, ``tip_rotation``, or DH groups for a DH robot; a ``tool`` group
             moves the tool point), or ``None`` for the nominal model.

@@ -1,6 +1,6 @@
 """The robot protocol (``jaxcal.AbstractRobot``) that every robot type implements, checked on each
 type: a DH preset, a DH table file, a modified-DH (Craig) table, a URDF chain, a chain built from a
-DH table and a chain built by hand. The rest of jaxcal asks a robot only through it."""
+DH table, a chain built by hand and a kinematic tree of three tips (its default tip: the first). The rest of jaxcal asks a robot only through it."""
 
 import json
 import pathlib
@@ -13,8 +13,19 @@ import jaxcal
 from jaxcal import robots
 from jaxcal._calibration._io import load_robot_csv, robot_from_dict, save_robot_csv
 from jaxcal._core._params import Deviations, layout_for
+from jaxcal._models._nongeometric import nongeometric_from_dict
+from jaxcal._models._urdf import tree_from_dict
 
 URDF = pathlib.Path(__file__).parents[1] / "data" / "urdf" / "ur10e.urdf"
+TREE_URDF = URDF.with_name("humanoid_tree.urdf")
+
+
+def _from_dict(d):
+    """``robot_from_dict``; a kinematic tree's file form is read by the models' ``tree_from_dict``
+    (the result files' reader does not know trees yet)."""
+    if d.get("type") == "kinematic_tree":
+        return nongeometric_from_dict(tree_from_dict(d), d.get("nongeometric"))
+    return robot_from_dict(d)
 
 
 def _robot(kind, tmp_path):
@@ -30,6 +41,8 @@ def _robot(kind, tmp_path):
         return load_robot_csv(tmp_path / "craig.csv")
     if kind == "urdf":
         return jaxcal.load_urdf(URDF, base="base_link", tip="tool0", tool=(10.0, 0.0, 50.0))
+    if kind == "tree":
+        return jaxcal.load_urdf(TREE_URDF, tips=["left_tool", "right_tool", "head_camera"], tool=(0.0, 5.0, 40.0))
     if kind == "chain_from_dh":
         return jaxcal.chain_from_dh(robots.hsr_jr680())
     return jaxcal.SerialChain.build(  # by hand: a prismatic and two revolute joints
@@ -38,7 +51,7 @@ def _robot(kind, tmp_path):
         flange_t=[0.0, 0.0, 80.0], tool=(5.0, 0.0, 30.0))
 
 
-KINDS = ["preset", "dh_file", "modified_dh_file", "urdf", "chain_from_dh", "by_hand"]
+KINDS = ["preset", "dh_file", "modified_dh_file", "urdf", "chain_from_dh", "by_hand", "tree"]
 
 
 def _q(robot, n=16, seed=0):
@@ -55,7 +68,7 @@ def test_protocol(kind, tmp_path):
     assert robot.reach_mm() > 0
     # the file form round trips: same dictionary, same kinematics
     d = json.loads(json.dumps(robot.to_dict()))
-    back = robot_from_dict(d)
+    back = _from_dict(d)
     assert type(back) is type(robot) and back.to_dict() == d
     assert json.loads(json.dumps(back.fingerprint())) == json.loads(json.dumps(robot.fingerprint()))
     q = _q(robot)

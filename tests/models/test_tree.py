@@ -20,7 +20,7 @@ import jaxcal
 from jaxcal import export_urdf, load_urdf
 from jaxcal._core._params import Deviations, group_of, layout_for
 from jaxcal._models._chain import GEOMETRIC_GROUPS
-from jaxcal._models._kinematics import fk_pose, fk_position, tool_point_soa
+from jaxcal._models._kinematics import fk_pose, fk_position, fk_position_jit, tool_point_soa
 from jaxcal._models._nongeometric import nongeometric_from_dict
 from jaxcal._models._tree import KinematicTree
 from jaxcal._models._urdf import tree_from_dict
@@ -189,6 +189,7 @@ def test_tool_points_of_each_tip(tree):
         T = np.asarray(pose_jit(tree, q, dev, tip=tip))
         p = np.asarray(position_jit(tree, q, dev, tip=tip))
         np.testing.assert_allclose(p, T[:, :3, 3] + T[:, :3, :3] @ (np.asarray(TOOLS[tip]) + dt), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(fk_position_jit(tree, q, dev, tip=tip), p, rtol=0, atol=1e-12)  # host-side form
     moved = tree.with_tool((1.0, 2.0, 3.0), tip="head_camera")
     np.testing.assert_array_equal(np.asarray(moved.tool_of("head_camera")), [1.0, 2.0, 3.0])
     np.testing.assert_array_equal(np.asarray(moved.tool), np.asarray(tree.tool))
