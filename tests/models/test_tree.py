@@ -111,13 +111,18 @@ def test_tips_match_numpy_urdf_transforms(tree):
             np.testing.assert_allclose(p[n], ref[:3, :3] @ np.asarray(TOOLS[tip]) + ref[:3, 3], rtol=0, atol=1e-9)
 
 
-def test_deviated_tips_match_chain_error_model(tree):
+@pytest.mark.parametrize("urdf", ["humanoid", "fetch"])
+def test_deviated_tips_match_chain_error_model(tree, urdf):
     """With deviations, each tip's frame is the chain error model (written out as 4×4 products in
-    tests/models/test_chain_tip.py) of that tip's URDF chain, its entries picked by joint name."""
+    tests/models/test_chain_tip.py) of that tip's URDF chain, its entries picked by joint name; also
+    on the Fetch URDF (a real robot: arm and head on a shared prismatic torso lift)."""
+    path = URDF if urdf == "humanoid" else URDF.with_name("fetch.urdf")
+    tips = TIPS if urdf == "humanoid" else ["gripper_link", "head_tilt_link"]
+    tree = tree if urdf == "humanoid" else load_urdf(path, tips=tips)
     dev = _random_dev(tree, seed=3)
     q = _q(tree, 5, seed=4)
-    for tip in TIPS:
-        chain = load_urdf(URDF, tip=tip)
+    for tip in tips:
+        chain = load_urdf(path, tip=tip)
         g, cols = _by_name(tree, dev, chain)
         T = np.asarray(pose_jit(tree, jnp.asarray(q), dev, tip=tip))
         for n in range(q.shape[0]):
@@ -126,7 +131,7 @@ def test_deviated_tips_match_chain_error_model(tree):
             np.testing.assert_allclose(T[n, :3, :3], ref[:3, :3], rtol=0, atol=1e-12)
     # the default tip (no tip named) is the first: the single-tip protocol of the rest of jaxcal
     np.testing.assert_array_equal(np.asarray(pose_jit(tree, jnp.asarray(q), dev)),
-                                  np.asarray(pose_jit(tree, jnp.asarray(q), dev, tip="left_tool")))
+                                  np.asarray(pose_jit(tree, jnp.asarray(q), dev, tip=tips[0])))
 
 
 def test_jacobian_matches_finite_differences(tree):
