@@ -38,7 +38,7 @@ from .._sensors._initialise import _residual, _sample_error, has_plain_row_error
 
 __all__ = ["MEASURED_DEFAULTS", "OBJECTIVES", "resolve_objective", "describe_objective", "Evaluation",
     "evaluate_result", "register_extras", "registrable_extras", "nominal_with_extras", "sample_errors",
-    "evaluate_sessions", "relabelled_result", "match_labels"]
+    "evaluate_sessions", "relabelled_result", "match_labels", "residual_outliers"]
 
 #: extra group families that a new set-up changes, and the :func:`jaxcal.initial_extras` name of each
 _REGISTRABLE = {"anchor": "anchor", "cable_offset": "cable_offset", "base_rotation": "base",
@@ -438,15 +438,26 @@ class Evaluation:
         }
 
 
-def _outliers(robot, measurement, dev, data, k: float = 5.0):
-    """``(rows, robust σ)``: the 0-based rows of ``data`` whose residual at ``robot + dev`` is beyond
-    ``k`` robust σ of these rows' own residuals (:func:`~jaxcal._fit._diagnostics.outlier_rows`)."""
+def residual_outliers(robot, measurement, deviations, data, k: float = 5.0) -> tuple[tuple[int, ...], float]:
+    """Rows of ``data`` with a gross error under a given model, e.g. the held-out rows of a fit
+    (``jaxcal calibrate`` names them; they enter the test RMSE/MAX, not the fit).
+
+    Args:
+        robot, measurement: the models (``measurement`` of these rows).
+        deviations: the robot's and the sensor's deviations (a result's ``.deviations``).
+        data: the rows (a :class:`~jaxcal.Dataset`).
+        k: the threshold in robust σ of these rows' own residuals (1.4826·MAD).
+
+    Returns:
+        ``(rows, robust σ)``: the 0-based rows of ``data`` whose residual is beyond ``k`` robust σ,
+        and that σ (mm; px for camera data).
+    """
     from .._fit._diagnostics import outlier_rows
     from .._fit._problem import Problem
 
     q = to_device(data.q)  # not jnp.asarray: a copy program per shape
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
-    pr = Problem(robot, measurement, q, data.y, space, dev.astype(q.dtype))
+    pr = Problem(robot, measurement, q, data.y, space, deviations.astype(q.dtype))
     rows, _, s = outlier_rows(pr, pr.x0(), k)
     return tuple(int(r) for r in rows), float(s)
 
@@ -673,7 +684,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
                    f"data{why}); the nominal robot's extras estimated from the new data{held}")
     eb = sample_errors(robot, m, dev_b, data)
     ea = sample_errors(robot, m, dev_a, data)
-    rows, scale = _outliers(robot, m, dev_a, data)
+    rows, scale = residual_outliers(robot, m, dev_a, data)
     return Evaluation(
         before=metrics_numpy(eb), after=metrics_numpy(ea), raw_nominal=raw, before_errors=eb, after_errors=ea,
         q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
@@ -765,7 +776,7 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
     dev_a = _register(robot, m, q, y, calibrated, new, new_f, new_p, loss="huber")
     eb, ea = _errors(robot, m, dev_b, q, y), _errors(robot, m, dev_a, q, y)
     raw = _errors(robot, m, zero, q, y)
-    rows, scale = _outliers(robot, m, dev_a, data)
+    rows, scale = residual_outliers(robot, m, dev_a, data)
     n_miss, n_all, n_rows = masked_markers(y)
     gaps = (f"; {n_miss} of {n_all} marker readings missing (NaN) in {n_rows} row(s): masked (zero weight)"
             if n_miss else "")

@@ -14,19 +14,20 @@ of comparing kind names.
 Kinds are looked up lazily: :func:`sensor_kind` imports only the module of the kind asked for
 (``_BUILTIN``), as :mod:`jaxcal.methods` does for its methods, so reading a draw-wire file
 imports no camera code. Adding a sensor: define its :class:`SensorKind` subclass in the sensor's
-module, decorate it with :func:`register_kind`, and add one line to ``_BUILTIN``.
+module, decorate it with :func:`register_kind`, and add one line to ``_BUILTIN``. This module
+imports no NumPy (the command line's parser reads :func:`kind_names` for ``jaxcal --help``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
-import re
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
-import numpy as np
+if TYPE_CHECKING:  # the registry's names are read by the command line's parser, which imports no NumPy
+    import re
 
-from .._core._csvfile import gap_floats
+    import numpy as np
 
 __all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_kind", "sensor_kinds", "kind_names", "check_label"]
 
@@ -153,6 +154,8 @@ class SensorKind:
         """``(value columns, values [n, k] float64, text columns, text cells [n][...])`` of a
         :class:`~jaxcal.Dataset` of this kind for its data file. NaN values are written as empty
         cells."""
+        import numpy as np
+
         y = np.asarray(data.y, np.float64)
         return list(self.columns), y.reshape(y.shape[0], -1), [], [[] for _ in range(y.shape[0])]
 
@@ -311,15 +314,21 @@ class PointsKind(SensorKind):
         return self.point_columns(n)
 
     def n_points(self, y) -> int | None:
+        import numpy as np
+
         return int(np.shape(y)[1])
 
     def read_values(self, table, columns):
+        from .._core._csvfile import gap_floats
+
         return gap_floats(table, columns, self.width)
 
     def readings(self, values, path, table, meta):
         return values.reshape(values.shape[0], -1, self.width), meta, ()
 
     def write_values(self, data):
+        import numpy as np
+
         y = np.asarray(data.y, np.float64)
         return self.point_columns(y.shape[1]), y.reshape(y.shape[0], -1), [], [[] for _ in range(y.shape[0])]
 

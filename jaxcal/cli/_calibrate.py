@@ -56,22 +56,6 @@ def _rows_needed(n_file: int, n_train: int, path, split: bool, test_fraction: fl
 
 def _cmd_calibrate(args) -> int:
     t_start = time.perf_counter()
-    import numpy as np
-
-    from .._calibration._calibrate import CalibrationWarning, calibrate
-    from .._calibration._evaluate import (
-        _outliers,
-        before_after_errors,
-        describe_objective,
-        evaluate_result,
-        joints_to_file_units,
-        sample_errors,
-    )
-    from .._core._buckets import bucket_size
-    from .._core._metrics import format_table, metrics_numpy
-    from .._core._params import Deviations
-    from .._datasets._split import seed_split
-    from .._fit._diagnostics import given_noise_std, stated_noise_warning
     from ..methods._stages import check_method_name
 
     with _as_usage():
@@ -81,72 +65,11 @@ def _cmd_calibrate(args) -> int:
     if len(args.data) > 1 or args.out_dir:
         return _cmd_calibrate_fleet(args, method)
     setup = _calibration_setup(args, method, args.data[0])
-    robot, path, data, notes, measurement = setup.robot, setup.path, setup.data, setup.notes, setup.measurement
-    test_fraction, loss, test_file, prior, checks, hyper = (
-        setup.test_fraction, setup.loss, setup.test_file, setup.prior, setup.checks, setup.hyper)
-    excluded = sorted(set(_rows(args.exclude_rows)))
-    if excluded and (excluded[0] < 1 or excluded[-1] > data.n):
-        raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
-    kept_rows = np.setdiff1d(np.arange(data.n), np.asarray(excluded, int) - 1)
-    if excluded:
-        notes.append(f"excluded data rows (your choice): {', '.join(map(str, excluded))}")
-    data = data.subset(kept_rows)
-    k_method, train_idx, test_idx = seed_split(args.seed, data.n, test_fraction)
-    if test_file is not None:  # a separate test file: every row trains, in file order
-        train_idx = np.arange(data.n)
-    train, test = data.subset(train_idx), (data.subset(test_idx) if test_file is None else test_file)
-    full = None
-    if hasattr(measurement, "frame_index"):  # SessionMarkers: a model per row set (train, test)
-        full = measurement.take(kept_rows)
-        lonely = sorted({lab for i in test_idx for lab in data.labels[i][1:]}
-                        - {lab for i in train_idx for lab in data.labels[i][1:]})
-        if lonely:
-            raise _Usage(f"frame/placement label(s) {lonely} have no training rows after the random split; give "
-                         "them more rows, --test-fraction 0, or hold the session out in Python (jaxcal.holdout_session)")
-        measurement = full.take(train_idx)
-    if train.n < 2:
-        raise _Usage(f"too few samples: {data.n} in the file, {train.n} for training")
-    # the whole file's shape bucket first: the training rows then pad to it (jaxcal._core._buckets'
-    # reuse rule), so that `jaxcal evaluate` of a file of this size — a new day of the same
-    # measurement program, in a fresh process — runs the programs this command compiled and kept
-    # on disk instead of compiling its own (the fit changes by round-off only)
-    bucket_size(data.n, width=measurement.size)
-    extras = setup.extras
-    file_row = lambda i: int(kept_rows[train_idx[i]]) + 1  # noqa: E731  (1-based data row of a training row)
-
-    split = (f"{train.n} train / {test.n} test (seed {args.seed})" if test_file is None else
-             f"all {train.n} for training; test: {test.n} samples from {args.test}")
-    print(f"data: {data.n} {measurement.kind} samples from {path} → {split}; robot {robot.name}; method {method}")
-    for n in notes:
-        print(f"note: {n}")
-    objective_line = describe_objective(prior, loss)
-    print(objective_line)
-
-    def run(train_set):
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", CalibrationWarning)
-            # TypeError: a --set name the method does not take; too few samples: in the file's rows
-            with _as_usage(errors=(TypeError,)), _rows_needed(data.n, train_set.n, path, test_file is None,
-                                                             test_fraction):
-                res = calibrate(robot, measurement, train_set, method, key=k_method, extras=extras, prior=prior,
-                                loss=loss, checks=checks, free=args.free, fix=args.fix or (), **hyper)
-        for w in caught:
-            if not issubclass(w.category, CalibrationWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        return res
-
+    split = _split(args, setup)
+    objective_line = _print_set_up(args, setup, split, method)
     t_loaded = time.perf_counter()
-    res = run(train)
+    res, split = _fit(args, setup, split, method)
     t_fit = time.perf_counter()
-    if args.exclude_outliers and res.diagnostics.outliers_after:
-        drop = [file_row(i) for i in res.diagnostics.outliers_after]
-        print(f"--exclude-outliers: refitting without data rows {', '.join(map(str, drop))}")
-        keep = np.setdiff1d(np.arange(train.n), np.asarray(res.diagnostics.outliers_after))
-        train_idx = train_idx[keep]
-        train = data.subset(train_idx)
-        if full is not None:
-            measurement = full.take(train_idx)
-        res = run(train)
     if res.identifiability is not None:
         print(res.identifiability)
     if res.prior is not None and res.prior.evidence is not None:  # --prior evidence: the scale the data chose
@@ -155,13 +78,112 @@ def _cmd_calibrate(args) -> int:
         print(line)
     if res.diagnostics.extras:
         print(res.diagnostics.extras)
+    rows, per_row, evaluation = _accuracy(args, setup, split, res)
+    test_outliers = _print_findings(args, setup, split, res)
+    if args.out:
+        _save(args, setup, split, res, method, objective_line, rows, per_row, evaluation, test_outliers)
+    if args.verbose:
+        t_end = time.perf_counter()
+        print(f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
+              f"{t_loaded - t_start:.2f} s, "
+              f"calibrate() {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
+              f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
+              f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
+              f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
+              "interpreter's exit come on top)")
+    return _exit_status(res, args, split.measurement, setup.extras)
 
+
+def _split(args, setup):
+    """The file's rows to train and test on (:func:`jaxcal.split_rows`), and the shape bucket of the
+    whole file."""
+    from .._calibration._rows import split_rows
+    from .._core._buckets import bucket_size
+
+    data = setup.data
+    excluded = _rows(args.exclude_rows)
+    if excluded and (min(excluded) < 1 or max(excluded) > data.n):
+        raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {min(excluded)}..{max(excluded)}")
+    with _as_usage():
+        split = split_rows(data, setup.measurement, seed=args.seed, test_fraction=setup.test_fraction,
+                           exclude_rows=excluded, test_file=setup.test_file is not None)
+    if split.excluded_rows:
+        setup.notes.append(f"excluded data rows (your choice): {', '.join(map(str, split.excluded_rows))}")
+    if len(split.train_idx) < 2:
+        raise _Usage(f"too few samples: {split.data.n} in the file, {len(split.train_idx)} for training")
+    # the whole file's shape bucket first: the training rows then pad to it (jaxcal._core._buckets'
+    # reuse rule), so that `jaxcal evaluate` of a file of this size — a new day of the same
+    # measurement program, in a fresh process — runs the programs this command compiled and kept
+    # on disk instead of compiling its own (the fit changes by round-off only)
+    bucket_size(split.data.n, width=split.measurement.size)
+    return split
+
+
+def _test_set(setup, split):
+    """The test rows: the held-out split, or the separate test file."""
+    return split.test if setup.test_file is None else setup.test_file
+
+
+def _print_set_up(args, setup, split, method) -> str:
+    """The data, split, notes and objective lines; the objective line."""
+    from .._calibration._evaluate import describe_objective
+
+    n_train, n_test = len(split.train_idx), _test_set(setup, split).n
+    how = (f"{n_train} train / {n_test} test (seed {args.seed})" if setup.test_file is None else
+           f"all {n_train} for training; test: {n_test} samples from {args.test}")
+    print(f"data: {split.data.n} {split.measurement.kind} samples from {setup.path} → {how}; robot "
+          f"{setup.robot.name}; method {method}")
+    for n in setup.notes:
+        print(f"note: {n}")
+    objective_line = describe_objective(setup.prior, setup.loss)
+    print(objective_line)
+    return objective_line
+
+
+def _fit(args, setup, split, method):
+    """``(result, split)``: the calibration of the training rows; with ``--exclude-outliers``, refitted
+    without the rows the first fit found gross (named by their data rows)."""
+    from .._calibration._calibrate import CalibrationWarning, calibrate
+
+    def run(split):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            # TypeError: a --set name the method does not take; too few samples: in the file's rows
+            with _as_usage(errors=(TypeError,)), _rows_needed(split.data.n, len(split.train_idx), setup.path,
+                                                             setup.test_file is None, setup.test_fraction):
+                res = calibrate(setup.robot, split.measurement, split.train, method, key=split.key,
+                                extras=setup.extras, prior=setup.prior, loss=setup.loss, checks=setup.checks,
+                                free=args.free, fix=args.fix or (), **setup.hyper)
+        for w in caught:
+            if not issubclass(w.category, CalibrationWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        return res
+
+    res = run(split)
+    if args.exclude_outliers and res.diagnostics.outliers_after:
+        drop = split.file_rows(split.train_idx[list(res.diagnostics.outliers_after)])
+        print(f"--exclude-outliers: refitting without data rows {', '.join(map(str, drop))}")
+        split = split.without_train(res.diagnostics.outliers_after)
+        res = run(split)
+    return res, split
+
+
+def _accuracy(args, setup, split, res):
+    """Print the before/after table of the training and test rows; ``(table rows, per-row errors,
+    the test file's evaluation or None)``."""
+    import numpy as np
+
+    from .._calibration._evaluate import before_after_errors, evaluate_result, joints_to_file_units, sample_errors
+    from .._core._metrics import format_table, metrics_numpy
+    from .._core._params import Deviations
+
+    robot, measurement, train, test_file = setup.robot, split.measurement, split.train, setup.test_file
     # "before" = the nominal robot with the sensor extras estimated from the data (closed-form start);
     # the raw nominal row (the guessed extras) where extras were estimated and the model has a guess
     # (a camera's identity hand-eye and target are none: their reprojection errors mean nothing)
     sets = {"train": (train, measurement)}
-    if test_file is None and test.n:
-        sets["test"] = (test, measurement if full is None else full.take(test_idx))
+    if test_file is None and len(split.test_idx):
+        sets["test"] = (split.test, split.test_measurement)
     show_raw, errors = before_after_errors(res, robot, measurement, sets)
     per_row = {}
 
@@ -180,13 +202,13 @@ def _cmd_calibrate(args) -> int:
         return out + [(f"{name}, before", metrics_numpy(eb)),
                       (f"{name}, after", metrics_numpy(ea))]
 
-    rows = part("train", train, [file_row(i) for i in range(train.n)])
+    rows = part("train", train, split.train_rows)
     evaluation = None
     if test_file is not None:
         evaluation = evaluate_result(res, test_file, extras="result" if args.keep_extras else "auto")
         rows += part("test", test_file, list(range(1, test_file.n + 1)), evaluation)
-    elif test.n:
-        rows += part("test", test, [int(kept_rows[i]) + 1 for i in test_idx])
+    elif len(split.test_idx):
+        rows += part("test", split.test, split.test_rows)
     print()
     unit = getattr(measurement, "unit", "mm")  # px for camera data
     print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
@@ -200,54 +222,60 @@ def _cmd_calibrate(args) -> int:
         print(f"test file: {line}")
     if warning is not None:
         print(f"jaxcal: warning: test file: {warning}", file=sys.stderr)
+    return rows, per_row, evaluation
+
+
+def _print_findings(args, setup, split, res) -> list[int]:
+    """The calibrated table, the estimates, outliers and warnings, the file's stated noise against
+    σ̂, and the held-out rows' gross errors; the latter's 1-based data rows."""
+    from .._calibration._evaluate import residual_outliers
+    from .._fit._diagnostics import given_noise_std, stated_noise_warning
+
+    robot, measurement, checks = setup.robot, split.measurement, setup.checks
+    unit = getattr(measurement, "unit", "mm")  # px for camera data
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
     if robot.dh_rows_deg() is not None:  # a DH table; a generic chain prints its per-joint corrections
         _print_dh_table(robot, res, sd)
     else:
         _print_chain_table(robot, res, sd)
-    _print_estimates(res, sd, extras, unit)
-    _print_outliers_and_warnings(res, args, checks, file_row)
-    stated = stated_noise_warning(str(path), res.uncertainty.noise_std if res.uncertainty is not None else math.nan,
-                                  given_noise_std(data, None, measurement), unit, checks.noise_warn_factor)
+    _print_estimates(res, sd, setup.extras, unit)
+    _print_outliers_and_warnings(res, args, checks, lambda i: split.file_rows([split.train_idx[i]])[0])
+    stated = stated_noise_warning(str(setup.path), res.uncertainty.noise_std if res.uncertainty is not None else math.nan,
+                                  given_noise_std(setup.data, None, measurement), unit, checks.noise_warn_factor)
     if stated is not None:  # σ̂ far above the file's noise line: another set-up, or a wrong line
         print(f"jaxcal: warning: {stated}", file=sys.stderr)
-    test_outliers = []
-    if test_file is None and test.n:
-        # the held-out rows' gross errors, named as the training rows' are (they enter the test
-        # RMSE/MAX above, not the fit)
-        rows_t, scale_t = _outliers(robot, sets["test"][1], res.deviations, test, checks.outlier_k)
-        test_outliers = [int(kept_rows[test_idx[i]]) + 1 for i in rows_t]
-        if test_outliers:
-            listed = ", ".join(map(str, test_outliers[:20]))
-            print(f"outliers in the test rows (residual > {checks.outlier_k:g} × {scale_t:.3g} {unit}, their robust σ): "
-                  f"data rows {listed}{' …' if len(test_outliers) > 20 else ''} — not used in the fit; they raise "
-                  "the test RMSE/MAX above")
-    diag = res.diagnostics
-    if args.out:
-        settings = {"data": str(path), "n_samples": data.n, "n_train": train.n, "n_test": test.n,
-                    "seed": args.seed, "test_fraction": test_fraction, "test_file": args.test, "method": method,
-                    "estimate": extras, "hyperparameters": hyper, "prior": args.prior, "loss": loss,
-                    "objective": objective_line,
-                    "excluded_rows": excluded, "compliance": args.compliance, "harmonics": args.harmonics,
-                    "outlier_rows_after": [file_row(i) for i in diag.outliers_after],
-                    "outlier_rows_test": test_outliers}
-        info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
-                                "message": evaluation.message}} if evaluation is not None else {}
-        from .._calibration._io import save_result  # only with --out
+    if setup.test_file is not None or not len(split.test_idx):
+        return []
+    # the held-out rows' gross errors, named as the training rows' are (they enter the test
+    # RMSE/MAX above, not the fit)
+    rows_t, scale_t = residual_outliers(robot, split.test_measurement, res.deviations, split.test, checks.outlier_k)
+    test_outliers = split.file_rows(split.test_idx[list(rows_t)])
+    if test_outliers:
+        listed = ", ".join(map(str, test_outliers[:20]))
+        print(f"outliers in the test rows (residual > {checks.outlier_k:g} × {scale_t:.3g} {unit}, their robust σ): "
+              f"data rows {listed}{' …' if len(test_outliers) > 20 else ''} — not used in the fit; they raise "
+              "the test RMSE/MAX above")
+    return test_outliers
 
-        save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
-                    rows=per_row, calibrated_at=_today(), **info)
-        print(f"\nwrote {args.out}")
-    if args.verbose:
-        t_end = time.perf_counter()
-        print(f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
-              f"{t_loaded - t_start:.2f} s, "
-              f"calibrate() {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
-              f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
-              f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
-              f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
-              "interpreter's exit come on top)")
-    return _exit_status(res, args, measurement, extras)
+
+def _save(args, setup, split, res, method, objective_line, rows, per_row, evaluation, test_outliers) -> None:
+    """``--out``: the result file with the command's settings, metrics and per-row errors."""
+    from .._calibration._io import save_result  # only with --out
+
+    diag = res.diagnostics
+    settings = {"data": str(setup.path), "n_samples": split.data.n, "n_train": len(split.train_idx),
+                "n_test": _test_set(setup, split).n, "seed": args.seed, "test_fraction": setup.test_fraction,
+                "test_file": args.test, "method": method, "estimate": setup.extras, "hyperparameters": setup.hyper,
+                "prior": args.prior, "loss": setup.loss, "objective": objective_line,
+                "excluded_rows": list(split.excluded_rows), "compliance": args.compliance,
+                "harmonics": args.harmonics,
+                "outlier_rows_after": split.file_rows(split.train_idx[list(diag.outliers_after)]),
+                "outlier_rows_test": test_outliers}
+    info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
+                            "message": evaluation.message}} if evaluation is not None else {}
+    save_result(res, args.out, settings=settings, metrics_mm={name: m._asdict() for name, m in rows},
+                rows=per_row, calibrated_at=_today(), **info)
+    print(f"\nwrote {args.out}")
 
 
 def _exit_status(res, args, measurement, extras) -> int:

@@ -6,8 +6,6 @@ from __future__ import annotations
 import math
 import sys
 
-from .._fit._verdicts import MARKS_LEGEND, PRIOR
-
 
 def _metrics_rows(pairs):
     return [[name, m.rmse, m.mean, m.max] for name, m in pairs]
@@ -28,6 +26,7 @@ def _fmt_value(v: float, sd: float | None, unit: str) -> str:
 def _print_dh_table(robot, res, sd) -> None:
     from .._core._metrics import format_table
     from .._core._trig import wrap_angle_deg
+    from .._fit._verdicts import MARKS_LEGEND
 
     nominal = robot.dh_table_deg()
     cal = res.dh_table()
@@ -54,6 +53,8 @@ def _print_dh_table(robot, res, sd) -> None:
 def _marks(res):
     """``name → "†" | ""`` of the free parameters: † where the result's verdict
     (:class:`~jaxcal._fit._verdicts.Verdicts`) is "held by the prior"."""
+    from .._fit._verdicts import PRIOR
+
     verdicts = None if res.diagnostics is None else res.diagnostics.verdicts
     return lambda name: "†" if verdicts is not None and verdicts.verdict.get(name) == PRIOR else ""
 
@@ -62,7 +63,9 @@ def _print_chain_table(robot, res, sd) -> None:
     """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
     (mm), drx, dry, drz (°), and a last row with the tip transform's tip_dx … tip_drz; ± one
     posterior σ; * = not calibrated (not identifiable or fixed)."""
+
     from .._core._metrics import format_table
+    from .._fit._verdicts import MARKS_LEGEND
     from .._models._chain import GEOMETRIC_GROUPS, TIP_GROUPS, correction_entries
 
     free = set(res.space.free_names)
