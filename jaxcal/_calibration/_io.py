@@ -69,6 +69,10 @@ def robot_from_dict(d: dict) -> AbstractRobot:
         from .._models._urdf import chain_from_dict
 
         return nongeometric_from_dict(chain_from_dict(d), d.get("nongeometric"))
+    if d.get("type") == "kinematic_tree":
+        from .._models._urdf import tree_from_dict
+
+        return nongeometric_from_dict(tree_from_dict(d), d.get("nongeometric"))
     robot = DHRobot.from_degrees(
         alpha_deg=d["alpha_deg"], a_mm=d["a_mm"], d_mm=d["d_mm"], theta_deg=d["theta_deg"],
         q_min_deg=d.get("q_min_deg"), q_max_deg=d.get("q_max_deg"), tool_mm=d.get("tool_mm", (0, 0, 0)),

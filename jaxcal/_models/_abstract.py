@@ -80,6 +80,12 @@ class AbstractRobot(eqx.Module):
         equal robot): :meth:`to_dict` unless a robot type has a more compact form."""
         return self.to_dict()
 
+    def tip_names(self) -> tuple[str, ...]:
+        """The robot's named tips, for measurement models that name the tip they see (a
+        :class:`~jaxcal.KinematicTree`'s tip links, the default tip first); ``()`` for a robot
+        with one unnamed tool point (a DH table, a serial chain)."""
+        return ()
+
     def dh_rows_deg(self, deviations=None) -> np.ndarray | None:
         """The robot's DH table ``[dof, 4]`` (α/°, a/mm, d/mm, θ/° per joint, angles not wrapped)
         at ``deviations`` (``None``: the nominal table), where the robot is described by one;

@@ -345,6 +345,10 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         return t if dt is None else t + jnp.asarray(dt).astype(dtype)
 
     # ------------------------------------------------------------------ robot protocol
+    def tip_names(self) -> tuple[str, ...]:
+        """The tip links, the default tip first."""
+        return self.tips
+
     def joint_units(self) -> tuple[str, ...]:
         """Unit of each joint coordinate: ``"rad"`` or ``"mm"``."""
         return tuple("mm" if p else "rad" for p in self.prismatic)
