@@ -37,6 +37,7 @@ __all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_
 _BUILTIN: dict[str, str] = {
     "distance": "_contact", "markers": "_sessions", "camera": "_camera", "plane": "_contact",
     "point": "_contact", "pose": "_measurement", "position": "_measurement", "cable": "_measurement",
+    "self_contact": "_self_contact",
 }
 _REGISTRY: dict[str, SensorKind] = {}
 

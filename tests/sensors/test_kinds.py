@@ -41,7 +41,19 @@ def _readings(kind: str, rng, dof: int):
         return rng.integers(0, 3, N).astype(float), {f"{kind}_labels": "a,b,c"}, ()
     if kind == "distance":
         return np.concatenate([rng.uniform(-1, 1, (N, dof)), rng.uniform(100, 300, (N, 1))], axis=1), {}, ()
+    if kind == "self_contact":
+        return rng.uniform(20, 80, N), {"tips": "left_tool,right_tool"}, ()
     raise AssertionError(f"no readings written for kind {kind!r}: add them here")
+
+
+def _tree():
+    """A two-armed robot (for the kinds whose readings name tips)."""
+    import pathlib
+
+    from jaxcal._models._urdf import load_urdf
+
+    urdf = pathlib.Path(__file__).resolve().parents[1] / "data" / "urdf" / "humanoid_tree.urdf"
+    return load_urdf(urdf, tips=["left_tool", "right_tool"])
 
 
 def _same(a: Dataset, b: Dataset):
@@ -75,7 +87,7 @@ def test_every_kind_model_as_plain_data(kind):
     from jaxcal._calibration._io import measurement_from_dict, measurement_to_dict
     from jaxcal._sensors._camera import planning_camera
 
-    robot = robots.hsr_jr680()
+    robot = _tree() if kind == "self_contact" else robots.hsr_jr680()
     rng = np.random.default_rng(1)
     y, meta, labels = _readings(kind, rng, robot.dof)
     data = Dataset(rng.uniform(-1.5, 1.5, (N, robot.dof)), y, kind, meta, labels)
