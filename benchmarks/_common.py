@@ -46,3 +46,13 @@ def append_section(path, title: str, how: str, table: str, load: tuple[float, fl
             f"{how}\n\n{table}\n")
     with pathlib.Path(path).open("a", encoding="utf-8") as f:
         f.write(text)
+
+
+def write_results(path, lines) -> None:
+    """Write the Markdown ``lines`` to the results file ``path``, print them and where they went."""
+    import pathlib
+
+    text = "\n".join(lines)
+    pathlib.Path(path).write_text(text + "\n", encoding="utf-8")
+    print(text)
+    print(f"wrote {path}")
