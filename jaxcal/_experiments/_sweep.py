@@ -203,6 +203,10 @@ def sweep(
     ex = _Execution.build(n_seeds, chunk_size, devices, batching, dtype, out_dir, progress,
                           None if real is None else real[1])
     prior = resolve_prior(prior)
+    if prior is not None and prior.scale_by == "evidence":
+        raise ValueError("a sweep runs one fixed prior in every trial; the evidence chooses a prior's scale per fit "
+                         "in jaxcal.calibrate (prior 'evidence' there): give the sweep a fixed prior ('default' or "
+                         "a jaxcal.Prior)")
     if loss not in LOSSES:
         raise ValueError(f"unknown loss {loss!r}; choose one of {list(LOSSES)}")
     settings = _settings(ex, base_key, noise_std, source_settings, robot, measurement, start, keep_errors, keep_history,

@@ -152,3 +152,16 @@ def test_warm_call_compiles_nothing(fits):
         jax.monitoring.unregister_event_duration_listener(listener)
     assert res.prior.evidence.rounds >= 2
     assert events["n"] == 0, f"{events['n']} programs compiled by a warm calibrate(prior='evidence')"
+
+
+def test_evidence_spec_parses_and_a_sweep_refuses_it():
+    """'evidence' is the default prior to be scaled; 'evidence:SPEC' any other; a sweep (one fixed
+    prior for every trial) refuses it with a message naming what to give instead."""
+    p = jaxcal.Prior.parse("evidence")
+    assert p.scale_by == "evidence" and (p.angle_deg, p.length_mm) == (0.5, 2.0)
+    q = jaxcal.Prior.parse("evidence:angle_deg=1,d_1=10")
+    assert q.scale_by == "evidence" and q.angle_deg == 1.0 and q.overrides == (("d_1", 10.0),)
+    with pytest.raises(ValueError, match="'none' has none"):
+        jaxcal.Prior.parse("evidence:none")
+    with pytest.raises(ValueError, match="give the sweep a fixed prior"):
+        jaxcal.sweep(["lm"], 2, n_samples=50, prior="evidence")
