@@ -32,6 +32,8 @@ def _floats(text: str, n: int, what: str) -> list[float]:
 
 
 def _robot(spec: str, base: str | None = None, tip: str | None = None):
+    """The robot of ``--robot`` (a preset, a DH table file, a URDF file with ``--base``/``--tip``;
+    several comma-separated ``--tip`` links: a :class:`~jaxcal.KinematicTree` with those tips)."""
     from .. import robots
     from .._calibration._io import load_robot_csv
 
@@ -41,6 +43,10 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
 
         if not p.exists():
             raise _Usage(f"robot file {spec!r} not found")
+        tips = [t.strip() for t in (tip or "").split(",") if t.strip()]
+        if len(tips) > 1:
+            with _as_usage("--tip: "):
+                return load_urdf(p, base=base, tips=tips)
         return load_urdf(p, base=base, tip=tip)
     if base is not None or tip is not None:
         raise _Usage("--base/--tip apply to a URDF robot (--robot FILE.urdf) only")

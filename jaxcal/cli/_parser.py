@@ -147,8 +147,10 @@ def _add_calibrate(sub, fmt) -> None:
                         "--out-dir; with --combine: several sensors of ONE robot in one fit")
     c.add_argument("--robot", required=True, help="preset name, DH table CSV file or URDF file (format below)")
     c.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link (default: the root link)")
-    c.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link (the flange; the tool point "
-                                                 "is given in its frame)")
+    c.add_argument("--tip", metavar="LINK[,LINK...]",
+                   help="URDF robot: the chain's tip link (the flange; the tool point is given in its frame); "
+                        "several links, comma-separated: a kinematic tree with those tips (two arms, a head), the "
+                        "first the default tip")
     c.add_argument("--measurement", choices=kind_names(), default=None,
                    help="the sensor (default: the data file's '# kind:' line, else the kind its columns show; a "
                         "--measurement that contradicts the file's '# kind:' line is an error). "
@@ -308,15 +310,19 @@ def _add_simulate(sub, fmt) -> None:
                         "first file's)")
     s.add_argument("--robot", default=None, help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
-    s.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
-    s.add_argument("--measurement", choices=("cable", "position", "pose", "camera", "plane", "point", "distance"),
+    s.add_argument("--tip", metavar="LINK[,LINK...]",
+                   help="URDF robot: the chain's tip link; several, comma-separated: a kinematic tree")
+    s.add_argument("--measurement", choices=("cable", "position", "pose", "camera", "plane", "point", "distance",
+                                             "self_contact"),
                    default=None,
                    help="sensor: cable (draw-wire length), position (x,y,z), pose (x,y,z + rotation vector; default "
                         "cable); camera (--samples images of a 9×6 checkerboard, 20 mm squares, 1280×1024 px, "
                         "f = 1000 px, only poses that see the whole target; --noise-std in px); plane: a probe "
                         "touching three planes (a `plane` label column); point: the tool tip pivoting on two fixed "
                         "points (a `point` label column); distance: pose pairs 150 or 300 mm apart (a bar with two "
-                        "nests)")
+                        "nests); self_contact: a robot with two tips (--robot FILE.urdf --tip A,B) touching "
+                        "itself, a 30 mm ball on each tip (contact distance 60 mm; --noise-std: the contact's "
+                        "scatter, mm)")
     s.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand"), default="eye-in-hand",
                    help="camera: on the flange (eye-in-hand, default) or fixed, the target on the flange")
     s.add_argument("--radius-mm", type=float, metavar="R",

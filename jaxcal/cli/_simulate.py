@@ -36,6 +36,8 @@ def _cmd_simulate(args) -> int:
             raise _Usage("--unknown-anchor applies to --measurement cable without --anchor (it draws the anchor)")
         if args.measurement == "camera":
             return _simulate_camera(args)
+        if args.measurement == "self_contact":
+            return _simulate_self_contact(args)
         robot, measurement = _robot_and_sensor(args)
         if measurement.kind in ("plane", "point", "distance"):
             return _simulate_contact(args, robot, measurement)
@@ -228,3 +230,32 @@ def _simulate_camera(args) -> int:
     print(f"wrote {args.samples} camera images ({cam.mount}, {cam.n_points} target points, {n_masked} corner(s) "
           f"left undetected) of robot {robot.name} (σ = {args.noise_std} px, seed {args.seed}) to {args.out}")
     return 0
+
+
+def _simulate_self_contact(args) -> int:
+    """``jaxcal simulate --measurement self_contact --robot FILE.urdf --tip A,B``: the two tips touch
+    (:func:`jaxcal.simulate_self_contact`, 30 mm balls: 60 mm apart at contact) on the seed's robot,
+    written with the ``# tips:`` line."""
+    import jax
+
+    from .._datasets._dataset import Dataset, mm_joints_metadata
+    from .._sensors._self_contact import simulate_self_contact
+    from .._simulation._truth import simulated_truth
+
+    robot = _robot(args.robot, args.base, args.tip)
+    tips = robot.tip_names()[:2]
+    if len(tips) != 2:
+        raise _Usage("--measurement self_contact needs a robot with two tips: --robot FILE.urdf --tip A,B")
+    if args.anchor:
+        raise _Usage("--anchor applies to --measurement cable only")
+    key = jax.random.key(args.seed)  # the seed's robot, as every kind's (simulated_truth)
+    with _as_usage():
+        q, y = simulate_self_contact(key, robot, tips, n_samples=args.samples, noise_std=args.noise_std,
+                                     true_deviations=simulated_truth(key, robot))
+    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": args.seed, "noise_std_mm": args.noise_std,
+            "tips": ",".join(tips), **mm_joints_metadata(robot)}
+    Dataset(q, y, "self_contact", meta).to_csv(args.out)
+    print(f"wrote {len(y)} self-contact rows of {tips[0]} and {tips[1]} of robot {robot.name} (σ = {args.noise_std} mm "
+          f"contact scatter, seed {args.seed}) to {args.out}")
+    return 0
+

@@ -591,4 +591,7 @@ def test_own_entries_of_narrow_blocks_equal_the_padded_rows(robot, monkeypatch):
     assert Problem(robot, model, q, y, space).n_entries == 6300
     padded = jax.jit(lambda p, x: pieces(p, x))(problem, x)[1]
     for a, b in zip(own, padded):
+        if b is None:  # a piece only some models have (a pose's per-component information)
+            assert a is None
+            continue
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-10, atol=1e-12 * float(np.max(np.abs(b))))

@@ -120,3 +120,27 @@ def test_counts_in_the_rows_of_the_users_file(wire, tmp_path, capsys):
     assert "missing ['q1_deg']" in err and "found ['q1_dg'], not a joint-angle column name" in err, err
     err = _calibrate(capsys, [f, "--robot", "kuka_kr16"], 2)
     assert "unknown robot 'kuka_kr16'" in err and "URDF (.urdf, with --base LINK and --tip LINK)" in err, err
+
+
+def test_tree_tips_and_self_contact_files_named(tmp_path, capsys):
+    """A tip not in the URDF, a self-contact file without its tips or on a robot without them:
+    exit 2, one line naming the problem (issue 51)."""
+    import pathlib
+
+    urdf = str(pathlib.Path(__file__).resolve().parents[1] / "data" / "urdf" / "humanoid_tree.urdf")
+    sc = tmp_path / "sc.csv"
+    assert main(["simulate", "--measurement", "self_contact", "--robot", urdf, "--tip", "left_tool,right_tool",
+                 "--samples", "40", "--noise-std", "0.1", "--out", str(sc)]) == 0
+    capsys.readouterr()
+    for argv, named in (
+        ([str(sc), "--robot", urdf, "--tip", "left_tool,right_hand"], "right_hand"),
+        # another pair of tips is another tree (the head's joints, not the right arm's): named by its joints
+        ([str(sc), "--robot", urdf, "--tip", "left_tool,head_camera"], "has 15 joint columns but robot"),
+        ([str(sc), "--robot", "hsr_jr680"], "15 joint"),
+    ):
+        err = [line for line in _calibrate(capsys, argv, 2).splitlines() if line.strip()]
+        assert len(err) == 1 and err[0].startswith("jaxcal: error: ") and named in err[0], err
+    no_tips = tmp_path / "no_tips.csv"
+    no_tips.write_text("".join(line for line in sc.read_text().splitlines(keepends=True) if not line.startswith("# tips:")))
+    err = _calibrate(capsys, [str(no_tips), "--robot", urdf, "--tip", "left_tool,right_tool"], 2)
+    assert "'# tips: A,B' line" in err and len(err.strip().splitlines()) == 1
