@@ -972,7 +972,8 @@ def _calibration_steps(
                 break
             if evidence:  # the scales the evidence chooses at this solution (host, p×p matrices)
                 ev_prior, ev_noise = choose_prior(round_prior, space, out.gram, out.x, n_res, rounds=rounds,
-                                                  noise_used=prior.noise_std or noise)
+                                                  noise_used=prior.noise_std or noise,
+                                                  unit=getattr(measurement, "unit", "mm"))
             if reweight:  # a σ per residual component (a pose's position, orientation): refit whitened
                 new_m = _reweighted(problem, out, round_prior, loss, scale)
                 moved = not _close(new_m.component_scales(), measurement.component_scales(), 0.02)

@@ -66,13 +66,15 @@ class EvidenceScales:
             factor ``exp(log_std)`` (one σ).
         effective: ``γ_f``, how many of the family's parameters the data determine (of ``counts``).
         counts: ``n_f``, the family's free parameters under the prior.
-        noise_std: σ (the residuals' unit, mm) at the maximum: ``sqrt(Φ/(N − γ))``, or the given
-            one (:attr:`jaxcal.Prior.noise_std`).
+        noise_std: σ at the maximum, in the residuals' unit (:attr:`noise_unit`):
+            ``sqrt(Φ/(N − γ))``, or the given one (:attr:`jaxcal.Prior.noise_std`).
         log_evidence: the log evidence there (up to a constant of the data: compare only fits
             of the same data and free parameters).
         at_bound: per family, whether the factor ended at an end of :data:`FACTOR_RANGE` (the
             evidence wants a prior still tighter or wider).
         rounds: MAP solves of the fit (each followed by a choice of the scales).
+        noise_unit: the residuals' unit: ``"mm"``, ``"px"`` (a camera), ``"σ"`` (the whitened
+            blocks of a combined fit).
     """
 
     families: tuple[str, ...]
@@ -85,6 +87,7 @@ class EvidenceScales:
     log_evidence: float
     at_bound: tuple[bool, ...] = ()
     rounds: int = 0
+    noise_unit: str = "mm"
 
     def family_text(self, i: int) -> str:
         """``"angles σ = 0.21° (×/÷ 1.3)"``: one family's chosen σ and its uncertainty."""
@@ -100,13 +103,14 @@ class EvidenceScales:
         """One line: the chosen scales, their uncertainty and the noise σ they go with."""
         return ("prior scale chosen by the evidence (type-II maximum likelihood): "
                 + ", ".join(self.family_text(i) for i in range(len(self.families)))
-                + f"; noise σ {self.noise_std:.3g} mm")
+                + f"; noise σ {self.noise_std:.3g} {self.noise_unit}")
 
     def to_dict(self) -> dict:
         out = {"families": list(self.families), "factors": [float(v) for v in self.factors],
                "log_std": [float(v) if math.isfinite(v) else None for v in self.log_std],
                "effective_parameters": [float(v) for v in self.effective], "counts": [int(v) for v in self.counts],
-               "noise_std_mm": float(self.noise_std), "log_evidence": float(self.log_evidence),
+               "noise_std": float(self.noise_std), "noise_unit": self.noise_unit,
+               "log_evidence": float(self.log_evidence),
                "at_bound": [bool(b) for b in self.at_bound], "rounds": int(self.rounds),
                "method": "type-II maximum likelihood (MacKay's evidence), linearised at the MAP estimate"}
         for f, v in zip(self.families, self.std):  # the chosen σ in the families' display units
@@ -123,8 +127,8 @@ class EvidenceScales:
         return cls(fam, tuple(map(float, d["factors"])), std,
                    tuple(math.inf if v is None else float(v) for v in d["log_std"]),
                    tuple(map(float, d["effective_parameters"])), tuple(map(int, d["counts"])),
-                   float(d["noise_std_mm"]), float(d["log_evidence"]), tuple(map(bool, d.get("at_bound", ()))),
-                   int(d.get("rounds", 0)))
+                   float(d["noise_std"]), float(d["log_evidence"]), tuple(map(bool, d.get("at_bound", ()))),
+                   int(d.get("rounds", 0)), str(d.get("noise_unit", "mm")))
 
 
 class _Linearised:
@@ -294,7 +298,8 @@ def log_evidence(A, d, rss: float, n_residuals: float, delta, info, family, fact
     return lin.log_evidence(np.asarray(factors, np.float64), float(noise_std) ** 2)
 
 
-def choose_prior(prior, space, gram, x, n_residuals: float, *, noise_used: float, rounds: int = 0):
+def choose_prior(prior, space, gram, x, n_residuals: float, *, noise_used: float, rounds: int = 0,
+                 unit: str = "mm"):
     """The prior ``prior`` (``scale_by="evidence"``) with its families' σ chosen by the evidence at
     one MAP solve: ``(chosen prior, noise σ to weigh it against)``; the chosen prior carries the
     choice (:attr:`jaxcal.Prior.evidence`, its ``std`` in degrees / mm / the covariance's factor).
@@ -309,6 +314,7 @@ def choose_prior(prior, space, gram, x, n_residuals: float, *, noise_used: float
         n_residuals: the observed residual entries.
         noise_used: the noise σ (mm) the solve weighed the prior against.
         rounds: MAP solves so far (recorded).
+        unit: the residuals' unit (recorded: :attr:`EvidenceScales.noise_unit`).
     """
     ev0 = prior.evidence
     fams = prior.families(space)
@@ -326,6 +332,6 @@ def choose_prior(prior, space, gram, x, n_residuals: float, *, noise_used: float
                                 noise_used=noise_used, noise_std=prior.noise_std, rounds=rounds)
     factors = dict(zip(names, ev.factors))
     chosen = requested.rescaled(factors)
-    shown = tuple(chosen.angle_deg if f == "angles" else chosen.length_mm if f == "lengths" else factors[f]
+    shown = tuple(float(chosen.angle_deg if f == "angles" else chosen.length_mm if f == "lengths" else factors[f])
                   for f in names)
-    return dataclasses.replace(chosen, evidence=dataclasses.replace(ev, std=shown)), sigma
+    return dataclasses.replace(chosen, evidence=dataclasses.replace(ev, std=shown, noise_unit=unit)), sigma
