@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 import pytest
-from test_robot_types import URDF, _run
+from test_robot_types import _run, robot_type_args
 
 import jaxcal
 
@@ -27,17 +27,8 @@ SAMPLES = 150
 
 @pytest.fixture(scope="module", params=["preset", "dh_file", "urdf"])
 def robot_args(request, tmp_path_factory):
-    """``--robot ...`` of each robot type (as tests/cli/test_robot_types.py makes them)."""
-    d = tmp_path_factory.mktemp(request.param)
-    if request.param == "preset":
-        return ["--robot", "hsr_jr680"]
-    if request.param == "dh_file":
-        from jaxcal import robots
-        from jaxcal._calibration._io import save_robot_csv
-
-        save_robot_csv(robots.hsr_jr680(), d / "jr680.csv")
-        return ["--robot", str(d / "jr680.csv")]
-    return ["--robot", str(URDF), "--base", "base_link", "--tip", "tool0"]
+    """``--robot ...`` of each robot type (tests/cli/test_robot_types.py's)."""
+    return robot_type_args(request.param, tmp_path_factory.mktemp(request.param))
 
 
 @pytest.mark.parametrize("pos_mm,rot_deg", MIXES, ids=[f"{p}mm-{r}deg" for p, r in MIXES])

@@ -47,18 +47,23 @@ def write_panda_craig(path) -> pathlib.Path:
     return path
 
 
+def robot_type_args(kind: str, d: pathlib.Path) -> list[str]:
+    """``--robot ...`` arguments of a robot type (``"preset"``, ``"dh_file"``, ``"modified_dh_file"``,
+    ``"urdf"``), its files written into ``d``."""
+    if kind == "preset":
+        return ["--robot", "hsr_jr680"]
+    if kind == "dh_file":
+        save_robot_csv(robots.hsr_jr680(), d / "jr680.csv")
+        return ["--robot", str(d / "jr680.csv")]
+    if kind == "modified_dh_file":
+        return ["--robot", str(write_panda_craig(d / "panda.csv"))]
+    return ["--robot", str(URDF), "--base", "base_link", "--tip", "tool0"]
+
+
 @pytest.fixture(scope="module", params=["preset", "dh_file", "modified_dh_file", "urdf"])
 def robot_args(request, tmp_path_factory):
     """``--robot ...`` arguments of each robot type."""
-    d = tmp_path_factory.mktemp(request.param)
-    if request.param == "preset":
-        return ["--robot", "hsr_jr680"]
-    if request.param == "dh_file":
-        save_robot_csv(robots.hsr_jr680(), d / "jr680.csv")
-        return ["--robot", str(d / "jr680.csv")]
-    if request.param == "modified_dh_file":
-        return ["--robot", str(write_panda_craig(d / "panda.csv"))]
-    return ["--robot", str(URDF), "--base", "base_link", "--tip", "tool0"]
+    return robot_type_args(request.param, tmp_path_factory.mktemp(request.param))
 
 
 def _run(argv, capsys):
