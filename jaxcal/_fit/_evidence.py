@@ -235,10 +235,9 @@ def evidence_scales(A, d, rss: float, n_residuals: float, delta, info, family, *
         new_k = k.copy()
         for i in range(len(names)):
             e = float(t @ lin.Q_f[i] @ t)  # t*ᵀ Q_f t*: the squared deviation in units of the requested prior
-            if active[i] and gamma[i] > 1e-9 * lin.n_f[i] and e > 0:
-                new_k[i] = math.sqrt(e / gamma[i])  # MacKay: α_f = γ_f / ‖Δ_f‖²
-            elif active[i] and e <= 0:
-                new_k[i] = lo
+            if not active[i] or gamma[i] <= 1e-9 * lin.n_f[i]:
+                continue  # the data do not see the family: the evidence is flat in its scale
+            new_k[i] = math.sqrt(e / gamma[i]) if e > 0 else lo  # MacKay: α_f = γ_f / ‖Δ_f‖²
         new_k = np.clip(new_k, lo, hi)
         new_s2 = s2
         if not fixed_noise:

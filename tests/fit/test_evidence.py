@@ -28,7 +28,8 @@ def _map_gram(J, y, info, noise):
     x = np.linalg.solve(J.T @ J + noise**2 * info, J.T @ y)
     r = J @ x - y
     d = np.linalg.norm(J, axis=0)
-    return (J / d).T @ (J / d), d, float(r @ r), x
+    Js = J / np.where(d > 0, d, 1.0)  # as the solve scales them (gram_from_jacobian)
+    return Js.T @ Js, d, float(r @ r), x
 
 
 def test_one_family_equal_singular_values_closed_form():
@@ -165,3 +166,18 @@ def test_evidence_spec_parses_and_a_sweep_refuses_it():
         jaxcal.Prior.parse("evidence:none")
     with pytest.raises(ValueError, match="give the sweep a fixed prior"):
         jaxcal.sweep(["lm"], 2, n_samples=50, prior="evidence")
+
+
+def test_a_family_the_data_do_not_see_keeps_its_scale():
+    """Lengths the data do not see (zero Jacobian columns): the evidence is flat in their scale,
+    which stays as requested with an infinite uncertainty; the angles' scale is still chosen."""
+    rng = np.random.default_rng(5)
+    N, n = 80, 4
+    J = np.concatenate([300.0 * rng.standard_normal((N, n)), np.zeros((N, n))], axis=1)
+    y = J[:, :n] @ (math.radians(0.2) * rng.standard_normal(n)) + 0.1 * rng.standard_normal(N)
+    base = np.r_[np.full(n, math.radians(0.5)), np.full(n, 2.0)]
+    info = np.diag(1 / base**2)
+    A, d, rss, x = _map_gram(J, y, info, 0.1)
+    ev, _ = evidence_scales(A, d, rss, N, x, info, ["angles"] * n + ["lengths"] * n, noise_used=0.1)
+    assert ev.factors[1] == 1.0 and math.isinf(ev.log_std[1]) and ev.effective[1] == pytest.approx(0.0, abs=1e-9)
+    assert 0.1 < ev.factors[0] < 1.0 and math.isfinite(ev.log_std[0])
