@@ -494,6 +494,12 @@ def _groups_of(model: Combined, b: int) -> dict[str, str]:
     return dict(model.views[b][1])
 
 
+def _block_groups(blk: Block, key: str) -> tuple[str, ...]:
+    """The groups (in the block's own layout) that a block's extra ``key`` frees: ``tool`` is the
+    tool point its model sees (``tool@<tip>`` on another tip of a kinematic tree)."""
+    return (blk.measurement.tool_group,) if key == "tool" else _EXTRA_GROUPS[key]
+
+
 def _extras_and_fix(robot, model: Combined, blocks: Sequence[Block]):
     """``(extras, fix)`` of :func:`jaxcal.calibrate` for the blocks' ``extras``: the standard groups a
     block asks for under their own name, and the renamed per-block groups nobody asked for."""
@@ -504,9 +510,9 @@ def _extras_and_fix(robot, model: Combined, blocks: Sequence[Block]):
             key = e.strip().lower()
             if key not in _EXTRA_GROUPS:
                 raise ValueError(f"block {blk.name!r}: unknown extra {e!r}; choose from tool, base, anchor, cable_offset")
-            for g in _EXTRA_GROUPS[key]:
+            for g in _block_groups(blk, key):
                 c = names[g]
-                (plain if c == g else wanted).add(c)
+                (plain if c == g and "@" not in c else wanted).add(c)
     extras = sorted({k for k, gs in _EXTRA_GROUPS.items() if k != "offset" and any(g in plain for g in gs)})
     std = {g.name for g in STANDARD_EXTRAS}
     layout = layout_for(robot, model)
@@ -529,7 +535,8 @@ def _initial_start(robot, model: Combined, blocks: Sequence[Block], q, y, start:
         can = mod.initialisable
         est = [e for e in can if e in _OWN_INIT]
         est += [e for e in can if e not in _OWN_INIT and set(_EXTRA_GROUPS.get(e, (e,))) & asked]
-        if "tool" in est and names["tool"] in tool_done:
+        tool = names[mod.tool_group]  # the tool point this block sees, under its combined name
+        if "tool" in est and tool in tool_done:
             est.remove("tool")
         if not est:
             continue
@@ -542,7 +549,7 @@ def _initial_start(robot, model: Combined, blocks: Sequence[Block], q, y, start:
             if res.deviations.layout.group(g).kind == "extra":
                 vals[c] = np.asarray(res.deviations.values[g])
         if "tool" in est:
-            tool_done.add(names["tool"])
+            tool_done.add(tool)
         msgs.append(f"{blk.name}: {res.message}")
     return Deviations(vals, start.layout, dtype=start.arrays[0].dtype), msgs
 

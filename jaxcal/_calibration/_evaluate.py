@@ -87,11 +87,11 @@ def relabelled_result(result, labels):
         return np.stack([a[i] if i >= 0 else np.asarray(fill, np.float64) for i in at])
 
     if isinstance(m, PlaneContact):
-        new = PlaneContact(new_labels, take(m.normals, [0.0, 0.0, 1.0]), take(m.offsets, 0.0))
+        new = PlaneContact(new_labels, take(m.normals, [0.0, 0.0, 1.0]), take(m.offsets, 0.0), tip=m.tip)
     else:
         r = np.asarray(m.radii, np.float64)
         new = FixedPoint(new_labels, take(m.centres, np.zeros(3)), take(r, r[0]) if m.sphere else None,
-                         m.estimate_radius)
+                         m.estimate_radius, tip=m.tip)
     layout = layout_for(result.robot, new)
     old = result.deviations.values
     dev = Deviations({g: old[g] for g in layout.group_names if g in old}, layout,

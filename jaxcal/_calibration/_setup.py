@@ -65,6 +65,8 @@ def measurement_for(data, robot, *, anchor_mm=None, radius_mm: float | None = No
     * camera: a :class:`~jaxcal.Camera` with the hand-eye transform and the target pose unknown
       (started from the images).
     * plane, point: the planes / points from the data's labels, unknown (started from the data).
+    * a ``# tip: NAME`` line (a :class:`~jaxcal.KinematicTree`): the model sees that tip
+      (``tip=None`` when it is the robot's default tip, :func:`jaxcal.resolve_tip`).
 
     Args:
         data: a :class:`~jaxcal.Dataset` (:func:`jaxcal.load_csv`), its metadata lines in
@@ -90,7 +92,7 @@ def measurement_for(data, robot, *, anchor_mm=None, radius_mm: float | None = No
     Raises:
         ValueError: an extra that does not apply to the data's kind, an option of another kind
             (an anchor for position data, a radius for plane data), a camera file without its
-            target or intrinsics, a malformed metadata line. The messages name the ``jaxcal
+            target or intrinsics, a malformed metadata line, a ``# tip:`` the robot lacks. The messages name the ``jaxcal
             calibrate`` options the keywords stand for (``--anchor`` for ``anchor_mm``,
             ``--radius-mm``, ``--estimate``, ``--target``, ``--camera`` for ``camera_intrinsics``).
     """
@@ -110,7 +112,12 @@ def measurement_for(data, robot, *, anchor_mm=None, radius_mm: float | None = No
     options = SetupOptions(anchor_mm=None if anchor_mm is None else tuple(anchor_mm), radius_mm=radius_mm,
                            estimate_radius=estimate_radius, target=target, camera_intrinsics=camera_intrinsics,
                            mount=mount, path=path)
-    measurement, estimate, notes = sensor_kind(data.kind).setup(data, robot, estimate, options)
+    kind = sensor_kind(data.kind)
+    measurement, estimate, notes = kind.setup(data, robot, estimate, options)
+    measurement = kind.at_file_tip(measurement, data, robot)
+    if getattr(measurement, "tip", None) is not None:
+        notes = (*notes, f"the sensor sees tip {measurement.tip} (the file's '# tip:' line); its tool point is the "
+                         f"{measurement.tool_group} group")
     return MeasurementSetup(measurement, frozenset(estimate), tuple(notes))
 
 

@@ -475,9 +475,14 @@ class ParameterSpace:
         joints; other robots what ``robot.free_by_default(name)`` says), its non-geometric
         groups, the measurement's own extra groups (e.g. marker positions), and the optional
         standard extras (anchor position, tool point, cable zero offset, sensor-to-base frame
-        ``base`` = rotation and translation, 6 parameters)."""
+        ``base`` = rotation and translation, 6 parameters). ``tool`` frees the tool point the
+        measurement sees: its ``tool_group`` (``tool@<tip>`` for a model on another tip of a
+        :class:`~jaxcal.KinematicTree`, the standard ``tool`` otherwise)."""
         layout = layout_for(robot, measurement)
-        std = {"anchor": anchor, "tool": tool, "cable_offset": cable_offset,
+        # the tool point the measurement sees: the standard ``tool``, or ``tool@<tip>`` for another
+        # tip of a kinematic tree (a measurement extra that ``tool`` frees instead)
+        tool_group = "tool" if measurement is None else getattr(measurement, "tool_group", "tool")
+        std = {"anchor": anchor, "tool": tool and tool_group == "tool", "cable_offset": cable_offset,
                "base_rotation": base, "base_translation": base}
         meas_groups = {g.name for g in _call_method(measurement, "extra_groups") or ()}
         beta_joints = getattr(robot, "beta_joints", ())
@@ -488,6 +493,8 @@ class ParameterSpace:
             for n in g.names:
                 if g.name in std:
                     f = std[g.name]
+                elif g.name == tool_group:
+                    f = tool
                 elif g.name in meas_groups:
                     f = measurement_extras
                 elif g.kind == "nongeometric":

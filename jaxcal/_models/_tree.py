@@ -332,10 +332,7 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         """``tool@<tip>`` ``[3]`` mm extra groups (``tool_x@<tip>`` …) of every tip but the
         default one (whose tool point is the layout's standard ``tool`` group): for a
         measurement model of several tool points to add to its ``extra_groups()``."""
-        from .._core._params import Group
-
-        return tuple(Group.vector(self.tool_group(k), tuple(f"tool_{c}@{self.tips[k]}" for c in "xyz"), "mm")
-                     for k in range(1, len(self.tips)))
+        return tuple(tip_tool_group(self.tips[k]) for k in range(1, len(self.tips)))
 
     def tool_vector(self, dev, dtype, tip: str | int | None = None) -> Float[Array, " 3"]:
         """``tip``'s tool point ``[3]`` mm in its tip link frame: nominal + the deviation group of
@@ -438,6 +435,15 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         """A generous bound on the distance from the base origin to any tip's tool point (mm):
         the largest of the path chains' bounds (:meth:`SerialChain.reach_mm`)."""
         return max(self.path_chain(k).reach_mm() for k in range(len(self.tips)))
+
+
+def tip_tool_group(tip: str):
+    """The extra group ``tool@<tip>`` (entries ``tool_x@<tip>``, ``tool_y@<tip>``, ``tool_z@<tip>``,
+    mm): the deviation of the tool point of ``tip`` (not a tree's default tip, whose tool point is
+    the standard ``tool`` group) from its nominal value, in its tip link frame."""
+    from .._core._params import Group
+
+    return Group.vector(f"tool@{tip}", tuple(f"tool_{c}@{tip}" for c in "xyz"), "mm")
 
 
 def _path_of(parents: Sequence[int], last: int) -> tuple[int, ...]:

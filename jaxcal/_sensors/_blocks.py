@@ -20,7 +20,8 @@ problem:
 The robot's parameters are shared. Extras (see :func:`combine`): a labelled group (``plane@K``,
 ``point@K``, ``radius@K``, session groups) names one physical object and is shared by every
 block with that label; the tool point ``tool`` is shared (one probe/ball/SMR on the flange)
-unless a block says ``own_tool``; the sensor-frame groups (``anchor``, ``cable_offset``,
+unless a block says ``own_tool``, and so is the tool point of another tip of a kinematic tree
+(``tool@<tip>``: every block that sees that tip, self-contact included); the sensor-frame groups (``anchor``, ``cable_offset``,
 ``base_rotation``, ``base_translation``) and a measurement's own unlabelled groups (``marker_k``,
 the camera's ``handeye_*``/``target_*``) are per sensor: used by one block they keep their name,
 used by several they are renamed per block, ``base_rotation@tracker`` (entries ``base_rx@tracker``...).
@@ -667,10 +668,19 @@ def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[C
             if "@" not in g.name:
                 own_counts[g.name] = own_counts.get(g.name, 0) + 1
     _check_shared_labels(blocks)
+    # a tip's tool point (``tool@<tip>``, a kinematic tree's tip other than the default one) is one
+    # object: every block's view has it, so a model that reads that tip's tool point by name
+    # (self-contact) sees the one the other blocks estimate
+    tips = set(robot.tip_names())
+    tip_tools = {g.name: g for b in blocks for g in layout_for(robot, b.measurement).groups
+                 if g.name.startswith("tool@") and g.name[len("tool@"):] in tips}
     groups: dict[str, Group] = {}
     views, qs, ys, models, counts, widths, sigma = [], [], [], [], [], [], []
     for b in blocks:
         layout = layout_for(robot, b.measurement)
+        missing = [g for name, g in tip_tools.items() if name not in layout.group_names]
+        if missing:
+            layout = layout.extend(missing)
         mapping = []
         for g in layout.groups:
             rename = ((g.name in SENSOR_GROUPS and sensor_shared[g.name] > 1)

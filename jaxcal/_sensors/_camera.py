@@ -65,7 +65,7 @@ from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._core._xla import filter_jit
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
 from ._kind import PointsKind, register_kind
-from ._measurement import MeasurementModel, xyz_entries
+from ._measurement import MeasurementModel, tip_to_dict, xyz_entries
 
 __all__ = ["Camera", "MOUNTS", "INTRINSIC_NAMES", "project_points", "undistort_points", "solve_pnp",
     "hand_eye_park", "initial_camera_extras", "checkerboard", "load_target", "camera_floor",
@@ -139,6 +139,9 @@ class Camera(MeasurementModel):
         image_size: ``(width, height)`` px, used to keep simulated targets in view (optional).
         calibrate_intrinsics: add the ``intrinsics`` group (free by default) — off by default:
             a camera calibrated beforehand (``cv2.calibrateCamera``) is usually better known.
+        tip: the tip of a :class:`~jaxcal.KinematicTree` that moves: the one carrying the camera
+            (eye-in-hand: a head camera) or the target (eye-to-hand); ``None``: the robot's
+            default tip. ``F(q)`` is then that tip's link frame.
     """
 
     points: Float[Array, "N 3"]
@@ -150,14 +153,17 @@ class Camera(MeasurementModel):
     mount: str = eqx.field(static=True, default="eye_in_hand")
     image_size: tuple[int, int] | None = eqx.field(static=True, default=None)
     calibrate_intrinsics: bool = eqx.field(static=True, default=False)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "camera"
     initialisable: ClassVar[tuple[str, ...]] = ("handeye", "target")
+    sees_tool_point: ClassVar[bool] = False
     #: unit of the residual and of the per-sample errors
     unit: ClassVar[str] = "px"
 
     def __init__(self, points_mm, intrinsics, mount: str = "eye_in_hand", *, handeye_rotation=None,
                  handeye_translation=None, target_rotation=None, target_translation=None, image_size=None,
-                 calibrate_intrinsics: bool = False):
+                 calibrate_intrinsics: bool = False, tip: str | None = None):
+        self.tip = tip
         pts = jnp.asarray(points_mm, jnp.result_type(float))
         if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 4:
             raise ValueError(f"points_mm must be [N, 3] target points (mm), N >= 4; got shape {tuple(pts.shape)}")
@@ -233,7 +239,7 @@ class Camera(MeasurementModel):
         # the flange frames computed once and stored: XLA:CPU would otherwise fuse the whole
         # kinematic chain into every [n, N] consumer and recompute it per target point (and per
         # Jacobian column): 0.8 s instead of ~10 ms for a 2160 × 36 Jacobian (see materialised)
-        F = materialised(jnp.stack([c for v in _chain(robot, deviations, q) for c in v]))  # [12, n]
+        F = materialised(jnp.stack([c for v in _chain(robot, deviations, q, self.tip_for(robot)) for c in v]))  # [12, n]
         cols = tuple(tuple(F[3 * i + r] for r in range(3)) for i in range(3))  # R's columns
         P = tuple(F[9 + r] for r in range(3))
         RX, tX, RB, tB, k = self.frames(deviations, q.dtype)
@@ -642,7 +648,7 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
     Returns:
         :class:`~jaxcal.ExtrasEstimate` (RMS values in px: RMS reprojection distance per corner).
     """
-    from ._initialise import ExtrasEstimate
+    from ._initialise import ExtrasEstimate, tip_frames
 
     est = {"handeye", "target"} if estimate is None else set(estimate)
     bad = est - {"handeye", "target"}
@@ -654,7 +660,7 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
     RX0, tX0, RB0, tB0, k = (np.asarray(a, np.float64) for a in measurement.frames(start, dtype))
     pts = np.asarray(measurement.points, np.float64)
-    T = np.asarray(fk_pose_jit(robot, q, start, tool=False), np.float64)
+    T = tip_frames(robot, measurement, q, start)
     C, used, pnp_rms = [], [], []
     for i in range(Y.shape[0]):
         try:
@@ -736,7 +742,8 @@ def _setup_frames(robot, camera: Camera, deviations, home, distance_mm: float):
     """``(X, B)`` ``[4, 4]`` of :func:`simulate_camera`'s set-up for the robot at ``deviations`` and
     the joint angles ``home`` (rad): the target ``distance_mm`` in front of the camera."""
     dtype = jnp.result_type(float)
-    Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), deviations, tool=False), np.float64)[0]
+    Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), deviations, tool=False,
+                                tip=camera.tip_for(robot)), np.float64)[0]
     pts = np.asarray(camera.points, np.float64)
     centre = pts.mean(axis=0)
     if camera.mount == "eye_in_hand":
@@ -767,7 +774,7 @@ def planning_camera(robot, camera: Camera | None = None, *, mount: str = "eye_in
     X, B = _setup_frames(robot, camera, None, home, distance_mm)
     return Camera(camera.points, camera.intrinsics, camera.mount, handeye_rotation=X[:3, :3],
                   handeye_translation=X[:3, 3], target_rotation=B[:3, :3], target_translation=B[:3, 3],
-                  image_size=camera.image_size, calibrate_intrinsics=camera.calibrate_intrinsics)
+                  image_size=camera.image_size, calibrate_intrinsics=camera.calibrate_intrinsics, tip=camera.tip)
 
 
 def target_in_view(robot, camera: Camera, q, deviations: Deviations | None = None, *,
@@ -818,13 +825,13 @@ class CameraKind(PointsKind):
                 "handeye_rotation": f(model.handeye_rotation), "handeye_translation_mm": f(model.handeye_translation),
                 "target_rotation": f(model.target_rotation), "target_translation_mm": f(model.target_translation),
                 "image_size": None if model.image_size is None else list(model.image_size),
-                "calibrate_intrinsics": bool(model.calibrate_intrinsics)}
+                "calibrate_intrinsics": bool(model.calibrate_intrinsics)} | tip_to_dict(model)
 
     def model_from_dict(self, d):
         return Camera(d["points_mm"], d["intrinsics"], d["mount"], handeye_rotation=d["handeye_rotation"],
                       handeye_translation=d["handeye_translation_mm"], target_rotation=d["target_rotation"],
                       target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
-                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)))
+                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)), tip=d.get("tip"))
 
     def setup(self, data, robot, estimate, options):
         """The :class:`Camera` of camera data from ``options.target``, ``options.camera_intrinsics``,

@@ -78,9 +78,9 @@ from .._core._csvfile import rad_to_deg_roundtrip
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
-from .._models._kinematics import check_joint_angles, fk_pose_jit, rotvec_to_matrix, tool_point_soa
+from .._models._kinematics import check_joint_angles, rotvec_to_matrix, tool_point_soa
 from ._kind import SensorKind, check_label, register_kind
-from ._measurement import MeasurementModel, xyz_entries
+from ._measurement import MeasurementModel, tip_groups, tip_to_dict, xyz_entries
 
 __all__ = ["PlaneContact", "FixedPoint", "plane_group", "point_groups", "initial_contact",
     "unobservable_directions", "contact_model", "default_setup", "DistanceBar", "length_reference_note"]
@@ -159,6 +159,8 @@ class PlaneContact(_LabelModel):
         offsets: ``[K]`` nominal offsets ``d0`` (mm).
         basis_u, basis_v: ``[K, 3]`` the fixed tangent bases.
         labels: the plane labels (static, index order).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` that carries the probe (static; ``None``:
+            the robot's default tip); another tip's tool point is the ``tool@<tip>`` group.
     """
 
     normals: Float[Array, "K 3"]
@@ -166,11 +168,13 @@ class PlaneContact(_LabelModel):
     basis_u: Float[Array, "K 3"]
     basis_v: Float[Array, "K 3"]
     labels: tuple[str, ...] = eqx.field(static=True)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "plane"
     initialisable: ClassVar[tuple[str, ...]] = ("plane", "tool")
     size: ClassVar[int] = 1
 
-    def __init__(self, labels: Sequence[str], normals=None, offsets_mm=None):
+    def __init__(self, labels: Sequence[str], normals=None, offsets_mm=None, tip: str | None = None):
+        self.tip = tip
         labels = tuple(check_label(s) for s in labels)
         if not labels or len(set(labels)) != len(labels):
             raise ValueError(f"PlaneContact needs distinct plane labels, got {list(labels)}")
@@ -194,8 +198,8 @@ class PlaneContact(_LabelModel):
         return cls(dataset_labels(data), **kw)
 
     def extra_groups(self) -> tuple[Group, ...]:
-        """``plane@K`` per label."""
-        return tuple(plane_group(s) for s in self.labels)
+        """``plane@K`` per label (and ``tool@<tip>`` for a tip other than the default one)."""
+        return tuple(plane_group(s) for s in self.labels) + tip_groups(self.tip)
 
     def nominal_lengths(self) -> dict[str, float]:
         return {f"plane_d@{s}": float(v) for s, v in zip(self.labels, np.asarray(self.offsets, np.float64))}
@@ -214,7 +218,7 @@ class PlaneContact(_LabelModel):
     def distances(self, robot, deviations, q) -> Float[Array, "n K"]:
         """Signed distance ``[n, K]`` (mm) of every row's tool point to every plane."""
         q = check_joint_angles(robot, q)
-        p = tool_point_soa(robot, deviations, q)
+        p = tool_point_soa(robot, deviations, q, tip=self.tip_for(robot))
         n, d = self.planes(deviations, q.dtype)
         return jnp.stack([n[k, 0] * p[0] + n[k, 1] * p[1] + n[k, 2] * p[2] - d[k] for k in range(len(self.labels))],
                          axis=-1)
@@ -228,7 +232,7 @@ class PlaneContact(_LabelModel):
         """Signed distance to the row's plane, ``[n, 1]`` (mm)."""
         q = check_joint_angles(robot, q)
         k = _labels_of(y, len(self.labels))
-        p = tool_point_soa(robot, deviations, q)
+        p = tool_point_soa(robot, deviations, q, tip=self.tip_for(robot))
         n, d = self.planes(deviations, q.dtype)
         nk, dk = n[k], d[k]
         return (nk[:, 0] * p[0] + nk[:, 1] * p[1] + nk[:, 2] * p[2] - dk)[:, None]
@@ -248,6 +252,9 @@ class FixedPoint(_LabelModel):
         centres: ``[K, 3]`` nominal centres (mm; default zeros: the closed form finds them).
         radii: ``[K]`` nominal radii (mm; zeros for points).
         labels: the point labels (static); sphere, estimate_radius: static flags.
+        tip: the tip of a :class:`~jaxcal.KinematicTree` that carries the tool tip or ball
+            (static; ``None``: the robot's default tip); another tip's tool point is the
+            ``tool@<tip>`` group.
     """
 
     centres: Float[Array, "K 3"]
@@ -255,10 +262,13 @@ class FixedPoint(_LabelModel):
     labels: tuple[str, ...] = eqx.field(static=True)
     sphere: bool = eqx.field(static=True, default=False)
     estimate_radius: bool = eqx.field(static=True, default=False)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "point"
     initialisable: ClassVar[tuple[str, ...]] = ("point", "tool")
 
-    def __init__(self, labels: Sequence[str], centres_mm=None, radii_mm=None, estimate_radius: bool = False):
+    def __init__(self, labels: Sequence[str], centres_mm=None, radii_mm=None, estimate_radius: bool = False,
+                 tip: str | None = None):
+        self.tip = tip
         labels = tuple(check_label(s) for s in labels)
         if not labels or len(set(labels)) != len(labels):
             raise ValueError(f"FixedPoint needs distinct point labels, got {list(labels)}")
@@ -282,8 +292,9 @@ class FixedPoint(_LabelModel):
         return 1 if self.sphere else 3
 
     def extra_groups(self) -> tuple[Group, ...]:
-        """``point@K`` (and ``radius@K``) per label."""
-        return tuple(g for s in self.labels for g in point_groups(s, self.estimate_radius))
+        """``point@K`` (and ``radius@K``) per label (and ``tool@<tip>`` for a tip other than the
+        default one)."""
+        return tuple(g for s in self.labels for g in point_groups(s, self.estimate_radius)) + tip_groups(self.tip)
 
     def nominal_lengths(self) -> dict[str, float]:
         out: dict[str, float] = {}
@@ -305,7 +316,7 @@ class FixedPoint(_LabelModel):
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:
         """The index of the nearest point / sphere surface ``[n]``."""
         q = check_joint_angles(robot, q)
-        p = jnp.stack(tool_point_soa(robot, deviations, q), -1)
+        p = jnp.stack(tool_point_soa(robot, deviations, q, tip=self.tip_for(robot)), -1)
         c, r = self.points(deviations, q.dtype)
         dist = jnp.abs(jnp.linalg.norm(p[:, None] - c[None], axis=-1) - r)
         return jnp.argmin(jax.lax.stop_gradient(dist), axis=1).astype(q.dtype)
@@ -314,7 +325,7 @@ class FixedPoint(_LabelModel):
         """``p − c_k`` ``[n, 3]`` (points) or ``‖p − c_k‖ − r_k`` ``[n, 1]`` (spheres), mm."""
         q = check_joint_angles(robot, q)
         k = _labels_of(y, len(self.labels))
-        p = tool_point_soa(robot, deviations, q)
+        p = tool_point_soa(robot, deviations, q, tip=self.tip_for(robot))
         c, r = self.points(deviations, q.dtype)
         ck = c[k]
         diff = [p[j] - ck[:, j] for j in range(3)]
@@ -414,7 +425,7 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     Returns:
         :class:`jaxcal.ExtrasEstimate`.
     """
-    from ._initialise import ExtrasEstimate, _trim, trimmed_note
+    from ._initialise import ExtrasEstimate, _trim, tip_frames, tool_guess, trimmed_note, with_tool
 
     q, y = (data.q, data.y) if hasattr(data, "q") else data
     q = jnp.asarray(q)
@@ -427,9 +438,9 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {kind}, tool")
     lab = np.asarray(_labels_of(jnp.asarray(y), len(m.labels)))
-    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
+    T = tip_frames(robot, m, q, start)
     F, P = T[:, :3, :3], T[:, :3, 3]
-    t0 = np.asarray(robot.tool, np.float64) + np.asarray(start.tool, np.float64)
+    t0 = tool_guess(robot, m, start)[1]
     K = len(m.labels)
 
     def resid(dev):
@@ -446,7 +457,7 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
         else:
             t, vals = _point_start(m, start, F[keep], P[keep], lab[keep], t0, kind in est, "tool" in est,
                                    iterations)
-        dev = start.replace(tool=t - np.asarray(robot.tool, np.float64), **vals)
+        dev = with_tool(start.replace(**vals), robot, m, t)
         r = resid(dev)
         new_keep = _trim(r)
         if _pass or new_keep.all() or np.array_equal(new_keep, keep):
@@ -627,22 +638,24 @@ def contact_to_dict(m) -> dict:
     ``{"kind": "point", "labels": [...], "centres_mm": [[...]], "radii_mm": [...] | None,
     "estimate_radius": bool}``."""
     if isinstance(m, DistanceBar):
-        return {"kind": "distance", "dof": m.dof}
+        return {"kind": "distance", "dof": m.dof} | tip_to_dict(m)
     if isinstance(m, PlaneContact):
         return {"kind": "plane", "labels": list(m.labels), "normals": np.asarray(m.normals, np.float64).tolist(),
-                "offsets_mm": np.asarray(m.offsets, np.float64).tolist()}
+                "offsets_mm": np.asarray(m.offsets, np.float64).tolist()} | tip_to_dict(m)
     return {"kind": "point", "labels": list(m.labels), "centres_mm": np.asarray(m.centres, np.float64).tolist(),
             "radii_mm": np.asarray(m.radii, np.float64).tolist() if m.sphere else None,
-            "estimate_radius": bool(m.estimate_radius)}
+            "estimate_radius": bool(m.estimate_radius)} | tip_to_dict(m)
 
 
 def contact_from_dict(d: dict):
-    """Inverse of :func:`contact_to_dict`."""
+    """Inverse of :func:`contact_to_dict` (``"tip"``: the tip the probe is on, absent for the
+    robot's default tip)."""
+    tip = d.get("tip")
     if d["kind"] == "distance":
-        return DistanceBar(int(d["dof"]))
+        return DistanceBar(int(d["dof"]), tip=tip)
     if d["kind"] == "plane":
-        return PlaneContact(d["labels"], d["normals"], d["offsets_mm"])
-    return FixedPoint(d["labels"], d["centres_mm"], d.get("radii_mm"), bool(d.get("estimate_radius", False)))
+        return PlaneContact(d["labels"], d["normals"], d["offsets_mm"], tip=tip)
+    return FixedPoint(d["labels"], d["centres_mm"], d.get("radii_mm"), bool(d.get("estimate_radius", False)), tip=tip)
 
 
 # -- distance bar / ballbar ------------------------------------------------------------------------
@@ -665,14 +678,23 @@ class DistanceBar(MeasurementModel):
 
     Attributes:
         dof: joints of the robot (static; sets the reading's shape).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` that carries the bar's ball (static;
+            ``None``: the robot's default tip); another tip's tool point is the ``tool@<tip>``
+            group.
     """
 
     dof: int = eqx.field(static=True)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "distance"
     size: ClassVar[int] = 1
 
-    def __init__(self, dof: int):
+    def __init__(self, dof: int, tip: str | None = None):
         self.dof = int(dof)
+        self.tip = tip
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``tool@<tip>`` for a tip other than the default one, else none."""
+        return tip_groups(self.tip)
 
     @property
     def sample_shape(self) -> tuple[int, ...]:  # type: ignore[override]
@@ -691,9 +713,10 @@ class DistanceBar(MeasurementModel):
 
         q = check_joint_angles(robot, q)
         qb = qb.astype(q.dtype)
-        pa = tool_point_soa(robot, deviations, q)
+        tip = self.tip_for(robot)
+        pa = tool_point_soa(robot, deviations, q, tip=tip)
         with shared_joint_trig(qb):
-            pb = tool_point_soa(robot, deviations, qb)
+            pb = tool_point_soa(robot, deviations, qb, tip=tip)
         return pa, pb
 
     def predict(self, robot, deviations, q) -> Float[Array, "n dof1"]:
@@ -868,7 +891,7 @@ class PointKind(_LabelledContactKind):
         r = 0.0 if radius_mm is None else float(radius_mm)
         if not (math.isfinite(r) and r >= 0):
             raise ValueError(f"--radius-mm must be a finite number >= 0 (mm), got {radius_mm}")
-        return FixedPoint(model.labels, model.centres, radii_mm=r, estimate_radius=estimate_radius)
+        return FixedPoint(model.labels, model.centres, radii_mm=r, estimate_radius=estimate_radius, tip=model.tip)
 
 
 def distance_columns(dof: int, unit: str = "deg") -> list[str]:

@@ -13,7 +13,6 @@ import numpy as np
 from .._core._params import Deviations, layout_for
 from .._core._rotvec import matrix_to_rotvec, rotvec_to_matrix
 from .._models._abstract import AbstractRobot
-from .._models._kinematics import fk_pose_jit
 from ._initialise import (
     MIN_FRAME_ROWS,
     TOOL_PRIOR_STD_MM,
@@ -29,8 +28,11 @@ from ._initialise import (
     plain_row_errors,
     project_rotation,
     residual_rows,
+    tip_frames,
+    tool_guess,
     trimmed_note,
     wire_with_tool,
+    with_tool,
 )
 from ._measurement import CableLength, Markers, MeasurementModel, Pose, Position
 
@@ -94,7 +96,7 @@ def _tool_message(t, t0) -> str:
 def _markers_start(measurement: Markers, robot, q, Y, start, est_base: bool, est_markers: bool, iterations=100):
     """``(R, t, M [N, 3], keep)``: one sensor frame and the marker layout of a :class:`Markers`
     model (:func:`alternate_frames_and_markers` with one frame and one placement)."""
-    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
+    T = tip_frames(robot, measurement, q, start)
     R = rotvec_to_matrix(start.base_rotation) @ np.asarray(measurement.rotation, np.float64)
     t = np.asarray(measurement.translation, np.float64) + np.asarray(start.base_translation, np.float64)
     M = np.asarray(measurement.marker_points(start), np.float64)
@@ -161,12 +163,12 @@ def initial_extras(
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {list(measurement.initialisable)}")
     est_tool = "tool" in estimate
-    tool0 = np.asarray(robot.tool, np.float64) + np.asarray(start.tool, np.float64)  # flange frame, mm
+    tool0 = tool_guess(robot, measurement, start)[1]  # flange (tip link) frame, mm
     P = Pl = Fl = None  # tool points; flange origins and rotations (base frame)
     if kind != "markers":
         # the flange frames (one compiled program for every kind and estimate, shared with the
         # other closed-form starts), the tool points from them
-        T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
+        T = tip_frames(robot, measurement, q, start)
         Fl, Pl = T[:, :3, :3], T[:, :3, 3]
         P = Pl + Fl @ tool0
     Y = np.asarray(y, np.float64)
@@ -255,7 +257,7 @@ def initial_extras(
     else:  # pragma: no cover - every model is handled above
         raise TypeError(f"no initialisation for {type(measurement).__name__}")
     if est_tool:
-        dev = dev.replace(tool=jnp.asarray(tool - np.asarray(robot.tool, np.float64), dtype))
+        dev = with_tool(dev, robot, measurement, tool)
         what.append(_tool_message(tool, tool0))
     after = rms(dev)
     n_trim = int((~keep).sum())

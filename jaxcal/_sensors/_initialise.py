@@ -131,6 +131,30 @@ def plain_row_errors(measurement, r) -> np.ndarray:
     return np.linalg.norm(r[:, :3] if measurement.kind == "pose" else r, axis=1)
 
 
+def tip_frames(robot, measurement, q, start: Deviations | None) -> np.ndarray:
+    """``T_base_link`` ``[n, 4, 4]`` (mm) of the link frame ``measurement`` sees at ``q`` (the flange,
+    or the link of its ``tip`` on a :class:`~jaxcal.KinematicTree`), robot at ``start``: the
+    frames the closed-form starts work from (one compiled program per tip and shape bucket)."""
+    from .._models._kinematics import fk_pose_jit
+
+    return np.asarray(fk_pose_jit(robot, q, start, tip=measurement.tip_for(robot)), np.float64)
+
+
+def tool_guess(robot, measurement, start: Deviations) -> tuple[np.ndarray, np.ndarray]:
+    """``(nominal, guess)`` ``[3]`` mm of the tool point ``measurement`` sees, in its link frame:
+    the robot's nominal tool point of that tip and it plus ``start``'s deviation of the model's
+    :attr:`~jaxcal.MeasurementModel.tool_group`."""
+    tip = measurement.tip_for(robot)
+    nominal = np.asarray(robot.tool if tip is None else robot.tool_of(tip), np.float64)
+    return nominal, nominal + np.asarray(start.values[measurement.tool_group], np.float64)
+
+
+def with_tool(dev: Deviations, robot, measurement, tool) -> Deviations:
+    """``dev`` with the model's tool group set so that its tool point is ``tool`` ``[3]`` mm."""
+    nominal, _ = tool_guess(robot, measurement, dev)
+    return dev.replace(**{measurement.tool_group: np.asarray(tool, np.float64) - nominal})
+
+
 #: Rows whose closed-form-start residual is beyond this many robust σ are left out of the start.
 TRIM_ROBUST_SIGMAS = 5.0
 

@@ -29,7 +29,8 @@ if TYPE_CHECKING:  # the registry's names are read by the command line's parser,
 
     import numpy as np
 
-__all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_kind", "sensor_kinds", "kind_names", "check_label"]
+__all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_kind", "sensor_kinds", "kind_names",
+           "check_label", "check_tip", "resolve_tip"]
 
 #: built-in kinds and the module (in this package) that defines each, in the order in which a
 #: file without a ``# kind:`` line is recognised from its columns (the first whose columns are
@@ -241,6 +242,23 @@ class SensorKind:
         estimate, notes = self.required_extras(estimate)
         return self.default_model(robot, data=data), estimate, notes
 
+    def at_file_tip(self, model, data, robot):
+        """``model`` seeing the tip the file's ``# tip: NAME`` line names (:func:`resolve_tip`:
+        ``tip=None`` for the robot's default tip); ``model`` itself without the line, or for a
+        model that names no tip (:class:`~jaxcal.SelfContact` names its two with ``# tips:``).
+
+        Raises:
+            ValueError: a tip the robot does not have; the message lists its tips.
+        """
+        name = str(data.meta.get("tip", "")).strip()
+        if not name or not hasattr(model, "tip"):
+            return model
+        try:
+            tip = resolve_tip(robot, name)
+        except ValueError as e:
+            raise ValueError(f"the data file's '# tip: {name}' line: {e}") from None
+        return model.at_tip(tip)
+
     def spheres(self, model, radius_mm: float | None, estimate_radius: bool):
         """``model`` as spheres of radius ``radius_mm`` (point data only).
 
@@ -365,6 +383,43 @@ def sensor_kind(name: str, what: str = "measurement kind") -> SensorKind:
 def sensor_kinds() -> tuple[SensorKind, ...]:
     """Every kind, in recognition order (imports every kind's module)."""
     return tuple(sensor_kind(k) for k in kind_names())
+
+
+def check_tip(robot, tip: str | None) -> str | None:
+    """``tip`` (a tip of a :class:`~jaxcal.KinematicTree` other than its default one, or ``None``:
+    the robot's default tip) checked against ``robot``, as the kinematics take it.
+
+    Raises:
+        ValueError: a tip the robot does not have (the message lists its tips), or the robot's
+            default tip named (its tool point is the standard ``tool`` group: ``tip=None``).
+    """
+    if tip is None:
+        return None
+    have = tuple(robot.tip_names())
+    if tip not in have:
+        tips = list(have) if have else "none (it has one tool point)"
+        raise ValueError(f"tip {tip!r} is not a tip of robot {robot.name!r}; its tips: {tips} (a URDF robot with "
+                         "several tips: --tip A,B on the command line, load_urdf's tips argument in Python)")
+    if tip == have[0]:
+        raise ValueError(f"tip {tip!r} is robot {robot.name!r}'s default tip: give tip=None (its tool point is the "
+                         "standard tool group); jaxcal.resolve_tip(robot, name) gives None for it")
+    return tip
+
+
+def resolve_tip(robot, tip: str | None) -> str | None:
+    """The ``tip=`` of a measurement model that sees the tip called ``tip`` of ``robot``: ``None``
+    for ``None`` or the robot's default tip (``robot.tip_names()[0]``; a serial chain's own tip
+    link), else the name, checked.
+
+    Raises:
+        ValueError: a tip the robot does not have; the message lists its tips.
+    """
+    if tip is None:
+        return None
+    have = tuple(robot.tip_names())
+    if have and tip == have[0] or not have and tip == getattr(robot, "tip", None):  # a serial chain's own tip
+        return None
+    return check_tip(robot, tip)
 
 
 def check_label(label) -> str:

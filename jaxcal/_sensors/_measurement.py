@@ -9,6 +9,7 @@ least-squares solvers and gradient methods work on.
 from __future__ import annotations
 
 import abc
+import copy
 import math
 from typing import ClassVar
 
@@ -25,9 +26,10 @@ from .._core._rotvec import matrix_to_rotvec
 from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._models._abstract import AbstractRobot
 from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
-from ._kind import SensorKind, register_kind
+from ._kind import SensorKind, check_tip, register_kind, resolve_tip
 
-__all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict"]
+__all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict", "resolve_tip",
+           "check_tip"]
 
 
 #: :class:`Pose`'s orientation weight (mm/rad) where none is given: the start of its estimate
@@ -36,6 +38,14 @@ DEFAULT_ORIENTATION_SCALE = 1000.0
 #: readings (a simulation without orientation noise) give σ̂_rot → 0; the upper end keeps the
 #: whitened Jacobian well conditioned (a 1 mm lever then weighs like 1000 mm at the default)
 ORIENTATION_SCALE_RANGE = (1e-3, 1e6)
+
+
+def tip_groups(tip: str | None) -> tuple[Group, ...]:
+    """``(tool@<tip>,)`` for a model that sees ``tip`` (not the default tip), else ``()``: the
+    group its tool point moves with (:func:`~jaxcal._models._tree.tip_tool_group`)."""
+    from .._models._tree import tip_tool_group
+
+    return () if tip is None else (tip_tool_group(tip),)
 
 
 def xyz_entries(prefix: str, values, suffix: str = "") -> dict[str, float]:
@@ -63,12 +73,44 @@ class MeasurementModel(eqx.Module):
     #: residual components with a noise σ each, ``((name, unit, first, stop), ...)`` over a row's
     #: ``size`` entries (:class:`Pose`: position mm, orientation rad); empty: one σ for every entry.
     components: ClassVar[tuple[tuple[str, str, int, int], ...]] = ()
+    #: whether the reading depends on the robot's tool point (a marker set or a camera target is
+    #: its own tool: ``False``)
+    sees_tool_point: ClassVar[bool] = True
 
     @host_method
     def estimates_weights(self) -> bool:
         """Whether :func:`jaxcal.calibrate` estimates a σ per :attr:`components` and refits with
         the residual whitened by them (:meth:`reweighted`). No by default."""
         return False
+
+    @property
+    def tool_group(self) -> str:
+        """The deviation group the seen tool point moves with: the standard ``tool`` for the
+        robot's default tip (``tip=None``), ``tool@<tip>`` for another tip of a
+        :class:`~jaxcal.KinematicTree`. ``calibrate(extras=["tool"])`` frees this group. A model
+        that does not see the tool point (:attr:`sees_tool_point`) names the standard one."""
+        tip = getattr(self, "tip", None)
+        return "tool" if tip is None or not self.sees_tool_point else f"tool@{tip}"
+
+    def tip_for(self, robot) -> str | None:
+        """The model's ``tip`` checked against ``robot`` (:func:`check_tip`; host-side, also at
+        trace time: the tip is static)."""
+        return check_tip(robot, getattr(self, "tip", None))
+
+    @host_method
+    def at_tip(self, tip: str | None) -> MeasurementModel:
+        """This model seeing ``tip`` instead (``None``: the robot's default tip; resolve a name
+        that may be the default one with :func:`resolve_tip` first).
+
+        Raises:
+            ValueError: the model sees no tip of the robot (a marker set, a camera's target are
+                on the tip its ``tip`` names; a model without a ``tip`` field has none).
+        """
+        if not hasattr(self, "tip"):
+            raise ValueError(f"{self.kind} measurements do not name a tip")
+        new = copy.copy(self)
+        object.__setattr__(new, "tip", None if tip is None else str(tip))
+        return new
 
     @abc.abstractmethod
     def predict(self, robot: AbstractRobot, deviations: Deviations | None, q: Float[Array, "n dof"]):
@@ -156,19 +198,28 @@ class CableLength(MeasurementModel):
 
     Attributes:
         anchor: ``[3]`` nominal anchor position in the base frame (mm).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` the wire is attached to (static;
+            ``None``: the robot's default tip); another tip's tool point is the ``tool@<tip>``
+            group (:meth:`extra_groups`).
     """
 
     anchor: Float[Array, " 3"]
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "cable"
     initialisable: ClassVar[tuple[str, ...]] = ("anchor", "cable_offset", "tool")
     size: ClassVar[int] = 1
     sample_shape: ClassVar[tuple[int, ...]] = ()
 
-    def __init__(self, anchor):
+    def __init__(self, anchor, tip: str | None = None):
         anchor = jnp.asarray(anchor)
         if anchor.shape != (3,):
             raise ValueError(f"anchor must be a [3] position in mm, got shape {anchor.shape}")
         self.anchor = anchor
+        self.tip = tip
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``tool@<tip>`` for a tip other than the default one, else none."""
+        return tip_groups(self.tip)
 
     def nominal_lengths(self) -> dict[str, float]:
         return xyz_entries("anchor_", self.anchor)
@@ -176,7 +227,7 @@ class CableLength(MeasurementModel):
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:
         """Wire lengths ``[n]`` (mm)."""
         q = check_joint_angles(robot, q)
-        p = tool_point_soa(robot, deviations, q, scalar_consumer=True)
+        p = tool_point_soa(robot, deviations, q, scalar_consumer=True, tip=self.tip_for(robot))
         anchor = self.anchor.astype(q.dtype)
         offset = jnp.zeros((), q.dtype)
         if deviations is not None:
@@ -226,21 +277,30 @@ class Position(MeasurementModel):
     Attributes:
         rotation: ``[3, 3]`` nominal ``R_sensor_base``.
         translation: ``[3]`` nominal base origin in the sensor frame (mm).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` whose tool point is measured (static;
+            ``None``: the robot's default tip); another tip's tool point is the ``tool@<tip>``
+            group (:meth:`extra_groups`).
     """
 
     rotation: Float[Array, "3 3"]
     translation: Float[Array, " 3"]
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "position"
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
     size: ClassVar[int] = 3
     sample_shape: ClassVar[tuple[int, ...]] = (3,)
 
-    def __init__(self, rotation=None, translation=None):
+    def __init__(self, rotation=None, translation=None, tip: str | None = None):
         self.rotation, self.translation = _check_frame(rotation, translation)
+        self.tip = tip
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``tool@<tip>`` for a tip other than the default one, else none."""
+        return tip_groups(self.tip)
 
     def predict(self, robot, deviations, q) -> Float[Array, "n 3"]:
         q = check_joint_angles(robot, q)
-        p = tool_point_soa(robot, deviations, q)
+        p = tool_point_soa(robot, deviations, q, tip=self.tip_for(robot))
         R, t = _sensor_frame(self, deviations, q.dtype)
         return jnp.stack([R[k, 0] * p[0] + R[k, 1] * p[1] + R[k, 2] * p[2] + t[k] for k in range(3)], axis=-1)
 
@@ -265,12 +325,16 @@ class Pose(MeasurementModel):
         orientation_scale: the weight (mm/rad), a run-time scalar: refits with another weight run
             the same compiled program.
         orientation_scale_given: whether the weight was given (static).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` whose pose is measured (static;
+            ``None``: the robot's default tip): its link frame's orientation, origin at its tool
+            point (the ``tool@<tip>`` group, :meth:`extra_groups`).
     """
 
     rotation: Float[Array, "3 3"]
     translation: Float[Array, " 3"]
     orientation_scale: Float[Array, ""]
     orientation_scale_given: bool = eqx.field(static=True, default=True)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "pose"
     error_entries: ClassVar[int | None] = 3
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
@@ -279,7 +343,9 @@ class Pose(MeasurementModel):
     components: ClassVar[tuple[tuple[str, str, int, int], ...]] = (("position", "mm", 0, 3),
                                                                   ("orientation", "rad", 3, 6))
 
-    def __init__(self, orientation_scale: float | None = None, rotation=None, translation=None):
+    def __init__(self, orientation_scale: float | None = None, rotation=None, translation=None,
+                 tip: str | None = None):
+        self.tip = tip
         given = orientation_scale is not None
         scale = float(DEFAULT_ORIENTATION_SCALE if orientation_scale is None else orientation_scale)
         if not (math.isfinite(scale) and scale > 0):
@@ -287,6 +353,10 @@ class Pose(MeasurementModel):
         self.orientation_scale = to_device(np.asarray(scale, np.float64))
         self.orientation_scale_given = given
         self.rotation, self.translation = _check_frame(rotation, translation)
+
+    def extra_groups(self) -> tuple[Group, ...]:
+        """``tool@<tip>`` for a tip other than the default one, else none."""
+        return tip_groups(self.tip)
 
     @host_method
     def component_scales(self) -> np.ndarray:
@@ -311,15 +381,16 @@ class Pose(MeasurementModel):
         from .._models._kinematics import fk_pose
 
         q = check_joint_angles(robot, q)
-        T = fk_pose(robot, q, deviations, tool=True)
+        T = fk_pose(robot, q, deviations, tool=True, tip=self.tip_for(robot))
         R, t = _sensor_frame(self, deviations, T.dtype)
         top = jnp.concatenate([R @ T[..., :3, :3], (T[..., :3, 3] @ R.T + t)[..., None]], axis=-1)
         return jnp.concatenate([top, T[..., 3:, :]], axis=-2)
 
     def residual(self, robot, deviations, q, y) -> Float[Array, "n 6"]:
         q = check_joint_angles(robot, q)
-        frame = _chain(robot, deviations, q)
-        p = jnp.stack(_tool_offset(robot, deviations, frame, q.dtype), axis=-1)
+        tip = self.tip_for(robot)
+        frame = _chain(robot, deviations, q, tip)
+        p = jnp.stack(_tool_offset(robot, deviations, frame, q.dtype, tip), axis=-1)
         Rp = jnp.stack([jnp.stack(c, -1) for c in frame[:3]], axis=-1)  # [n,3,3]
         R, t = _sensor_frame(self, deviations, q.dtype)
         # residual in the sensor frame: position R·p + t − p_m; orientation of R·R_p vs R_m
@@ -346,6 +417,7 @@ class MarkerModel(MeasurementModel):
     RMS over the sample's markers of the 3-D distance error (mm)."""
 
     initialisable: ClassVar[tuple[str, ...]] = ("base", "markers")
+    sees_tool_point: ClassVar[bool] = False
 
     @property
     @abc.abstractmethod
@@ -387,15 +459,19 @@ class Markers(MarkerModel):
         positions: ``[N, 3]`` nominal marker positions in the flange (tool) frame (mm).
         rotation: ``[3, 3]`` nominal ``R_sensor_base``; translation: ``[3]`` mm.
         known: whether the marker positions are exact (static).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` that carries the markers (static;
+            ``None``: the robot's default tip); the positions are in its tip link frame.
     """
 
     positions: Float[Array, "N 3"]
     rotation: Float[Array, "3 3"]
     translation: Float[Array, " 3"]
     known: bool = eqx.field(static=True, default=False)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "markers"
 
-    def __init__(self, positions_mm, known: bool = False, rotation=None, translation=None):
+    def __init__(self, positions_mm, known: bool = False, rotation=None, translation=None, tip: str | None = None):
+        self.tip = tip
         pos = jnp.asarray(positions_mm)
         if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] < 1:
             raise ValueError(f"positions_mm must be [N, 3] marker positions in the flange frame (mm), N >= 1; "
@@ -444,7 +520,7 @@ class Markers(MarkerModel):
     def predict(self, robot, deviations, q) -> Float[Array, "n N 3"]:
         """Marker positions ``[n, N, 3]`` in the sensor frame (mm)."""
         q = check_joint_angles(robot, q)
-        X, Y, Z, P = _chain(robot, deviations, q)
+        X, Y, Z, P = _chain(robot, deviations, q, self.tip_for(robot))
         m = self.marker_points(deviations, q.dtype)
         R, t = _sensor_frame(self, deviations, q.dtype)
         base = [jnp.stack([P[c] + m[k, 0] * X[c] + m[k, 1] * Y[c] + m[k, 2] * Z[c] for c in range(3)], -1)
@@ -476,6 +552,12 @@ def default_anchor(robot: AbstractRobot) -> Array:
     """A draw-wire anchor on the base plane in front of the robot: ``(reach/2, 0, 0)`` mm (the
     start of an anchor estimated from the data, and the simulations' anchor)."""
     return to_device([0.5 * robot.reach_mm(), 0.0, 0.0], np.float64)
+
+
+def tip_to_dict(model) -> dict:
+    """``{"tip": name}`` of a model that sees a tip other than the robot's default one, else ``{}``
+    (a serial robot's result files are as before)."""
+    return {} if getattr(model, "tip", None) is None else {"tip": str(model.tip)}
 
 
 def frame_to_dict(model) -> dict:
@@ -516,10 +598,10 @@ class CableKind(SensorKind):
             "(multilateration on the nominal robot, then the joint fit)"]
 
     def model_to_dict(self, model):
-        return {"kind": "cable", "anchor_mm": np.asarray(model.anchor, np.float64).tolist()}
+        return {"kind": "cable", "anchor_mm": np.asarray(model.anchor, np.float64).tolist()} | tip_to_dict(model)
 
     def model_from_dict(self, d):
-        return CableLength(to_device(np.asarray(d["anchor_mm"], np.float64)))
+        return CableLength(to_device(np.asarray(d["anchor_mm"], np.float64)), tip=d.get("tip"))
 
     def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
         if anchor_mm is None:
@@ -547,10 +629,10 @@ class PositionKind(SensorKind):
     fleet = True
 
     def model_to_dict(self, model):
-        return {"kind": "position"} | frame_to_dict(model)
+        return {"kind": "position"} | frame_to_dict(model) | tip_to_dict(model)
 
     def model_from_dict(self, d):
-        return Position(**frame_from_dict(d))
+        return Position(**frame_from_dict(d), tip=d.get("tip"))
 
     def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
         self.refuse_anchor(anchor_mm)
@@ -570,10 +652,10 @@ class PoseKind(SensorKind):
     def model_to_dict(self, model):
         # the weight the fit used (estimated unless given: read back, it is taken as given)
         return {"kind": "pose", "orientation_scale": float(model.orientation_scale),
-                "orientation_scale_estimated": not model.orientation_scale_given} | frame_to_dict(model)
+                "orientation_scale_estimated": not model.orientation_scale_given} | frame_to_dict(model) | tip_to_dict(model)
 
     def model_from_dict(self, d):
-        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame_from_dict(d))
+        return Pose(orientation_scale=float(d.get("orientation_scale", 1000.0)), **frame_from_dict(d), tip=d.get("tip"))
 
     def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
         self.refuse_anchor(anchor_mm)

@@ -46,16 +46,17 @@ from jaxtyping import Array, Float, Int
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
-from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, rotvec_to_matrix
+from .._models._kinematics import _chain, check_joint_angles, rotvec_to_matrix
 from ._initialise import (
     MIN_FRAME_ROWS,
     ExtrasEstimate,
     alternate_frames_and_markers,
     marker_errors,
+    tip_frames,
     trimmed_note,
 )
 from ._kind import PointsKind, register_kind
-from ._measurement import MarkerModel, Markers, frame_from_dict, frame_to_dict, xyz_entries
+from ._measurement import MarkerModel, Markers, frame_from_dict, frame_to_dict, tip_to_dict, xyz_entries
 
 __all__ = ["SessionMarkers", "frame_groups", "placement_groups", "initial_sessions", "session_labels",
     "masked_markers"]
@@ -136,6 +137,8 @@ class SessionMarkers(MarkerModel):
         frame_index, placement_index: ``[n]`` int, per row.
         frames, placements: the label of every index (static, in order).
         markers: per placement, its 1-based marker numbers (static; default all ``1..N``).
+        tip: the tip of a :class:`~jaxcal.KinematicTree` that carries the markers (static;
+            ``None``: the robot's default tip); the positions are in its tip link frame.
     """
 
     positions: Float[Array, "P N 3"]
@@ -144,12 +147,13 @@ class SessionMarkers(MarkerModel):
     frames: tuple[str, ...] = eqx.field(static=True)
     placements: tuple[str, ...] = eqx.field(static=True)
     markers: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "markers"
     known: ClassVar[bool] = False
 
     def __init__(self, frames: Sequence[str], placements: Sequence[str], n_markers: int = 1, positions_mm=None,
                  *, frame_labels: Sequence[str] | None = None, placement_labels: Sequence[str] | None = None,
-                 markers=None):
+                 markers=None, tip: str | None = None):
         """Args:
             frames, placements: ``[n]`` per-row frame and placement labels (strings).
             n_markers: markers per row (``N``).
@@ -162,7 +166,9 @@ class SessionMarkers(MarkerModel):
             markers: the markers each placement has: ``{label: [k, ...]}`` or one sequence per
                 placement label in order (1-based marker numbers ``<= N``; default every
                 placement has all ``N``). :meth:`from_dataset` reads them from the data.
+            tip: the tip that carries the markers (``None``: the robot's default tip).
         """
+        self.tip = tip
         frames = [_check_label(f, "frame") for f in frames]
         placements = [_check_label(p, "placement") for p in placements]
         if len(frames) != len(placements):
@@ -217,7 +223,7 @@ class SessionMarkers(MarkerModel):
         pi = np.asarray(self.placement_index)[rows]
         return SessionMarkers([self.frames[i] for i in fi], [self.placements[i] for i in pi], self.n_markers,
                               np.asarray(self.positions), frame_labels=self.frames, placement_labels=self.placements,
-                              markers=self.markers)
+                              markers=self.markers, tip=self.tip)
 
     @host_method
     def pad_rows(self, n: int, n_to: int) -> SessionMarkers:
@@ -320,7 +326,7 @@ class SessionMarkers(MarkerModel):
         q = check_joint_angles(robot, q)
         if q.shape[0] != self.n_rows:
             raise ValueError(f"SessionMarkers was made for {self.n_rows} rows, got {q.shape[0]} joint rows")
-        X, Y, Z, P = _chain(robot, deviations, q)
+        X, Y, Z, P = _chain(robot, deviations, q, self.tip_for(robot))
         M = self.marker_arrays(deviations, q.dtype)[self.placement_index]  # [n, N, 3]
         R, t = self.frame_arrays(deviations, q.dtype)
         R, t = R[self.frame_index], t[self.frame_index]  # [n, 3, 3], [n, 3]
@@ -420,7 +426,7 @@ def initial_sessions(robot, measurement: SessionMarkers, data, *, start: Deviati
             raise ValueError(f"unknown placement label {p!r}; labels: {list(m.placements)}")
         if not np.any(pi == m.placements.index(p)):
             raise ValueError(f"placement {p!r} has no rows: its marker positions cannot be estimated")
-    T = np.asarray(fk_pose_jit(robot, q, start), np.float64)
+    T = tip_frames(robot, m, q, start)
     F, P = T[:, :3, :3], T[:, :3, 3]
     M = np.array(m.marker_arrays(start, dtype), np.float64)  # [Pn, N, 3]
     R_all, t_all = (np.array(a, np.float64) for a in m.frame_arrays(start, dtype))
@@ -532,18 +538,19 @@ class MarkersKind(PointsKind):
                     "sessions": {"frames": list(model.frames), "placements": list(model.placements),
                                  "markers": [list(k) for k in model.markers],
                                  "frame_index": np.asarray(model.frame_index).tolist(),
-                                 "placement_index": np.asarray(model.placement_index).tolist()}}
-        return {"kind": "markers", "positions_mm": positions, "known": bool(model.known)} | frame_to_dict(model)
+                                 "placement_index": np.asarray(model.placement_index).tolist()}} | tip_to_dict(model)
+        return ({"kind": "markers", "positions_mm": positions, "known": bool(model.known)} | frame_to_dict(model)
+                | tip_to_dict(model))
 
     def model_from_dict(self, d):
         if "sessions" not in d:
             return Markers(to_device(np.asarray(d["positions_mm"], np.float64)), known=bool(d.get("known", False)),
-                           **frame_from_dict(d))
+                           **frame_from_dict(d), tip=d.get("tip"))
         se = d["sessions"]
         fr, pl = se["frames"], se["placements"]
         return SessionMarkers([fr[i] for i in se["frame_index"]], [pl[i] for i in se["placement_index"]],
                               len(d["positions_mm"][0]), np.asarray(d["positions_mm"], np.float64),
-                              frame_labels=fr, placement_labels=pl, markers=se["markers"])
+                              frame_labels=fr, placement_labels=pl, markers=se["markers"], tip=d.get("tip"))
 
     def default_model(self, robot, *, data=None, anchor_mm=None, n_markers=None):
         # marker positions on the flange unknown: they start from the data (closed form) and are calibrated
