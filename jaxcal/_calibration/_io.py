@@ -25,8 +25,7 @@ from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
 from .._core._precision import to_device
 from .._fit._diagnostics import Uncertainty
-from .._fit._learned_prior import prior_from_dict, prior_to_dict
-from .._fit._objective import Prior
+from .._fit._prior import Prior, prior_from_dict, prior_to_dict
 from .._fit._result import CalibrationResult, Status
 from .._models._abstract import AbstractRobot
 from .._models._nongeometric import nongeometric_from_dict

@@ -90,7 +90,7 @@ def calibrate_fleet_jointly(robot, measurement, datasets, method="lm", *, base: 
         :class:`JointFleetResult` ``(results, prior, population, summary, rounds, shifts,
         converged)``.
     """
-    from .._fit._learned_prior import fleet_prior
+    from .._fit._prior import fleet_prior
 
     if "prior" in kwargs:
         raise TypeError("calibrate_fleet_jointly takes base=, not prior= (the rounds' prior is the learned one)")

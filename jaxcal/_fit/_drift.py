@@ -10,7 +10,7 @@ import numpy as np
 
 from .._core._metrics import format_table
 from .._core._params import group_of
-from ._learned_prior import robot_part
+from ._prior import robot_part
 
 __all__ = ["drift", "DriftReport", "DriftRow", "parameter_label"]
 

@@ -1,4 +1,8 @@
-"""Priors learned from calibrations: a robot model's fleet (empirical Bayes) and a unit's previous result.
+"""The prior of a calibration (maximum a posteriori): :class:`Prior` — Gaussian toward the nominal
+robot, from its specification text, a fleet of calibrated units, a unit's previous result or a
+file — and the priors learned from calibrations: a robot model's fleet (empirical Bayes) and a
+unit's previous result. One module, so that :class:`Prior`'s constructors and the learning they call
+live together (the prior's parts as the objective uses them: :mod:`jaxcal._fit._objective`).
 
 **The fleet prior.** Units of one robot model share systematic deviations (the drawing's nominal
 is off the same way for all) and scatter around them. Model unit ``k``'s robot deviations as
@@ -37,20 +41,18 @@ import dataclasses
 import json
 import math
 import pathlib
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from .._core._json import to_jsonable
 from .._core._metrics import format_table
-from .._core._params import ParameterSpace, group_kind
+from .._core._params import Deviations, ParameterSpace, group_kind, group_of
+from .._models import _chain, _nongeometric  # noqa: F401 — they register their group names (Prior.parse)
 from ._evidence import EvidenceScales
 
-if TYPE_CHECKING:  # the Prior class is passed in (Prior's own methods call these): no import circle
-    from ._objective import Prior
-
-__all__ = ["FleetPopulation", "fleet_prior", "result_prior", "save_prior", "load_prior", "prior_from_file",
-           "PRIOR_FORMAT", "robot_part"]
+__all__ = ["Prior", "resolve_prior", "SCALE_BY", "FleetPopulation", "fleet_prior", "result_prior", "save_prior",
+           "load_prior", "prior_from_file", "PRIOR_FORMAT", "robot_part"]
 
 #: ``"format"`` entry of prior files.
 PRIOR_FORMAT = "jaxcal-prior/1"
@@ -420,3 +422,327 @@ def prior_from_file(path, cls: type[Prior]) -> Prior:
         return _result_prior(free, units, x, unc["covariance"], d["deviations"], base,
                              f"previous calibration of {name} ({pathlib.Path(path).name})", unc.get("noise_std_mm"))
     return prior_from_dict(d, cls, str(path))
+
+
+#: how a :class:`Prior`'s scale is set (:attr:`Prior.scale_by`): as given, or by the evidence
+SCALE_BY = ("fixed", "evidence")
+
+@dataclasses.dataclass(frozen=True)
+class Prior:
+    """Independent Gaussian priors on the deviations Δ from nominal (maximum a posteriori).
+
+    Per-group standard deviations; ``math.inf`` (the default for the sensor extras) means no
+    prior on that group. The defaults are the size of real manufacturing errors of industrial
+    arms (tenths of a degree, a few mm), wide enough not to bias a well-determined parameter.
+    Robot groups in other units (a compliance in rad/(N·m)...) take their group's own default
+    σ (the group's default prior σ, divided by ``strength``), or no prior if the
+    group has none.
+
+    Attributes:
+        angle_deg: σ of the DH angles α, θ and Hayati β (degrees).
+        length_mm: σ of the DH lengths a, d (mm).
+        extras_mm: σ of the anchor, tool point, cable offset and base translation (mm).
+        extras_deg: σ of the base-frame rotation (degrees).
+        noise_std: the measurement noise σ (mm) the prior is weighed against; ``None``: estimated
+            from the fit by :func:`jaxcal.calibrate` (a sweep uses its simulated σ).
+        mean: prior means (default: the nominal robot, zero deviations): :class:`Deviations`, or
+            ``((name, value), ...)`` by parameter name (rad/mm; names not listed: 0).
+        overrides: ``((name, σ), ...)`` per-parameter σ by name (rad/mm as the name's unit says:
+            ``("d_1", 10.0)``, ``("theta_2", 0.01)``), taking precedence over the groups.
+        strength: divides the groups' own default σ (:meth:`scaled` multiplies it).
+        covariance: ``(names, rows)``: a full prior covariance ``[k, k]`` (rad/mm, as the names'
+            units) of the parameters ``names`` (a learned prior: :meth:`from_fleet`,
+            :meth:`from_result`); it replaces the groups' σ of those parameters (an override still
+            wins) and correlates them: the MAP objective's prior residuals are then
+            ``σ·L⁻¹(x − m)`` with ``L Lᵀ`` the covariance of the free parameters (:meth:`whitening`).
+        source: where a learned prior comes from (printed by :meth:`describe`).
+        population: a prior learned from a fleet: the :class:`~jaxcal.FleetPopulation` estimate
+            (population mean and spread with their uncertainties), else ``None``.
+        scale_by: ``"fixed"`` (the σ as given) or ``"evidence"``: :func:`jaxcal.calibrate` chooses
+            the scale from the data (type-II maximum likelihood: :mod:`jaxcal._fit._evidence`), one
+            factor per family — the σ of the angle deviations (:attr:`angle_deg`), the σ of the
+            length deviations (:attr:`length_mm`), or, for a prior with a :attr:`covariance`, one
+            factor on that covariance — starting from the σ given here. Per-parameter
+            :attr:`overrides`, the sensor extras' σ and groups with their own default σ keep theirs.
+            ``prior="evidence"`` (CLI ``--prior evidence``) is the default prior's σ chosen so.
+        evidence: the choice (:class:`~jaxcal._fit._evidence.EvidenceScales`: factors, their
+            uncertainty, how many parameters the data determine) on the prior of a result
+            calibrated with ``scale_by="evidence"``, whose σ are then the chosen ones; else ``None``.
+    """
+
+    angle_deg: float = 0.5
+    length_mm: float = 2.0
+    extras_mm: float = math.inf
+    extras_deg: float = math.inf
+    noise_std: float | None = None
+    mean: Deviations | None = None
+    overrides: tuple = ()
+    strength: float = 1.0
+    covariance: tuple = ()
+    source: str = ""
+    population: Any = None
+    scale_by: str = "fixed"
+    evidence: Any = None
+
+    def __post_init__(self):
+        if self.scale_by not in SCALE_BY:
+            raise ValueError(f"Prior.scale_by must be one of {list(SCALE_BY)}, got {self.scale_by!r}")
+        for name in ("angle_deg", "length_mm", "extras_mm", "extras_deg"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise ValueError(f"Prior.{name} must be > 0 (use math.inf for no prior), got {v!r}")
+        if self.noise_std is not None and not (self.noise_std > 0 and math.isfinite(self.noise_std)):
+            raise ValueError(f"Prior.noise_std must be a finite number > 0 (mm) or None, got {self.noise_std!r}")
+        for item in self.overrides:
+            if len(item) != 2 or not (item[1] > 0):
+                raise ValueError(f"Prior.overrides entries must be (name, σ > 0), got {item!r}")
+        if self.covariance:
+            names, rows = self.covariance
+            C = np.asarray(rows, np.float64)
+            if C.shape != (len(names), len(names)) or not np.all(np.isfinite(C)) or not np.allclose(C, C.T):
+                raise ValueError(f"Prior.covariance must be (names, a symmetric finite [k, k] matrix) with k = "
+                                 f"{len(names)} names, got a matrix of shape {C.shape}")
+            if np.linalg.eigvalsh(C)[0] <= 0:
+                raise ValueError("Prior.covariance must be positive definite")
+            for n in names:
+                group_of(n)  # raises naming an unknown parameter
+        if self.mean is not None and not isinstance(self.mean, Deviations):
+            for item in self.mean:
+                if len(item) != 2 or not math.isfinite(item[1]):
+                    raise ValueError(f"Prior.mean entries must be (name, finite value), got {item!r}")
+                group_of(item[0])
+
+    @classmethod
+    def parse(cls, text: str) -> Prior | None:
+        """From a command-line string: ``none``, ``default``, ``key=value`` pairs separated by
+        commas (keys: the attribute names, e.g. ``angle_deg=0.5,length_mm=2,extras_mm=500``;
+        a parameter name sets that parameter's σ, e.g. ``d_1=10``), or a ``.json`` file: a prior
+        file (:meth:`save`, ``jaxcal fleet-prior``) or a previous calibration result of the unit
+        (:meth:`from_result`). ``evidence`` is the default prior with its scale chosen by the data
+        (:attr:`scale_by`); ``evidence:SPEC`` any of the above so (``evidence:MODEL.prior.json``:
+        one factor on a learned prior's covariance)."""
+        text = text.strip()
+        head, sep, rest = text.partition(":")
+        if head.strip().lower() == "evidence":
+            base = cls() if not sep else cls.parse(rest)
+            if base is None:
+                raise ValueError("prior: 'evidence' chooses the scale of a prior; 'none' has none")
+            return dataclasses.replace(base, scale_by="evidence")
+        if text.lower().endswith(".json"):  # a prior file (jaxcal fleet-prior) or a previous result
+
+            return prior_from_file(text, cls)
+        if text.lower() in ("none", "off", ""):
+            return None
+        if text.lower() == "default":
+            return cls()
+        fields, overrides = {}, []
+        for part in text.split(","):
+            if "=" not in part:
+                raise ValueError(f"prior: expected NAME=VALUE pairs or 'none'/'default', got {part!r}")
+            k, v = (s.strip() for s in part.split("=", 1))
+            try:
+                val = float(v)
+            except ValueError:
+                raise ValueError(f"prior: {k} must be a number, got {v!r}") from None
+            if k in ("angle_deg", "length_mm", "extras_mm", "extras_deg", "noise_std"):
+                fields[k] = val
+            else:
+                group_of(k)  # raises naming an unknown parameter
+                overrides.append((k, val))
+        return cls(**fields, overrides=tuple(overrides))
+
+    def scaled(self, strength: float) -> Prior:
+        """The same prior ``strength`` times stronger (every finite σ divided by ``strength``, a
+        learned covariance by ``strength²``)."""
+        if not strength > 0:
+            raise ValueError(f"prior strength must be > 0, got {strength}")
+        cov = self.covariance
+        if cov:
+            cov = (cov[0], tuple(tuple(v / strength**2 for v in row) for row in cov[1]))
+        return dataclasses.replace(
+            self, angle_deg=self.angle_deg / strength, length_mm=self.length_mm / strength,
+            extras_mm=self.extras_mm / strength, extras_deg=self.extras_deg / strength,
+            overrides=tuple((n, s / strength) for n, s in self.overrides), strength=self.strength * strength,
+            covariance=cov,
+        )
+
+    def std(self, space: ParameterSpace) -> np.ndarray:
+        """σ ``[p]`` of the free parameters in their units (rad, mm); ``inf`` = no prior (with a
+        ``covariance``: its marginal σ for the parameters it names)."""
+        return self._std_families(space)[0]
+
+    def families(self, space: ParameterSpace) -> np.ndarray:
+        """``[p]`` the family of each free parameter whose σ a ``scale_by="evidence"`` choice
+        scales: ``"angles"`` (σ from :attr:`angle_deg`), ``"lengths"`` (from :attr:`length_mm`),
+        ``"covariance"`` (named by a learned :attr:`covariance`; the others then keep their σ),
+        ``""`` for the rest (an override, a sensor extra, a group's own σ, no prior)."""
+        return self._std_families(space)[1]
+
+    def _std_families(self, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray]:
+        over = dict(self.overrides)
+        unknown = set(over) - set(space.names)
+        if unknown:
+            raise ValueError(f"prior overrides name unknown parameter(s) {sorted(unknown)}")
+        learned = {}
+        if self.covariance:
+            names, rows = self.covariance
+            learned = dict(zip(names, np.sqrt(np.diag(np.asarray(rows, np.float64)))))
+        out, fam = [], []
+        for name, unit in zip(space.free_names, space.free_units):
+            family = ""
+            if name in over:
+                s = float(over[name])
+            elif name in learned:
+                s, family = float(learned[name]), "covariance"
+            else:
+                group = space.layout.group(space.layout.group_of(name))
+                if group.kind == "extra":
+                    own = math.radians(self.extras_deg) if unit == "rad" else self.extras_mm
+                    s = own if unit in ("rad", "mm") else math.inf
+                elif group.prior_std is not None:
+                    s = group.prior_std / self.strength
+                elif unit in ("rad", "mm"):
+                    s = math.radians(self.angle_deg) if unit == "rad" else self.length_mm
+                    family = "" if learned else "angles" if unit == "rad" else "lengths"
+                else:
+                    s = math.inf
+            out.append(s)
+            fam.append(family if math.isfinite(s) else "")
+        return np.asarray(out, dtype=np.float64), np.asarray(fam, dtype=object)
+
+    def rescaled(self, factors: dict) -> Prior:
+        """The prior with its families' σ multiplied by ``factors`` ``{family: k}`` (see
+        :meth:`families`: ``angle_deg``, ``length_mm`` times ``k``, a learned covariance times ``k²``)."""
+        cov = self.covariance
+        k = factors.get("covariance", 1.0)
+        if cov and k != 1.0:
+            cov = (cov[0], tuple(tuple(v * k * k for v in row) for row in cov[1]))
+        return dataclasses.replace(self, angle_deg=self.angle_deg * factors.get("angles", 1.0),
+                                   length_mm=self.length_mm * factors.get("lengths", 1.0), covariance=cov)
+
+    def mean_vector(self, space: ParameterSpace) -> np.ndarray:
+        """Prior means ``[p]`` of the free parameters (rad, mm)."""
+        if self.mean is None:
+            return np.zeros(space.n_free)
+        if isinstance(self.mean, Deviations):
+            return np.asarray(space.to_vector_numpy(self.mean), np.float64)
+        named = dict(self.mean)
+        return np.asarray([float(named.get(n, 0.0)) for n in space.free_names], np.float64)
+
+    def whitening(self, space: ParameterSpace, free: ParameterSpace | None = None) -> np.ndarray | None:
+        """``W`` ``[p, p]`` (1/rad, 1/mm) with ``WᵀW`` the prior information of the parameters of
+        ``free`` (default: all of ``space``'s) that have a prior: the prior residuals are
+        ``W(x − m)``, ``W = L⁻¹`` for the Cholesky factor ``L`` of their prior covariance (the
+        marginal of :attr:`covariance` and the groups' independent σ), zero rows and columns
+        elsewhere. ``None`` without a :attr:`covariance` (the prior is diagonal: ``1/σ``)."""
+        if not self.covariance:
+            return None
+        std = self.std(space)
+        keep = np.isfinite(std)
+        if free is not None:
+            chosen = set(free.free_names)
+            keep &= np.asarray([n in chosen for n in space.free_names])
+        C = np.diag(np.where(keep, std, 1.0) ** 2)
+        names, rows = self.covariance
+        rows = np.asarray(rows, np.float64)
+        at = {n: i for i, n in enumerate(names)}
+        over = dict(self.overrides)
+        idx = [(j, at[n]) for j, n in enumerate(space.free_names) if n in at and n not in over]
+        for j, a in idx:
+            for k, b in idx:
+                C[j, k] = rows[a, b]
+        W = np.zeros((space.n_free, space.n_free))
+        act = np.flatnonzero(keep)
+        if act.size:
+            L = np.linalg.cholesky(C[np.ix_(act, act)])
+            W[np.ix_(act, act)] = np.linalg.solve(L, np.eye(act.size))
+        return W
+
+    def information(self, space: ParameterSpace) -> np.ndarray | None:
+        """The prior information ``WᵀW`` ``[p, p]`` of the free parameters (see :meth:`whitening`);
+        ``None`` for a diagonal prior (``diag(1/σ²)``)."""
+        W = self.whitening(space)
+        return None if W is None else W.T @ W
+
+    @classmethod
+    def from_fleet(cls, results, *, base: Prior | None = None, noise_std: float | None = None, iterations: int = 1000,
+                   tol: float = 1e-7) -> Prior:
+        """The robot model's own prior, learned from calibrated units of it (empirical Bayes).
+
+        Unit ``k``'s robot deviations are modelled as drawn from ``N(μ, Σ)``, its calibration as a
+        Gaussian measurement of them (its own prior divided out); ``μ`` and ``Σ`` maximise the
+        marginal likelihood (expectation–maximisation; Gelman et al., *Bayesian Data Analysis*,
+        ch. 5), so the spread of the estimates is split into the true unit spread and each unit's
+        estimation noise; the correlations are shrunk toward zero (Schäfer & Strimmer 2005) when
+        the units are few; directions no unit's data determine keep ``base``. The result's
+        ``mean`` is ``μ``, its ``covariance`` ``Σ`` plus the uncertainty of ``μ`` (from the number
+        of units), its ``population`` the :class:`~jaxcal.FleetPopulation` (mean, spread and their
+        σ). Sensor extras (anchor, tool point, sensor frame) stay out: they are per unit.
+
+        Args:
+            results: ≥ 3 :class:`~jaxcal.CalibrationResult` of units of one robot model, each with
+                its ``uncertainty``, calibrated under a prior (``objective="measured"``, the CLI's
+                default), e.g. ``[jaxcal.load_result(f) for f in files]``.
+            base: the generic prior (default ``Prior()``: 0.5°, 2 mm): the spread's start, the
+                hyper-prior of the mean, and the σ of parameters no unit fitted.
+            noise_std: the sensor noise σ (mm) the prior is weighed against (default: estimated
+                from each new fit).
+            iterations, tol: the EM budget and its relative tolerance on ``Σ``.
+        """
+
+        return fleet_prior(results, cls() if base is None else base, noise_std=noise_std, iterations=iterations,
+                           tol=tol)
+
+    @classmethod
+    def from_result(cls, result, *, base: Prior | None = None, source: str | None = None) -> Prior:
+        """A unit's previous calibration as the prior of its next one: mean = its estimate of
+        every robot parameter, covariance = its posterior covariance of those it fitted (the
+        others keep ``base``'s σ, default ``Prior()``); sensor extras stay out; weighed against
+        the previous fit's σ̂ (the unit's sensor) unless ``base.noise_std`` says otherwise.
+        ``result``: a :class:`~jaxcal.CalibrationResult` with its ``uncertainty``. For which
+        parameters moved since, compare two independent calibrations: :func:`jaxcal.drift`."""
+
+        return result_prior(result, cls() if base is None else base, source=source)
+
+    def save(self, path) -> None:
+        """Write the prior as a JSON file (``jaxcal-prior/1``; :meth:`load` reads it back)."""
+
+        save_prior(self, path)
+
+    @classmethod
+    def load(cls, path) -> Prior:
+        """Read a prior file written by :meth:`save` (or ``jaxcal fleet-prior --out``)."""
+
+        return load_prior(path, cls)
+
+    def describe(self) -> str:
+        """One line: the prior's σ (or its learned covariance), and the evidence's choice of scale."""
+        fmt = (lambda v: f"{v:.3g}") if self.evidence is not None else (lambda v: f"{v:g}")  # noqa: E731
+        if self.covariance:
+            k = len(self.covariance[0])
+            text = f"learned Gaussian prior ({self.source or 'a learned prior'}): mean and covariance of {k} parameters"
+            text += (f", the others σ = {fmt(self.angle_deg)}°, {fmt(self.length_mm)} mm toward nominal"
+                     if math.isfinite(self.angle_deg) or math.isfinite(self.length_mm) else "")
+        else:
+            parts = [f"{fmt(self.angle_deg)}°", f"{fmt(self.length_mm)} mm on the robot's geometric deviations"]
+            if math.isfinite(self.extras_mm) or math.isfinite(self.extras_deg):
+                parts.append(f"extras {self.extras_mm:g} mm / {self.extras_deg:g}°")
+            if self.overrides:
+                parts.append("overrides " + ", ".join(f"{n}={s:g}" for n, s in self.overrides))
+            text = "Gaussian prior toward nominal: σ = " + ", ".join(parts)
+        if self.evidence is not None:
+            return f"{text} — {self.evidence.describe()}"
+        return text + ("; its scale to be chosen by the evidence (type-II maximum likelihood)"
+                       if self.scale_by == "evidence" else "")
+
+
+def resolve_prior(prior) -> Prior | None:
+    """``None``/``"none"`` → ``None``; ``"default"`` → :class:`Prior` (); ``"evidence"`` → the
+    default prior with its scale chosen by the evidence (:attr:`Prior.scale_by`); a :class:`Prior`
+    as given; a string of ``key=value`` pairs (or ``evidence:SPEC``) → :meth:`Prior.parse`."""
+    if prior is None or isinstance(prior, Prior):
+        return prior
+    if isinstance(prior, str):
+        return Prior.parse(prior)
+    raise TypeError(f"prior must be None, 'default', 'evidence', a jaxcal.Prior or a 'key=value,...' string, got "
+                    f"{type(prior)}")
