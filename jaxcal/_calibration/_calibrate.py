@@ -1124,8 +1124,6 @@ def _reweighted(problem: Problem, out: CalibrationOutput, prior, loss: str, scal
     return m.reweighted([unc.component_std[c[0]] for c in m.components])
 
 
-
-
 def _given_noise(data, prior, measurement, sensor_noise_std):
     """The sensor's given noise σ for the result's checks: the prior's or the data's
     (:func:`given_noise_std`), else ``sensor_noise_std``."""

@@ -195,10 +195,6 @@ def variance_component(rss: float, n: float, covariance, gram) -> tuple[float, f
     return (math.sqrt(rss / red) if red > 0 else float("nan")), red
 
 
-
-
-
-
 def gram_at(problem, x, loss: str, loss_scale):
     """One ``jacfwd`` pass at ``x``: column norms ``d`` of the Jacobian, the column-scaled ``JᵀWJ``
     and ``JᵀJ`` (p×p; ``W`` the per-residual robust weights ``f²``; the same matrix for the
@@ -238,8 +234,6 @@ def _component_grams(problem, Js, w):
         return None
     Jb = problem.to_blocks(Js if w is None else Js * jnp.sqrt(w)[:, None])  # [n, m, p]
     return jnp.stack([jnp.einsum("imp,imq->pq", Jb[:, a:b], Jb[:, a:b]) for _, _, a, b in comps])
-
-
 
 
 _gram = jit(gram_at, static_argnames="loss")
@@ -380,7 +374,6 @@ class RobustNoise:
         self.resid_var, self.kappa, self.n_residuals = resid_var, kappa, n_residuals
         #: the cap ``k`` (units of σ) on a block's error
         self.cap = cap
-
 
     @classmethod
     def build(cls, loss: str, loss_scale, problem, blocks, r, e) -> RobustNoise | None:
