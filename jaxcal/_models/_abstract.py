@@ -86,6 +86,12 @@ class AbstractRobot(eqx.Module):
         with one unnamed tool point (a DH table, a serial chain)."""
         return ()
 
+    def default_tip(self) -> str | None:
+        """The name of the tip a measurement model sees when it names none (a serial chain's tip
+        link, a tree's first tip), or ``None`` for a robot whose tip has no name (a DH table)."""
+        names = self.tip_names()
+        return names[0] if names else None
+
     def dh_rows_deg(self, deviations=None) -> np.ndarray | None:
         """The robot's DH table ``[dof, 4]`` (α/°, a/mm, d/mm, θ/° per joint, angles not wrapped)
         at ``deviations`` (``None``: the nominal table), where the robot is described by one;

@@ -449,6 +449,10 @@ class SerialChain(NonGeometricMixin, AbstractRobot):
         other joint and tip entry is)."""
         return joint_free_by_default(self.prismatic, entry_name)
 
+    def default_tip(self) -> str | None:
+        """The chain's tip link (the flange a measurement model sees)."""
+        return self.tip
+
     def with_tool(self, tool_mm: Sequence[float]) -> SerialChain:
         """A copy with another nominal tool point ``[3]`` mm in the tip link frame."""
         return replace_tool(self, tool_mm)

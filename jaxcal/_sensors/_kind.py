@@ -401,8 +401,9 @@ def check_tip(robot, tip: str | None) -> str | None:
         raise ValueError(f"tip {tip!r} is not a tip of robot {robot.name!r}; its tips: {tips} (a URDF robot with "
                          "several tips: --tip A,B on the command line, load_urdf's tips argument in Python)")
     if tip == have[0]:
-        raise ValueError(f"tip {tip!r} is robot {robot.name!r}'s default tip: give tip=None (its tool point is the "
-                         "standard tool group); jaxcal.resolve_tip(robot, name) gives None for it")
+        raise ValueError(f"tip {tip!r} is robot {robot.name!r}'s default tip: a model sees it when it names no tip "
+                         "(its tool point is the standard tool group); jaxcal.resolve_tip(robot, name) gives the "
+                         "model's tip for a tip's name")
     return tip
 
 
@@ -416,8 +417,7 @@ def resolve_tip(robot, tip: str | None) -> str | None:
     """
     if tip is None:
         return None
-    have = tuple(robot.tip_names())
-    if have and tip == have[0] or not have and tip == getattr(robot, "tip", None):  # a serial chain's own tip
+    if tip == robot.default_tip():  # a tree's first tip, a serial chain's own tip link
         return None
     return check_tip(robot, tip)
 

@@ -166,7 +166,7 @@ def test_tip_in_data_files_and_plain_data(tree):
     with pytest.raises(ValueError, match=r"'# tip: nose' line: tip 'nose' is not a tip of robot 'humanoid_tree'; "
                                          r"its tips: \['left_tool', 'right_tool', 'head_camera'\]"):
         jaxcal.measurement_for(bad, tree)
-    with pytest.raises(ValueError, match="is robot 'humanoid_tree''s default tip: give tip=None"):
+    with pytest.raises(ValueError, match="is robot 'humanoid_tree''s default tip: a model sees it when it names no tip"):
         Position(tip="left_tool").predict(tree, None, q)
     # a serial robot: no other tip, and its own tip is no tip= at all
     dh = jaxcal.robots.hsr_jr680()
