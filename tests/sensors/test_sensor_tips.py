@@ -177,7 +177,6 @@ def test_tip_in_data_files_and_plain_data(tree):
 SIG_TOUCH, SIG_PLANE, SIG_TRACKER = 0.1, 0.05, 0.1
 
 
-
 def test_combined_fit_over_the_tree_at_the_floor(tree):
     """Self-contact of the two hands + three planes touched by the left hand + a tracker on the right
     hand: one fit at the combined floor on held-out rows; the head (seen by no block) is named."""
