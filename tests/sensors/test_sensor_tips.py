@@ -135,7 +135,7 @@ def test_every_model_on_a_tip_predicts_that_tip_and_sees_no_other_arm(tree):
         np.testing.assert_allclose(np.asarray(got), want, rtol=1e-10, atol=1e-8, err_msg=name)
         # the Jacobian: no column of the left arm's joints (nor of the left tip), some of the right arm's
         y = jnp.concatenate([qb, jnp.full((6, 1), 100.0)], 1) if name == "distance" else model.predict(tree, dev, q)
-        J = jax.jacfwd(lambda d, m=model: m.residual(tree, d, q, y))(dev).values
+        J = jax.jit(jax.jacfwd(lambda d, m=model: m.residual(tree, d, q, y)))(dev).values  # one program
         for g in ("offset", "dx", "dy", "dz", "drx", "dry"):
             Jg = np.asarray(J[g])
             assert np.abs(Jg[..., sorted(left)]).max() == 0.0, (name, g)
