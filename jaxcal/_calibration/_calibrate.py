@@ -719,11 +719,32 @@ def calibrate(
 ) -> CalibrationResult:
     """Calibrate ``robot`` from measured ``data`` with one of the registered methods.
 
+    Example:
+        A tracker's data file to a calibrated robot (what ``jaxcal calibrate tracker.csv --robot
+        hsr_jr680 --measurement position --estimate base,tool`` does, less its test split):
+
+        ```python
+        import jaxcal
+
+        jaxcal.enable_x64()                                   # float64 (see the concepts page)
+        robot = jaxcal.robots.hsr_jr680()                     # or jaxcal.load_urdf(...)
+        data = jaxcal.load_csv("tracker.csv")                 # joint angles + x_mm, y_mm, z_mm
+        setup = jaxcal.measurement_for(data, robot, estimate="base,tool")
+        res = jaxcal.calibrate(robot, setup.measurement, data, "lm", extras=setup.extras,
+                               objective="measured")          # the defaults for measured data
+        print(res, res.dh_table())                            # status, RMSE (mm), calibrated DH table
+        ```
+
     Args:
-        robot: nominal robot model.
+        robot: nominal robot model: a DH table (:class:`DHRobot`, e.g. a preset of
+            ``jaxcal.robots``), a URDF chain (:class:`SerialChain`, :func:`jaxcal.load_urdf`) or a
+            kinematic tree (:class:`KinematicTree`).
         measurement: the measurement model the data come from (e.g. :class:`CableLength`); its
             anchor / sensor frame is the nominal guess the extras correct.
-        data: training data, a :class:`Dataset` or a ``(q [n, dof] rad, y)`` pair.
+        data: training data, a :class:`Dataset` or a ``(q [n, dof] rad, y)`` pair; ``y`` in the
+            measurement's units: wire lengths ``[n]`` mm (cable), tool positions ``[n, 3]`` mm,
+            poses ``[n, 4, 4]`` (mm, rotation), marker positions ``[n, N, 3]`` mm, image points
+            ``[n, N, 2]`` px (:class:`Dataset` lists every kind).
         method: a registry name (``"lm"``, ``"gn"``, ``"adam"``, ``"adamw"``, ``"adamod"``,
             ``"adamodw"``, and the baselines), a :class:`~jaxcal.methods.Method`, or any
             ``optax.GradientTransformation`` (run full batch; pass ``steps=``).

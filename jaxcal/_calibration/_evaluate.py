@@ -611,6 +611,17 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     """Check ``result`` (a :class:`~jaxcal.CalibrationResult`, e.g. from :func:`jaxcal.load_result`)
     on new ``data`` (a :class:`~jaxcal.Dataset` of the same kind).
 
+    Example:
+        A calibration saved on Monday, checked on Tuesday's readings of a sensor set up again
+        (``jaxcal evaluate monday.json tuesday.csv`` does the same):
+
+        ```python
+        res = jaxcal.load_result("monday.json")
+        ev = jaxcal.evaluate_result(res, jaxcal.load_csv("tuesday.csv"))  # extras registered again
+        print(ev)                    # before/after RMSE/MEAN/MAX (mm), what was registered
+        line, warning = ev.expectation()   # the RMSE the calibration expects vs the measured one
+        ```
+
     Args:
         extras: ``"register"``: the result's sensor extras (anchor, cable offset, sensor frame,
             marker positions) are registered again on ``data`` with the robot fixed, for the
