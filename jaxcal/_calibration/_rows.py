@@ -60,15 +60,25 @@ class RowSplit:
         """The 1-based data rows of the file of ``idx`` (0-based indices into :attr:`data`)."""
         return [int(self.kept[int(i)]) + 1 for i in np.asarray(idx, int).ravel()]
 
+    def train_file_rows(self, positions=None) -> list[int]:
+        """The 1-based data rows of the training rows at ``positions`` (0-based positions in
+        :attr:`train`, e.g. a fit's outliers ``res.diagnostics.outliers_after``; all by default)."""
+        return self.file_rows(self.train_idx if positions is None else self.train_idx[np.asarray(positions, int)])
+
+    def test_file_rows(self, positions=None) -> list[int]:
+        """The 1-based data rows of the test rows at ``positions`` (0-based positions in
+        :attr:`test`, e.g. :func:`jaxcal.residual_outliers`' rows; all by default)."""
+        return self.file_rows(self.test_idx if positions is None else self.test_idx[np.asarray(positions, int)])
+
     @property
     def train_rows(self) -> list[int]:
         """The 1-based data rows of the training rows, in training order."""
-        return self.file_rows(self.train_idx)
+        return self.train_file_rows()
 
     @property
     def test_rows(self) -> list[int]:
         """The 1-based data rows of the test rows, in test order."""
-        return self.file_rows(self.test_idx)
+        return self.test_file_rows()
 
     def without_train(self, rows) -> RowSplit:
         """This split less the training rows ``rows`` (0-based positions in :attr:`train`, e.g. a
@@ -111,7 +121,8 @@ def split_rows(data, measurement, *, seed: int = 0, test_fraction: float = 0.2, 
         raise ValueError(f"the test fraction must be in [0, 1), got {test_fraction}")
     excluded = sorted({int(r) for r in exclude_rows})
     if excluded and (excluded[0] < 1 or excluded[-1] > data.n):
-        raise ValueError(f"data rows are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
+        raise ValueError(f"rows to exclude (--exclude-rows on the command line, exclude_rows in Python): data rows "
+                         f"are numbered 1..{data.n}, got {excluded[0]}..{excluded[-1]}")
     kept = np.setdiff1d(np.arange(data.n), np.asarray(excluded, int) - 1)
     data = data.subset(kept)
     key, train_idx, test_idx = seed_split(seed, data.n, test_fraction)

@@ -99,7 +99,7 @@ def _tip_kwargs(robot, tip) -> dict:
     ``tip=None`` (the robot's one tip, or a tree's default tip)."""
     if tip is None:
         return {}
-    if not hasattr(robot, "tips"):
+    if not robot.tip_names():
         raise ValueError(f"robot {robot.name!r} has one tip: tip={tip!r} names a tip of a kinematic tree "
                          "(jaxcal.load_urdf with tips)")
     return {"tip": tip}

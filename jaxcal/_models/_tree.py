@@ -71,7 +71,7 @@ from ._chain import (
 )
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 
-__all__ = ["KinematicTree"]
+__all__ = ["KinematicTree", "tool_group_name"]
 
 
 class KinematicTree(NonGeometricMixin, AbstractRobot):
@@ -326,7 +326,7 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         """The deviation group that moves ``tip``'s tool point: the standard ``tool`` for the
         default tip, ``tool@<tip>`` for another (used where the deviations have it)."""
         k = self.tip_index(tip)
-        return "tool" if k == 0 else f"tool@{self.tips[k]}"
+        return "tool" if k == 0 else tool_group_name(self.tips[k])
 
     def tool_groups(self) -> tuple:
         """``tool@<tip>`` ``[3]`` mm extra groups (``tool_x@<tip>`` …) of every tip but the
@@ -437,13 +437,19 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         return max(self.path_chain(k).reach_mm() for k in range(len(self.tips)))
 
 
+def tool_group_name(tip: str) -> str:
+    """``tool@<tip>``: the name of the group that moves the tool point of ``tip`` (a tree's tip
+    other than its default one)."""
+    return f"tool@{tip}"
+
+
 def tip_tool_group(tip: str):
     """The extra group ``tool@<tip>`` (entries ``tool_x@<tip>``, ``tool_y@<tip>``, ``tool_z@<tip>``,
     mm): the deviation of the tool point of ``tip`` (not a tree's default tip, whose tool point is
     the standard ``tool`` group) from its nominal value, in its tip link frame."""
     from .._core._params import Group
 
-    return Group.vector(f"tool@{tip}", tuple(f"tool_{c}@{tip}" for c in "xyz"), "mm")
+    return Group.vector(tool_group_name(tip), tuple(f"tool_{c}@{tip}" for c in "xyz"), "mm")
 
 
 def _path_of(parents: Sequence[int], last: int) -> tuple[int, ...]:

@@ -54,6 +54,7 @@ from jaxtyping import Array, Float
 from .._core._host_method import host_method
 from .._core._params import STANDARD_EXTRAS, Deviations, Group, layout_for
 from .._core._precision import to_device
+from .._models._tree import tool_group_name
 from ._contact import FixedPoint, PlaneContact, _per_label
 from ._kind import check_label
 from ._measurement import MeasurementModel
@@ -671,9 +672,8 @@ def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[C
     # a tip's tool point (``tool@<tip>``, a kinematic tree's tip other than the default one) is one
     # object: every block's view has it, so a model that reads that tip's tool point by name
     # (self-contact) sees the one the other blocks estimate
-    tips = set(robot.tip_names())
-    tip_tools = {g.name: g for b in blocks for g in layout_for(robot, b.measurement).groups
-                 if g.name.startswith("tool@") and g.name[len("tool@"):] in tips}
+    tip_tool_names = {tool_group_name(t) for t in robot.tip_names()}
+    tip_tools = {g.name: g for b in blocks for g in layout_for(robot, b.measurement).groups if g.name in tip_tool_names}
     groups: dict[str, Group] = {}
     views, qs, ys, models, counts, widths, sigma = [], [], [], [], [], [], []
     for b in blocks:

@@ -26,6 +26,7 @@ from .._core._rotvec import matrix_to_rotvec
 from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._models._abstract import AbstractRobot
 from .._models._kinematics import _chain, _tool_offset, check_joint_angles, rotvec_to_matrix, tool_point_soa
+from .._models._tree import tip_tool_group, tool_group_name
 from ._kind import SensorKind, check_tip, register_kind, resolve_tip
 
 __all__ = ["MeasurementModel", "CableLength", "Position", "Pose", "Markers", "residuals", "predict", "resolve_tip",
@@ -43,8 +44,6 @@ ORIENTATION_SCALE_RANGE = (1e-3, 1e6)
 def tip_groups(tip: str | None) -> tuple[Group, ...]:
     """``(tool@<tip>,)`` for a model that sees ``tip`` (not the default tip), else ``()``: the
     group its tool point moves with (:func:`~jaxcal._models._tree.tip_tool_group`)."""
-    from .._models._tree import tip_tool_group
-
     return () if tip is None else (tip_tool_group(tip),)
 
 
@@ -90,7 +89,7 @@ class MeasurementModel(eqx.Module):
         :class:`~jaxcal.KinematicTree`. ``calibrate(extras=["tool"])`` frees this group. A model
         that does not see the tool point (:attr:`sees_tool_point`) names the standard one."""
         tip = getattr(self, "tip", None)
-        return "tool" if tip is None or not self.sees_tool_point else f"tool@{tip}"
+        return "tool" if tip is None or not self.sees_tool_point else tool_group_name(tip)
 
     def tip_for(self, robot) -> str | None:
         """The model's ``tip`` checked against ``robot`` (:func:`check_tip`; host-side, also at

@@ -579,7 +579,7 @@ class MarkersKind(PointsKind):
     def readings(self, values, path, table, meta):
         header = table.header
         cols = self.label_columns(path, header)
-        y = values.reshape(values.shape[0], -1, 3)  # empty cells: a marker the session does not have (NaN)
+        y, meta, _ = super().readings(values, path, table, meta)  # NaN: a marker the session does not have
         if not cols:
             return y, meta, ()
         cells = {c: [row[header.index(c)].strip() for row in table.rows] for c in cols}

@@ -101,12 +101,9 @@ def _split(args, setup):
     from .._core._buckets import bucket_size
 
     data = setup.data
-    excluded = _rows(args.exclude_rows)
-    if excluded and (min(excluded) < 1 or max(excluded) > data.n):
-        raise _Usage(f"--exclude-rows: data rows are numbered 1..{data.n}, got {min(excluded)}..{max(excluded)}")
     with _as_usage():
         split = split_rows(data, setup.measurement, seed=args.seed, test_fraction=setup.test_fraction,
-                           exclude_rows=excluded, test_file=setup.test_file is not None)
+                           exclude_rows=_rows(args.exclude_rows), test_file=setup.test_file is not None)
     if split.excluded_rows:
         setup.notes.append(f"excluded data rows (your choice): {', '.join(map(str, split.excluded_rows))}")
     if len(split.train_idx) < 2:
@@ -161,7 +158,7 @@ def _fit(args, setup, split, method):
 
     res = run(split)
     if args.exclude_outliers and res.diagnostics.outliers_after:
-        drop = split.file_rows(split.train_idx[list(res.diagnostics.outliers_after)])
+        drop = split.train_file_rows(res.diagnostics.outliers_after)
         print(f"--exclude-outliers: refitting without data rows {', '.join(map(str, drop))}")
         split = split.without_train(res.diagnostics.outliers_after)
         res = run(split)
@@ -239,7 +236,7 @@ def _print_findings(args, setup, split, res) -> list[int]:
     else:
         _print_chain_table(robot, res, sd)
     _print_estimates(res, sd, setup.extras, unit)
-    _print_outliers_and_warnings(res, args, checks, lambda i: split.file_rows([split.train_idx[i]])[0])
+    _print_outliers_and_warnings(res, args, checks, lambda i: split.train_file_rows([i])[0])
     stated = stated_noise_warning(str(setup.path), res.uncertainty.noise_std if res.uncertainty is not None else math.nan,
                                   given_noise_std(setup.data, None, measurement), unit, checks.noise_warn_factor)
     if stated is not None:  # σ̂ far above the file's noise line: another set-up, or a wrong line
@@ -249,7 +246,7 @@ def _print_findings(args, setup, split, res) -> list[int]:
     # the held-out rows' gross errors, named as the training rows' are (they enter the test
     # RMSE/MAX above, not the fit)
     rows_t, scale_t = residual_outliers(robot, split.test_measurement, res.deviations, split.test, checks.outlier_k)
-    test_outliers = split.file_rows(split.test_idx[list(rows_t)])
+    test_outliers = split.test_file_rows(rows_t)
     if test_outliers:
         listed = ", ".join(map(str, test_outliers[:20]))
         print(f"outliers in the test rows (residual > {checks.outlier_k:g} × {scale_t:.3g} {unit}, their robust σ): "
@@ -269,7 +266,7 @@ def _save(args, setup, split, res, method, objective_line, rows, per_row, evalua
                 "prior": args.prior, "loss": setup.loss, "objective": objective_line,
                 "excluded_rows": list(split.excluded_rows), "compliance": args.compliance,
                 "harmonics": args.harmonics,
-                "outlier_rows_after": split.file_rows(split.train_idx[list(diag.outliers_after)]),
+                "outlier_rows_after": split.train_file_rows(diag.outliers_after),
                 "outlier_rows_test": test_outliers}
     info = {"test_extras": {"source": evaluation.extras, "registered": list(evaluation.registered),
                             "message": evaluation.message}} if evaluation is not None else {}
