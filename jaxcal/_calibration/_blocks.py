@@ -580,7 +580,10 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         ``blocks`` (:class:`BlockStats` per block, the relations last), ``sigma`` (``{block: σ}``
         of the last fit, each block's unit), ``variance_rounds`` (the fits run),
         ``block_messages`` (the closed-form starts) and ``block_report`` (which block determines
-        which parameter: :func:`who_sees_what`).
+        which parameter: :func:`who_sees_what`). Its ``start`` is the first fit's start (the
+        nominal robot with each block's extras from its data, as ``init`` made them), not the
+        last round's: the "before" of each block's accuracy table (:func:`block_result`,
+        :func:`~jaxcal._calibration._evaluate.before_after_errors`).
 
     Raises:
         ValueError: naming the block or relation at fault (see :func:`combine`).
@@ -610,6 +613,7 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         cur, msgs = _initial_start(robot, model, blocks, q, y, cur)
     elif init != "none":
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
+    first_start = cur  # the "before" of the accuracy tables: nominal robot, extras from the data
     sigma = np.asarray(model.sigma, np.float64)
     rounds = 0
     q_dev, y_dev = to_device(q), to_device(y)
@@ -641,6 +645,7 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         msg = s.noise_warning(factor=factor)
         if msg is not None:
             warnings.warn(msg, StatedNoiseWarning, stacklevel=2)
+    object.__setattr__(res, "start", first_start)  # not the last round's start (the previous round's solution)
     object.__setattr__(res, "blocks", stats)
     object.__setattr__(res, "sigma", {s.name: s.sigma for s in stats})
     object.__setattr__(res, "variance_rounds", rounds)
@@ -719,13 +724,16 @@ def _stats_from_dict(d: dict) -> BlockStats:
     return BlockStats(**kw)
 
 
-def combined_result_to_dict(result, **info) -> dict:
+def combined_result_to_dict(result, block_info: dict | None = None, **info) -> dict:
     """A :func:`calibrate_blocks` result as one JSON-friendly object: per block its statistics
     (:class:`BlockStats`) and, for each data block, its one-sensor result
     (:func:`block_result` as :func:`jaxcal.save_result` writes it: the robot, the block's extras
-    under their own names, its measurement model, posterior covariance); the relations (kind and
-    fields), each block's σ, the free parameters, every deviation (rad, mm) and the who-sees-what
-    lines; plus ``info`` entries (e.g. ``settings=``) under their names."""
+    under their own names, its measurement model, posterior covariance; ``block_info[name]``'s
+    entries added to it, as :func:`jaxcal.save_result`'s ``info``: ``jaxcal calibrate
+    --combine`` gives each block's ``settings``, before/after ``metrics_mm`` and per-row errors
+    ``rows``, which ``jaxcal report`` draws); the relations (kind and fields), each block's σ, the
+    free parameters, every deviation (rad, mm) and the who-sees-what lines; plus ``info`` entries
+    (e.g. ``settings=``) under their names."""
     from .._core._json import to_jsonable
     from ._io import result_to_dict
 
@@ -736,7 +744,7 @@ def combined_result_to_dict(result, **info) -> dict:
     for s in result.blocks:
         entry = _stats_to_dict(s)
         if model.views[model.block_index(s.name)] is not None:
-            entry["result"] = result_to_dict(block_result(result, s.name))
+            entry["result"] = result_to_dict(block_result(result, s.name), **(block_info or {}).get(s.name, {}))
         blocks.append(entry)
     rel = model.relations
     out = {"format": COMBINED_FORMAT, "robot": result.robot.name, "status": result.status.name.lower(),
@@ -748,13 +756,13 @@ def combined_result_to_dict(result, **info) -> dict:
     return to_jsonable(out | info)
 
 
-def save_combined_result(result, path, **info) -> None:
-    """Write a :func:`calibrate_blocks` result as one JSON file (:func:`combined_result_to_dict`);
-    :func:`load_combined_result` reads it back."""
+def save_combined_result(result, path, block_info: dict | None = None, **info) -> None:
+    """Write a :func:`calibrate_blocks` result as one JSON file (:func:`combined_result_to_dict`,
+    ``block_info`` and ``info`` as there); :func:`load_combined_result` reads it back."""
     import json
     import pathlib
 
-    text = json.dumps(combined_result_to_dict(result, **info), indent=1, allow_nan=False)
+    text = json.dumps(combined_result_to_dict(result, block_info, **info), indent=1, allow_nan=False)
     pathlib.Path(path).write_text(text + "\n", encoding="utf-8")
 
 

@@ -1,4 +1,5 @@
-"""One self-contained HTML page for a calibration result or an evaluation (``jaxcal report X.json --html``).
+"""One self-contained HTML page for a calibration result, a combined result or an evaluation (``jaxcal
+report X.json --html``).
 
 The page holds everything a person needs to judge a calibration: a summary (data, model, method,
 objective, status, warnings), the before/after tables, a residual histogram, the residuals
@@ -21,7 +22,7 @@ import pathlib
 
 import numpy as np
 
-__all__ = ["write_html", "html_report"]
+__all__ = ["write_html", "html_report", "combined_html_report"]
 
 _CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', sans-serif; margin: 0 auto; max-width: 60em;
@@ -74,8 +75,9 @@ def _metrics_table(metrics: dict, unit: str = "mm") -> str:
     return _table(["data", f"RMSE / {unit}", f"MEAN / {unit}", f"MAX / {unit}"], rows)
 
 
-def _points(robot_dict, q_deg) -> np.ndarray | None:
-    """Tool points of the nominal robot at ``q_deg`` (mm, base frame), or None if the model cannot."""
+def _points(robot_dict, q_deg, tip: str | None = None) -> np.ndarray | None:
+    """Tool points of the nominal robot at ``q_deg`` (mm, base frame; ``tip``: a kinematic tree's
+    tip, default its default tip), or None if the model cannot."""
     try:
         from .._calibration._evaluate import joints_from_file_units
         from .._calibration._io import robot_from_dict
@@ -84,7 +86,7 @@ def _points(robot_dict, q_deg) -> np.ndarray | None:
 
         robot = robot_from_dict(robot_dict)
         q = joints_from_file_units(robot, q_deg)  # degrees (mm at prismatic joints) → rad
-        return fk_position_jit(robot, to_device(q), tool=True)  # one compiled program, not ~40 small ones
+        return fk_position_jit(robot, to_device(q), tool=True, tip=tip)  # one compiled program, not ~40 small ones
     except Exception:  # noqa: BLE001 - a figure is optional; the page says it is missing
         return None
 
@@ -128,9 +130,10 @@ def _fixed(v) -> str:
     return f"{round(float(v), 4) + 0.0:.4f}" if math.isfinite(float(v)) else str(v)
 
 
-def _parameters(d: dict) -> str:
+def _parameters(d: dict, labels: dict | None = None) -> str:
     """Parameter table (Δ ± σ in ° / mm; angles wrapped to (−180°, 180°]; † set by the prior) and
-    the correlation heat map of a result dict."""
+    the correlation heat map of a result dict; ``labels``: ``{name: where it acts}`` for a column
+    of them (a kinematic tree's branch and joint, :meth:`~jaxcal.KinematicTree.entry_labels`)."""
     from .._core._trig import wrap_angle_deg
     from ..plots import correlation_heatmap
 
@@ -145,16 +148,18 @@ def _parameters(d: dict) -> str:
         f = math.degrees if u == "rad" else (lambda x: x)
         s = std.get(n)
         value = float(wrap_angle_deg(f(v))) if u == "rad" else v
-        rows.append([n + ("†" if n in by_prior else ""), "°" if u == "rad" else u,
+        rows.append([n + ("†" if n in by_prior else "")] + ([labels.get(n, "")] if labels else [])
+                    + ["°" if u == "rad" else u,
                      _fixed(value) if u in ("rad", "mm") else _num(value),
                      "—" if s is None else _num(f(s), 3),
                      "" if s in (None, 0) or not math.isfinite(s) else f"{abs(v) / s:.1f}"])
     parts = [f"<p>{len(free)} calibrated parameters: deviation Δ from the nominal value (sensor extras: from the "
              "guess) and one posterior standard deviation σ"
              + (f"; residual σ̂ {_num(unc.get('noise_std_mm'))} mm" if unc.get("noise_std_mm") is not None else "")
-             + (f"; {len(by_prior)} of them (†) held by the prior rather than determined by the data: their values "
-                "are the prior's, not results" if by_prior else "")
-             + ".</p>", _table(["parameter", "unit", "Δ", "σ", "|Δ|/σ"], rows)]
+             + (f"; {len(by_prior & set(free))} of them (†) held by the prior rather than determined by the data: their values "
+                "are the prior's, not results" if by_prior & set(free) else "")
+             + ".</p>", _table(["parameter"] + (["branch / joint"] if labels else []) + ["unit", "Δ", "σ", "|Δ|/σ"],
+                               rows, left=2 if labels else 1)]
     dh = d.get("calibrated_dh_table")
     if dh:
         groups = [c.split("_")[0] for c in dh["columns"]]  # alpha_deg → alpha
@@ -237,7 +242,10 @@ def _outliers(parts_rows: dict, flagged: dict) -> str:
     return "".join(out) or "<p>No row exceeds 5 robust σ after calibration.</p>"
 
 
-def _figures(parts_rows: dict, robot_dict: dict) -> str:
+def _figures(parts_rows: dict, robot_dict: dict, heading: str = "h2", tip: str | None = None) -> str:
+    """The residual histogram, the residuals against each joint and the error over the workspace of
+    ``parts_rows`` (``{part: {"row", "q_deg", "before_mm", "after_mm"}}``), under ``heading`` s;
+    ``tip``: the tree tip whose tool points the workspace figure places the errors at."""
     from ..plots import (
         WORKSPACE_COLOUR_QUANTILE,
         residual_histogram,
@@ -251,13 +259,13 @@ def _figures(parts_rows: dict, robot_dict: dict) -> str:
     arr = {k: (np.asarray(v["before_mm"], np.float64), np.asarray(v["after_mm"], np.float64),
                np.asarray(v["q_deg"], np.float64)) for k, v in parts_rows.items() if v["row"]}
     # histogram and workspace colours: error sizes (a draw-wire's per-row error is signed)
-    out = ["<h2>Residuals</h2>", _png(residual_histogram({k: (np.abs(b), np.abs(a)) for k, (b, a, _) in arr.items()})),
+    out = [f"<{heading}>Residuals</{heading}>", _png(residual_histogram({k: (np.abs(b), np.abs(a)) for k, (b, a, _) in arr.items()})),
            _png(residuals_vs_joints({k: (q, a) for k, (_, a, q) in arr.items()},
                                     joint_names=robot_dict.get("joint_names")))]
     q = np.concatenate([q for _, _, q in arr.values()])
     e = np.abs(np.concatenate([a for _, a, _ in arr.values()]))
-    pts = _points(robot_dict, q)
-    out.append("<h2>Error over the workspace</h2>")
+    pts = _points(robot_dict, q, tip)
+    out.append(f"<{heading}>Error over the workspace</{heading}>")
     if pts is None:
         out.append("<p>The tool points of this robot model could not be computed.</p>")
     else:
@@ -344,7 +352,10 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
             warnings_ = [f"{len(s['outlier_rows_after'])} outlier sample(s) at data rows {rows_txt} (1-based; see "
                          "Outlier rows)" if "outlier sample(s)" in w else w for w in warnings_]
         data = s.get("data", "")
-        if s:
+        if s.get("combined"):  # one block of `jaxcal calibrate --combine`
+            data = (f"{data}: {s.get('n_samples')} rows, every one trains (one block of a combined fit of "
+                    f"{', '.join(s['combined'])}: no held-out rows)")
+        elif s:
             data = f"{data}: {s.get('n_samples')} rows → {s.get('n_train')} train, {s.get('n_test')} test" + (
                 f" (test file {s['test_file']})" if s.get("test_file") else f" (random split, seed {s.get('seed')})")
         status = f"{d.get('status')} — {d.get('message')}; {'plausible' if d.get('plausible') else 'IMPLAUSIBLE'}"
@@ -375,21 +386,165 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
             + "".join(body) + "</body></html>\n")
 
 
+def _restricted(d: dict, names, *, table: bool = True, heatmap: bool = True) -> dict:
+    """A result dict with only ``names`` among its free parameters (their σ and covariance too),
+    for a parameter section of some of them: without the DH table (``table``), the correlation
+    heat map (``heatmap``) and the residual σ̂ (the caller states whose)."""
+    names = set(names)
+    unc = dict(d.get("uncertainty") or {})
+    std = unc.get("std", {})
+    order = list(std)
+    idx = [i for i, n in enumerate(order) if n in names]
+    unc["std"] = {order[i]: std[order[i]] for i in idx}
+    cov = unc.get("covariance")
+    unc["covariance"] = [[cov[i][j] for j in idx] for i in idx] if cov and heatmap else None
+    unc.pop("noise_std_mm", None)
+    out = dict(d, free_parameters={n: v for n, v in d.get("free_parameters", {}).items() if n in names},
+               uncertainty=unc)
+    if not table:
+        out.pop("calibrated_dh_table", None)
+    return out
+
+
+def _robot_names(robot_dict: dict) -> tuple[set[str] | None, dict]:
+    """The robot's own parameter names (its error groups) and their table labels
+    (:meth:`~jaxcal.KinematicTree.entry_labels`; ``{}`` for a DH table or a chain), or ``(None, {})``
+    if the model cannot be read."""
+    try:
+        from .._calibration._io import robot_from_dict
+
+        robot = robot_from_dict(robot_dict)
+        return {n for g in robot.error_groups() for n in g.names}, robot.entry_labels()
+    except Exception:  # noqa: BLE001 - the page then shows every parameter together
+        return None, {}
+
+
+def combined_html_report(d: dict, *, source: str = "", inputs=(), created: str | None = None) -> str:
+    """The page for a combined result (``jaxcal calibrate --combine``'s ``combined.json``,
+    :func:`jaxcal.save_combined_result`): the blocks' statistics (σ used and σ̂ against the noise each
+    file states), the warnings, the calibrated robot (parameters ± σ with the verdicts' marks, the
+    DH table), which block sees what, the relations, and per block its before/after table, its
+    extras and its residual figures (where the file holds per-row errors: ``jaxcal calibrate
+    --combine`` writes them). What the file cannot show, the page says."""
+    from .._calibration._blocks import _stats_from_dict
+    from .._fit._diagnostics import Checks
+
+    blocks = [b for b in d.get("blocks", []) if isinstance(b, dict)]
+    data_blocks = [b for b in blocks if "result" in b]
+    first = data_blocks[0]["result"] if data_blocks else {}
+    robot = first.get("robot", {})
+    name = d.get("robot") if isinstance(d.get("robot"), str) else robot.get("name", "")
+    kind = {"serial_chain": "URDF chain", "kinematic_tree": "URDF tree"}.get(robot.get("type"), "DH table")
+    title = f"Combined calibration report: {name}"
+    s = d.get("settings") or {}
+    body = [f"<h1>{_e(title)}</h1>", _provenance(source, inputs, created), "<h2>Summary</h2>"]
+    files = [((b.get("result") or {}).get("settings") or {}).get("data") for b in data_blocks]
+    body.append(_summary([
+        ("blocks", "; ".join(f"{b['name']}: {b.get('n_samples')} {b.get('kind')} rows"
+                             + (f" from {f}" if f else "") for b, f in zip(data_blocks, files))),
+        ("model", f"{name} ({kind})"),
+        ("method", f"{d.get('method')} ({d.get('status')}), {d.get('variance_rounds')} fit(s) with re-estimated σ"),
+        ("objective", f"{s.get('loss') or first.get('loss')} loss; prior {s.get('prior') or first.get('prior') or 'none'}"),
+        ("relations", s.get("relations") or (f"{len(d['relations'])} relations" if d.get("relations") else "none")),
+        ("whitened train RMSE", f"{_num((d.get('train_metrics_whitened') or {}).get('rmse'))} (1 at the floor)")]))
+    body.append('<p class="small">Every row of every block trains: the numbers below are training numbers. This file '
+                "holds no held-out data; check a block on new rows with <code>jaxcal evaluate BLOCK.json NEW.csv</code> "
+                "(the block result files beside this one).</p>")
+    # the blocks' statistics: σ used, σ̂, the noise the file states
+    stats = [_stats_from_dict(b) for b in blocks]
+    factor = Checks.noise_warn_factor
+    rows = []
+    for st in stats:
+        ratio = st.sigma_hat / st.sigma_stated if st.sigma_stated else None
+        rows.append([st.name, st.kind, st.n_samples, st.n_residuals, st.unit,
+                     f"{_num(st.sigma)} ({'given' if st.sigma_given else 'estimated'})", _num(st.sigma_hat),
+                     "—" if st.sigma_stated is None else _num(st.sigma_stated),
+                     "—" if ratio is None else f"{ratio:.2f}", f"{st.redundancy:.1f}",
+                     _num(st.rmse), _num(st.mean), _num(st.max)])
+    body += ["<h2>Blocks</h2>", _table(["block", "kind", "rows", "residuals", "unit", "σ used", "σ̂", "stated noise",
+                                        "σ̂ / stated", "redundancy", "RMSE", "MEAN", "MAX"], rows, left=2),
+             '<p class="small">Each block in its own unit. σ used: what its residuals were divided by in the final fit; '
+             "σ̂ = √(RSS / redundancy), the variance-component estimate; stated noise: the file's "
+             f"<code># noise_std_mm:</code> / <code># noise_std_px:</code> line (σ̂ at {factor:g}× it or more is warned "
+             "about); RMSE, MEAN, MAX of the per-row errors after the fit (relations: whitened, σ = 1).</p>"]
+    warned = [w for w in (st.noise_warning(factor=factor) for st in stats) if w is not None]
+    warned += [w for w in (first.get("diagnostics") or {}).get("warnings", []) if w not in warned]
+    body += ["<h2>Warnings</h2>", _warnings(warned)]
+    own, labels = _robot_names(robot)
+    body.append("<h2>Calibrated robot</h2>")
+    if first:
+        body.append(_parameters(first if own is None else _restricted(first, own), labels))
+    else:
+        body.append("<p>This file holds no block result: no robot parameters to show.</p>")
+    lines = d.get("who_sees_what") or []
+    body += ["<h2>Which block sees what</h2>",
+             "<ul>" + "".join(f"<li>{_e(ln)}</li>" for ln in lines) + "</ul>" if lines else
+             "<p>No who-sees-what lines in this file.</p>"]
+    rel = d.get("relations") or []
+    body.append("<h2>Relations</h2>")
+    if rel:
+        rel_stats = next((st for st in stats if st.kind == "relations"), None)
+        body.append(_table(["relation", "between", "known value", "std"], [
+            [r.get("kind"), " – ".join(str(v) for k, v in r.items() if isinstance(v, str) and k != "kind"),
+             ", ".join(_num(v) for k, v in r.items() if isinstance(v, (int, float)) and "std" not in k),
+             ", ".join(_num(v) for k, v in r.items() if "std" in k)] for r in rel], left=2)
+            + ("" if rel_stats is None else f'<p class="small">Their whitened RMS after the fit: {_num(rel_stats.rms)} '
+               "(1: each relation off by its std).</p>"))
+    else:
+        body.append("<p>No known relations between the blocks.</p>")
+    for b in data_blocks:
+        r = b["result"]
+        st = _stats_from_dict(b)
+        src = (r.get("settings") or {}).get("data")
+        body.append(f"<h2>Block {_e(b['name'])}: {_e(b.get('kind'))} data" + (f" from {_e(src)}" if src else "")
+                    + "</h2>")
+        metrics = r.get("metrics_mm") or {"train, after": {"rmse": st.rmse, "mean": st.mean, "max": st.max}}
+        body.append(_metrics_table(metrics, st.unit)
+                    + '<p class="small">Training rows (every row trains). before = the nominal robot with the block\'s '
+                    "sensor extras estimated from its data (closed-form start); raw nominal = the guessed extras, nothing "
+                    "estimated" + ("" if r.get("metrics_mm") else "; this file holds the fit's numbers only, no "
+                                   "before/after") + ".</p>")
+        extras = [n for n in r.get("free_parameters", {}) if own is not None and n not in own]
+        if extras:
+            body.append("<h3>Estimated extras</h3>" + _parameters(_restricted(r, extras, table=False, heatmap=False)))
+        body.append(_figures(r.get("rows") or {}, robot, heading="h3", tip=(r.get("measurement") or {}).get("tip")))
+    return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"/>'
+            '<meta name="viewport" content="width=device-width, initial-scale=1"/>'
+            f"<title>{_e(title)}</title><style>{_CSS}</style></head><body>"
+            + "".join(body) + "</body></html>\n")
+
+
 def write_html(source, out) -> pathlib.Path:
-    """Write the report page of the JSON file ``source`` (a calibration result or an evaluation)
-    to ``out``; returns the path."""
+    """Write the report page of the JSON file ``source`` (a calibration result, a combined result
+    of ``jaxcal calibrate --combine``: :func:`combined_html_report`, or an evaluation) to ``out``;
+    returns the path."""
     src = pathlib.Path(source)
     d = json.loads(src.read_text(encoding="utf-8"))
     fmt = str(d.get("format", "")) if isinstance(d, dict) else ""
-    if fmt.startswith("jaxcal-combined/"):  # the summary of `jaxcal calibrate --combine`
-        blocks = [str(src.parent / f"{b['name']}.json") for b in d.get("blocks", []) if b.get("kind") != "relations"
-                  and (src.parent / f"{b['name']}.json").exists()]
-        raise ValueError(f"{src} is the summary of a combined fit (jaxcal calibrate --combine), whose report has "
-                         "no page of its own yet: report one of its blocks' results"
-                         + (f" ({', '.join(blocks)})" if blocks else "") + "; the summary's block table is what "
-                         "the calibrate command printed")
-    if not (fmt.startswith("jaxcal-calibration-result/") or fmt.startswith("jaxcal-evaluation/")):
-        raise ValueError(f"{src} is neither a jaxcal calibration result nor an evaluation (no matching 'format')")
+    from .._calibration._io import file_identity, result_data_file
+
+    created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    if fmt.startswith("jaxcal-combined/"):  # `jaxcal calibrate --combine`'s combined.json
+        inputs = [f"combined result {file_identity(src)}"]
+        for b in d.get("blocks", []):
+            data = result_data_file(src, b.get("result") or {})
+            if data is not None:
+                inputs.append(f"{b['name']} data {file_identity(data)}")
+        page = combined_html_report(d, source=src.name, inputs=inputs, created=created)
+    elif not (fmt.startswith("jaxcal-calibration-result/") or fmt.startswith("jaxcal-evaluation/")):
+        raise ValueError(f"{src} is neither a jaxcal calibration result, a combined result nor an evaluation (no "
+                         "matching 'format')")
+    else:
+        page = _single_page(src, d, fmt, created)
+    p = pathlib.Path(out)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(page, encoding="utf-8")
+    return p
+
+
+def _single_page(src: pathlib.Path, d: dict, fmt: str, created: str) -> str:
+    """:func:`html_report` of a result or evaluation file ``src`` (its dict ``d``), with the files it
+    was made from (the data file; an evaluation's calibration and new data)."""
     from .._calibration._io import file_identity, result_data_file
 
     result = None
@@ -407,9 +562,4 @@ def write_html(source, out) -> pathlib.Path:
         data = result_data_file(src, d)
         if data is not None:
             inputs.append(f"data {file_identity(data)}")
-    created = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    page = html_report(d, source=src.name, result=result, inputs=inputs, created=created)
-    p = pathlib.Path(out)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(page, encoding="utf-8")
-    return p
+    return html_report(d, source=src.name, result=result, inputs=inputs, created=created)

@@ -86,6 +86,12 @@ class AbstractRobot(eqx.Module):
         with one unnamed tool point (a DH table, a serial chain)."""
         return ()
 
+    def entry_labels(self) -> dict[str, str]:
+        """``{entry name: label}`` for tables where an entry's name alone does not say where it
+        acts (a :class:`~jaxcal.KinematicTree`'s ``"left_tool / l_elbow"``, ``"tip left_tool"``);
+        ``{}`` for a robot whose entries need none (a DH table, a serial chain)."""
+        return {}
+
     def default_tip(self) -> str | None:
         """The name of the tip a measurement model sees when it names none (a serial chain's tip
         link, a tree's first tip), or ``None`` for a robot whose tip has no name (a DH table)."""

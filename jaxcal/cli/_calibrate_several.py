@@ -81,23 +81,72 @@ def _cmd_calibrate_combined(args, method: str) -> int:
         print("  " + st.line())
     for line in res.block_report:
         print("  " + line)
+    results = {n: block_result(res, n) for n in names}
+    tables = _print_block_tables(res, results, setups, out_dir=args.out_dir)
     for st, s in zip(res.blocks, setups):
         msg = st.noise_warning(str(s.path), getattr(first.checks, "noise_warn_factor", None))
         if msg is not None:
             print(f"jaxcal: warning: {msg}", file=sys.stderr)
     out = pathlib.Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    info = {}
     for n, s in zip(names, setups):
-        br = block_result(res, n)
         settings = {"data": str(s.path), "n_samples": s.data.n, "n_train": s.data.n, "n_test": 0, "method": method,
                     "prior": args.prior, "loss": first.loss, "combined": names,
                     "relations": None if not args.relations else str(args.relations)}
-        save_result(br, out / f"{n}.json", settings=settings, metrics_mm={"train, after": br.train_metrics._asdict()})
-    save_combined_result(res, out / "combined.json",
+        info[n] = {"settings": settings, **tables[n]}
+        save_result(results[n], out / f"{n}.json", **info[n])
+    save_combined_result(res, out / "combined.json", block_info=info,
                          settings={"data": [str(s.path) for s in setups], "method": method, "prior": args.prior,
                                    "loss": first.loss, "relations": None if not args.relations else str(args.relations)})
     print(f"wrote {len(names)} block result(s) and combined.json to {out}")
     return 0 if res.status.name not in ("DIVERGED", "FAILED") else _EXIT_FAILED
+
+
+def _print_block_tables(res, results: dict, setups, out_dir) -> dict:
+    """What ``jaxcal calibrate`` of one file prints of its result, for a combined fit ``res``: per
+    block the before/after table of its rows in its own unit (``results``: ``{block:``
+    :func:`~jaxcal._calibration._blocks.block_result` ``}``, ``setups`` the files' set-ups in
+    block order), the calibrated robot's table with the verdicts' marks, and each block's
+    estimated extras. Returns ``{block: {"metrics_mm": …, "rows": …}}`` for its result file (the
+    single command's entries: before/after metrics, per-row errors of its 1-based data rows)."""
+    from .._calibration._evaluate import before_after_errors, joints_to_file_units
+    from .._core._metrics import metrics_numpy
+    from ._tables import _accuracy_table, _extras_line, _print_chain_table, _print_dh_table, _print_nongeometric
+
+    robot = res.robot
+    print(f"\nAccuracy before/after calibration, per block in its own unit ({res.method}: "
+          f"{res.status.name.lower()}, {res.n_iterations} iterations in the last fit, {res.wall_time_s:.3f} s + "
+          f"compile {res.compile_time_s:.1f} s)")
+    out, any_raw = {}, False
+    for st, s in zip(res.blocks, setups):
+        br = results[st.name]
+        show_raw, errors = before_after_errors(br, robot, br.measurement, {"train": (s.data, br.measurement)})
+        eb, ea, raw = errors["train"]
+        any_raw |= show_raw
+        pairs = ([("train, raw nominal", metrics_numpy(raw))] if show_raw else []) + [
+            ("train, before", metrics_numpy(eb)), ("train, after", metrics_numpy(ea))]
+        print(_accuracy_table(pairs, st.unit, f"{st.name} ({s.path.name}: {st.n_samples} {st.kind} rows)"))
+        out[st.name] = {"metrics_mm": {name: m._asdict() for name, m in pairs},
+                        "rows": {"train": {"row": list(range(1, s.data.n + 1)),
+                                           "q_deg": joints_to_file_units(robot, s.data.q).tolist(),
+                                           "before_mm": eb.tolist(), "after_mm": ea.tolist()}}}
+    print("before = the nominal robot with each block's sensor extras estimated from its data (closed-form start)"
+          + ("; raw nominal = the guessed extras, nothing estimated" if any_raw else "")
+          + "; every row of every file trains, so these are training numbers: nothing was held out (jaxcal evaluate "
+          f"{pathlib.Path(out_dir) / (res.blocks[0].name + '.json')} NEW.csv checks a block on new rows)")
+    sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
+    if robot.dh_rows_deg() is not None:  # a DH table; a generic chain or a tree prints its per-joint corrections
+        _print_dh_table(robot, res, sd)
+    else:
+        _print_chain_table(robot, res, sd)
+    for st, s in zip(res.blocks, setups):
+        br = results[st.name]
+        line = _extras_line(br, br.uncertainty.std_display() if br.uncertainty is not None else {}, s.estimate)
+        if line is not None:
+            print(f"estimated extras of {st.name} {line}")
+    _print_nongeometric(res, sd)
+    return out
 
 
 def _cmd_calibrate_fleet(args, method: str) -> int:

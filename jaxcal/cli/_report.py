@@ -14,9 +14,9 @@ def _cmd_report(args) -> int:
     src = pathlib.Path(args.sweep_dir)
     if src.suffix.lower() == ".json" or args.html:
         if not src.is_file():
-            raise _Usage(f"{args.sweep_dir}: no such file (--html takes a RESULT.json or EVAL.json)")
+            raise _Usage(f"{args.sweep_dir}: no such file (--html takes a RESULT.json, a combined.json or an EVAL.json)")
         if not args.html:
-            raise _Usage("a result or evaluation file needs --html PAGE.html (tables and figures for sweeps: "
+            raise _Usage("a result, combined result or evaluation file needs --html PAGE.html (tables and figures for sweeps: "
                          "the sweep directory)")
         try:
             import matplotlib  # noqa: F401

@@ -11,6 +11,13 @@ def _metrics_rows(pairs):
     return [[name, m.rmse, m.mean, m.max] for name, m in pairs]
 
 
+def _accuracy_table(pairs, unit: str, title: str) -> str:
+    """The before/after table: ``pairs`` ``[(name, Metrics)]`` in ``unit`` (mm, px)."""
+    from .._core._metrics import format_table
+
+    return format_table(_metrics_rows(pairs), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"], title=title)
+
+
 def _fixed(v: float, sign: str = "") -> str:
     """``v`` at the tables' precision (4 decimals), a value that rounds to zero as ``0.0000``,
     never ``-0.0000`` (a deviation the prior holds at nominal comes out at round-off size)."""
@@ -62,7 +69,8 @@ def _marks(res):
 def _print_chain_table(robot, res, sd) -> None:
     """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
     (mm), drx, dry, drz (°), and a last row with the tip transform's tip_dx … tip_drz; ± one
-    posterior σ; * = not calibrated (not identifiable or fixed)."""
+    posterior σ; * = not calibrated (not identifiable or fixed). A kinematic tree labels each
+    joint with its branch (:meth:`~jaxcal.KinematicTree.entry_labels`) and has a row per tip."""
 
     from .._core._metrics import format_table
     from .._fit._verdicts import MARKS_LEGEND
@@ -70,6 +78,15 @@ def _print_chain_table(robot, res, sd) -> None:
 
     free = set(res.space.free_names)
     value = {n: v for n, v, _ in correction_entries(robot, res.deviations)}
+    labels = robot.entry_labels()  # a tree: "branch / joint name", "tip <tip>"; a chain: none
+    tips: dict[str, list[str]] = {}  # a tree's tip rows: label → its entries (tip_dx@<tip> …), layout order
+    for n, lab in labels.items():
+        if lab.startswith("tip "):
+            tips.setdefault(lab[4:], []).append(n)
+    units = dict(zip(res.space.layout.names, res.space.layout.units))
+    dev = res.deviations.named()
+    for n in (n for names in tips.values() for n in names):
+        value[n] = math.degrees(float(dev[n])) if units[n] == "rad" else float(dev[n])
     mark = _marks(res)
 
     def cell(name):
@@ -79,19 +96,24 @@ def _print_chain_table(robot, res, sd) -> None:
             return f"{_fixed(value[name], '+')}*"
         return _fmt_value(value[name], sd.get(name, (None,))[0], "") + mark(name)
 
-    rows = [[f"{j + 1} {robot.joint_names[j]}"] + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS]
-            for j in range(robot.dof)]
-    rows.append([f"tip → {robot.tip}", ""] + [cell(n) for _, names, _ in TIP_GROUPS for n in names])
+    rows = [[f"{j + 1} {labels.get(f'offset_{j + 1}', robot.joint_names[j])}"]
+            + [cell(f"{g}_{j + 1}") for g, _ in GEOMETRIC_GROUPS] for j in range(robot.dof)]
+    if tips:
+        rows += [[f"tip → {t}", ""] + [cell(n) for n in names] for t, names in tips.items()]
+    else:
+        rows.append([f"tip → {robot.tip}", ""] + [cell(n) for _, names, _ in TIP_GROUPS for n in names])
+    ends = ", ".join(tips) or robot.tip
     print()
-    print(format_table(rows, ["joint", "offset/° (mm)", "dx/mm", "dy/mm", "dz/mm", "drx/°", "dry/°", "drz/°"],
-                       title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {robot.tip}; ± one "
+    print(format_table(rows, ["joint" + (" (branch / name)" if labels else ""), "offset/° (mm)", "dx/mm", "dy/mm",
+                              "dz/mm", "drx/°", "dry/°", "drz/°"],
+                       title=f"Calibrated joint corrections of {robot.name} ({robot.base} → {ends}; ± one "
                              f"posterior standard deviation; {MARKS_LEGEND}; `jaxcal export` writes the corrected URDF)"))
 
 
-def _print_estimates(res, sd: dict, extras, unit: str) -> None:
-    """The estimated extras (and those asked for but held), the non-geometric errors, σ̂ and the
-    condition number, each ± one posterior σ (``sd``: :meth:`Uncertainty.std_display`); ``unit``:
-    the readings' unit (mm, px)."""
+def _extras_line(res, sd: dict, extras) -> str | None:
+    """``"(deviation from the nominal/guessed value, ± one posterior σ): anchor_x +1.2 ± 0.3 mm, …"``:
+    the estimated extras of ``res`` (and those ``extras`` asked for but held, marked *), or ``None``
+    where there are none; ``sd``: :meth:`Uncertainty.std_display`."""
     import numpy as np
 
     from .._calibration._calibrate import SELECT_GROUPS
@@ -103,19 +125,28 @@ def _print_estimates(res, sd: dict, extras, unit: str) -> None:
     asked = {g for e in extras for g in SELECT_GROUPS.get(e, ())}
     frozen = [n for n in res.space.names if group_kind(n) == "extra" and group_of(n) in asked
               and n not in res.space.free_names]
-    if extra_names or frozen:
-        dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
-        units = dict(zip(res.space.names, res.space.units))
-        parts = []
-        for n in extra_names + frozen:
-            u = "°" if units[n] == "rad" else units[n]
-            v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
-            s_ = sd.get(n, (None,))[0]
-            parts.append(f"{n} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
-        print("estimated extras (deviation from the nominal/guessed value, ± one posterior σ"
-              + ("; * held at its start value: without a prior the data cannot tell it from another extra"
-                 if frozen else "")
-              + "): " + ", ".join(parts))
+    if not (extra_names or frozen):
+        return None
+    dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
+    units = dict(zip(res.space.names, res.space.units))
+    parts = []
+    for n in extra_names + frozen:
+        u = "°" if units[n] == "rad" else units[n]
+        v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
+        s_ = sd.get(n, (None,))[0]
+        parts.append(f"{n} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
+    return ("(deviation from the nominal/guessed value, ± one posterior σ"
+            + ("; * held at its start value: without a prior the data cannot tell it from another extra"
+               if frozen else "")
+            + "): " + ", ".join(parts))
+
+
+def _print_nongeometric(res, sd: dict) -> None:
+    """The robot's estimated non-geometric errors (harmonics in °, compliance in µrad/(N·m)) ± one
+    posterior σ, if any."""
+    import numpy as np
+
+    from .._core._params import group_kind
 
     ng_names = [n for n in res.space.free_names if group_kind(n) == "nongeometric"]
     if ng_names:
@@ -129,6 +160,16 @@ def _print_estimates(res, sd: dict, extras, unit: str) -> None:
             else:  # compliance: µrad/(N·m)
                 parts.append(f"{n} {_fmt_value(dev[n] * 1e6, None if s_ is None else s_ * 1e6, '')} µrad/(N·m)")
         print("non-geometric errors (± one posterior σ): " + ", ".join(parts))
+
+
+def _print_estimates(res, sd: dict, extras, unit: str) -> None:
+    """The estimated extras (and those asked for but held), the non-geometric errors, σ̂ and the
+    condition number, each ± one posterior σ (``sd``: :meth:`Uncertainty.std_display`); ``unit``:
+    the readings' unit (mm, px)."""
+    extras_line = _extras_line(res, sd, extras)
+    if extras_line is not None:
+        print("estimated extras " + extras_line)
+    _print_nongeometric(res, sd)
     if res.uncertainty is not None:
         if res.uncertainty.component_std:  # a pose: a σ̂ per component, the orientation weighed by their ratio
             w = float(res.measurement.orientation_scale)

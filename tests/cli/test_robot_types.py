@@ -9,8 +9,10 @@ no attribute 'a'``, ``--prior previous.json`` of a URDF result in ``unknown para
 
 import json
 import pathlib
+import re
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
@@ -113,9 +115,45 @@ def test_combined_fit_with_relations(robot_args, tmp_path, capsys):
     for name in ("plane", "bar"):  # each block's σ estimated near the simulated noise
         assert 0.6 * NOISE < combined["sigma"][name] < 1.5 * NOISE, combined["sigma"]
     assert "length scale: set by bar" in out.out
-    # the summary has no report page yet: the refusal names the block results to report instead
-    code, out = _run(["report", str(tmp_path / "fit" / "combined.json"), "--html", str(tmp_path / "r.html")], capsys)
-    assert code == 2 and "summary of a combined fit" in out.err and str(tmp_path / "fit" / "plane.json") in out.err
+    _check_block_tables(out.out, combined, tmp_path / "fit", chain=robot_args[1].endswith(".urdf"))
+    # the combined result's report page: every block's section, the robot table, the relation
+    pytest.importorskip("matplotlib")
+    code, _ = _run(["report", str(tmp_path / "fit" / "combined.json"), "--html", str(tmp_path / "r.html")], capsys)
+    assert code == 0
+    page = (tmp_path / "r.html").read_text(encoding="utf-8")
+    ET.fromstring(page.split("\n", 1)[1])  # well-formed (after the doctype line)
+    for section in ("Blocks", "Warnings", "Calibrated robot", "Which block sees what", "Relations",
+                    "Block plane: plane data", "Block bar: distance data"):
+        assert f"<h2>{section}" in page, section
+    assert "no held-out data" in page and "plane_angle" in page
+    for b in combined["blocks"][:2]:  # each block's σ̂ and its file's stated noise, as the JSON has them
+        assert f"<td>{b['sigma_hat']:.4f}</td>" in page and f"<td>{b['sigma_stated']:.4f}</td>" in page
+    assert page.count("data:image/png;base64,") >= 6  # per block: histogram, joints, workspace
+
+
+def _check_block_tables(out: str, combined: dict, fit: pathlib.Path, chain: bool) -> None:
+    """`calibrate --combine` prints, per block, the before/after table of its rows in its unit
+    (the after row = the block's statistics in combined.json, the same rows in its result file),
+    the robot's table (DH or per-joint corrections) and each block's extras."""
+    lines = out.splitlines()
+    assert any(ln.startswith("Accuracy before/after calibration, per block") for ln in lines)
+    assert "these are training numbers: nothing was held out" in out
+    for b in (b for b in combined["blocks"] if "result" in b):
+        head = next(i for i, ln in enumerate(lines) if ln.startswith(f"{b['name']} ({b['name']}.csv: "))
+        rows = {}
+        for ln in lines[head + 3:]:
+            m = re.fullmatch(r"\s*(train, [a-z ]+?)\s+(\S+)\s+(\S+)\s+(\S+)", ln)
+            if m is None:
+                break
+            rows[m[1]] = [float(v) for v in m.groups()[1:]]
+        assert rows["train, after"] == pytest.approx([b["rmse"], b["mean"], b["max"]], abs=6e-5), (b["name"], rows)
+        assert rows["train, before"][0] > 2 * rows["train, after"][0]
+        saved = json.loads((fit / f"{b['name']}.json").read_text())
+        assert saved["metrics_mm"]["train, after"]["rmse"] == pytest.approx(b["rmse"], rel=1e-6)
+        assert len(saved["rows"]["train"]["after_mm"]) == b["n_samples"] == saved["settings"]["n_samples"]
+        assert b["result"]["metrics_mm"] == saved["metrics_mm"]  # combined.json holds the same tables
+    assert ("Calibrated joint corrections of" if chain else "Calibrated DH table") in out
+    assert "estimated extras of plane (" in out and "plane_d@table" in out
 
 
 def test_modified_dh_file_at_the_floor_on_independent_data(tmp_path, capsys):
