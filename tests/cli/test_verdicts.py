@@ -131,6 +131,11 @@ def test_combined_plane_and_bar_one_verdict_everywhere(kind, tmp_path):
     printed = _verdict_lines(out)
     block = json.loads((tmp_path / "fit" / "plane.json").read_text())["diagnostics"]["verdicts"]["verdict"]
     assert "prior" in printed.values() and all(block[n] == v for n, v in printed.items() if n in block)
+    if kind == "preset":  # the combined output's DH table marks each parameter by its verdict, as one file's does
+        marks = _dh_marks(out)
+        assert len(marks) == 24 and "†" in marks.values()
+        for n, m in marks.items():
+            assert m == {"data": "", "prior": "†", "held": "*"}[block[n]], (n, m, block[n])
     report = [ln.strip() for ln in out.splitlines()]
     determined = [n for ln in report if " alone determines: " in ln for n in _names(ln.split(": ", 1)[1])]
     shared = [re.sub(r" \(.*", "", t) for ln in report if ln.startswith("shared by several blocks: ")

@@ -177,7 +177,7 @@ def test_tip_in_data_files_and_plain_data(tree):
 SIG_TOUCH, SIG_PLANE, SIG_TRACKER = 0.1, 0.05, 0.1
 
 
-def test_combined_fit_over_the_tree_at_the_floor(tree):
+def test_combined_fit_over_the_tree_at_the_floor(tree, capsys):
     """Self-contact of the two hands + three planes touched by the left hand + a tracker on the right
     hand: one fit at the combined floor on held-out rows; the head (seen by no block) is named."""
     truth = draw_deviations(jax.random.key(11), tree, angle_std_deg=0.2, length_std_mm=0.5)
@@ -219,3 +219,14 @@ def test_combined_fit_over_the_tree_at_the_floor(tree):
     unseen = set(res.identifiability.unidentifiable) | (set(layout_for(tree, comb).names) - free)
     assert head and all(f"offset_{j}" in unseen and f"offset_{j}" not in free for j in head)
     assert "tip_dx@head_camera" not in free
+    # `jaxcal calibrate --combine`'s robot table of a tree: each joint with its branch, a row per tip
+    from jaxcal.cli._tables import _print_chain_table
+
+    _print_chain_table(tree, res, res.uncertainty.std_display())
+    rows = {ln.strip().split("  ")[0]: ln for ln in capsys.readouterr().out.splitlines()}
+    for j, name in enumerate(tree.joint_names):
+        assert f"{j + 1} {tree.entry_labels()[f'offset_{j + 1}']}" in rows, name
+    for tip in tree.tips:  # a row per tip, its entries * where not calibrated, ± σ where free
+        entries = [n for n, lab in tree.entry_labels().items() if lab == f"tip {tip}"]
+        assert len(entries) == 6 and rows[f"tip → {tip}"].count("*") == sum(n not in free for n in entries), tip
+        assert rows[f"tip → {tip}"].count("±") == sum(n in free for n in entries), tip
