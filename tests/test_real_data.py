@@ -105,9 +105,12 @@ def test_cli_exit_codes_and_outlier_rows(messy, tmp_path, capsys):
     base = ["calibrate", str(path), "--robot", "hsr_jr680", "--anchor", anchor, "--estimate", "anchor,offset",
             "--test-fraction", "0"]
     assert main(base) == 0  # default prior: plausible
-    out = capsys.readouterr().out
+    cap = capsys.readouterr()
     rows = [int(r) + 1 for r in ex.outlier_rows]  # 1-based data rows of the file
-    assert f"data rows {rows[0]}, {rows[1]}" in out and "± " in out
+    assert "± " in cap.out
+    # named by the file and its data rows, in the training rows' own σ̂, with what to do
+    assert f"{path}, training rows: 2 outlier rows at data rows {rows[0]}, {rows[1]}: residual " in cap.err
+    assert f"--exclude-rows {rows[0]},{rows[1]} leaves them out" in cap.err
     tight = ["--max-length-mm", "0.01"]  # every fitted length deviation is "implausible"
     assert main(base + tight) == 1
     assert "implausible" in capsys.readouterr().err
@@ -118,8 +121,8 @@ def test_cli_exit_codes_and_outlier_rows(messy, tmp_path, capsys):
              "--loss", "huber", *tight]
     assert main(known) == 1
     cap = capsys.readouterr()
-    assert "--estimate anchor,offset" in cap.err and "down-weighted by the robust loss" in cap.out
-    assert "--loss huber to guard" not in cap.out
+    assert "--estimate anchor,offset" in cap.err and "down-weighted by the robust loss" in cap.err
+    assert "--loss huber guards" not in cap.err
     assert main(base + ["--exclude-outliers"]) == 0
     assert "refitting without data rows" in capsys.readouterr().out
     assert main(base + ["--prior", "wings=2"]) == 2

@@ -8,6 +8,7 @@ import math
 import time
 import warnings
 from collections.abc import Generator
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import equinox as eqx
@@ -37,15 +38,16 @@ from .._fit._diagnostics import (
     Diagnostics,
     coverage,
     error_dims,
+    flagged_rows,
     given_noise_std,
     gram_at,
     gram_from_jacobian,
     implausible_deviations,
     narrow_joints,
-    outlier_rows,
     parameter_uncertainty,
     prior_directions,
     result_findings,
+    scan_outliers,
     weak_parameters,
 )
 from .._fit._evidence import choose_prior
@@ -66,8 +68,8 @@ from .._sensors._initial_extras import initial_extras
 from .._sensors._measurement import MeasurementModel
 from ..methods import Method, ScaledProblem, make_method
 
-__all__ = ["calibrate", "Calibrator", "CalibrationOutput", "CalibrationWarning", "CalibrationError", "resolve_space",
-           "extras_flags"]
+__all__ = ["calibrate", "Calibrator", "CalibrationOutput", "CalibrationWarning", "OutlierWarning", "CalibrationError",
+           "resolve_space", "extras_flags", "outlier_warnings"]
 
 
 class CalibrationWarning(RuntimeWarning):
@@ -78,6 +80,27 @@ class StatedNoiseWarning(CalibrationWarning):
     """A block of a combined fit whose residual σ̂ is at least :attr:`~jaxcal.Checks.noise_warn_factor`
     times the noise its data file states (:meth:`~jaxcal.BlockStats.noise_warning`); the command
     line prints it naming the file instead."""
+
+
+class OutlierWarning(CalibrationWarning):
+    """Rows of the training data (of a block of a combined fit) whose residual is an outlier in
+    their own robust σ̂ (:attr:`jaxcal.Diagnostics.outlier_scans`, at the false-alarm rate
+    :attr:`~jaxcal.Checks.outlier_rate`); the command line prints them naming the file and its data
+    rows instead."""
+
+
+def outlier_warnings(result) -> tuple[str, ...]:
+    """The warnings of ``result`` (its ``diagnostics.warnings``) that name outlier rows: one per
+    scan that flagged any (:class:`OutlierWarning`), rows as positions in the training data (a
+    block's own rows in a combined fit)."""
+    diag = getattr(result, "diagnostics", None)
+    if diag is None:
+        return ()
+    hint = ("" if result.loss != "linear" else
+            "; a robust loss (--loss huber; loss \"huber\" in Python) guards against them")
+    return tuple(sc.message("training data" if sc.block is None else f"block {sc.block!r}",
+                            action="check those rows, or leave them out and fit again" + hint)
+                 for sc in diag.outlier_scans if sc.rows)
 
 
 class CalibrationError(RuntimeError):
@@ -981,7 +1004,7 @@ def _calibration_steps(
             launched = yield solve(cur, prog, mask, noise, scale, space, jac)
             out, c_s = launched.out, launched.compile_s
             if before_rows is None:  # host work that does not need the fit, while the device runs it
-                before_rows, _, _ = outlier_rows(problem, x, checks.outlier_k, residuals=resid_start)
+                before_rows = flagged_rows(scan_outliers(problem, x, checks, residuals=resid_start))
                 cov = coverage(robot, q)
             out, r_s = launched.wait()
             if columns is not None:
@@ -1077,8 +1100,9 @@ def _calibration_steps(
     object.__setattr__(result, "uncertainty", unc)
     if result.identifiability is not None and diag.verdicts is not None:  # its lines in the verdicts' words
         object.__setattr__(result, "identifiability", dataclasses.replace(result.identifiability, verdicts=diag.verdicts))
+    flagged = set(outlier_warnings(result))
     for w in diag.warnings:
-        warnings.warn(w, CalibrationWarning, stacklevel=3)
+        warnings.warn(w, OutlierWarning if w in flagged else CalibrationWarning, stacklevel=3)
     return result
 
 
@@ -1229,19 +1253,16 @@ def _diagnose(result: CalibrationResult, problem: Problem, before_rows, checks: 
     still = _still_message(result)
     if still:
         msgs.append(still)
-    after_rows, _, s_after = outlier_rows(problem, x, checks.outlier_k, residuals=resid)
-    if len(after_rows):
-        shown = ", ".join(str(int(r)) for r in after_rows[:12])
-        unit = getattr(problem.measurement, "unit", "mm")  # px for a camera, σ for combined blocks (whitened)
-        msgs.append(f"{len(after_rows)} outlier sample(s) (residual > {checks.outlier_k:g}·{s_after:.3g} {unit} robust σ) at "
-                    f"training rows {shown}{' …' if len(after_rows) > 12 else ''} (0-based); nothing was dropped"
-                    + ("" if result.loss != "linear" else "; consider a robust loss (--loss huber; loss \"huber\" in "
-                                                             "Python) or excluding them"))
+    scans = scan_outliers(problem, x, checks, residuals=resid)  # each file's (block's) rows in their own σ̂
+    after_rows = flagged_rows(scans)
+    msgs += outlier_warnings(SimpleNamespace(loss=result.loss, diagnostics=SimpleNamespace(outlier_scans=scans)))
+    s_after = scans[0].scale if len(scans) == 1 else robust_scale(observed_entries(problem, resid)) \
+        if resid is not None else math.nan
     suspect, cause = result_findings(result, problem, unc, resid, resid_start, checks,
                                      extras_started=extras_msg is not None, noise_std=noise_std)
     if suspect:
         msgs.append("the result fails its checks: " + "; ".join(suspect) + (f" — likely cause: {cause}" if cause else ""))
     diag = Diagnostics(tuple(msgs), bad, cond, cov, narrow, weak, tuple(int(r) for r in before_rows),
                        tuple(int(r) for r in after_rows), s_after, extras_msg, rounds, tuple(reselection), directions,
-                       suspect, cause, verdicts=verdicts)
+                       suspect, cause, verdicts=verdicts, outlier_scans=scans)
     return diag, unc

@@ -33,6 +33,7 @@ from .._core._metrics import Metrics, format_table, metrics_numpy
 from .._core._params import Deviations, ParameterSpace, group_kind, layout_for
 from .._core._precision import to_device, uncommitted
 from .._core._xla import ahead_enabled, compile_ahead, filter_jit, take_ahead
+from .._fit._diagnostics import OutlierScan
 from .._fit._objective import MEASURED_DEFAULTS, OBJECTIVES, describe_objective, resolve_objective
 from .._sensors._initialise import _residual, _sample_error, has_plain_row_error, plain_row_errors, residual_rows
 
@@ -304,8 +305,10 @@ class Evaluation:
             nominal one where no set-up extras are registered: nothing else to compare).
         unit: the unit of the errors and metrics (the model's ``unit``: ``"mm"``, ``"px"``).
         message: one line saying where the extras came from.
-        outlier_rows: rows (0-based) whose after-residual exceeds 5 robust σ; ``outlier_scale_mm``
-            that σ.
+        outlier_rows: rows (positions in the data, from 0) whose after-residual is an outlier in
+            the rows' own robust σ̂ (:func:`residual_outliers`, a 1 % false-alarm rate over the
+            file's clean rows by default); ``outlier_scale_mm`` that σ̂ (:attr:`unit`);
+            ``outlier_scan`` the whole scan (threshold, rate), ``None`` on an old evaluation.
         deviations_before, deviations_after: the deviations evaluated.
         q_file: ``[n, dof]`` the joint readings in the files' units (degrees; mm at prismatic joints).
         objective: the calibration's objective (one line), if known.
@@ -336,6 +339,7 @@ class Evaluation:
     expected_rmse: float | None = None
     kept: tuple[str, ...] = ()
     unit: str = "mm"
+    outlier_scan: OutlierScan | None = None
 
     @property
     def worse_than_expected(self) -> bool:
@@ -401,11 +405,15 @@ class Evaluation:
                             title=f"Accuracy on {self.n} new rows before/after calibration")
 
     def __str__(self) -> str:
+        return self.describe()
+
+    def describe(self, outliers: bool = True) -> str:
+        """What ``str()`` prints: where the extras came from, the before/after table, the outlier
+        rows (``outliers``; ``jaxcal evaluate`` warns about them naming the file instead), the
+        verdict and the expected RMSE."""
         lines = [self.message, self.table()]
-        if self.outlier_rows:
-            lines.append(f"outlier rows (residual > 5 × {self.outlier_scale_mm:.3g} {self.unit}, the robust σ after calibration; 1-based): "
-                         + ", ".join(str(r + 1) for r in self.outlier_rows[:30])
-                         + (" …" if len(self.outlier_rows) > 30 else ""))
+        if outliers and self.outlier_rows and self.outlier_scan is not None:
+            lines.append(self.outlier_message("these rows"))
         verdict = ("WORSE than the nominal robot" if self.worse else
                    f"{100 * (1 - self.after.rmse / self.before.rmse):.1f} % lower RMSE than the nominal robot"
                    if self.before.rmse > 0 else "")
@@ -414,6 +422,14 @@ class Evaluation:
         lines += [] if line is None else [line]
         lines += [] if warning is None else [f"WARNING: {warning}"]
         return "\n".join(lines)
+
+    def outlier_message(self, where: str) -> str | None:
+        """The outlier rows as one sentence (:meth:`OutlierScan.message`), named as 1-based data rows
+        of the new data (``where``: its file), or ``None`` when none was flagged."""
+        if not self.outlier_rows or self.outlier_scan is None:
+            return None
+        return self.outlier_scan.message(where, [r + 1 for r in self.outlier_rows],
+                                         "they are in the 'after' RMSE/MAX above; check those rows")
 
     def to_dict(self) -> dict:
         """JSON-friendly: ``metrics_mm`` (``before``, ``after``, ``raw_nominal``), extras, outliers,
@@ -430,6 +446,8 @@ class Evaluation:
             "worse_than_expected": self.worse_than_expected,
             "outlier_rows": [r + 1 for r in self.outlier_rows],
             "outlier_scale_mm": self.outlier_scale_mm,
+            "outlier_threshold": None if self.outlier_scan is None else self.outlier_scan.threshold,
+            "outlier_rate": None if self.outlier_scan is None else self.outlier_scan.rate,
             "n_samples": self.n,
             "rows": {"row": list(range(1, self.n + 1)), "q_deg": (np.rad2deg(self.q) if self.q_file is None else self.q_file).tolist(),
                      "before_mm": self.before_errors.tolist(), "after_mm": self.after_errors.tolist()},
@@ -438,28 +456,40 @@ class Evaluation:
         }
 
 
-def residual_outliers(robot, measurement, deviations, data, k: float = 5.0) -> tuple[tuple[int, ...], float]:
+def residual_outliers(robot, measurement, deviations, data, k: float | None = None, *, rate: float = 0.01,
+                      n_file: int | None = None) -> OutlierScan:
     """Rows of ``data`` with a gross error under a given model, e.g. the held-out rows of a fit
-    (``jaxcal calibrate`` names them; they enter the test RMSE/MAX, not the fit).
+    (``jaxcal calibrate`` names them; they enter the test RMSE/MAX, not the fit), or a new day's
+    rows (``jaxcal evaluate``).
+
+    The rows are judged in their own robust σ̂ (1.4826·MAD of their residual entries; a pose's
+    position part) with the threshold for a false-alarm probability ``rate`` over ``n_file`` clean
+    Gaussian rows (:func:`~jaxcal._fit._diagnostics.outlier_threshold`; about 4.4 σ̂ for 800
+    one-entry rows), or a fixed ``k``.
 
     Args:
         robot, measurement: the models (``measurement`` of these rows).
         deviations: the robot's and the sensor's deviations (a result's ``.deviations``).
         data: the rows (a :class:`~jaxcal.Dataset`).
-        k: the threshold in robust σ of these rows' own residuals (1.4826·MAD).
+        k: a fixed threshold in robust σ̂ on a row's residual norm instead of ``rate``.
+        rate: the chance that any of ``n_file`` clean rows is flagged (default 1 %).
+        n_file: the rows of the file these rows are part of (default: ``data``'s; a file's test
+            rows scanned with the file's count and :func:`~jaxcal._fit._diagnostics.file_rate` of
+            the rate keep the file's rate over its training and test scans together).
 
     Returns:
-        ``(rows, robust σ)``: the 0-based rows of ``data`` whose residual is beyond ``k`` robust σ,
-        and that σ (mm; px for camera data).
+        :class:`~jaxcal._fit._diagnostics.OutlierScan`: ``.rows`` (positions in ``data``, from 0),
+        ``.scale`` (σ̂ in mm; px for camera data), ``.k``, ``.rate``, ``.message(...)``. It unpacks
+        as ``rows, scale = residual_outliers(...)``, as before issue 53.
     """
-    from .._fit._diagnostics import outlier_rows
+    from .._fit._diagnostics import Checks, scan_outliers
     from .._fit._problem import Problem
 
     q = to_device(data.q)  # not jnp.asarray: a copy program per shape
     space = ParameterSpace.from_names(layout_for(robot, measurement), [])
     pr = Problem(robot, measurement, q, data.y, space, deviations.astype(q.dtype))
-    rows, _, s = outlier_rows(pr, pr.x0(), k)
-    return tuple(int(r) for r in rows), float(s)
+    (scan,) = scan_outliers(pr, pr.x0(), Checks(outlier_rate=rate, outlier_k=k), n_file=n_file)
+    return scan
 
 
 #: :attr:`Evaluation.worse_than_expected` when the measured RMSE exceeds this many times the expected
@@ -607,7 +637,8 @@ def match_labels(result, data):
     return result, relabel(data, result.measurement.labels), new
 
 
-def evaluate_result(result, data, *, extras: str = "auto", objective: str | None = None) -> Evaluation:
+def evaluate_result(result, data, *, extras: str = "auto", objective: str | None = None,
+                    outlier_rate: float = 0.01) -> Evaluation:
     """Check ``result`` (a :class:`~jaxcal.CalibrationResult`, e.g. from :func:`jaxcal.load_result`)
     on new ``data`` (a :class:`~jaxcal.Dataset` of the same kind).
 
@@ -631,6 +662,8 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
             ``"register"`` when the result estimated such extras and ``data`` has enough rows
             (more residuals than twice the extras' parameters), else ``"result"``.
         objective: a line naming the calibration's objective, kept on the evaluation.
+        outlier_rate: the outlier scan's false-alarm probability over the new rows (their own
+            robust σ̂; :func:`residual_outliers`): the chance that any clean row is named.
 
     Returns:
         :class:`Evaluation`.
@@ -641,7 +674,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     robot, m = result.robot, result.measurement
     if hasattr(m, "frame_index"):  # SessionMarkers: the new data's sessions get their own model
 
-        return evaluate_sessions(result, data, extras=extras, objective=objective)
+        return evaluate_sessions(result, data, extras=extras, objective=objective, outlier_rate=outlier_rate)
     if not isinstance(data, Dataset):
         q, y = _as_arrays(data, m, robot)
         data = Dataset(q, y, m.kind)
@@ -695,7 +728,8 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
                    f"data{why}); the nominal robot's extras estimated from the new data{held}")
     eb = sample_errors(robot, m, dev_b, data)
     ea = sample_errors(robot, m, dev_a, data)
-    rows, scale = residual_outliers(robot, m, dev_a, data)
+    scan = residual_outliers(robot, m, dev_a, data, rate=outlier_rate)
+    rows, scale = scan.rows, scan.scale
     return Evaluation(
         before=metrics_numpy(eb), after=metrics_numpy(ea), raw_nominal=raw, before_errors=eb, after_errors=ea,
         q=np.asarray(data.q, np.float64), extras=source, registered=tuple(registered), message=msg,
@@ -703,7 +737,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
         deviations_before=dev_b, deviations_after=dev_a, objective=objective,
         q_file=joints_to_file_units(robot, data.q),
         expected_rmse=expected_rmse(result, data, registered, dev_a if registered else None),
-        kept=kept, unit=getattr(m, "unit", "mm"),
+        kept=kept, unit=getattr(m, "unit", "mm"), outlier_scan=scan,
     )
 
 
@@ -730,7 +764,8 @@ def _register(robot, m, q, y, dev, groups, frames, placements, loss: str = "line
     return res.deviations
 
 
-def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | None = None):
+def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | None = None,
+                      outlier_rate: float = 0.01):
     """:func:`jaxcal.evaluate_result` for a :class:`SessionMarkers` calibration: the calibrated
     robot on new marker ``data`` (a :class:`~jaxcal.Dataset`; with session labels, or without:
     then one new session labelled ``"new"``), whose sessions may have other frames, placements
@@ -787,7 +822,8 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
     dev_a = _register(robot, m, q, y, calibrated, new, new_f, new_p, loss="huber")
     eb, ea = _errors(robot, m, dev_b, q, y), _errors(robot, m, dev_a, q, y)
     raw = _errors(robot, m, zero, q, y)
-    rows, scale = residual_outliers(robot, m, dev_a, data)
+    scan = residual_outliers(robot, m, dev_a, data, rate=outlier_rate)
+    rows, scale = scan.rows, scan.scale
     n_miss, n_all, n_rows = masked_markers(y)
     gaps = (f"; {n_miss} of {n_all} marker readings missing (NaN) in {n_rows} row(s): masked (zero weight)"
             if n_miss else "")
@@ -801,4 +837,4 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
         before=metrics_numpy(eb), after=metrics_numpy(ea), raw_nominal=metrics_numpy(raw), before_errors=eb,
         after_errors=ea, q=np.asarray(q, np.float64), extras=source, registered=new, message=msg, outlier_rows=rows,
         outlier_scale_mm=scale if np.isfinite(scale) else float("nan"), deviations_before=dev_b,
-        deviations_after=dev_a, objective=objective, q_file=joints_to_file_units(robot, q))
+        deviations_after=dev_a, objective=objective, q_file=joints_to_file_units(robot, q), outlier_scan=scan)

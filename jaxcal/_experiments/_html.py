@@ -239,7 +239,7 @@ def _outliers(parts_rows: dict, flagged: dict) -> str:
             else:
                 table.append([part, r, "", "", ""])
         out.append(_table(["data", "row (1-based)", "before / mm", "after / mm", "joints / °"], table, left=1))
-    return "".join(out) or "<p>No row exceeds 5 robust σ after calibration.</p>"
+    return "".join(out) or "<p>No outlier row after calibration.</p>"
 
 
 def _figures(parts_rows: dict, robot_dict: dict, heading: str = "h2", tip: str | None = None) -> str:
@@ -349,8 +349,8 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
         warnings_ = diag.get("warnings", [])
         if s.get("outlier_rows_after"):  # the diagnostics count training rows from 0; the page uses data rows
             rows_txt = ", ".join(map(str, s["outlier_rows_after"][:20]))
-            warnings_ = [f"{len(s['outlier_rows_after'])} outlier sample(s) at data rows {rows_txt} (1-based; see "
-                         "Outlier rows)" if "outlier sample(s)" in w else w for w in warnings_]
+            warnings_ = [f"{len(s['outlier_rows_after'])} outlier row(s) at data rows {rows_txt} (see Outlier rows)"
+                         if w.startswith("training data: ") and " outlier row" in w else w for w in warnings_]
         data = s.get("data", "")
         if s.get("combined"):  # one block of `jaxcal calibrate --combine`
             data = (f"{data}: {s.get('n_samples')} rows, every one trains (one block of a combined fit of "
@@ -378,8 +378,9 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
                  _identifiability(res_d.get("identifiability"), _verdicts(res_d))]
     else:
         body.append("<p>The calibration result file was not found: no parameter sections.</p>")
-    body += ["<h2>Outlier rows</h2>", '<p class="small">Rows whose residual after calibration exceeds 5 robust '
-             "standard deviations (data-row numbers, 1-based).</p>", _outliers(parts_rows, flagged)]
+    body += ["<h2>Outlier rows</h2>", '<p class="small">Rows whose residual after calibration is an outlier in '
+             "their own robust σ̂ (1.4826·MAD), at the threshold clean Gaussian rows of the file cross with the "
+             "chance --outlier-rate (1 % by default; data-row numbers, 1-based).</p>", _outliers(parts_rows, flagged)]
     return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"/>'
             '<meta name="viewport" content="width=device-width, initial-scale=1"/>'
             f"<title>{_e(title)}</title><style>{_CSS}</style></head><body>"

@@ -35,7 +35,8 @@ from ._objective import robust_factor, robust_scale
 from ._problem import observed_entries, residual_blocks_numpy, signed_residuals, value_and_jacfwd
 from ._verdicts import PRIOR_SHARE, Verdicts
 
-__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "outlier_rows", "variance_component",
+__all__ = ["Checks", "Uncertainty", "Diagnostics", "parameter_uncertainty", "OutlierScan", "scan_outliers",
+           "outlier_threshold", "scan_rows", "flagged_rows", "file_rate", "variance_component",
            "component_entries",
            "prior_directions", "fit_findings", "likely_cause", "given_noise_std", "result_findings", "error_dims",
            "stated_noise_warning"]
@@ -51,8 +52,15 @@ class Checks:
         condition_number: warn above this condition number of the column-scaled Jacobian of the
             free parameters at the solution (default 1e4).
         narrow_joint_deg: warn when a joint moved less than this in the data (default 30°).
-        outlier_k: a sample is an outlier when its residual exceeds ``k`` robust standard
-            deviations (1.4826·MAD) from the median residual (default 5).
+        outlier_rate: the outlier scan's false-alarm probability per data file (default 0.01):
+            on clean Gaussian data, the chance that any row of a file is flagged. Each file's (each
+            block's) rows are judged in their own robust σ̂; the threshold on a row's residual norm
+            follows from this rate, the file's row count and the row's entries
+            (:func:`outlier_threshold`: 4.4 σ̂ for 800 one-entry rows, 5.1 σ̂ for 800 positions).
+        outlier_k: a fixed threshold instead, in robust σ̂ on a row's residual norm (its entries'
+            root sum of squares; one entry: its absolute value); ``None`` (default): from
+            ``outlier_rate``. Before issue 53 this was always 5 on a row's largest entry, whose
+            false-alarm rate grows with the row count.
         prior_share: with a prior, a free parameter is held by the prior rather than determined by
             the data when the prior gives more than this share of its posterior variance (default
             0.5: the prior tells more about it than the data; for one parameter alone, a posterior
@@ -85,7 +93,8 @@ class Checks:
     length_mm: float = 20.0
     condition_number: float = 1e4
     narrow_joint_deg: float = 30.0
-    outlier_k: float = 5.0
+    outlier_rate: float = 0.01
+    outlier_k: float | None = None
     prior_share: float = PRIOR_SHARE
     residual_fraction: float = 0.01
     noise_factor: float = 10.0
@@ -93,6 +102,12 @@ class Checks:
     extra_fraction: float = 0.25
     extra_angle_deg: float = 10.0
     worse_rtol: float = 0.01
+
+    def __post_init__(self):
+        if not (0.0 < self.outlier_rate < 1.0):
+            raise ValueError(f"outlier_rate must be a probability in (0, 1), got {self.outlier_rate!r}")
+        if self.outlier_k is not None and not (self.outlier_k > 0):
+            raise ValueError(f"outlier_k must be a positive number of robust σ (or None), got {self.outlier_k!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -554,32 +569,220 @@ def _norm_consistency(dims: int) -> Consistency:
     return Consistency("huber", e2, e2)
 
 
-def outlier_rows(problem, x, k: float = 5.0, *, residuals=None) -> tuple[np.ndarray, np.ndarray, float]:
-    """Samples whose residual is more than ``k`` robust standard deviations from the median.
+#: efficiency of σ̂ = 1.4826·MAD against the sample standard deviation for Gaussian data
+#: (Rousseeuw & Croux 1993, JASA 88(424), Table 1): σ̂ from N entries scatters like a sample SD
+#: of ``0.3675·N`` degrees of freedom (``var σ̂ ≈ σ²/(2·0.3675·N)``), which :func:`outlier_threshold`
+#: accounts for.
+MAD_EFFICIENCY = 0.3675
 
-    ``residuals``: the signed residuals at ``x`` (NumPy ``[n, m]``, :func:`signed_residuals`) when
-    the caller has them already (``x`` is then not evaluated).
+
+def outlier_threshold(n_rows: int, entries=1, n_entries: int | None = None, rate: float = 0.01):
+    """The outlier threshold ``k`` (in robust σ̂) on a row's residual norm for a false-alarm
+    probability ``rate`` over ``n_rows`` clean rows.
+
+    On clean Gaussian data a row's squared residual norm over its ``m`` entries, in units of the
+    noise σ, is χ²_m. Šidák's correction gives each row the tail ``p = 1 − (1 − rate)^(1/n_rows)``,
+    so that the chance that any of ``n_rows`` independent clean rows exceeds the threshold is
+    ``rate``. σ is not known but estimated by σ̂ = 1.4826·MAD of the ``n_entries`` residual
+    entries, which scatters like a sample standard deviation of ``ν = 0.3675·n_entries`` degrees
+    of freedom (:data:`MAD_EFFICIENCY`): the row statistic ``‖r‖²/(m σ̂²)`` is then about F(m, ν),
+    and ``k = √(m · F⁻¹(1 − p; m, ν))`` (χ²_m's quantile as ν → ∞). With rate 0.01: 800 rows of
+    one entry (a length, a plane contact), k = 4.4; 800 positions (m = 3), 5.1; 40 rows of one
+    entry, 4.8 (3.7 were σ known).
+
+    Measured on replicate Gaussian draws (``tests/fit/test_outlier_threshold.py``): the false-alarm
+    rate is ``rate`` or up to ~15 % below it from a few hundred residual entries on (0.87–1.03 % at
+    200 and 800 one-entry rows for 1 %; 4.4 % for 5 %; χ² alone, σ taken as known: 2.2 % and
+    7.9 %); with fewer, the F tail over-allows for σ̂'s scatter and the rate is lower (0.7 % at 40
+    entries, 0.45 % at 20). Fitted residuals are slightly smaller than the
+    noise (leverage), which makes the rate after a fit a little lower still.
+
+    Args:
+        n_rows: rows the rate is spread over (a file's rows; ≥ 1).
+        entries: ``m``, real residual entries per row (an int or an ``[n]`` array: rows with masked
+            readings have fewer).
+        n_entries: residual entries σ̂ was estimated from (default ``n_rows·m``).
+        rate: false-alarm probability over the ``n_rows`` rows, in ``(0, 1)``.
 
     Returns:
-        ``(rows [k_out], errors [k_out] mm, scale mm)``: row indices into ``problem``'s data (0-based),
-        each row's largest residual entry, and the robust scale σ̂ = 1.4826·MAD of the residual
-        entries (position part for poses).
+        ``k`` (a float, or an ``[n]`` array for an array ``entries``; ``inf`` where ``m = 0``).
     """
-    r = signed_residuals(problem, x) if residuals is None else residuals
+    from scipy import stats
+
+    m = np.asarray(entries, np.float64)
+    n_rows = max(int(n_rows), 1)
+    p = -math.expm1(math.log1p(-float(rate)) / n_rows)  # 1 − (1 − rate)^(1/n), exact for small rate
+    n_entries = int(n_rows * np.max(m)) if n_entries is None else int(n_entries)
+    nu = MAD_EFFICIENCY * max(n_entries, 1)
+    safe = np.where(m > 0, m, 1.0)
+    k = np.sqrt(safe * stats.f.isf(p, safe, nu)) if nu < 1e7 else np.sqrt(stats.chi2.isf(p, safe))
+    k = np.where(m > 0, k, np.inf)
+    return float(k) if k.ndim == 0 else k
+
+
+@dataclasses.dataclass(frozen=True)
+class OutlierScan:
+    """The outlier scan of one data file's (one block's) rows in their own robust σ̂
+    (:func:`scan_rows`).
+
+    Attributes:
+        rows: the flagged rows, 0-based positions among the rows scanned.
+        norms: each flagged row's residual norm (:attr:`unit`; a one-entry row: its absolute
+            residual from the median).
+        scale: σ̂ = 1.4826·MAD of the scanned rows' real residual entries (:attr:`unit`).
+        k: the threshold in σ̂ on a full row's residual norm (:func:`outlier_threshold`; rows with
+            masked readings have their own, lower one).
+        entries: real residual entries of a full row (1 for a length, 3 for a position or a
+            pose's position part, 2 per corner of a camera image).
+        rate: the false-alarm probability per file the threshold was chosen for; ``None`` when a
+            fixed ``k`` was given (:attr:`Checks.outlier_k`).
+        n_rows: rows scanned; ``n_file``: rows of the file the rate is spread over (a file split
+            into training and test rows: both parts' scans together keep ``rate``).
+        unit: the unit of the residuals (``"mm"``; ``"px"`` for a camera).
+        block: the block's name in a combined fit (:func:`jaxcal.calibrate_blocks`), else ``None``.
+        offset: the position of the scanned rows' first row among the problem's rows (a combined
+            fit's stacked rows); ``offset + rows`` index the problem's data.
+    """
+
+    rows: tuple[int, ...]
+    norms: tuple[float, ...]
+    scale: float
+    k: float
+    entries: int
+    rate: float | None
+    n_rows: int
+    n_file: int
+    unit: str = "mm"
+    block: str | None = None
+    offset: int = 0
+
+    @property
+    def threshold(self) -> float:
+        """The threshold on a full row's residual norm in :attr:`unit` (``k·σ̂``)."""
+        return self.k * self.scale
+
+    def __iter__(self):
+        """``rows, scale = scan``: what :func:`jaxcal.residual_outliers` returned before issue 53."""
+        return iter((self.rows, self.scale))
+
+    def criterion(self) -> str:
+        """How the rows were judged, e.g. ``"threshold 0.215 mm = 4.4 σ̂ (σ̂ = 0.049 mm, these rows'
+        robust σ; what a file of 800 clean rows crosses with a 1 % chance)"``."""
+        u = self.unit
+        why = (f"what a file of {self.n_file} clean rows crosses with a {_percent(self.rate)} chance"
+               if self.rate is not None else "a fixed threshold")
+        return (f"threshold {self.threshold:.3g} {u} = {self.k:.2g} σ̂ (σ̂ = {self.scale:.3g} {u}, these rows' robust σ; "
+                f"{why})")
+
+    def message(self, where: str, rows=None, action: str = "") -> str:
+        """One sentence naming the flagged rows, for every output (``jaxcal calibrate``, its test
+        rows, ``--combine``, ``jaxcal evaluate``, the library's warning), e.g. ``"plane.csv: 1
+        outlier row at data row 448: residual 0.52 mm, above the threshold 0.215 mm = 4.4 σ̂ (σ̂ =
+        0.049 mm, these rows' robust σ; what a file of 800 clean rows crosses with a 1 % chance);
+        nothing was dropped — …"``.
+
+        Args:
+            where: what the rows are, e.g. ``"plane.csv"`` or ``"cable.csv, test rows"``.
+            rows: how to name each flagged row (default: ``"index i"`` into the rows scanned, as a
+                Python user holds them); the CLI passes the 1-based data rows of the file.
+            action: what to do about them (flag names), after ``"nothing was dropped — "``.
+        """
+        n = len(self.rows)
+        names = [f"{i}" for i in self.rows] if rows is None else [f"{r}" for r in rows]
+        shown = ", ".join(names[:12]) + (" …" if n > 12 else "")
+        what = ("index " if n == 1 else "indices ") if rows is None else ("data row " if n == 1 else "data rows ")
+        norms = ", ".join(f"{v:.3g}" for v in self.norms[:12]) + (" …" if n > 12 else "")
+        return (f"{where}: {n} outlier row{'s' if n > 1 else ''} at {what}{shown}: residual {norms} {self.unit}, "
+                f"above the {self.criterion()}; nothing was dropped" + (f" — {action}" if action else ""))
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+def _percent(rate: float) -> str:
+    return f"{100 * rate:.3g} %"
+
+
+def file_rate(rate: float, n_part: int, n_file: int) -> float:
+    """The false-alarm probability for ``n_part`` of a file's ``n_file`` rows that keeps each row's
+    tail (:func:`outlier_threshold`) at that of ``rate`` over the whole file: ``1 − (1 −
+    rate)^(n_part/n_file)``. The training and the test rows of one file scanned at these rates
+    together give ``rate`` for the file."""
+    return -math.expm1(math.log1p(-float(rate)) * n_part / max(n_file, 1))
+
+
+def scan_rows(r, observed=None, *, rate: float = 0.01, k: float | None = None, n_file: int | None = None,
+              unit: str = "mm", block: str | None = None, offset: int = 0) -> OutlierScan:
+    """The outlier scan of one file's rows in their own robust σ̂ (NumPy, no JAX).
+
+    Each row's residual entries, less the median entry, over σ̂ = 1.4826·MAD of the real entries,
+    give the row's norm ``‖r_i − med‖/σ̂``; a row is flagged when that exceeds ``k`` (given), or
+    :func:`outlier_threshold` of ``rate`` over ``n_file`` rows with the row's own count of real
+    entries. NaN or infinite entries are flagged.
+
+    Args:
+        r: ``[n, m]`` the rows' residual entries in one unit (a pose's position part).
+        observed: ``[n, m]`` bool, the real entries (masked readings left out), or ``None``: all.
+        rate, k, n_file: the false-alarm probability per file, a fixed threshold instead, the file's
+            rows (default ``n``).
+        unit, block, offset: carried to the :class:`OutlierScan`.
+    """
+    r = np.asarray(r, np.float64).reshape(np.shape(r)[0], -1)
+    obs = np.ones(r.shape, bool) if observed is None else np.asarray(observed, bool)[:, : r.shape[1]]
+    n, m = r.shape
+    real = r[obs]
+    med = float(np.median(real[np.isfinite(real)])) if np.isfinite(real).any() else 0.0
+    s = robust_scale(real)
+    dev = np.where(obs, r - med, 0.0)
+    norm = np.sqrt(np.sum(dev**2, axis=1))
+    per_row = obs.sum(axis=1)
+    n_file = n if n_file is None else int(n_file)
+    if k is None:
+        kk = outlier_threshold(n_file, per_row, int(real.size), rate)
+        k_full = outlier_threshold(n_file, m, int(real.size), rate)
+    else:
+        kk, k_full = np.where(per_row > 0, float(k), np.inf), float(k)
+    rows = np.flatnonzero(~(norm <= kk * s) & (per_row > 0))  # NaN/inf count as outliers
+    return OutlierScan(tuple(int(i) for i in rows), tuple(float(v) for v in norm[rows]), float(s), float(k_full), m,
+                       None if k is not None else float(rate), n, n_file, unit, block, offset)
+
+
+def scan_outliers(problem, x, checks: Checks | None = None, *, residuals=None,
+                  n_file: int | None = None) -> tuple[OutlierScan, ...]:
+    """The outlier scans of ``problem``'s rows at ``x`` (:func:`scan_rows`): one for a single
+    sensor's rows; for a combined model (:func:`jaxcal.calibrate_blocks`) one per data block,
+    each block's rows in its own unit and its own robust σ̂ (the relations block is not scanned).
+    The rate or fixed threshold: ``checks`` (:attr:`Checks.outlier_rate`, :attr:`Checks.outlier_k`),
+    each block's rate over its own rows.
+
+    ``residuals``: the signed residuals at ``x`` (NumPy ``[n, m]``, :func:`signed_residuals`) when
+    the caller has them already (``x`` is then not evaluated). ``n_file``: a single sensor's rows
+    are part of a file of this many rows (the rate spread over the file: :func:`scan_rows`).
+    """
+    checks = Checks() if checks is None else checks
+    r = np.asarray(signed_residuals(problem, x) if residuals is None else residuals, np.float64)
     obs = problem.observed()
-    if obs is None:
-        med = np.median(r)
-        s = robust_scale(r)
-        dev = np.abs(r - med)
-    else:  # masked readings (a missing marker) are left out of the scale and the scan
-        real = np.asarray(r)[obs[:, : np.shape(r)[1]]]
-        med = np.median(real)
-        s = robust_scale(real)
-        dev = np.where(obs[:, : np.shape(r)[1]], np.abs(r - med), 0.0)
-    worst = dev.max(axis=1)
-    rows = np.flatnonzero(~(worst <= k * s))  # NaN/inf count as outliers
-    errors = (r - med)[rows, np.argmax(dev[rows], axis=1)] if rows.size else np.zeros(0)
-    return rows, errors, s
+    obs = np.ones(r.shape, bool) if obs is None else np.asarray(obs, bool)[:, : r.shape[1]]
+    if problem.weight is not None:  # padding rows (weight 0) are no data
+        keep = np.asarray(problem.weight) > 0
+        obs = obs & keep[: obs.shape[0], None]
+    model = problem.measurement
+    parts = model.outlier_parts() if hasattr(model, "outlier_parts") else None
+    if parts is None:
+        n = int(problem.n_real) if problem.weight is None else int(np.sum(np.asarray(problem.weight) > 0))
+        return (scan_rows(r[:n], obs[:n], rate=checks.outlier_rate, k=checks.outlier_k, n_file=n_file,
+                          unit=getattr(model, "unit", "mm")),)
+    out = []
+    for name, start, stop, entries, sigma, unit in parts:
+        rb = r[start:stop, :entries] * sigma
+        out.append(scan_rows(rb, obs[start:stop, :entries], rate=checks.outlier_rate, k=checks.outlier_k,
+                             unit=unit, block=name, offset=start))
+    return tuple(out)
+
+
+def flagged_rows(scans) -> tuple[int, ...]:
+    """The flagged rows of ``scans`` (:func:`scan_outliers`) as positions among the problem's rows."""
+    return tuple(sorted(s.offset + i for s in scans for i in s.rows))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -598,8 +801,13 @@ class Diagnostics:
         narrow_joints: 1-based joints that moved less than ``Checks.narrow_joint_deg``.
         weak_parameters: free parameters the data barely determine: with a prior, those it holds
             (:attr:`verdicts`); without one, posterior σ above a third of the plausibility bound.
-        outliers_before, outliers_after: training rows (0-based) flagged as outliers at the start
-            and after the fit; ``outlier_scale_mm``: the robust residual scale after the fit.
+        outliers_before, outliers_after: training rows (positions in the data, from 0) flagged as
+            outliers at the start and after the fit (each file's rows in their own robust σ̂, at
+            the false-alarm rate :attr:`Checks.outlier_rate` per file: :func:`scan_outliers`);
+            ``outlier_scale_mm``: the robust residual scale after the fit (a combined fit's: of
+            its whitened residual; each block's is in :attr:`outlier_scans`).
+        outlier_scans: the scans after the fit (:class:`OutlierScan`: one, or one per data block
+            of a combined fit), each with its rows, σ̂, threshold and rate.
         extras: the message of the extras initialisation, if one ran.
         rounds: fits run (more than 1 when a robust-loss scale or the prior's noise σ was
             re-estimated, or the free set grew at the solution).
@@ -636,6 +844,7 @@ class Diagnostics:
     suspect: tuple[str, ...] = ()
     likely_cause: str | None = None
     verdicts: Verdicts | None = None
+    outlier_scans: tuple[OutlierScan, ...] = ()
 
     @property
     def plausible(self) -> bool:
@@ -661,6 +870,7 @@ class Diagnostics:
             "suspect": list(self.suspect),
             "likely_cause": self.likely_cause,
             "verdicts": None if self.verdicts is None else self.verdicts.to_dict(),
+            "outlier_scans": [sc.to_dict() for sc in self.outlier_scans],
         }
 
 

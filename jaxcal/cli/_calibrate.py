@@ -12,7 +12,14 @@ import warnings
 from ._calibrate_setup import _calibration_setup
 from ._calibrate_several import _cmd_calibrate_combined, _cmd_calibrate_fleet
 from ._common import _EXIT_FAILED, _as_usage, _today, _Usage
-from ._tables import _metrics_rows, _print_chain_table, _print_dh_table, _print_estimates, _print_outliers_and_warnings
+from ._tables import (
+    _metrics_rows,
+    _outlier_line,
+    _print_chain_table,
+    _print_dh_table,
+    _print_estimates,
+    _print_outliers_and_warnings,
+)
 
 _T0 = time.perf_counter()  # the command line's start (before JAX is imported)
 
@@ -137,19 +144,33 @@ def _print_set_up(args, setup, split, method) -> str:
     return objective_line
 
 
+def _file_rows(split) -> int:
+    """The rows of the file the outlier scans spread their false-alarm rate over: its training and
+    test rows, those ``--exclude-outliers`` drops included (not those ``--exclude-rows`` leaves out)."""
+    return int(split.data.n)
+
+
 def _fit(args, setup, split, method):
     """``(result, split)``: the calibration of the training rows; with ``--exclude-outliers``, refitted
     without the rows the first fit found gross (named by their data rows)."""
+    import dataclasses
+
     from .._calibration._calibrate import CalibrationWarning, calibrate
+    from .._fit._diagnostics import file_rate
+
+    n_file = _file_rows(split)
 
     def run(split):
+        # the training rows' share of the file's false-alarm rate (its test rows get the rest)
+        checks = dataclasses.replace(setup.checks, outlier_rate=file_rate(setup.checks.outlier_rate,
+                                                                          len(split.train_idx), n_file))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
             # TypeError: a --set name the method does not take; too few samples: in the file's rows
             with _as_usage(errors=(TypeError,)), _rows_needed(split.data.n, len(split.train_idx), setup.path,
                                                              setup.test_file is None, setup.test_fraction):
                 res = calibrate(setup.robot, split.measurement, split.train, method, key=split.key,
-                                extras=setup.extras, prior=setup.prior, loss=setup.loss, checks=setup.checks,
+                                extras=setup.extras, prior=setup.prior, loss=setup.loss, checks=checks,
                                 free=args.free, fix=args.fix or (), **setup.hyper)
         for w in caught:
             if not issubclass(w.category, CalibrationWarning):
@@ -236,7 +257,8 @@ def _print_findings(args, setup, split, res) -> list[int]:
     else:
         _print_chain_table(robot, res, sd)
     _print_estimates(res, sd, setup.extras, unit)
-    _print_outliers_and_warnings(res, args, checks, lambda i: split.train_file_rows([i])[0])
+    rate, n_file, where = checks.outlier_rate, _file_rows(split), str(setup.path)
+    _print_outliers_and_warnings(res, args, lambda i: split.train_file_rows([i])[0], where, rate, n_file)
     stated = stated_noise_warning(str(setup.path), res.uncertainty.noise_std if res.uncertainty is not None else math.nan,
                                   given_noise_std(setup.data, None, measurement), unit, checks.noise_warn_factor)
     if stated is not None:  # σ̂ far above the file's noise line: another set-up, or a wrong line
@@ -245,13 +267,12 @@ def _print_findings(args, setup, split, res) -> list[int]:
         return []
     # the held-out rows' gross errors, named as the training rows' are (they enter the test
     # RMSE/MAX above, not the fit)
-    rows_t, scale_t = residual_outliers(robot, split.test_measurement, res.deviations, split.test, checks.outlier_k)
-    test_outliers = split.test_file_rows(rows_t)
+    scan = residual_outliers(robot, split.test_measurement, res.deviations, split.test, checks.outlier_k,
+                             rate=checks.outlier_rate, n_file=n_file)
+    test_outliers = split.test_file_rows(scan.rows)
     if test_outliers:
-        listed = ", ".join(map(str, test_outliers[:20]))
-        print(f"outliers in the test rows (residual > {checks.outlier_k:g} × {scale_t:.3g} {unit}, their robust σ): "
-              f"data rows {listed}{' …' if len(test_outliers) > 20 else ''} — not used in the fit; they raise "
-              "the test RMSE/MAX above")
+        print(f"jaxcal: warning: {_outlier_line(scan, where, test_outliers, rate, n_file, args, train=False)}",
+              file=sys.stderr)
     return test_outliers
 
 

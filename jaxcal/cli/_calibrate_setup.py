@@ -10,6 +10,13 @@ import types
 from ._common import _as_usage, _floats, _robot, _Usage
 
 
+def _outlier_rate(rate: float) -> float:
+    """``--outlier-rate``, checked: a probability in (0, 1)."""
+    if not (0.0 < rate < 1.0):
+        raise _Usage(f"--outlier-rate must be a probability between 0 and 1 (e.g. 0.01), got {rate:g}")
+    return rate
+
+
 def _hyper(items: list[str] | None) -> dict:
     out = {}
     for it in items or []:
@@ -103,7 +110,8 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             test_file = relabel(test_file, measurement.labels)
     with _as_usage("--prior: "):
         prior = Prior.parse(args.prior)
-    checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm)
+    checks = Checks(angle_deg=args.max_angle_deg, length_mm=args.max_length_mm,
+                    outlier_rate=_outlier_rate(args.outlier_rate))
     hyper = _hyper(args.set)
     from ..methods import method_settings
 

@@ -29,6 +29,11 @@ def fleet_kinds() -> list[str]:
     return [k.name for k in sensor_kinds() if k.fleet]
 
 
+#: what to do about a combined fit's outlier rows (--exclude-rows applies to one file)
+_OUTLIER_TODO = ("check those rows (a mis-read, a wrong label); to leave them out, delete them from the file and fit "
+                 "again")
+
+
 def _cmd_calibrate_combined(args, method: str) -> int:
     """`jaxcal calibrate a.csv b.csv ... --combine --out-dir DIR [--relations FILE]`: the files are
     blocks of one robot (:func:`jaxcal.calibrate_blocks`): one fit, each block's σ estimated; one
@@ -37,7 +42,7 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     relations, σ, the deviations)."""
 
     from .._calibration._blocks import block_extras, block_result, calibrate_blocks, save_combined_result
-    from .._calibration._calibrate import CalibrationWarning, StatedNoiseWarning
+    from .._calibration._calibrate import CalibrationWarning, OutlierWarning, StatedNoiseWarning
     from .._calibration._io import save_result
     from .._sensors._blocks import Block, load_relations
 
@@ -70,8 +75,9 @@ def _cmd_calibrate_combined(args, method: str) -> int:
         with _as_usage():
             res = calibrate_blocks(first.robot, blocks, relations, method, prior=first.prior, loss=first.loss,
                                    checks=first.checks, free=args.free, fix=args.fix or (), **first.hyper)
-    for w in caught:  # a block's σ̂ against its noise line: below, naming the file
-        if issubclass(w.category, CalibrationWarning) and not issubclass(w.category, StatedNoiseWarning):
+    for w in caught:  # a block's σ̂ against its noise line, its outlier rows: below, naming the file
+        if issubclass(w.category, CalibrationWarning) and not issubclass(w.category, (StatedNoiseWarning,
+                                                                                      OutlierWarning)):
             print(f"jaxcal: warning: {w.message}", file=sys.stderr)
     for m in res.block_messages:
         print(f"start: {m}")
@@ -87,6 +93,11 @@ def _cmd_calibrate_combined(args, method: str) -> int:
         msg = st.noise_warning(str(s.path), getattr(first.checks, "noise_warn_factor", None))
         if msg is not None:
             print(f"jaxcal: warning: {msg}", file=sys.stderr)
+    paths = {n: s.path for n, s in zip(names, setups)}
+    for sc in res.diagnostics.outlier_scans:  # each file's rows in their own robust σ̂ (every row trains)
+        if sc.rows:
+            print(f"jaxcal: warning: {sc.message(str(paths[sc.block]), [i + 1 for i in sc.rows], _OUTLIER_TODO)}",
+                  file=sys.stderr)
     out = pathlib.Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     info = {}

@@ -54,11 +54,17 @@ def _cmd_evaluate(args) -> int:
             print(f"new {data.kind} labels in {path}: {', '.join(new)} — registered on its rows (robot fixed)")
     objective = raw.get("settings", {}).get("objective") or (
         f"objective: {raw.get('loss', 'linear')} loss; {raw.get('prior') or 'no prior'}")
-    ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective)
+    from ._calibrate_setup import _outlier_rate
+
+    ev = evaluate_result(res, data, extras="result" if args.keep_extras else "auto", objective=objective,
+                         outlier_rate=_outlier_rate(args.outlier_rate))
     print(f"calibration: {src} ({res.robot.name}, {res.method}, {raw.get('status')}; {len(res.space.free_names)} "
           f"free parameters); new data: {data.n} {m.kind} samples from {path}")
     print(f"calibrated with the {objective}" if objective.startswith("measured") else f"calibrated with: {objective}")
-    print(ev)
+    print(ev.describe(outliers=False))
+    outliers = ev.outlier_message(str(path))
+    if outliers is not None:  # named by the file's 1-based data rows, as `jaxcal calibrate` names them
+        print(f"jaxcal: warning: {outliers}", file=sys.stderr)
     if args.out:
         out = {"format": EVALUATION_FORMAT, "result": str(src), "data": str(path), "method": res.method,
                "status": raw.get("status"), "robot": robot_to_dict(res.robot), "measurement": measurement_to_dict(m),

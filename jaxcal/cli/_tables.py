@@ -181,18 +181,35 @@ def _print_estimates(res, sd: dict, extras, unit: str) -> None:
               + (" (data and prior together)" if res.prior is not None else ""))
 
 
-def _print_outliers_and_warnings(res, args, checks, file_row) -> None:
-    """Outlier rows after the fit (as 1-based data rows, ``file_row``) and the result's warnings."""
-    diag = res.diagnostics
-    if diag.outliers_after:
-        listed = ", ".join(str(file_row(i)) for i in diag.outliers_after[:20])
-        print(f"outliers after the fit (residual > {checks.outlier_k:g} × {diag.outlier_scale_mm:.3g} mm, the robust σ): data rows "
-              f"{listed}{' …' if len(diag.outliers_after) > 20 else ''}"
-              + ("" if args.exclude_outliers else
-                 " (kept, down-weighted by the robust loss; --exclude-outliers drops them)" if args.loss != "linear" else
-                 " (kept; --exclude-outliers or --loss huber to guard against them)"))
+def _print_outliers_and_warnings(res, args, file_row, where: str, rate: float, n_file: int) -> None:
+    """The training rows' outliers (:func:`_outlier_line`, named as 1-based data rows by ``file_row``)
+    and the result's other warnings."""
+    from .._calibration._calibrate import outlier_warnings
+
+    for sc in res.diagnostics.outlier_scans:
+        if sc.rows:
+            rows = [file_row(i) for i in sc.rows]
+            print(f"jaxcal: warning: {_outlier_line(sc, where, rows, rate, n_file, args, train=True)}", file=sys.stderr)
+    flagged = set(outlier_warnings(res))
     for w in res.warnings:
-        if diag.outliers_after and "outlier sample(s)" in w:
-            w = (f"{len(diag.outliers_after)} outlier sample(s) at data rows "
-                 f"{', '.join(str(file_row(i)) for i in diag.outliers_after[:20])} (see above)")
-        print(f"jaxcal: warning: {w}", file=sys.stderr)
+        if w not in flagged:
+            print(f"jaxcal: warning: {w}", file=sys.stderr)
+
+
+def _outlier_line(scan, where: str, rows, rate: float, n_file: int, args, train: bool) -> str:
+    """One file's outlier rows in the words every command uses (:meth:`OutlierScan.message`): the
+    file, its 1-based data ``rows``, σ̂ and the threshold, the false-alarm ``rate`` over the file's
+    ``n_file`` rows (its training and test rows were scanned at the same per-row rate), what to do."""
+    import dataclasses
+
+    listed = ",".join(map(str, rows)) if len(rows) <= 12 else "ROWS"
+    if train:
+        guard = ("they are down-weighted by the robust loss; " if args.loss != "linear" else
+                 "--loss huber guards against them; ")
+        todo = guard + ("" if args.exclude_outliers else "--exclude-outliers refits without them, ") + \
+            f"--exclude-rows {listed} leaves them out"
+    else:
+        todo = f"held out, not fitted: they raise the test RMSE/MAX above; --exclude-rows {listed} leaves them out"
+    if scan.rate is not None:  # the per-row tail is that of the file's rate over all its rows
+        scan = dataclasses.replace(scan, rate=rate, n_file=n_file)
+    return scan.message(f"{where}, {'training' if train else 'test'} rows", rows, todo)

@@ -90,9 +90,13 @@ def test_a_gross_test_row_is_named(data_csv, tmp_path, capsys):
     with path.open("w", newline="") as f:
         csv.writer(f).writerows(rows)
     assert main(["calibrate", str(path), "--robot", "hsr_jr680", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
-    line = next(ln for ln in text.splitlines() if ln.startswith("outliers in the test rows"))
-    assert f"data rows {bad + 1} " in line
+    err = capsys.readouterr().err
+    line = next(ln for ln in err.splitlines() if "test rows: 1 outlier row" in ln)
+    # the file and its 1-based data row, σ̂ with its unit, the threshold in σ̂, the file's false-alarm rate
+    assert line.startswith(f"jaxcal: warning: {path}, test rows: 1 outlier row at data row {bad + 1}: residual ")
+    assert " mm, above the threshold " in line and " σ̂ (σ̂ = " in line
+    assert "what a file of 120 clean rows crosses with a 1 % chance" in line
+    assert "0-based" not in err and "nothing was dropped" in line and f"--exclude-rows {bad + 1}" in line
     assert load_result_dict(out)["settings"]["outlier_rows_test"] == [bad + 1]
 
 
