@@ -200,13 +200,16 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
                       jnp.asarray(noise_std, dtype))
 
 
-def simulated_contact_data(seed: int, robot, measurement, *, n_samples: int, noise_std: float):
+def simulated_contact_data(seed: int, robot, measurement, *, n_samples: int, noise_std: float,
+                           truth_seed: int | None = None):
     """The rows ``jaxcal simulate --measurement plane|point|distance`` writes: all ``n_samples``
     rows of :func:`simulate_contact` (``measurement`` a :class:`~jaxcal.PlaneContact` or
     :class:`~jaxcal.FixedPoint`) or :func:`simulate_distance` (a :class:`DistanceBar`: bars of 150
     and 300 mm) of ``jax.random.key(seed)``, on the seed's true set-up
     (:func:`~jaxcal._simulation._truth.simulated_truth`: the same robot, tool and sensor frame as
     every other kind's file of that seed, so the files can be combined), noise σ ``noise_std`` (mm).
+    ``truth_seed``: the true set-up is that seed's instead (``jaxcal simulate --like``: a new day of
+    a simulated set-up, new poses and noise from ``seed``).
 
     Returns:
         :class:`~jaxcal.Dataset` with the file's metadata: ``source: jaxcal simulate``, the robot,
@@ -216,7 +219,7 @@ def simulated_contact_data(seed: int, robot, measurement, *, n_samples: int, noi
     from ._truth import simulated_truth
 
     key = jax.random.key(seed)
-    truth = simulated_truth(key, robot, measurement)
+    truth = simulated_truth(key if truth_seed is None else jax.random.key(truth_seed), robot, measurement)
     meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": seed, "noise_std_mm": noise_std,
             **mm_joints_metadata(robot)}
     if measurement.kind == "distance":

@@ -69,10 +69,10 @@ def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=No
         return sensor_kind(kind).default_model(robot, anchor_mm=anchor, n_markers=n_markers, data=data)
 
 
-def _robot_and_sensor(args):
-    """``(robot, measurement)`` from ``--robot/--base/--tip``, ``--measurement`` and ``--anchor``
-    (``jaxcal simulate`` and ``jaxcal plan``)."""
-    robot = _robot(args.robot, args.base, args.tip)
+def _robot_and_sensor(args, robot=None):
+    """``(robot, measurement)`` from ``--robot/--base/--tip`` (or ``robot``, given), ``--measurement``
+    and ``--anchor`` (``jaxcal simulate`` and ``jaxcal plan``)."""
+    robot = _robot(args.robot, args.base, args.tip) if robot is None else robot
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
     if args.measurement == "camera":  # jaxcal plan: the simulation's set-up as the nominal frames
         if anchor is not None:

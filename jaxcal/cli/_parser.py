@@ -302,7 +302,10 @@ def _add_simulate(sub, fmt) -> None:
                     "for a camera).",
         epilog=_SIMULATE_FORMAT + "\n\n" + _ROBOT_FORMAT,
     )
-    s.add_argument("--out", required=True, help="CSV file to write")
+    s.add_argument("--out", help="CSV file to write")
+    s.add_argument("--out-dir", metavar="DIR",
+                   help="with --like DIR/combined.json: the folder for one new file per block, each under the name "
+                        "of the file the block was calibrated on")
     s.add_argument("--samples", type=int, default=None,
                    help="number of samples (default 2000; with --like the row count of the file the result was "
                         "calibrated on: a new day of the same measurement program)")
@@ -316,7 +319,9 @@ def _add_simulate(sub, fmt) -> None:
     s.add_argument("--robot", default=None, help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     s.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     s.add_argument("--tip", metavar="LINK[,LINK...]",
-                   help="URDF robot: the chain's tip link; several, comma-separated: a kinematic tree")
+                   help="URDF robot: the chain's tip link; several, comma-separated: a kinematic tree; a tree "
+                        "preset (dual_arm_ma1400, icub): the tips to keep, the first the default (one tip: its "
+                        "chain)")
     s.add_argument("--measurement", choices=("cable", "position", "pose", "camera", "plane", "point", "distance",
                                              "self_contact"),
                    default=None,
@@ -325,16 +330,19 @@ def _add_simulate(sub, fmt) -> None:
                         "f = 1000 px, only poses that see the whole target; --noise-std in px); plane: a probe "
                         "touching three planes (a `plane` label column); point: the tool tip pivoting on two fixed "
                         "points (a `point` label column); distance: pose pairs 150 or 300 mm apart (a bar with two "
-                        "nests); self_contact: a robot with two tips (--robot FILE.urdf --tip A,B) touching "
-                        "itself, a 30 mm ball on each tip (contact distance 60 mm; --noise-std: the contact's "
+                        "nests); self_contact: a robot with two tips (--robot FILE.urdf --tip A,B, or a tree "
+                        "preset: its first two tips) touching itself, a 30 mm ball on each tip (contact distance "
+                        "60 mm; --noise-std: the contact's "
                         "scatter, mm)")
-    s.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand"), default="eye-in-hand",
-                   help="camera: on the flange (eye-in-hand, default) or fixed, the target on the flange")
+    s.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand", "tip-to-tip"), default=None,
+                   help="camera: on the flange (eye-in-hand, default) or fixed, the target on the flange; tip-to-tip "
+                        "(self-observation, a robot with two tips --tip A,B): the camera on A sees the target on B")
     s.add_argument("--radius-mm", type=float, metavar="R",
                    help="point: a ball touching two fixed spheres instead of a pivoting tip, R = sphere + ball radius "
                         "(mm; written as '# radius_mm: R')")
-    s.add_argument("--missing-corners", type=float, default=0.0, metavar="FRACTION",
-                   help="camera: fraction of corners left undetected at random (empty cells; default 0)")
+    s.add_argument("--missing-corners", type=float, default=None, metavar="FRACTION",
+                   help="camera: fraction of corners left undetected at random (empty cells; default 0; written "
+                        "as '# missing_corners: F')")
     s.add_argument("--anchor", metavar="X,Y,Z",
                    help="draw-wire anchor, mm (default (reach/2, 0, 0)); written as '# anchor_mm:', the known "
                         "anchor calibrate uses")
@@ -347,7 +355,8 @@ def _add_simulate(sub, fmt) -> None:
                    help="a new file of the robot and set-up a calibration result was made from (a 'new day' of the "
                         "same robot: same true deviations, anchor and offset; new poses and noise from --seed). The "
                         "result's data file must be one `jaxcal simulate` wrote (its '# seed:' line names the true "
-                        "robot); cable, position and pose data")
+                        "robot, its other lines the set-up), of any kind it writes. A combined result "
+                        "(DIR/combined.json, with --out-dir NEW): one new file per block, same names")
     s.set_defaults(func=_cmd_simulate)
 
 def _add_report(sub, fmt) -> None:
