@@ -263,6 +263,36 @@ def test_files_of_one_seed_combine_at_their_noise(robot_args, seed_files, names,
     for name in names:
         assert abs(sigma[name] / NOISE - 1) < 0.2, sigma
     assert NOISE_LINE not in err, err
+    assert "outlier" not in err, err  # clean data: no alarm (the pooled scan once named 3.1–3.4 σ̂ plane rows)
+
+
+@pytest.mark.parametrize("robot_args", ["preset", "dh_file", "urdf"], indirect=True)
+def test_combined_fit_names_a_planted_row_by_file_and_row(robot_args, seed_files, tmp_path, capsys):
+    """The plane + bar files of the seed with one bar row 10σ off (5 mm on its 0.5 mm noise): one
+    outlier warning, naming bar.csv and that 1-based data row, in the bar's own σ̂ and unit at the
+    stated false-alarm rate, and nothing about the plane file (clean: no warning, above). The
+    files' shapes are the clean test's, so the fit reuses its compiled programs."""
+    bar = tmp_path / "bar.csv"
+    lines = seed_files["bar"].read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.startswith("q1"))
+    col = lines[head].split(",").index("distance_mm")
+    row = 37  # 1-based data row
+    cells = lines[head + row].split(",")
+    cells[col] = repr(float(cells[col]) + 5.0)
+    lines[head + row] = ",".join(cells)
+    bar.write_text("\n".join(lines) + "\n")
+    _, err = _combined_sigma(robot_args, {**seed_files, "bar": bar}, ("plane", "bar"), tmp_path / "fit", capsys)
+    warned = [ln for ln in err.splitlines() if "outlier" in ln]
+    assert len(warned) == 1, err
+    line = warned[0]
+    assert line.startswith(f"jaxcal: warning: {bar}: 1 outlier row at data row {row}: residual "), line
+    assert 3.5 < float(line.split(": residual ")[1].split()[0]) < 6.5, line  # the planted 5 mm and the row's noise
+    m = re.search(r"above the threshold ([0-9.]+) mm = ([0-9.]+) σ̂ \(σ̂ = ([0-9.]+) mm, these rows' robust σ; what a "
+                  r"file of 200 clean rows crosses with a 1 % chance\); nothing was dropped — ", line)
+    assert m is not None, line
+    thr, k, s = map(float, m.groups())
+    assert 0.35 < s < 0.7 and 3.5 < k < 6 and thr < 5.0  # the bar's own σ̂ (0.5 mm simulated), in mm
+    assert "0-based" not in err and "--combine" not in line
 
 
 @pytest.mark.parametrize("robot_args", ["preset", "dh_file"], indirect=True)
