@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
 import equinox as eqx
@@ -637,26 +637,41 @@ class Combined(MeasurementModel):
         return all(m.jacobian_free_of_data for m in self.models)
 
 
-def _check_shared_labels(blocks: Sequence[Block]) -> None:
+def check_shared_labels(blocks: Sequence[Block], sources: Mapping[str, str] | None = None) -> None:
     """A label shared by two blocks is one object: its nominal geometry must agree (it shares one
-    deviation group, ``plane@K`` / ``point@K``)."""
+    deviation group, ``plane@K`` / ``point@K``).
+
+    Raises:
+        ValueError: two blocks giving one label different nominal values, naming the object, both
+            blocks (``sources``: ``{block name: what to call it}``, e.g. its data file; default
+            ``block 'NAME'``) and both values.
+    """
     seen: dict = {}
+    call = (lambda b: f"block {b!r}") if sources is None else (lambda b: str(sources.get(b, f"block {b!r}")))  # noqa: E731
     for b in blocks:
         m = b.measurement
         if isinstance(m, PlaneContact):
             geo = {s: np.concatenate([np.asarray(m.normals[k]), np.asarray(m.offsets[k])[None]])
                    for k, s in enumerate(m.labels)}
+            show = lambda v: f"normal {_fmt(v[:3])}, offset {v[3]:g} mm"  # noqa: E731
         elif isinstance(m, FixedPoint):
             geo = {s: np.concatenate([np.asarray(m.centres[k]), np.asarray(m.radii[k])[None]])
                    for k, s in enumerate(m.labels)}
+            show = lambda v: f"centre {_fmt(v[:3])} mm, radius {v[3]:g} mm"  # noqa: E731
         else:
             continue
         for s, v in geo.items():
             key = (m.kind, s)
             if key in seen and not np.allclose(seen[key][1], v):
-                raise ValueError(f"{m.kind} {s!r} is in blocks {seen[key][0]!r} and {b.name!r} with different nominal "
-                                 "geometry; a label names one object: give them the same nominal values or other labels")
+                first, v0 = seen[key]
+                raise ValueError(f"{m.kind} {s!r} is in {call(first)} and {call(b.name)} with different nominal "
+                                 f"values ({show(v0)} vs {show(v)}); a label names one object: give them the same "
+                                 "nominal values or other labels")
             seen.setdefault(key, (b.name, v))
+
+
+def _fmt(v) -> str:
+    return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
 
 
 def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[Combined, np.ndarray, np.ndarray]:
@@ -683,7 +698,7 @@ def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[C
         for g in b.measurement.extra_groups() if hasattr(b.measurement, "extra_groups") else ():
             if "@" not in g.name:
                 own_counts[g.name] = own_counts.get(g.name, 0) + 1
-    _check_shared_labels(blocks)
+    check_shared_labels(blocks)
     # a tip's tool point (``tool@<tip>``, a kinematic tree's tip other than the default one) is one
     # object: every block's view has it, so a model that reads that tip's tool point by name
     # (self-contact) sees the one the other blocks estimate

@@ -82,7 +82,7 @@ class SelfContact(MeasurementModel):
         missing = [t for t in self.tips if t not in have]
         if missing:
             raise ValueError(f"self-contact tip(s) {missing} are not tips of robot {robot.name!r}; its tips: "
-                             f"{list(have)} (a URDF robot with several tips: --tips A,B on the command line, "
+                             f"{list(have)} (a URDF robot with several tips: --tip A,B on the command line, "
                              "load_urdf's tips argument in Python)")
 
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:

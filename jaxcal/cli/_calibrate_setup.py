@@ -10,6 +10,32 @@ import types
 from ._common import _as_usage, _floats, _robot, _Usage
 
 
+def joint_columns_message(path, n: int, robot, what: str = "robot") -> str:
+    """The one line for a data file with ``n`` joint columns where ``robot`` has another number.
+    A kinematic tree's file holds a column for every joint of the tree (``q1 … qN`` in its joint
+    order), also the joints its sensor's tip does not move: the line names the missing columns
+    with their joints and branches, and how to calibrate with fewer (``--tip``: fewer tips)."""
+    head = f"{path} has {n} joint columns but {what} {robot.name!r} has {robot.dof} joints"
+    branches = getattr(robot, "branches", None)
+    if branches is None or n > robot.dof or len(robot.tip_names()) < 2:
+        return head
+    branch_of = {j: b for b, _parent, joints in branches for j in joints}
+    names = robot.joint_names
+    missing = range(n, robot.dof)
+    first, last = missing[0], missing[-1]
+    span = (f"q{first + 1} ({names[first]}, branch {branch_of[first]})" if first == last else
+            f"q{first + 1} … q{last + 1} ({names[first]} … {names[last]}, "
+            + _branch_words(dict.fromkeys(branch_of[j] for j in missing)) + ")")
+    return (f"{head} (tips {', '.join(robot.tip_names())}): missing {span}; a kinematic tree's data file holds a "
+            f"column for every joint of the tree, q1 … q{robot.dof} in its joint order, also those its sensor's tip "
+            "does not move (fewer tips, fewer joints: --tip A[,B...])")
+
+
+def _branch_words(names) -> str:
+    names = list(names)
+    return ("branch " if len(names) == 1 else "branches ") + ", ".join(names)
+
+
 def _outlier_rate(rate: float) -> float:
     """``--outlier-rate``, checked: a probability in (0, 1)."""
     if not (0.0 < rate < 1.0):
@@ -75,7 +101,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
         raise _Usage(str(e)) from None
     kind = data.kind
     if data.dof != robot.dof:
-        raise _Usage(f"{path} has {data.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+        raise _Usage(joint_columns_message(path, data.dof, robot))
     if data.labels and args.test:
         raise _Usage(f"{path} has session/frame/placement columns (several recording sessions): --test FILE takes "
                      "one-session files; hold a session out with jaxcal.holdout_session (Python) instead")
@@ -101,7 +127,7 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
             raise _Usage(f"test file {args.test!r} not found")
         test_file = load_csv(tpath, kind=data.kind, n_markers=sensor_kind(data.kind).n_points(data.y))
         if test_file.dof != robot.dof:
-            raise _Usage(f"{tpath} has {test_file.dof} joint columns but robot {robot.name!r} has {robot.dof} joints")
+            raise _Usage(joint_columns_message(tpath, test_file.dof, robot))
         if test_file.labels:
             raise _Usage(f"{tpath} has session/frame/placement columns; the command line takes one session per file")
         if sensor_kind(test_file.kind).labelled:

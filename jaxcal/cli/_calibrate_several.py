@@ -44,7 +44,7 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     from .._calibration._blocks import block_extras, block_result, calibrate_blocks, save_combined_result
     from .._calibration._calibrate import CalibrationWarning, OutlierWarning, StatedNoiseWarning
     from .._calibration._io import save_result
-    from .._sensors._blocks import Block, load_relations
+    from .._sensors._blocks import Block, check_shared_labels, load_relations
 
     if not args.combine:
         raise _Usage("--relations applies to --combine (several files of one robot)")
@@ -63,6 +63,7 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     with _as_usage(errors=(ValueError, OSError)):
         relations = load_relations(args.relations) if args.relations else ()
         blocks = [Block(n, s.measurement, s.data, extras=block_extras(s.estimate)) for n, s in zip(names, setups)]
+        check_shared_labels(blocks, sources={n: str(s.path) for n, s in zip(names, setups)})
     print(f"combined fit of robot {first.robot.name}: {len(blocks)} blocks ("
           + ", ".join(f"{n}: {s.data.n} {s.kind} rows" for n, s in zip(names, setups))
           + (f"), {len(relations)} relations from {args.relations}" if relations else ")") + f", method {method}; "

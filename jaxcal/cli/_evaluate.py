@@ -28,6 +28,7 @@ def _cmd_evaluate(args) -> int:
     from .._core._json import to_jsonable
     from .._datasets._dataset import load_csv
     from .._sensors._kind import sensor_kind
+    from ._calibrate_setup import joint_columns_message
 
     src, path = pathlib.Path(args.result), pathlib.Path(args.data)
     if not src.exists():
@@ -41,8 +42,7 @@ def _cmd_evaluate(args) -> int:
     data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" and not sessions
                     else None, kind_from=f"the calibration {src} is of {m.kind} data")
     if data.dof != res.robot.dof:
-        raise _Usage(f"{path} has {data.dof} joint columns but the calibrated robot {res.robot.name!r} has "
-                     f"{res.robot.dof} joints")
+        raise _Usage(joint_columns_message(path, data.dof, res.robot, "the calibrated robot"))
     if data.labels and not sessions:
         raise _Usage(f"{path} has session/frame/placement columns; evaluate takes one session per file")
     if sensor_kind(data.kind).labelled:
