@@ -33,7 +33,7 @@ if os.environ.get("JAXCAL_TEST_EAGER_CACHE", "1") == "1":
 
 from jaxcal import robots  # noqa: E402
 
-ROBOT_NAMES = sorted(robots.PRESETS)
+ROBOT_NAMES = sorted(robots.DH_PRESETS)  # the serial presets; trees: tests/models/test_tree_presets.py
 
 
 def central_differences(f, x0, h):

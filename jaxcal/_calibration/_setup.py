@@ -63,7 +63,7 @@ def measurement_for(data, robot, *, anchor_mm=None, radius_mm: float | None = No
     * markers with session labels: a :class:`~jaxcal.SessionMarkers`; without: a
       :class:`~jaxcal.Markers` whose positions start from the data.
     * camera: a :class:`~jaxcal.Camera` with the hand-eye transform and the target pose unknown
-      (started from the images).
+      (started from the images); tip to tip with a ``# target_tip: NAME`` line.
     * plane, point: the planes / points from the data's labels, unknown (started from the data).
     * a ``# tip: NAME`` line (a :class:`~jaxcal.KinematicTree`): the model sees that tip
       (``tip=None`` when it is the robot's default tip, :func:`jaxcal.resolve_tip`).
@@ -82,7 +82,9 @@ def measurement_for(data, robot, *, anchor_mm=None, radius_mm: float | None = No
             points (columns ``x_mm, y_mm, z_mm``) or the points themselves ``[N, 3]`` mm.
         camera_intrinsics: camera data: ``fx, fy, cx, cy[, k1, k2, p1, p2[, k3]]`` (px; OpenCV's
             camera matrix and distortion), numbers or a comma-separated string.
-        mount: camera data: ``"eye_in_hand"`` (default) or ``"eye_to_hand"``.
+        mount: camera data: ``"eye_in_hand"`` (default), ``"eye_to_hand"`` or ``"tip_to_tip"`` (a
+            camera on one tip seeing a target on another: the file's ``# target_tip:`` line names
+            the target's tip, its ``# tip:`` line the camera's; the default with that line).
         path: the file ``data`` came from: a relative target file is looked for next to it, and
             messages name it.
 

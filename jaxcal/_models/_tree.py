@@ -377,6 +377,38 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
                     out[n] = f"tip {n.partition('@')[2] or self.tips[0]}"
         return out
 
+    def with_tips(self, tips: Sequence[str]) -> KinematicTree:
+        """The tree of the same robot with only ``tips``, in that order (``tips[0]`` the default
+        tip): the joints on their paths, numbered as :func:`jaxcal.load_urdf` numbers a tree's
+        joints (first appearance along the tips' paths, each from the root) — the tree
+        ``load_urdf(path, tips=tips)`` of this robot's URDF loads. One tip: a one-tip tree, which is
+        the serial chain of that path (the chain's error groups). What ``--tip A[,B...]`` gives for
+        a tree preset on the command line.
+
+        Raises:
+            ValueError: no tips, a repeated tip, a tip the tree does not have (the message lists
+                its tips), or a tree with harmonic joint errors (whose joints would renumber).
+        """
+        tips = [tips] if isinstance(tips, str) else list(tips)
+        if not tips or len(set(tips)) != len(tips):
+            raise ValueError(f"tips must be one or more different tips of {self.name!r}, got {tips}; its tips: "
+                             f"{list(self.tips)}")
+        ks = [self.tip_index(t) for t in tips]
+        if self.nongeometric is not None:
+            raise ValueError("with_tips: take the tips first, then add the harmonic joint errors (with_harmonics)")
+        order: list[int] = []
+        for k in ks:
+            order.extend(j for j in self.path(k) if j not in order)
+        new = {j: i for i, j in enumerate(order)}
+        f = lambda a, idx: np.asarray(a, np.float64)[np.asarray(idx)]  # noqa: E731
+        return KinematicTree.build(
+            origin_R=f(self.origin_R, order), origin_t=f(self.origin_t, order), align=f(self.align, order),
+            joint_types=[self.joint_types[j] for j in order], q_min=f(self.q_min, order), q_max=f(self.q_max, order),
+            parents=[new[self.parents[j]] if self.parents[j] >= 0 else -1 for j in order], tips=tips,
+            tip_parents=[new[self.tip_parents[k]] for k in ks], flange_R=f(self.flange_R, ks),
+            flange_t=f(self.flange_t, ks), tools=f(self.tools, ks), joint_names=[self.joint_names[j] for j in order],
+            link_names=[self.link_names[j] for j in order], base=self.base, name=self.name, urdf=self.urdf)
+
     def with_tool(self, tool_mm: Sequence[float], tip: str | int | None = None) -> KinematicTree:
         """A copy with another nominal tool point ``[3]`` mm for ``tip`` (default: the default
         tip, the one the protocol's single-tip callers use), in its tip link frame."""

@@ -8,6 +8,12 @@ Two set-ups (``mount``):
 * ``"eye_to_hand"``: the camera is fixed, the target is on the flange. Hand-eye
   ``X = T_base_camera`` (OpenCV's ``cam2base``), target pose ``B = T_flange_target``;
   ``T_camera_target,i = X⁻¹ · F(q_i) · B``.
+* ``"tip_to_tip"`` (self-observation, a :class:`~jaxcal.KinematicTree`): the camera is on one tip
+  (``tip``: a head camera, a camera on one arm), the target on another (``target_tip``: a hand).
+  Hand-eye ``X = T_A_camera`` (camera in tip A's link frame), target pose ``B = T_B_target``
+  (target in tip B's link frame); ``T_camera_target,i = X⁻¹ · F_A(q_i)⁻¹ · F_B(q_i) · B``, through
+  both chains and every joint they share (a shared joint cancels out of ``F_A⁻¹F_B``: what moves
+  both tips together is not seen).
 
 A target point ``b_k`` ``[3]`` (mm, target frame; checkerboard corners, ArUco/AprilTag corners)
 lands at ``p = T_camera_target·b_k`` in the camera frame and is imaged by OpenCV's pinhole
@@ -37,7 +43,9 @@ Closed-form start (:func:`initial_camera_extras`): per image a PnP pose (homogra
 planar target, 3-D DLT otherwise, on undistorted normalised coordinates, then Gauss–Newton on
 the pixel reprojection error), the hand-eye transform by Park & Martin (1994) exactly as
 ``cv2.calibrateHandEye(..., method=cv2.CALIB_HAND_EYE_PARK)`` does it (all pairs ``i < j``), then
-the target pose as the chordal mean over images.
+the target pose as the chordal mean over images. Tip to tip, the relative motion
+``F_A⁻¹F_B`` (tip B in tip A's frame) plays the flange's role of eye-to-hand: ``X·C_i =
+F_A⁻¹F_B·B``, so Park–Martin takes ``G_i = (F_A⁻¹F_B)⁻¹ = F_B⁻¹F_A``.
 
 References: Z. Zhang, "A flexible new technique for camera calibration", IEEE TPAMI 22(11), 2000
 (homography, closed-form pose); F. C. Park, B. J. Martin, "Robot sensor calibration: solving
@@ -64,15 +72,16 @@ from .._core._params import Deviations, Group, layout_for
 from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._core._xla import filter_jit
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
-from ._kind import PointsKind, register_kind
+from ._kind import PointsKind, check_tip, register_kind, resolve_tip
 from ._measurement import MeasurementModel, tip_to_dict, xyz_entries
 
 __all__ = ["Camera", "MOUNTS", "INTRINSIC_NAMES", "project_points", "undistort_points", "solve_pnp",
     "hand_eye_park", "initial_camera_extras", "checkerboard", "load_target", "camera_floor",
     "masked_corners", "default_camera", "planning_camera", "target_in_view"]
 
-#: the two set-ups
-MOUNTS = ("eye_in_hand", "eye_to_hand")
+#: the three set-ups: camera on the moving tip, camera fixed with the target on the moving tip,
+#: camera on one tip with the target on another (self-observation)
+MOUNTS = ("eye_in_hand", "eye_to_hand", "tip_to_tip")
 #: intrinsic parameters in OpenCV's order: focal lengths and principal point (px), distortion
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
@@ -86,6 +95,18 @@ CAMERA_GROUPS = (HANDEYE_ROTATION, HANDEYE_TRANSLATION, TARGET_ROTATION, TARGET_
 
 
 _COLUMN = re.compile(r"([uv])_(\d+)_px")
+
+
+def _tip_text(tip: str | None) -> str:
+    return "the robot's default tip (None)" if tip is None else repr(tip)
+
+
+def _check_two_tips(tip: str | None, target_tip: str | None) -> None:
+    """Tip to tip: the camera's and the target's tips differ (``None``: the default tip)."""
+    if tip == target_tip:
+        raise ValueError(f"mount='tip_to_tip' needs the camera and the target on two different tips; both are on "
+                         f"{_tip_text(tip)} (tip=, target_tip=; None is the robot's default tip): the images would "
+                         "not depend on the robot")
 
 
 def _frame(R, t, what):
@@ -109,7 +130,10 @@ class Camera(MeasurementModel):
     Frames: eye-in-hand, ``X = T_flange_camera`` (OpenCV's ``cam2gripper``), ``B = T_base_target``
     and image ``i`` sees ``T_camera_target = X⁻¹·F(q_i)⁻¹·B`` (``F(q) = T_base_flange``);
     eye-to-hand, ``X = T_base_camera`` (``cam2base``), ``B = T_flange_target`` and
-    ``T_camera_target = X⁻¹·F(q_i)·B``. A target point ``b_k`` lands at ``p = T_camera_target·b_k``
+    ``T_camera_target = X⁻¹·F(q_i)·B``; tip to tip (self-observation on a
+    :class:`~jaxcal.KinematicTree`: a head camera seeing a target on a hand), ``X = T_A_camera``,
+    ``B = T_B_target`` with ``F_A``, ``F_B`` the link frames of ``tip`` and ``target_tip``, and
+    ``T_camera_target = X⁻¹·F_A(q_i)⁻¹·F_B(q_i)·B``. A target point ``b_k`` lands at ``p = T_camera_target·b_k``
     and is projected as by ``cv2.projectPoints``: ``x = p_x/p_z``, ``y = p_y/p_z``, ``r² = x² + y²``,
     ``x' = x(1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2x²)``,
     ``y' = y(1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2y²) + 2 p2 x y``, ``u = fx x' + cx``,
@@ -130,18 +154,35 @@ class Camera(MeasurementModel):
             data columns ``u_k_px, v_k_px``.
         intrinsics: ``[9]`` ``fx, fy, cx, cy`` (px), ``k1, k2, p1, p2, k3`` (OpenCV order;
             four or five distortion entries may be left out: zeros).
-        mount: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+        mount: ``"eye_in_hand"``, ``"eye_to_hand"`` or ``"tip_to_tip"``.
         handeye_rotation, handeye_translation: nominal ``X`` (``[3, 3]``, ``[3]`` mm):
-            ``T_flange_camera`` eye-in-hand, ``T_base_camera`` eye-to-hand (default identity:
-            unknown, started from the data).
+            ``T_flange_camera`` eye-in-hand, ``T_base_camera`` eye-to-hand, ``T_A_camera`` tip
+            to tip (default identity: unknown, started from the data).
         target_rotation, target_translation: nominal ``B``: ``T_base_target`` eye-in-hand,
-            ``T_flange_target`` eye-to-hand.
+            ``T_flange_target`` eye-to-hand, ``T_B_target`` tip to tip.
         image_size: ``(width, height)`` px, used to keep simulated targets in view (optional).
         calibrate_intrinsics: add the ``intrinsics`` group (free by default) — off by default:
             a camera calibrated beforehand (``cv2.calibrateCamera``) is usually better known.
         tip: the tip of a :class:`~jaxcal.KinematicTree` that moves: the one carrying the camera
-            (eye-in-hand: a head camera) or the target (eye-to-hand); ``None``: the robot's
-            default tip. ``F(q)`` is then that tip's link frame.
+            (eye-in-hand and tip to tip: a head camera) or the target (eye-to-hand); ``None``: the
+            robot's default tip. ``F(q)`` (``F_A`` tip to tip) is then that tip's link frame.
+        target_tip: tip to tip only: the tip that carries the target (tip B, a hand), in the
+            convention of ``tip`` (``None``: the robot's default tip; :func:`jaxcal.resolve_tip`
+            gives it for a tip's name); it must differ from ``tip``.
+
+    Why a third mount and not only a ``target_tip=`` beside the two others: the mount already says
+    what the robot moves and in which frames ``X`` and ``B`` are given (flange or base), and tip to
+    tip both are tip frames; and ``None`` keeps meaning "the robot's default tip" for both tips, as
+    for every model's ``tip`` — a ``target_tip`` on ``"eye_in_hand"`` whose ``None`` meant "fixed in
+    the base" could not name the default tip. A camera fixed to the root (a chest camera) seeing a
+    hand is ``"eye_to_hand"`` with ``tip`` the hand; a camera on a hand seeing a target fixed in
+    the cell is ``"eye_in_hand"``.
+
+    Raises:
+        ValueError: ``target_tip`` given with another mount, or the camera and the target on one
+            tip (the images then do not depend on the robot). A tip the robot lacks is named, with
+            the robot's tips, where the model meets the robot (:meth:`tip_for`,
+            :meth:`target_tip_for`).
     """
 
     points: Float[Array, "N 3"]
@@ -154,6 +195,7 @@ class Camera(MeasurementModel):
     image_size: tuple[int, int] | None = eqx.field(static=True, default=None)
     calibrate_intrinsics: bool = eqx.field(static=True, default=False)
     tip: str | None = eqx.field(static=True, default=None)
+    target_tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "camera"
     initialisable: ClassVar[tuple[str, ...]] = ("handeye", "target")
     sees_tool_point: ClassVar[bool] = False
@@ -162,8 +204,9 @@ class Camera(MeasurementModel):
 
     def __init__(self, points_mm, intrinsics, mount: str = "eye_in_hand", *, handeye_rotation=None,
                  handeye_translation=None, target_rotation=None, target_translation=None, image_size=None,
-                 calibrate_intrinsics: bool = False, tip: str | None = None):
-        self.tip = tip
+                 calibrate_intrinsics: bool = False, tip: str | None = None, target_tip: str | None = None):
+        self.tip = None if tip is None else str(tip)
+        self.target_tip = None if target_tip is None else str(target_tip)
         pts = jnp.asarray(points_mm, jnp.result_type(float))
         if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 4:
             raise ValueError(f"points_mm must be [N, 3] target points (mm), N >= 4; got shape {tuple(pts.shape)}")
@@ -177,6 +220,11 @@ class Camera(MeasurementModel):
         mount = mount.replace("-", "_").lower()
         if mount not in MOUNTS:
             raise ValueError(f"mount must be one of {MOUNTS}, got {mount!r}")
+        if target_tip is not None and mount != "tip_to_tip":
+            raise ValueError(f"target_tip={target_tip!r} applies to mount='tip_to_tip' (a camera on one tip seeing a "
+                             f"target on another), not {mount!r}")
+        if mount == "tip_to_tip":
+            _check_two_tips(self.tip, self.target_tip)
         self.points = pts
         self.intrinsics = jnp.asarray(k, jnp.result_type(float))
         self.mount = mount
@@ -188,6 +236,52 @@ class Camera(MeasurementModel):
     @property
     def n_points(self) -> int:
         return int(self.points.shape[0])
+
+    def target_tip_for(self, robot) -> str | None:
+        """Tip to tip: the model's ``target_tip`` checked against ``robot``
+        (as :meth:`tip_for` checks ``tip``; host-side, also at trace time: the tip is static).
+
+        Raises:
+            ValueError: another mount (the target is on no tip of its own), or a tip the robot
+                does not have (the message names it and lists the robot's tips).
+        """
+        if self.mount != "tip_to_tip":
+            raise ValueError(f"a {self.mount} camera's target is on no tip of its own (mount='tip_to_tip' is)")
+        try:
+            return check_tip(robot, self.target_tip)
+        except ValueError as e:
+            raise ValueError(f"the camera's target_tip: {e}") from None
+
+    @host_method
+    def with_frames(self, X, B) -> Camera:
+        """This camera with the nominal hand-eye transform ``X`` and target pose ``B`` (``[4, 4]``, mm)."""
+        X, B = np.asarray(X, np.float64), np.asarray(B, np.float64)
+        return Camera(self.points, self.intrinsics, self.mount, handeye_rotation=X[:3, :3], handeye_translation=X[:3, 3],
+                      target_rotation=B[:3, :3], target_translation=B[:3, 3], image_size=self.image_size,
+                      calibrate_intrinsics=self.calibrate_intrinsics, tip=self.tip, target_tip=self.target_tip)
+
+    @host_method
+    def tip_name(self, robot) -> str | None:
+        """The name of the tip ``tip`` stands for on ``robot`` (the default tip's for ``None``)."""
+        return self.tip_for(robot) or robot.default_tip()
+
+    @host_method
+    def target_tip_name(self, robot) -> str | None:
+        """Tip to tip: the name of the target's tip on ``robot`` (the default tip's for ``None``)."""
+        return self.target_tip_for(robot) or robot.default_tip()
+
+    @host_method
+    def at_tip(self, tip: str | None) -> Camera:
+        """This camera with ``tip`` (the camera's tip tip to tip; the moving tip otherwise) instead
+        (:meth:`jaxcal.MeasurementModel.at_tip`).
+
+        Raises:
+            ValueError: tip to tip, ``tip`` is the target's tip.
+        """
+        new = super().at_tip(tip)
+        if new.mount == "tip_to_tip":
+            _check_two_tips(new.tip, new.target_tip)
+        return new
 
     @property
     def size(self) -> int:  # type: ignore[override]
@@ -228,20 +322,32 @@ class Camera(MeasurementModel):
         ``p_ik = A_i·w_k + a_i`` (mm), returned as ``(Aa [12, n], w [N, 3], k [9])``: the rows of
         ``A_i`` (row-major, 9) and ``a_i`` (3) as structure-of-arrays ``[n]`` rows, the target
         points ``w`` in the frame the robot does not move (eye-in-hand: ``T_base_target·b``, base
-        frame; eye-to-hand: ``T_flange_target·b``, flange frame) and the intrinsics.
+        frame; eye-to-hand: ``T_flange_target·b``, flange frame; tip to tip: ``T_B_target·b``, tip
+        B's link frame) and the intrinsics.
 
         Eye-in-hand ``p = R_Xᵀ(Fᵀ(w − P) − t_X)``: ``A = R_XᵀRᵀ``, ``a = −R_Xᵀ(RᵀP + t_X)``;
         eye-to-hand ``p = R_Xᵀ(P + R·w − t_X)``: ``A = R_XᵀR``, ``a = R_Xᵀ(P − t_X)``, with
-        ``F = (R, P)`` the flange frame. Every parameter of the robot and the hand-eye transform
-        acts on the image only through ``(A, a)`` (12 numbers per image), and the target pose only
-        through ``w``: :func:`_affine_project` uses this structure for its derivative."""
+        ``F = (R, P)`` the flange frame; tip to tip ``p = R_Xᵀ(R_Aᵀ(P_B + R_B·w − P_A) − t_X)``,
+        eye-to-hand's form with the relative frame ``F_A⁻¹F_B = (R_AᵀR_B, R_Aᵀ(P_B − P_A))`` as
+        ``F``: ``A = R_XᵀR_AᵀR_B``, ``a = R_Xᵀ(R_Aᵀ(P_B − P_A) − t_X)``, both tips' frames from the
+        tree's frame kernel (:meth:`jaxcal.KinematicTree.frame_soa`). Every parameter of the robot
+        and the hand-eye transform acts on the image only through ``(A, a)`` (12 numbers per
+        image), and the target pose only through ``w``: :func:`_affine_project` uses this
+        structure for its derivative."""
         q = check_joint_angles(robot, q)
         # the flange frames computed once and stored: XLA:CPU would otherwise fuse the whole
         # kinematic chain into every [n, N] consumer and recompute it per target point (and per
         # Jacobian column): 0.8 s instead of ~10 ms for a 2160 × 36 Jacobian (see materialised)
-        F = materialised(jnp.stack([c for v in _chain(robot, deviations, q, self.tip_for(robot)) for c in v]))  # [12, n]
+        tips = (self.tip_for(robot),) + ((self.target_tip_for(robot),) if self.mount == "tip_to_tip" else ())
+        F = materialised(jnp.stack([c for tip in tips for v in _chain(robot, deviations, q, tip) for c in v]))  # [12·t, n]
         cols = tuple(tuple(F[3 * i + r] for r in range(3)) for i in range(3))  # R's columns
         P = tuple(F[9 + r] for r in range(3))
+        if self.mount == "tip_to_tip":  # tip B in tip A's frame: (R_AᵀR_B, R_Aᵀ(P_B − P_A))
+            cols_b = tuple(tuple(F[12 + 3 * i + r] for r in range(3)) for i in range(3))
+            P_b = tuple(F[21 + r] for r in range(3))
+            cols, P = (tuple(tuple(sum(cols[i][r] * cols_b[j][r] for r in range(3)) for i in range(3))
+                             for j in range(3)),
+                       tuple(sum(cols[i][r] * (P_b[r] - P[r]) for r in range(3)) for i in range(3)))
         RX, tX, RB, tB, k = self.frames(deviations, q.dtype)
         w = self.points.astype(q.dtype) @ RB.T + tB  # [N, 3]
         if self.mount == "eye_in_hand":
@@ -637,10 +743,16 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
     1. Per image, :func:`solve_pnp` → ``C_i = T_camera_target,i`` (images with too few detected
        points are skipped).
     2. The flange frames ``F_i`` of the robot at ``start`` (nominal DH part).
-    3. :func:`hand_eye_park` with ``G_i = F_i`` (eye-in-hand) or ``F_i⁻¹`` (eye-to-hand) → ``X``.
+    3. :func:`hand_eye_park` with ``G_i = F_i`` (eye-in-hand) or ``F_i⁻¹`` (eye-to-hand) → ``X``;
+       tip to tip, the relative motion ``F_A,i⁻¹F_B,i`` (tip B in tip A's frame, both from the
+       tree's frame kernel) plays eye-to-hand's flange: ``G_i = F_B,i⁻¹F_A,i``.
     4. The target pose ``B``: the chordal mean rotation and the mean translation of
-       ``F_i X C_i`` (eye-in-hand, ``T_base_target``) or ``F_i⁻¹ X C_i`` (eye-to-hand,
-       ``T_flange_target``).
+       ``G_i X C_i``: ``T_base_target`` (eye-in-hand), ``T_flange_target`` (eye-to-hand),
+       ``T_B_target`` (tip to tip).
+
+    Tip to tip, Park–Martin needs relative motions of the two tips that rotate about at least two
+    distinct axes (``ValueError`` otherwise, saying so): a camera on the head that only pans seeing
+    a hand that only translates does not determine ``X``.
 
     Args:
         estimate: ``"handeye"`` and/or ``"target"`` (default both); the other stays at ``start``.
@@ -674,8 +786,19 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
         raise ValueError(f"camera start: only {len(used)} image(s) with enough detected target points (need 3)")
     C = np.stack(C)
     F = T[used]
+    if measurement.mount == "tip_to_tip":  # the target's tip seen from the camera's: F_A⁻¹F_B
+        F = _inv(F) @ np.asarray(fk_pose_jit(robot, q, start, tip=measurement.target_tip_for(robot)), np.float64)[used]
     G = F if measurement.mount == "eye_in_hand" else _inv(F)
-    X = hand_eye_park(G, C) if "handeye" in est else _T(RX0, tX0)
+    if "handeye" in est:
+        try:
+            X = hand_eye_park(G, C)
+        except ValueError as e:
+            if measurement.mount != "tip_to_tip":
+                raise
+            raise ValueError(f"camera start (tip to tip: the motion of tip {measurement.target_tip_name(robot)} "
+                             f"relative to tip {measurement.tip_name(robot)} plays the flange's role): {e}") from None
+    else:
+        X = _T(RX0, tX0)
     if "target" in est:
         Bs = np.einsum("nij,jk,nkl->nil", G, X, C)
         B = _T(_project_rotation(Bs[:, :3, :3].sum(axis=0)), Bs[:, :3, 3].mean(axis=0))
@@ -694,8 +817,12 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
         return float(np.sqrt(np.sum(r * r) / n_det))
 
     before, after = rms(start), rms(dev)
-    what = {"eye_in_hand": ("camera on the flange (T_flange_camera)", "target in the base frame"),
-            "eye_to_hand": ("camera in the base frame (T_base_camera)", "target on the flange")}[measurement.mount]
+    if measurement.mount == "tip_to_tip":
+        what = (f"camera on tip {measurement.tip_name(robot)} (T_A_camera)",
+                f"target on tip {measurement.target_tip_name(robot)}")
+    else:
+        what = {"eye_in_hand": ("camera on the flange (T_flange_camera)", "target in the base frame"),
+                "eye_to_hand": ("camera in the base frame (T_base_camera)", "target on the flange")}[measurement.mount]
     msg = (f"extras from the data: per-image PnP on {len(used)} of {Y.shape[0]} images (median reprojection "
            f"{np.median(pnp_rms):.3f} px), hand-eye by Park–Martin: {what[0]} at "
            f"({', '.join(f'{v:.1f}' for v in X[:3, 3])}) mm, {what[1]} at "
@@ -738,15 +865,37 @@ def default_camera(mount: str = "eye_in_hand") -> Camera:
                   mount, image_size=(1280, 1024))
 
 
+#: :func:`simulate_camera`'s tip-to-tip set-up: the camera's optical centre in tip A's link frame
+#: and the target's centre in tip B's link frame (mm)
+TIP_TO_TIP_CAMERA_MM = (20.0, -10.0, 15.0)
+TIP_TO_TIP_TARGET_MM = (10.0, 15.0, 40.0)
+
+
 def _setup_frames(robot, camera: Camera, deviations, home, distance_mm: float):
     """``(X, B)`` ``[4, 4]`` of :func:`simulate_camera`'s set-up for the robot at ``deviations`` and
-    the joint angles ``home`` (rad): the target ``distance_mm`` in front of the camera."""
+    the joint angles ``home`` (rad): the target ``distance_mm`` in front of the camera; tip to tip,
+    the camera :data:`TIP_TO_TIP_CAMERA_MM` off tip A, the target's centre
+    :data:`TIP_TO_TIP_TARGET_MM` off tip B, camera and target facing each other at ``home`` (their
+    distance is the robot's: ``distance_mm`` is not used)."""
     dtype = jnp.result_type(float)
     Fh = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), deviations, tool=False,
                                 tip=camera.tip_for(robot)), np.float64)[0]
     pts = np.asarray(camera.points, np.float64)
     centre = pts.mean(axis=0)
-    if camera.mount == "eye_in_hand":
+    if camera.mount == "tip_to_tip":
+        Fb = np.asarray(fk_pose_jit(robot, jnp.asarray(home[None], dtype), deviations, tool=False,
+                                    tip=camera.target_tip_for(robot)), np.float64)[0]
+        cam_pos = Fh[:3, :3] @ TIP_TO_TIP_CAMERA_MM + Fh[:3, 3]
+        c_world = Fb[:3, :3] @ TIP_TO_TIP_TARGET_MM + Fb[:3, 3]
+        view = c_world - cam_pos
+        if np.linalg.norm(view) < 50.0:
+            raise ValueError(f"tip-to-tip camera set-up: at home the target on tip {camera.target_tip_name(robot)} is "
+                             f"{np.linalg.norm(view):.0f} mm from the camera on tip {camera.tip_name(robot)}; choose "
+                             "a home posture with the target in front of the camera")
+        R = _look_at(view) @ rotvec_to_matrix_np([0.0, 0.0, 0.2])  # camera and target facing each other
+        X = _inv(Fh) @ _T(R, cam_pos)  # T_A_camera
+        B = _inv(Fb) @ _T(R, c_world - R @ centre)  # T_B_target, its +z along the line of sight
+    elif camera.mount == "eye_in_hand":
         X = _T(rotvec_to_matrix_np([0.03, -0.02, 0.4]), np.array([60.0, 0.0, 40.0]))  # T_flange_camera
         Ch = _T(rotvec_to_matrix_np([0.05, 0.04, 0.1]), -rotvec_to_matrix_np([0.05, 0.04, 0.1]) @ centre + [0, 0, distance_mm])
         B = Fh @ X @ Ch  # T_base_target
@@ -772,9 +921,7 @@ def planning_camera(robot, camera: Camera | None = None, *, mount: str = "eye_in
     lo, hi = np.asarray(robot.q_min, np.float64), np.asarray(robot.q_max, np.float64)
     home = (lo + hi) / 2 if home is None else np.asarray(home, np.float64)
     X, B = _setup_frames(robot, camera, None, home, distance_mm)
-    return Camera(camera.points, camera.intrinsics, camera.mount, handeye_rotation=X[:3, :3],
-                  handeye_translation=X[:3, 3], target_rotation=B[:3, :3], target_translation=B[:3, 3],
-                  image_size=camera.image_size, calibrate_intrinsics=camera.calibrate_intrinsics, tip=camera.tip)
+    return camera.with_frames(X, B)
 
 
 def target_in_view(robot, camera: Camera, q, deviations: Deviations | None = None, *,
@@ -804,6 +951,7 @@ class CameraKind(PointsKind):
 
     name = "camera"
     noise_unit = "px"
+    simulator = "jaxcal._simulation._simulate_files:camera_file"
     pattern = re.compile(r"([uv])_(\d+)_px")
     number_group, width = 2, 2
     columns_word, count_word = "image-point", "target point(s)"
@@ -825,19 +973,29 @@ class CameraKind(PointsKind):
                 "handeye_rotation": f(model.handeye_rotation), "handeye_translation_mm": f(model.handeye_translation),
                 "target_rotation": f(model.target_rotation), "target_translation_mm": f(model.target_translation),
                 "image_size": None if model.image_size is None else list(model.image_size),
-                "calibrate_intrinsics": bool(model.calibrate_intrinsics)} | tip_to_dict(model)
+                "calibrate_intrinsics": bool(model.calibrate_intrinsics)} | tip_to_dict(model) | (
+                    {"target_tip": model.target_tip} if model.mount == "tip_to_tip" else {})
 
     def model_from_dict(self, d):
         return Camera(d["points_mm"], d["intrinsics"], d["mount"], handeye_rotation=d["handeye_rotation"],
                       handeye_translation=d["handeye_translation_mm"], target_rotation=d["target_rotation"],
                       target_translation=d["target_translation_mm"], image_size=d.get("image_size"),
-                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)), tip=d.get("tip"))
+                      calibrate_intrinsics=bool(d.get("calibrate_intrinsics", False)), tip=d.get("tip"),
+                      target_tip=d.get("target_tip"))
 
     def setup(self, data, robot, estimate, options):
         """The :class:`Camera` of camera data from ``options.target``, ``options.camera_intrinsics``,
         ``options.mount`` (or the file's ``# target:``, ``# camera_intrinsics:``, ``# mount:`` lines;
         ``# image_size_px:`` always), hand-eye and target pose unknown (started from the data).
-        No extra to estimate: the intrinsics (``--estimate intrinsics``) are a group of the model."""
+        No extra to estimate: the intrinsics (``--estimate intrinsics``) are a group of the model.
+        Tip to tip (``# mount: tip_to_tip``, the mount a file with a ``# target_tip:`` line and no
+        mount has), the file's ``# target_tip: NAME`` line names the tip carrying the target
+        (:func:`jaxcal.resolve_tip`: ``None`` for the robot's default tip) and its ``# tip:`` line
+        the camera's (:meth:`SensorKind.at_file_tip`, after this).
+
+        Raises:
+            ValueError: also a ``# target_tip:`` the robot lacks (named, with the robot's tips), a
+                tip-to-tip file without that line, the line with another mount."""
         from .._core._csvfile import number_list
 
         self.check_options(estimate, options)
@@ -865,12 +1023,37 @@ class CameraKind(PointsKind):
             if len(parts) not in (4, 8, 9):
                 raise ValueError(f"--camera takes 4, 8 or 9 numbers fx,fy,cx,cy[,k1,k2,p1,p2[,k3]], got {spec!r}")
             spec = number_list(spec, len(parts), "--camera")
-        mount = (_given(_given(options.mount, meta.get("mount")), "eye_in_hand")).replace("-", "_").lower()
+        target_tip = str(meta.get("target_tip", "")).strip()
+        mount = (_given(_given(options.mount, meta.get("mount")), "tip_to_tip" if target_tip else "eye_in_hand")
+                 ).replace("-", "_").lower()
         size = meta.get("image_size_px")
         size = tuple(int(v) for v in number_list(size, 2, "the file's image_size_px")) if size else None
-        model = Camera(points, spec, mount, image_size=size, calibrate_intrinsics="intrinsics" in estimate)
+        if mount == "tip_to_tip":
+            if not target_tip:
+                raise ValueError("tip-to-tip camera data (mount tip_to_tip) need a '# target_tip: NAME' line naming the "
+                                 "tip that carries the target (and a '# tip: NAME' line for the camera's tip)")
+            try:
+                target_tip = resolve_tip(robot, target_tip)
+            except ValueError as e:
+                raise ValueError(f"the data file's '# target_tip: {target_tip}' line: {e}") from None
+            # the camera's tip: the file's '# tip:' line (at_file_tip), checked here too so that the
+            # start never meets a camera and a target on one tip
+            cam_tip = str(meta.get("tip", "")).strip()
+            try:
+                cam_tip = None if not cam_tip else resolve_tip(robot, cam_tip)
+            except ValueError as e:
+                raise ValueError(f"the data file's '# tip: {cam_tip}' line: {e}") from None
+            model = Camera(points, spec, mount, image_size=size, calibrate_intrinsics="intrinsics" in estimate,
+                           tip=cam_tip, target_tip=target_tip)
+        elif target_tip:
+            raise ValueError(f"the data file's '# target_tip: {target_tip}' line applies to mount tip_to_tip (a camera "
+                             f"on one tip seeing a target on another), not {mount}")
+        else:
+            model = Camera(points, spec, mount, image_size=size, calibrate_intrinsics="intrinsics" in estimate)
         n_mask, n_all, n_img = masked_corners(data.y)
-        note = (f"camera ({model.mount}): hand-eye transform and target pose estimated (per-image PnP, "
+        where = "" if mount != "tip_to_tip" else (
+            f", camera on tip {model.tip_name(robot)}, target on tip {model.target_tip_name(robot)}")
+        note = (f"camera ({model.mount}{where}): hand-eye transform and target pose estimated (per-image PnP, "
                 "Park–Martin hand-eye, then the joint fit)"
                 f"{'; intrinsics estimated' if model.calibrate_intrinsics else ''}; "
                 f"{n_mask} of {n_all} corner readings not detected (empty cells) in {n_img} image(s): masked "

@@ -15,7 +15,7 @@ from .._models._kinematics import tool_point_soa
 from .._sensors._camera import Camera, _log, _predict_jit, _setup_frames, default_camera
 from .._sensors._contact import DistanceBar, _sample_q, default_setup, label_metadata_key
 
-__all__ = ["simulate_contact", "simulated_contact_data", "simulate_distance", "simulate_camera"]
+__all__ = ["simulate_contact", "simulate_distance", "simulate_camera"]
 
 
 
@@ -92,13 +92,7 @@ def _sample_q_jit(key, robot, n: int):
 def _row_constraint(robot, dev, m, qi, k):
     """The constraint of one row, ``[m]``: signed distance / ``p − c`` / sphere distance."""
     p = jnp.stack(tool_point_soa(robot, dev, qi[None]), -1)[0]
-    if m.kind == "plane":
-        n, d = m.planes(dev, qi.dtype)
-        return jnp.atleast_1d(n[k] @ p - d[k])
-    c, r = m.points(dev, qi.dtype)
-    if not m.sphere:
-        return p - c[k]
-    return jnp.atleast_1d(jnp.linalg.norm(p - c[k]) - r[k])
+    return m.gap(dev, p, k, qi.dtype)
 
 
 @filter_jit
@@ -150,7 +144,7 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     size. Rows that leave the joint limits or do not converge are not used; ``tries`` rows per
     wanted row are moved (raise it where many fail). The drawn tool deviation is this
     simulation's own: ``jaxcal simulate`` passes the seed's set-up shared by every kind instead
-    (:func:`simulated_contact_data`).
+    (:func:`~jaxcal._simulation._simulate_files.plane_file`, ``point_file``).
 
     Returns:
         :class:`jaxcal.Experiment` with ``train`` / ``test`` datasets (``y``: label indices;
@@ -198,41 +192,6 @@ def simulate_contact(key, robot, measurement=None, *, n_samples: int = 300, nois
     perm = np.asarray(_permutation(k_split, n_samples))
     return Experiment(robot, m, true_deviations, data.subset(perm[n_test:]), data.subset(perm[:n_test]),
                       jnp.asarray(noise_std, dtype))
-
-
-def simulated_contact_data(seed: int, robot, measurement, *, n_samples: int, noise_std: float,
-                           truth_seed: int | None = None):
-    """The rows ``jaxcal simulate --measurement plane|point|distance`` writes: all ``n_samples``
-    rows of :func:`simulate_contact` (``measurement`` a :class:`~jaxcal.PlaneContact` or
-    :class:`~jaxcal.FixedPoint`) or :func:`simulate_distance` (a :class:`DistanceBar`: bars of 150
-    and 300 mm) of ``jax.random.key(seed)``, on the seed's true set-up
-    (:func:`~jaxcal._simulation._truth.simulated_truth`: the same robot, tool and sensor frame as
-    every other kind's file of that seed, so the files can be combined), noise σ ``noise_std`` (mm).
-    ``truth_seed``: the true set-up is that seed's instead (``jaxcal simulate --like``: a new day of
-    a simulated set-up, new poses and noise from ``seed``).
-
-    Returns:
-        :class:`~jaxcal.Dataset` with the file's metadata: ``source: jaxcal simulate``, the robot,
-        the seed, ``noise_std_mm``, the labels (plane / point) and a sphere's ``radius_mm``.
-    """
-    from .._datasets._dataset import Dataset, mm_joints_metadata
-    from ._truth import simulated_truth
-
-    key = jax.random.key(seed)
-    truth = simulated_truth(key if truth_seed is None else jax.random.key(truth_seed), robot, measurement)
-    meta = {"source": "jaxcal simulate", "robot": robot.name, "seed": seed, "noise_std_mm": noise_std,
-            **mm_joints_metadata(robot)}
-    if measurement.kind == "distance":
-        ex = simulate_distance(key, robot, n_samples=n_samples, noise_std=noise_std, test_fraction=0.0,
-                               true_deviations=truth)
-    else:
-        ex = simulate_contact(key, robot, measurement, n_samples=n_samples, noise_std=noise_std, test_fraction=0.0,
-                              true_deviations=truth)
-        meta[label_metadata_key(measurement.kind)] = ",".join(measurement.labels)
-        if getattr(measurement, "sphere", False):
-            r = np.asarray(measurement.radii, np.float64)
-            meta["radius_mm"] = ",".join(f"{v:g}" for v in r) if np.ptp(r) > 0 else f"{r[0]:g}"
-    return Dataset(ex.train.q, ex.train.y, measurement.kind, meta)
 
 
 def _pair_constraint(robot, dev, qa, qb):
@@ -316,7 +275,14 @@ def simulate_camera(key, robot, camera: Camera | None = None, *, n_views: int = 
     kept when every target point lies in front of the camera and inside the image (the target in
     view). The true set-up: eye-in-hand, a camera 60 mm off the flange axis looking along the
     flange z axis, and the target ``distance_mm`` in front of the camera at ``home``; eye-to-hand,
-    the target 60 mm off the flange, the camera ``distance_mm`` from it looking at it at ``home``.
+    the target 60 mm off the flange, the camera ``distance_mm`` from it looking at it at ``home``;
+    tip to tip (self-observation on a :class:`~jaxcal.KinematicTree`: the camera on ``camera.tip``,
+    a head, the target on ``camera.target_tip``, a hand), the camera's optical centre 27 mm off tip
+    A's link origin and the target's centre 44 mm off tip B's, camera and target facing each other
+    at ``home`` (``distance_mm`` is not used: the tips' distance is the robot's; choose a ``home``
+    with the hand in front of the head, and a ``joint_spread_deg`` per joint of the tree). Both
+    tips' frames come from the tree's frame kernel, so every joint on either path, shared or not,
+    moves the images as the model says.
     The true hand-eye/target poses are returned in ``truth`` and written into the deviations of
     the returned ``camera`` model's groups relative to its nominal (identity) frames.
 

@@ -33,23 +33,31 @@ def _floats(text: str, n: int, what: str) -> list[float]:
 
 def _robot(spec: str, base: str | None = None, tip: str | None = None):
     """The robot of ``--robot`` (a preset, a DH table file, a URDF file with ``--base``/``--tip``;
-    several comma-separated ``--tip`` links: a :class:`~jaxcal.KinematicTree` with those tips)."""
+    several comma-separated ``--tip`` links: a :class:`~jaxcal.KinematicTree` with those tips; a
+    tree preset with ``--tip``: the tree of those of its tips, :meth:`KinematicTree.with_tips`)."""
     from .. import robots
     from .._calibration._io import load_robot_csv
 
     p = pathlib.Path(spec)
+    tips = [t.strip() for t in (tip or "").split(",") if t.strip()]
     if p.suffix.lower() == ".urdf":
         from .._models._urdf import load_urdf
 
         if not p.exists():
             raise _Usage(f"robot file {spec!r} not found")
-        tips = [t.strip() for t in (tip or "").split(",") if t.strip()]
         if len(tips) > 1:
             with _as_usage("--tip: "):
                 return load_urdf(p, base=base, tips=tips)
         return load_urdf(p, base=base, tip=tip)
+    if spec in robots.TREE_PRESETS and base is None:
+        tree = robots.get_robot(spec)
+        if tip is None:
+            return tree
+        with _as_usage("--tip: "):
+            return tree.with_tips(tips)
     if base is not None or tip is not None:
-        raise _Usage("--base/--tip apply to a URDF robot (--robot FILE.urdf) only")
+        raise _Usage("--base/--tip apply to a URDF robot (--robot FILE.urdf) only, and --tip to a tree preset "
+                     f"({', '.join(robots.TREE_PRESETS)}): the tips to keep")
     if spec in robots.PRESETS:
         return robots.get_robot(spec)
     if p.suffix.lower() in (".csv", ".txt") or p.exists():

@@ -60,7 +60,8 @@ file's frames and placements (any marker counts) with the robot fixed."""
 
 
 _ROBOT_FORMAT = """\
-robot: a preset name (hsr_jr680, puma560, ur5, abb_irb120) or a DH table file (CSV): optional
+robot: a preset name (DH tables: hsr_jr680, puma560, ur5, abb_irb120; kinematic trees, whose tips
+--tip A[,B...] selects: dual_arm_ma1400, icub) or a DH table file (CSV): optional
 '# name: NAME', '# tool_mm: x,y,z' (tool point in the flange frame, mm) and '# convention:
 standard|modified' lines, a header row alpha_deg,a_mm,d_mm,theta_deg[,q_min_deg,q_max_deg] and
 one row per joint (standard DH, the default: A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i);
@@ -150,7 +151,8 @@ def _add_calibrate(sub, fmt) -> None:
     c.add_argument("--tip", metavar="LINK[,LINK...]",
                    help="URDF robot: the chain's tip link (the flange; the tool point is given in its frame); "
                         "several links, comma-separated: a kinematic tree with those tips (two arms, a head), the "
-                        "first the default tip")
+                        "first the default tip; a tree preset (dual_arm_ma1400, icub): the tips to keep, the first "
+                        "the default (one tip: its chain)")
     c.add_argument("--measurement", choices=kind_names(), default=None,
                    help="the sensor (default: the data file's '# kind:' line, else the kind its columns show; a "
                         "--measurement that contradicts the file's '# kind:' line is an error). "
@@ -172,9 +174,12 @@ def _add_calibrate(sub, fmt) -> None:
                         "a CSV file with x_mm,y_mm,z_mm per point (default: the file's '# target:' line)")
     c.add_argument("--camera", metavar="FX,FY,CX,CY,K1,K2,P1,P2,K3",
                    help="camera: OpenCV intrinsics (px) and distortion (default: the file's '# camera_intrinsics:')")
-    c.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand", "eye_in_hand", "eye_to_hand"),
+    c.add_argument("--mount", choices=("eye-in-hand", "eye-to-hand", "tip-to-tip", "eye_in_hand", "eye_to_hand",
+                                       "tip_to_tip"),
                    help="camera: on the flange with the target fixed (eye-in-hand, default) or fixed with the target "
-                        "on the flange (eye-to-hand); default: the file's '# mount:' line")
+                        "on the flange (eye-to-hand), or on one tip of a kinematic tree seeing the target on another "
+                        "(tip-to-tip: the file's '# tip:' and '# target_tip:' lines name them); default: the file's "
+                        "'# mount:' line (tip-to-tip for a file with a '# target_tip:' line)")
     c.add_argument("--radius-mm", type=float, metavar="R",
                    help="point data: a ball on the flange touches fixed spheres; R = sphere radius + ball radius "
                         "(mm, known; with --estimate radius only the start). Default: the file's '# radius_mm:' "
@@ -285,7 +290,7 @@ then per --measurement:
   pose      x_mm,y_mm,z_mm,rx_deg,ry_deg,rz_deg (the tool point and a rotation vector)
   camera    u_1_px,v_1_px … u_54_px,v_54_px (one row per image, the checkerboard's corners; both cells
             empty where a corner is undetected, --missing-corners) and '# target:',
-            '# camera_intrinsics:', '# mount:' lines
+            '# camera_intrinsics:', '# mount:' lines ('# tip:', '# target_tip:' with --mount tip-to-tip)
   plane     a text column `plane` (three planes), no value columns
   point     a text column `point` (two fixed points; --radius-mm: spheres, a '# radius_mm: R' line)
   distance  q1a_deg … qNa_deg, q1b_deg … qNb_deg, distance_mm (bar lengths 150 and 300 mm)
@@ -454,7 +459,7 @@ def _add_plan(sub, fmt) -> None:
     )
     pl.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     pl.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
-    pl.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link")
+    pl.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link; a tree preset: the tip(s) to keep")
     pl.add_argument("--measurement", choices=("cable", "position", "pose", "plane", "point", "distance", "camera"),
                     default="cable",
                     help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable); "

@@ -97,7 +97,7 @@ def _cmd_plan(args) -> int:
           f"{'candidate' if sensor else 'workspace'} poses, σ = {args.noise_std:g} {unit})\n")
     print(pred.table())
     print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
-          f"`jaxcal calibrate {args.out} --robot {args.robot} --measurement {args.measurement}`")
+          f"`jaxcal calibrate {args.out} --robot {args.robot}{_robot_flags(args)} --measurement {args.measurement}`")
     if args.plot:
         top = min(cand.shape[0], max(4 * args.poses, 100))
         ns = sorted({int(round(v)) for v in np.geomspace(max(len(sel.space.free_names) + 2, 5), top, 12)})
@@ -236,5 +236,11 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
     _write_plan(args.out, robot, measurement, sel, meta, sensor)
     files = " ".join([args.out, *args.with_files])
     print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
-          f"`jaxcal calibrate {files} --robot {args.robot} --combine --out-dir fit`")
+          f"`jaxcal calibrate {files} --robot {args.robot}{_robot_flags(args)} --combine --out-dir fit`")
     return 0
+
+
+def _robot_flags(args) -> str:
+    """`` --base B --tip T`` as given (a URDF's chain, a tree preset's tips): the robot the plan was
+    made for, for the ``jaxcal calibrate`` command it suggests."""
+    return "".join(f" {flag} {v}" for flag, v in (("--base", args.base), ("--tip", args.tip)) if v)

@@ -220,7 +220,7 @@ def test_jacobian_matches_finite_differences(key):
 
 def _dh_variants():
     out = []
-    for name in sorted(robots.PRESETS):
+    for name in sorted(robots.DH_PRESETS):
         out.append(pytest.param(robots.get_robot(name), id=name))
     hsr = robots.hsr_jr680(tool_mm=(50.0, -20.0, 120.0))
     out.append(pytest.param(hsr.with_hayati(2, 3), id="hsr_hayati"))
