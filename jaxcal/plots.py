@@ -234,8 +234,8 @@ def fig3_training(result: SweepResult, path=None, *, methods: Sequence[str] | No
     ax.grid(axis="y", alpha=0.3, which="both", zorder=0)
     ax.legend(fontsize=7)
     dev = result.settings.get("n_devices", 1)
-    how = batching_label(result)
-    ax.set_title(f"(c) time per trial ({how}, {dev} device(s))", fontsize=10)
+    how = "one trial after another" if batching_label(result) == "lax.map" else "trials batched"
+    ax.set_title(f"(c) time per trial ({how}, {dev} {'device' if dev == 1 else 'devices'})", fontsize=10)
     fig.suptitle(f"Training curves and time, {result.n_seeds} seed(s)", fontsize=11)
     _save(fig, path)
     return fig
