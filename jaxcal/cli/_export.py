@@ -22,6 +22,12 @@ def _cmd_export(args) -> int:
         export_urdf(res.robot, res.deviations, args.out)
         print(f"wrote {args.out} (calibrated {res.robot.name}, {res.robot.dof} joints)")
     if args.dh_out:
+        branches = getattr(res.robot, "branches", None)
+        if branches is not None:
+            raise _Usage(f"--dh-out: this result's robot {res.robot.name!r} is a kinematic tree (branches "
+                         f"{', '.join(b for b, _parent, _joints in branches)}): DH tables per branch are not written "
+                         "yet (each calibrated joint origin is a general 6-parameter transform, which DH rows hold only "
+                         "after re-choosing the joint frames); use --out FILE.urdf, which holds every corrected origin")
         if res.robot.dh_rows_deg() is None:
             raise _Usage("--dh-out: this result's robot is a generic chain, not a DH table; use --out FILE.urdf")
         from .._calibration._io import save_robot_csv
