@@ -974,19 +974,13 @@ def weak_parameters(unc: Uncertainty, checks: Checks) -> tuple[str, ...]:
     return tuple(out)
 
 
-#: measurement kinds whose residual is ``prediction − reading`` in mm entry by entry (a pose's
-#: position part): the kinds :func:`likely_cause` compares the readings' spread for
-_READING_KINDS = ("cable", "position", "pose", "markers")
-
-
 def _readings_and_predictions(measurement, y, residual):
-    """``(readings [n, m], predictions [n, m])`` (mm) of a reading kind (:data:`_READING_KINDS`),
-    the predictions as ``reading + residual``; ``None`` for other kinds."""
-    if measurement.kind not in _READING_KINDS or residual is None:
+    """``(readings [n, m], predictions [n, m])`` (mm) of a kind whose residual is ``prediction −
+    reading`` in mm entry by entry (``MeasurementModel.readings_mm``), the predictions as
+    ``reading + residual``; ``None`` for other kinds."""
+    obs = None if residual is None else measurement.readings_mm(y)
+    if obs is None:
         return None
-    y = np.asarray(y, np.float64)
-    n = y.shape[0]
-    obs = y[:, :3, 3] if measurement.kind == "pose" else y.reshape(n, -1)
     r = np.asarray(residual, np.float64)
     return (obs, obs + r) if r.shape == obs.shape else None
 
@@ -1002,7 +996,7 @@ def likely_cause(robot, measurement, q, y, residual, *, huge_residual: bool = Fa
     """What the data point to when a calibration fails its checks, or ``None``.
 
     * Readings 1 000× off: the readings (``y``) vary 100× less (more) than the robot model
-      predicts (``y + residual``, :data:`_READING_KINDS`) → they look like metres (µm),
+      predicts (``y + residual``, ``MeasurementModel.readings_mm``) → they look like metres (µm),
       expected mm.
     * Joint angles in radians read as degrees: every revolute joint (two or more) stays within
       ±2π degrees (±0.11 rad) — a ``q*_deg`` column holding radians.
@@ -1021,7 +1015,7 @@ def likely_cause(robot, measurement, q, y, residual, *, huge_residual: bool = Fa
     pair = _readings_and_predictions(measurement, y, residual)
     if pair is not None:
         s_y, s_p = _spread(pair[0]), _spread(pair[1])
-        what = "lengths" if measurement.kind == "cable" else "positions"
+        what = measurement.reading_words
         if s_p > 0 and 0 < s_y < 0.01 * s_p:
             return (f"the {what} look like metres, expected mm (they vary {s_p / s_y:.0f}× less than the robot "
                     "model predicts)")

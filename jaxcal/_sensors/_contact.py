@@ -237,6 +237,12 @@ class PlaneContact(_LabelModel):
         nk, dk = n[k], d[k]
         return (nk[:, 0] * p[0] + nk[:, 1] * p[1] + nk[:, 2] * p[2] - dk)[:, None]
 
+    def gap(self, deviations, p, k, dtype) -> Float[Array, " 1"]:
+        """The contact constraint of one tool point ``p`` ``[3]`` (mm) on plane ``k``: its signed
+        distance ``[1]`` (mm; zero at contact). The simulation moves poses onto it."""
+        n, d = self.planes(deviations, dtype)
+        return jnp.atleast_1d(n[k] @ p - d[k])
+
 
 class FixedPoint(_LabelModel):
     """The tool tip on one of ``K`` fixed points (pivoting) or a flange ball on one of ``K`` fixed
@@ -332,6 +338,14 @@ class FixedPoint(_LabelModel):
         if not self.sphere:
             return jnp.stack(diff, -1)
         return (jnp.sqrt(diff[0] ** 2 + diff[1] ** 2 + diff[2] ** 2) - r[k])[:, None]
+
+    def gap(self, deviations, p, k, dtype):
+        """The contact constraint of one tool point ``p`` ``[3]`` (mm) on point ``k``: ``p − c_k``
+        ``[3]`` (points) or ``‖p − c_k‖ − r_k`` ``[1]`` (spheres), mm; zero at contact."""
+        c, r = self.points(deviations, dtype)
+        if not self.sphere:
+            return p - c[k]
+        return jnp.atleast_1d(jnp.linalg.norm(p - c[k]) - r[k])
 
 
 # -- data ---------------------------------------------------------------------------------------
@@ -853,6 +867,7 @@ class PlaneKind(_LabelledContactKind):
     """Plane-contact data (:class:`PlaneContact`): a text column ``plane`` naming the touched plane."""
 
     name = "plane"
+    simulator = "jaxcal._simulation._simulate_files:plane_file"
 
 
 @register_kind
@@ -861,6 +876,7 @@ class PointKind(_LabelledContactKind):
     with a radius given (``--radius-mm``, the file's ``# radius_mm:`` line) or estimated."""
 
     name = "point"
+    simulator = "jaxcal._simulation._simulate_files:point_file"
 
     def check_options(self, estimate, options):
         if "base" in estimate:
@@ -956,6 +972,7 @@ class DistanceKind(_ContactKind):
     name = "distance"
     columns = ("distance_mm",)
     own_table = True
+    simulator = "jaxcal._simulation._simulate_files:distance_file"
 
     def check_options(self, estimate, options):
         if "base" in estimate:

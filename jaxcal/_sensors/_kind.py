@@ -93,6 +93,15 @@ class SensorKind:
             labels are matched to a model's by name (:func:`jaxcal._datasets._dataset.relabel`).
         fleet: several files of this kind are units of a fleet (:func:`jaxcal.calibrate_many`,
             ``jaxcal calibrate`` of several files): one sensor set-up shared by every unit.
+        simulator: the function that simulates a data file of this kind (``jaxcal simulate``,
+            :func:`jaxcal._simulation._simulate_files.simulate_file`), named
+            ``"module:function"`` (a module of this package), or ``None``: the kind is not
+            simulated (marker data). The name is the hook: the simulation sits on a floor above
+            the sensors and is imported by :func:`~jaxcal._simulation._simulate_files.simulate_file`,
+            never from here. It is called as ``function(kind, request)`` with a
+            :class:`~jaxcal._simulation._simulate_files.FileRequest` and returns a
+            :class:`~jaxcal._simulation._simulate_files.SimulatedFile` (the rows with their set-up
+            lines, such as a tree tip's ``# tip:``, and the words that describe them).
     """
 
     name: ClassVar[str]
@@ -103,6 +112,7 @@ class SensorKind:
     plannable: ClassVar[bool] = True
     fleet: ClassVar[bool] = False
     labelled: ClassVar[bool] = False
+    simulator: ClassVar[str | None] = None
 
     # -- reading a file ------------------------------------------------------------------------
     def found_in(self, header) -> bool:

@@ -75,12 +75,52 @@ class MeasurementModel(eqx.Module):
     #: whether the reading depends on the robot's tool point (a marker set or a camera target is
     #: its own tool: ``False``)
     sees_tool_point: ClassVar[bool] = True
+    #: what the readings are in words, for a reading kind (:meth:`readings_mm`): ``"lengths"``,
+    #: ``"positions"``; ``""`` for a kind whose readings are not mm entry by entry
+    reading_words: ClassVar[str] = ""
+
+    def readings_mm(self, y) -> np.ndarray | None:
+        """The readings ``[n, m]`` (mm) entry by entry as the residual ``prediction − reading``
+        compares them (a pose's position part), float64 on the host; ``None`` for a kind whose
+        residual is not that (labels, pixels, a bar's second pose): the unit check of
+        :func:`jaxcal._fit._diagnostics.likely_cause` skips it."""
+        if not self.reading_words:
+            return None
+        y = np.asarray(y, np.float64)
+        return y.reshape(y.shape[0], -1)
 
     @host_method
     def estimates_weights(self) -> bool:
         """Whether :func:`jaxcal.calibrate` estimates a σ per :attr:`components` and refits with
         the residual whitened by them (:meth:`reweighted`). No by default."""
         return False
+
+    #: the ``(q, y)`` pairs of this model are several sensors' data stacked (:class:`~jaxcal.Combined`),
+    #: each block's checked by its own model where they were combined: :func:`jaxcal.calibrate`
+    #: takes them as they are.
+    stacked_data: ClassVar[bool] = False
+
+    @host_method
+    def takes_extra(self, flag: str, name: str) -> bool:
+        """Whether ``calibrate(extras=[name])`` adds parameters to estimate with this sensor's data
+        (``flag``: the :meth:`~jaxcal.ParameterSpace.for_robot` flag ``name`` stands for:
+        ``anchor``, ``cable_offset``, ``tool``, ``base``): yes by default; no where they are free
+        anyway (:class:`~jaxcal.SessionMarkers`' session frames).
+
+        Raises:
+            ValueError: the extra does not apply to this sensor (by default a draw wire's
+                ``anchor`` and ``cable_offset``).
+        """
+        if flag in ("anchor", "cable_offset"):
+            raise ValueError(f"extra {name!r} applies to draw-wire (cable) data only, not {self.kind!r}")
+        return True
+
+    @host_method
+    def sees_group(self, group: str) -> bool:
+        """Whether this sensor's data see the extras group ``group`` (a group name of
+        :func:`jaxcal.layout_for`), so that ``calibrate(free=...)`` may free it: every group but
+        a draw wire's ``anchor`` and ``cable_offset`` by default."""
+        return group not in ("anchor", "cable_offset")
 
     @property
     def tool_group(self) -> str:
@@ -206,8 +246,19 @@ class CableLength(MeasurementModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "cable"
     initialisable: ClassVar[tuple[str, ...]] = ("anchor", "cable_offset", "tool")
+    reading_words: ClassVar[str] = "lengths"
     size: ClassVar[int] = 1
     sample_shape: ClassVar[tuple[int, ...]] = ()
+
+    @host_method
+    def takes_extra(self, flag: str, name: str) -> bool:
+        if flag == "base":
+            raise ValueError("extra 'base' (sensor frame) applies to position/pose data; a draw-wire has an anchor")
+        return True
+
+    @host_method
+    def sees_group(self, group: str) -> bool:
+        return not group.startswith("base")  # a draw wire has an anchor, no sensor frame
 
     def __init__(self, anchor, tip: str | None = None):
         anchor = jnp.asarray(anchor)
@@ -286,6 +337,7 @@ class Position(MeasurementModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "position"
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
+    reading_words: ClassVar[str] = "positions"
     size: ClassVar[int] = 3
     sample_shape: ClassVar[tuple[int, ...]] = (3,)
 
@@ -336,11 +388,16 @@ class Pose(MeasurementModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "pose"
     error_entries: ClassVar[int | None] = 3
+    reading_words: ClassVar[str] = "positions"
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
     size: ClassVar[int] = 6
     sample_shape: ClassVar[tuple[int, ...]] = (4, 4)
     components: ClassVar[tuple[tuple[str, str, int, int], ...]] = (("position", "mm", 0, 3),
                                                                   ("orientation", "rad", 3, 6))
+
+    def readings_mm(self, y) -> np.ndarray:
+        """The measured positions ``[n, 3]`` (mm) of the poses ``y`` ``[n, 4, 4]``."""
+        return np.asarray(y, np.float64)[:, :3, 3]
 
     def __init__(self, orientation_scale: float | None = None, rotation=None, translation=None,
                  tip: str | None = None):
@@ -417,6 +474,7 @@ class MarkerModel(MeasurementModel):
 
     initialisable: ClassVar[tuple[str, ...]] = ("base", "markers")
     sees_tool_point: ClassVar[bool] = False
+    reading_words: ClassVar[str] = "positions"
 
     @property
     @abc.abstractmethod
@@ -434,6 +492,13 @@ class MarkerModel(MeasurementModel):
     def sample_error(self, residual) -> Float[Array, " n"]:
         r = residual.reshape(residual.shape[0], self.n_markers, 3)
         return jnp.sqrt(jnp.mean(jnp.sum(r * r, axis=-1), axis=-1))
+
+    @host_method
+    def takes_extra(self, flag: str, name: str) -> bool:
+        if flag == "tool":
+            raise ValueError("extra 'tool' does not apply to marker data: the marker positions (marker_k groups) "
+                             "are the tool; Markers(known=False) calibrates them")
+        return super().takes_extra(flag, name)
 
 
 class Markers(MarkerModel):
@@ -580,6 +645,7 @@ class CableKind(SensorKind):
     name = "cable"
     columns = ("length_mm",)
     fleet = True
+    simulator = "jaxcal._simulation._simulate_files:cable_file"
 
     def check_options(self, estimate, options):
         self.refuse_point_options(options)
@@ -626,6 +692,7 @@ class PositionKind(SensorKind):
     name = "position"
     columns = ("x_mm", "y_mm", "z_mm")
     fleet = True
+    simulator = "jaxcal._simulation._simulate_files:experiment_file"
 
     def model_to_dict(self, model):
         return {"kind": "position"} | frame_to_dict(model) | tip_to_dict(model)
@@ -647,6 +714,7 @@ class PoseKind(SensorKind):
     name = "pose"
     columns = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg")
     fleet = True
+    simulator = "jaxcal._simulation._simulate_files:pose_file"
 
     def model_to_dict(self, model):
         # the weight the fit used (estimated unless given: read back, it is taken as given)

@@ -111,6 +111,7 @@ class SelfContactKind(SensorKind):
     name = "self_contact"
     columns = ("contact_distance_mm",)
     plannable = False  # no planning candidates of contact postures yet
+    simulator = "jaxcal._simulation._simulate_files:self_contact_file"
 
     def setup(self, data, robot, estimate, options):
         """The model of the file's ``# tips:`` line, checked against ``robot``'s tips. The tips'

@@ -5,23 +5,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import pathlib
 
-from ._common import _as_usage, _floats, _robot, _robot_and_sensor, _Usage
-
-#: ``--unknown-anchor``: σ per axis (mm) of the true anchor around the default one, and σ (mm) of
-#: the wire's zero offset; neither is written where ``jaxcal calibrate`` reads a known anchor.
-UNKNOWN_ANCHOR_STD_MM = 50.0
-UNKNOWN_OFFSET_STD_MM = 20.0
-#: The kinds ``jaxcal simulate`` writes (its ``--measurement`` choices), each re-simulated by ``--like``
-#: from the set-up lines its file carries.
-SIMULATED_KINDS = ("cable", "position", "pose", "camera", "plane", "point", "distance", "self_contact")
-#: The camera files' set-up: a 9×6 checkerboard of 20 mm squares, OpenCV intrinsics ``fx, fy, cx,
-#: cy, k1, k2, p1, p2, k3`` (px), the image size (px).
-CAMERA_TARGET = "checkerboard:9x6:20"
-CAMERA_INTRINSICS = (1000.0, 1000.0, 640.0, 512.0, -0.05, 0.02, 0.0005, -0.0003, 0.0)
-CAMERA_IMAGE_SIZE = (1280, 1024)
+from ._common import _as_usage, _robot, _Usage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,14 +18,6 @@ class _Like:
     truth_seed: int
     source: str
     meta: dict
-
-
-def _seed_lines(args, like: _Like | None) -> dict:
-    """The file's ``seed`` line (poses and noise) and, for ``--like``, ``true_robot_seed`` (the
-    true robot) and ``like`` (the result it repeats)."""
-    if like is None:
-        return {"seed": args.seed}
-    return {"seed": args.seed, "true_robot_seed": like.truth_seed, "like": like.source}
 
 
 def _cmd_simulate(args) -> int:
@@ -55,115 +33,27 @@ def _cmd_simulate(args) -> int:
     args.robot = args.robot or "hsr_jr680"
     args.measurement = args.measurement or "cable"
     args.noise_std = 0.5 if args.noise_std is None else args.noise_std
-    if args.unknown_anchor and (args.measurement != "cable" or args.anchor):
-        raise _Usage("--unknown-anchor applies to --measurement cable without --anchor (it draws the anchor)")
     return _simulate(args, _robot(args.robot, args.base, args.tip), None)
 
 
 def _simulate(args, robot, like: _Like | None) -> int:
     """Write ``args.out``: ``args.samples`` rows of ``args.measurement`` data of ``robot`` (the true
-    robot of ``args.seed``, or of ``like.truth_seed`` with the set-up of ``like.meta``)."""
-    import jax
+    robot of ``args.seed``, or of ``like.truth_seed`` with the set-up of ``like.meta``), by the
+    kind's own simulator (:func:`~jaxcal._simulation._simulate_files.simulate_file`)."""
+    from .._simulation._simulate_files import FileRequest, simulate_file
 
-    from .._datasets._dataset import Dataset, mm_joints_metadata
-    from .._sensors._measurement import CableLength
-    from .._simulation._simulate import simulate_experiment
-
-    if args.measurement != "camera" and args.samples < 2:  # camera: at least 3 images (_simulate_camera)
-        raise _Usage(f"--samples must be at least 2, got {args.samples}")
-    if args.measurement == "camera":
-        return _simulate_camera(args, robot, like)
-    if args.measurement == "self_contact":
-        return _simulate_self_contact(args, robot, like)
-    robot, measurement = _robot_and_sensor(args, robot)
-    if measurement.kind in ("plane", "point", "distance"):
-        return _simulate_contact(args, robot, measurement, like)
-    noise = args.noise_std
-    if like is not None and "true_anchor_mm" in like.meta:  # the drawn anchor and offset, to the last bit
-        measurement = CableLength(_floats(like.meta["true_anchor_mm"], 3, "the first file's true_anchor_mm"))
-        measurement, truth = _true_setup(robot, measurement, like.truth_seed, False,
-                                         float(like.meta["true_cable_offset_mm"]))
-    else:
-        measurement, truth = _true_setup(robot, measurement, args.seed if like is None else like.truth_seed,
-                                         args.unknown_anchor)
-    ex = simulate_experiment(jax.random.key(args.seed), robot, n_samples=args.samples, noise_std=noise,
-                             measurement=measurement, true_deviations=truth, test_fraction=0.5)
-    import jax.numpy as jnp
-
-    q = jnp.concatenate([ex.train.q, ex.test.q])
-    y = jnp.concatenate([ex.train.y, ex.test.y])
-    rot = _orientation_noise_deg(args, measurement)
-    meta = {"source": "jaxcal simulate", "robot": robot.name, **_seed_lines(args, like), "noise_std_mm": noise,
-            **_setup_metadata(measurement, truth, args.unknown_anchor), **mm_joints_metadata(robot)}
-    rot_text = ""
-    if rot:
-        from .._simulation._simulate import add_orientation_noise
-
-        y = add_orientation_noise(y, math.radians(rot), args.seed)
-        meta["orientation_noise_std_deg"] = rot
-        rot_text = f", {rot}° per axis on the orientation"
-    Dataset(q, y, measurement.kind, meta).to_csv(args.out)
-    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {noise} mm{rot_text}, "
-          f"seed {args.seed}{_like_words(like)}) to {args.out}")
+    request = FileRequest(robot, args.seed, args.samples, args.noise_std,
+                          truth_seed=None if like is None else like.truth_seed,
+                          like_source=None if like is None else like.source,
+                          like_meta=None if like is None else like.meta, anchor=args.anchor,
+                          unknown_anchor=bool(args.unknown_anchor), radius_mm=args.radius_mm, mount=args.mount,
+                          missing_corners=args.missing_corners,
+                          orientation_noise_deg=0.0 if args.orientation_noise_deg is None else args.orientation_noise_deg)
+    with _as_usage():
+        sim = simulate_file(args.measurement, request)
+    sim.data.to_csv(args.out)
+    print(f"wrote {sim.summary} to {args.out}")
     return 0
-
-
-def _like_words(like: _Like | None) -> str:
-    return "" if like is None else f", the robot and set-up of {like.source}"
-
-
-def _orientation_noise_deg(args, measurement) -> float:
-    """``--orientation-noise-deg`` (deg; ``--like``: the first file's unless given), checked:
-    pose data only, not negative."""
-    rot = 0.0 if args.orientation_noise_deg is None else args.orientation_noise_deg
-    if rot and measurement.kind != "pose":
-        raise _Usage(f"--orientation-noise-deg applies to --measurement pose, not {measurement.kind}")
-    if not (math.isfinite(rot) and rot >= 0):
-        raise _Usage(f"--orientation-noise-deg must be a σ ≥ 0 in degrees, got {rot}")
-    return rot
-
-
-def _true_setup(robot, measurement, robot_seed: int, unknown_anchor: bool, cable_offset_mm: float | None = None):
-    """``(measurement, true_deviations)`` of the simulated robot of ``robot_seed``.
-
-    The deviations are the seed's true set-up (:func:`~jaxcal._simulation._truth.simulated_truth`:
-    those :func:`jaxcal.simulate_experiment` draws from ``jax.random.key(robot_seed)``, the tool
-    and sensor frame nominal, as for every kind), so a file's rows follow from its seed alone and
-    files of one seed can be combined. The measurement
-    carries the true anchor (cable). ``unknown_anchor``: the anchor is moved by
-    ``N(0, UNKNOWN_ANCHOR_STD_MM²)`` per axis and the wire gets a zero offset
-    ``N(0, UNKNOWN_OFFSET_STD_MM²)`` (mm), drawn from the same key; ``cable_offset_mm`` instead
-    sets the offset (``--like``: the one the first file recorded)."""
-    import jax
-    import jax.numpy as jnp
-
-    from .._core._params import Deviations
-    from .._sensors._measurement import CableLength
-    from .._simulation._truth import simulated_truth
-
-    dev = simulated_truth(jax.random.key(robot_seed), robot,
-                          anchor_std_mm=UNKNOWN_ANCHOR_STD_MM if unknown_anchor else 0.0,
-                          cable_offset_std_mm=UNKNOWN_OFFSET_STD_MM if unknown_anchor else 0.0)
-    vals = dict(dev.values)
-    if measurement.kind == "cable":  # the true anchor in the model; the deviation's anchor back to 0
-        measurement = CableLength(measurement.anchor + vals["anchor"])
-        vals["anchor"] = jnp.zeros_like(vals["anchor"])
-    if cable_offset_mm is not None:
-        vals["cable_offset"] = jnp.full_like(vals["cable_offset"], cable_offset_mm)
-    return measurement, Deviations(vals, dev.layout)
-
-
-def _setup_metadata(measurement, truth, unknown_anchor: bool) -> dict:
-    """The set-up lines of a simulated file: ``anchor_mm`` (the known anchor, which calibrate uses)
-    or, for an unknown one, ``true_anchor_mm`` and ``true_cable_offset_mm`` (the simulation's truth
-    in full precision, which calibrate does not read: it estimates both from the data)."""
-    if measurement.kind != "cable":
-        return {}
-    if not unknown_anchor:
-        return {"anchor_mm": ",".join(f"{float(v):.6g}" for v in measurement.anchor)}
-    # the truth to the last bit: --like simulates from these lines
-    return {"true_anchor_mm": ",".join(repr(float(v)) for v in measurement.anchor),
-            "true_cable_offset_mm": repr(float(truth.cable_offset))}
 
 
 def _simulate_like(args) -> int:
@@ -239,10 +129,18 @@ def _json_format(path) -> str | None:
 
 
 def _check_simulated(kind, src) -> None:
-    """Raises _Usage: ``kind`` is not one ``jaxcal simulate`` writes (nor so ``--like`` re-simulates)."""
-    if kind not in SIMULATED_KINDS:
+    """Raises _Usage: ``kind`` is not one ``jaxcal simulate`` writes (nor so ``--like`` re-simulates):
+    a kind without a simulator (``SensorKind.simulator``), or no kind at all."""
+    from .._sensors._kind import sensor_kind
+    from .._simulation._simulate_files import simulated_kinds
+
+    try:
+        simulated = sensor_kind(str(kind)).simulator is not None
+    except ValueError:  # not a kind at all
+        simulated = False
+    if not simulated:
         raise _Usage(f"--like cannot re-simulate {kind} data ({src}): `jaxcal simulate` writes "
-                     f"{', '.join(SIMULATED_KINDS)} data only; measure a new file instead")
+                     f"{', '.join(simulated_kinds())} data only; measure a new file instead")
 
 
 def _like_file(args, res, path, source: str) -> int:
@@ -284,117 +182,3 @@ def _like_file(args, res, path, source: str) -> int:
     args.radius_mm = float(meta["radius_mm"]) if "radius_mm" in meta else None
     like = _Like(int(meta.get("true_robot_seed", meta["seed"])), f"{source} (data {path.name})", meta)
     return _simulate(args, res.robot, like)
-
-
-def _simulate_contact(args, robot, measurement, like: _Like | None) -> int:
-    """``jaxcal simulate --measurement plane|point|distance``:
-    :func:`~jaxcal._simulation._simulate_sensors.simulated_contact_data` → ``args.out``."""
-    from .._datasets._dataset import Dataset
-    from .._simulation._simulate_sensors import simulated_contact_data
-
-    if like is not None:
-        want = like.meta.get(f"{measurement.kind}_labels")
-        have = ",".join(getattr(measurement, "labels", ()))
-        if want is not None and want != have:
-            raise _Usage(f"--like: the first file's {measurement.kind}s are {want}, `jaxcal simulate` now writes "
-                         f"{have}; the set-up is not known")
-    with _as_usage():
-        data = simulated_contact_data(args.seed, robot, measurement, n_samples=args.samples, noise_std=args.noise_std,
-                                      truth_seed=None if like is None else like.truth_seed)
-    Dataset(data.q, data.y, data.kind, {**data.meta, **_seed_lines(args, like)}).to_csv(args.out)
-    labels = getattr(measurement, "labels", ())
-    if measurement.kind == "distance":
-        what = "bar lengths 150 and 300 mm"
-    elif getattr(measurement, "sphere", False):
-        what = f"{len(labels)} spheres of radius {data.meta['radius_mm']} mm: {', '.join(labels)}"
-    else:
-        what = f"{len(labels)} {measurement.kind}s: {', '.join(labels)}"
-    print(f"wrote {args.samples} {measurement.kind} samples of robot {robot.name} (σ = {args.noise_std} mm, "
-          f"seed {args.seed}, {what}{_like_words(like)}) to {args.out}")
-    return 0
-
-
-def _simulate_camera(args, robot, like: _Like | None) -> int:
-    """``jaxcal simulate --measurement camera``: :func:`jaxcal.simulate_camera` (a 9×6 checkerboard of
-    20 mm squares, 1280×1024 px, f = 1000 px; ``--like``: the first file's), written with the target,
-    intrinsics, image size and mount lines (and ``missing_corners`` where corners were left out).
-    ``--mount tip-to-tip`` (a robot with two tips or more, ``--robot FILE.urdf --tip A,B``): the
-    camera on the first tip sees the target on the second (self-observation; ``--like``: the first
-    file's tips), with ``# tip:`` and ``# target_tip:`` lines."""
-    import jax
-    import numpy as np
-
-    from .._datasets._dataset import Dataset, mm_joints_metadata
-    from .._sensors._camera import Camera, load_target
-    from .._simulation._simulate_sensors import simulate_camera
-    from .._simulation._truth import simulated_truth
-
-    lines = {} if like is None else like.meta
-    mount = (args.mount or lines.get("mount") or "eye-in-hand").replace("-", "_")
-    missing = args.missing_corners if args.missing_corners is not None else float(lines.get("missing_corners", 0.0))
-    if args.anchor:
-        raise _Usage("--anchor applies to --measurement cable only")
-    if args.samples < 3:
-        raise _Usage(f"--samples (images) must be at least 3, got {args.samples}")
-    if not 0.0 <= missing < 1.0:
-        raise _Usage(f"--missing-corners must be in [0, 1), got {missing}")
-    target = lines.get("target", CAMERA_TARGET)
-    intr = [float(v) for v in _floats(lines["camera_intrinsics"], 9, "the first file's camera_intrinsics")] \
-        if "camera_intrinsics" in lines else list(CAMERA_INTRINSICS)
-    size = tuple(int(v) for v in _floats(lines["image_size_px"], 2, "the first file's image_size_px")) \
-        if "image_size_px" in lines else CAMERA_IMAGE_SIZE
-    tips = {}
-    if mount == "tip_to_tip":  # self-observation: the camera on the first tip, the target on the second
-        names = robot.tip_names()[:2] if like is None else [lines.get("tip", ""), lines.get("target_tip", "")]
-        if len(names) != 2 or not all(names):
-            raise _Usage("--mount tip-to-tip needs a robot with two tips (--robot FILE.urdf --tip A,B: the camera on A, "
-                         f"the target on B); robot {robot.name!r} has {len(robot.tip_names()) or 'one unnamed'} tip(s)")
-        tips = {"tip": names[0], "target_tip": names[1]}
-    with _as_usage():
-        from .._sensors._kind import resolve_tip
-
-        on = {k: resolve_tip(robot, v) for k, v in tips.items()}  # None: the robot's default tip
-        cam = Camera(load_target(target), intr, mount, image_size=size, **on)
-        key = jax.random.key(args.seed)  # the poses and noise; the seed's robot and tool, as every kind's
-        truth = simulated_truth(key if like is None else jax.random.key(like.truth_seed), robot)
-        q, y, cam, truth = simulate_camera(key, robot, cam, n_views=args.samples, noise_px=args.noise_std,
-                                           missing=missing, true_deviations=truth)
-    n_masked = int(np.isnan(np.asarray(y)).any(axis=-1).sum())
-    meta = {"source": "jaxcal simulate", "robot": robot.name, **_seed_lines(args, like),
-            "noise_std_px": args.noise_std, "target": target, "camera_intrinsics": ",".join(repr(v) for v in intr),
-            "mount": cam.mount, "image_size_px": ",".join(str(v) for v in size),
-            **({"missing_corners": missing} if missing else {}), **tips, **mm_joints_metadata(robot)}
-    Dataset(q, y, "camera", meta).to_csv(args.out)
-    where = f": camera on {tips['tip']}, target on {tips['target_tip']}" if tips else ""
-    print(f"wrote {args.samples} camera images ({cam.mount}{where}, {cam.n_points} target points, {n_masked} corner(s) "
-          f"left undetected) of robot {robot.name} (σ = {args.noise_std} px, seed {args.seed}{_like_words(like)}) "
-          f"to {args.out}")
-    return 0
-
-
-def _simulate_self_contact(args, robot, like: _Like | None) -> int:
-    """``jaxcal simulate --measurement self_contact --robot FILE.urdf --tip A,B``: the two tips touch
-    (:func:`jaxcal.simulate_self_contact`, 30 mm balls: 60 mm apart at contact) on the seed's robot,
-    written with the ``# tips:`` line (``--like``: the first file's tips)."""
-    import jax
-
-    from .._datasets._dataset import Dataset, mm_joints_metadata
-    from .._sensors._self_contact import simulate_self_contact
-    from .._simulation._truth import simulated_truth
-
-    tips = robot.tip_names()[:2] if like is None else [t.strip() for t in like.meta.get("tips", "").split(",")]
-    if len(tips) != 2:
-        raise _Usage("--measurement self_contact needs a robot with two tips: --robot FILE.urdf --tip A,B")
-    if args.anchor:
-        raise _Usage("--anchor applies to --measurement cable only")
-    key = jax.random.key(args.seed)  # the poses and noise; the seed's robot, as every kind's (simulated_truth)
-    with _as_usage():
-        truth = simulated_truth(key if like is None else jax.random.key(like.truth_seed), robot)
-        q, y = simulate_self_contact(key, robot, tips, n_samples=args.samples, noise_std=args.noise_std,
-                                     true_deviations=truth)
-    meta = {"source": "jaxcal simulate", "robot": robot.name, **_seed_lines(args, like), "noise_std_mm": args.noise_std,
-            "tips": ",".join(tips), **mm_joints_metadata(robot)}
-    Dataset(q, y, "self_contact", meta).to_csv(args.out)
-    print(f"wrote {len(y)} self-contact rows of {tips[0]} and {tips[1]} of robot {robot.name} (σ = {args.noise_std} mm "
-          f"contact scatter, seed {args.seed}{_like_words(like)}) to {args.out}")
-    return 0
