@@ -84,6 +84,8 @@ def _cmd_calibrate_combined(args, method: str) -> int:
         print(f"start: {m}")
     print(f"status {res.status.name.lower()}, {res.variance_rounds} fit(s) with re-estimated σ, "
           f"{res.space.n_free} free parameters; whitened train RMSE {res.train_metrics.rmse:.4f} (1 at the floor)")
+    if res.prior is not None and res.prior.evidence is not None:  # --prior evidence: the scale the data chose
+        print(res.prior.evidence.describe() + " (the verdicts below are under this prior)")
     for st in res.blocks:
         print("  " + st.line())
     for line in res.block_report:
@@ -152,11 +154,10 @@ def _print_block_tables(res, results: dict, setups, out_dir) -> dict:
         _print_dh_table(robot, res, sd)
     else:
         _print_chain_table(robot, res, sd)
-    for st, s in zip(res.blocks, setups):
-        br = results[st.name]
-        line = _extras_line(br, br.uncertainty.std_display() if br.uncertainty is not None else {}, s.estimate)
-        if line is not None:
-            print(f"estimated extras of {st.name} {line}")
+    asked = sorted({e for s in setups for e in s.estimate})  # one line over the combined layout: a shared
+    line = _extras_line(res, sd, asked)  # extra (the tool, a plane both arms touch) is one entry, printed once
+    if line is not None:
+        print(f"estimated extras (a name@LABEL belongs to that block, plane or point) {line}")
     _print_nongeometric(res, sd)
     return out
 

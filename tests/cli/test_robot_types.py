@@ -153,7 +153,7 @@ def _check_block_tables(out: str, combined: dict, fit: pathlib.Path, chain: bool
         assert len(saved["rows"]["train"]["after_mm"]) == b["n_samples"] == saved["settings"]["n_samples"]
         assert b["result"]["metrics_mm"] == saved["metrics_mm"]  # combined.json holds the same tables
     assert ("Calibrated joint corrections of" if chain else "Calibrated DH table") in out
-    assert "estimated extras of plane (" in out and "plane_d@table" in out
+    assert out.count("estimated extras (") == 1 and "plane_d@table" in out  # the shared tool once
 
 
 def test_modified_dh_file_at_the_floor_on_independent_data(tmp_path, capsys):
