@@ -74,6 +74,39 @@ def test_new_day_of_every_kind(kind, tmp_path, capsys):
     assert _run(["simulate", "--like", str(res), "--seed", "1", "--out", str(tmp_path / "again.csv")], capsys)[0] == 0
     rows = lambda p: [ln for ln in p.read_text().splitlines() if not ln.startswith("#")]  # noqa: E731
     assert rows(tmp_path / "again.csv") == rows(a)
+    if rtype == "tree":
+        _tree_result_exports_and_reports(res, tmp_path, capsys)
+
+
+def _tree_result_exports_and_reports(res, tmp_path, capsys):
+    """A calibrated tree through `jaxcal export` and `jaxcal report` (issue 51): the URDF written
+    reloads with the result's tips and gives its calibrated tool points within 1e-9 mm (the
+    right tool becomes an added link: the tree has no fixed joint to hold its correction); the
+    HTML report is written and well-formed; `--dh-out` refuses in one line naming the branches."""
+    import xml.etree.ElementTree as ET
+
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxcal import load_result, load_urdf
+    from jaxcal._models._kinematics import fk_position
+
+    urdf = tmp_path / "cal.urdf"
+    code, out = _run(["export", str(res), "--out", str(urdf)], capsys)
+    assert code == 0, out.err
+    r = load_result(res)
+    again = load_urdf(urdf, tips=["left_tool", "jaxcal_calibrated_tip_right_tool"])
+    q = jnp.asarray(np.random.default_rng(5).uniform(-0.8, 0.8, (8, r.robot.dof)))
+    for tip, tip2 in (("left_tool", "left_tool"), ("right_tool", "jaxcal_calibrated_tip_right_tool")):
+        want = np.asarray(fk_position(r.robot, q, r.deviations, tip=tip))
+        got = np.asarray(fk_position(again, q, tip=tip2))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    code, out = _run(["export", str(res), "--dh-out", str(tmp_path / "x.csv")], capsys)
+    assert code == 2 and len(out.err.strip().splitlines()) == 1 and "left_tool" in out.err, out.err
+    pytest.importorskip("matplotlib")
+    code, out = _run(["report", str(res), "--html", str(tmp_path / "r.html")], capsys)
+    assert code == 0, out.err
+    ET.fromstring((tmp_path / "r.html").read_text(encoding="utf-8").split("\n", 1)[1])
 
 
 def test_new_day_of_a_combined_set_up(tmp_path, capsys):
