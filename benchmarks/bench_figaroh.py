@@ -261,9 +261,9 @@ def _fit_sessions(robot, data, prior, loss="huber", **kw):
 def _free_compiled() -> None:
     """Drop compiled programs between stages: a long run of differently shaped fits otherwise exhausts
     LLVM's mapped code memory ("LLVM ERROR: Unable to allocate section memory" seen on the 2-core CPU)."""
-    from jaxcal._calibration import _calibrate
+    from jaxcal._calibration import _programs
 
-    _calibrate._COMPILED.clear()
+    _programs._COMPILED.clear()
     jax.clear_caches()
 
 

@@ -158,7 +158,8 @@ def register_extras(robot, measurement, data, deviations: Deviations, groups, *,
     is the prior-free one (to round-off)."""
     from .._fit._objective import Prior
     from .._sensors._initial_extras import initial_extras
-    from ._calibrate import calibrate, extras_among
+    from ._calibrate import calibrate
+    from ._selection import extras_among
 
     if not groups:
         return deviations, ""

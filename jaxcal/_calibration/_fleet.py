@@ -55,12 +55,9 @@ from .._core._metrics import format_table, statistical_floor
 from .._core._precision import cast_floating, dtype_scope
 from .._core._xla import compile_lowered, jit, target_platform
 from .._fit._result import CalibrationResult, Status
-from ._calibrate import (
-    CalibrationOutput,
-    _calibration_steps,
-    _Launched,
-    _pad_to_bucket,
-)
+from ._calibrate import _calibration_steps
+from ._calibrator import CalibrationOutput
+from ._programs import _Launched, _pad_to_bucket
 
 __all__ = ["calibrate_many", "FleetResult", "FleetSummary", "UnitRow"]
 

@@ -438,13 +438,23 @@ class Combined(MeasurementModel):
     pad: int = eqx.field(static=True, default=0)
     kind: ClassVar[str] = "blocks"
     unit: ClassVar[str] = "σ"
+    stacked_data: ClassVar[bool] = True  # each block checked by its own model (combine)
 
     def __init__(self, models, sigma, names, counts, widths, views, groups, pad: int = 0):
         self.models, self.names, self.counts = tuple(models), tuple(names), tuple(int(c) for c in counts)
         self.widths, self.views, self.groups, self.pad = tuple(widths), tuple(views), tuple(groups), int(pad)
         self.sigma = jnp.asarray(sigma, jnp.result_type(float)).reshape(len(self.models))
 
+    @host_method
+    def takes_extra(self, flag: str, name: str) -> bool:
+        return True  # several sensors: each block checked its own (jaxcal.Block)
+
+    @host_method
+    def sees_group(self, group: str) -> bool:
+        return True
+
     # -- shapes ---------------------------------------------------------------------------------
+
     @property
     def size(self) -> int:  # type: ignore[override]
         return max(m.size for m in self.models)

@@ -226,6 +226,12 @@ class SessionMarkers(MarkerModel):
                               markers=self.markers, tip=self.tip)
 
     @host_method
+    def takes_extra(self, flag: str, name: str) -> bool:
+        if flag == "base":  # every session frame is already free (base_rotation@F, ...)
+            return False
+        return super().takes_extra(flag, name)
+
+    @host_method
     def pad_rows(self, n: int, n_to: int) -> SessionMarkers:
         """The model of the rows padded to ``n_to`` by repeating row 0 (shape buckets)."""
         if n_to == n:

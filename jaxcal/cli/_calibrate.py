@@ -47,7 +47,7 @@ def _rows(text: str | None) -> list[int]:
 def _rows_needed(n_file: int, n_train: int, path, split: bool, test_fraction: float):
     """``jaxcal calibrate``'s "too few samples" in the rows of the user's file: how many of its rows
     went to the random test split, and how many rows the file needs (exit 2, one line)."""
-    from .._calibration._calibrate import TooFewSamples
+    from .._calibration._selection import TooFewSamples
 
     try:
         yield

@@ -116,7 +116,7 @@ def _extras_line(res, sd: dict, extras) -> str | None:
     where there are none; ``sd``: :meth:`Uncertainty.std_display`."""
     import numpy as np
 
-    from .._calibration._calibrate import SELECT_GROUPS
+    from .._calibration._selection import SELECT_GROUPS
     from .._core._params import group_kind, group_of
 
     # every estimated sensor/set-up unknown: anchor, tool, cable offset, sensor frame, marker positions

@@ -198,7 +198,7 @@ def assert_same_fit(got, ref, *, x=1e-9, rmse=1e-10, noise=1e-9, std=1e-7):
 
 def _drive(steps):
     """Run the solves a ``_calibration_steps`` generator asks for, one by one (as ``calibrate``)."""
-    from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._calibration import _programs
 
     launched = None
     while True:
@@ -206,7 +206,7 @@ def _drive(steps):
             cal, q, y, k = steps.send(launched)
         except StopIteration as done:
             return done.value
-        launched = cal_mod._Launched(*cal_mod._launch(cal, q, y, k))
+        launched = _programs._Launched(*_programs._launch(cal, q, y, k))
 
 
 def test_masked_solve_takes_the_start_jacobian_at_run_time(experiment):
@@ -216,18 +216,20 @@ def test_masked_solve_takes_the_start_jacobian_at_run_time(experiment):
     and each fit equals the one whose solve computes its own start Jacobian (the generator without
     the shared Jacobian) to round-off: parameters, iterations, RMSE, σ̂ and posterior σ."""
     from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._calibration import _programs
+    from jaxcal._calibration._selection import candidate_space
     from jaxcal._fit._identifiability import identify_with_residuals, start_jacobian
 
     ex = experiment
     res = calibrate(ex.robot, ex.measurement, ex.train, "lm")  # selected here: the Jacobian is given
-    before = set(cal_mod._COMPILED._d)
+    before = set(_programs._COMPILED._d)
     given = calibrate(ex.robot, ex.measurement, ex.train, "lm", space=res.space)  # not selected: zeros
-    assert set(cal_mod._COMPILED._d) == before, "the given and the computed start Jacobian share one program"
+    assert set(_programs._COMPILED._d) == before, "the given and the computed start Jacobian share one program"
     own = _drive(cal_mod._calibration_steps(ex.robot, ex.measurement, ex.train, "lm"))
     for r in (res, given):
         assert_same_fit(r, own, x=1e-10, rmse=1e-12, noise=1e-10, std=1e-8)
     # the program behind start_jacobian (a re-selection refit's start) is the identifiability's
-    cand = cal_mod.candidate_space(ex.robot, ex.measurement, ())
+    cand = candidate_space(ex.robot, ex.measurement, ())
     _, resid, J = identify_with_residuals(ex.robot, ex.measurement, ex.train.q, cand, res.start, ex.train.y)
     resid2, J2 = start_jacobian(ex.robot, ex.measurement, ex.train.q, cand, res.start, ex.train.y)
     np.testing.assert_array_equal(resid, resid2)
@@ -255,16 +257,16 @@ def test_free_set_is_data(experiment, monkeypatch):
     free sets (identifiable subset, MAP over all candidates with a Huber loss, fix=, extras)
     share one compiled solve, and each equals the solve compiled for its free set alone
     (``JAXCAL_FREE_MASK=off``) to round-off: parameters, iterations, RMSE, σ̂ and posterior σ."""
-    from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._calibration import _programs
 
     ex = experiment
     # the whole training set, as the other tests of this module calibrate: its identifiability and
     # plain-LM programs are compiled once for the module (a 300-sample subset compiled its own)
     data = ex.train
     settings = [dict(), dict(fix="d_4,a_2"), dict(objective="measured"), dict(objective="measured", fix="theta")]
-    before = set(cal_mod._COMPILED._d)
+    before = set(_programs._COMPILED._d)
     masked = [calibrate(ex.robot, ex.measurement, data, "lm", **kw) for kw in settings]
-    new = [k for k in cal_mod._COMPILED._d if k not in before]
+    new = [k for k in _programs._COMPILED._d if k not in before]
     assert len(new) <= 2, len(new)  # one program per objective kind (plain; prior + Huber), not per free set
     assert masked[0].space.n_free != masked[1].space.n_free != masked[2].space.n_free
     monkeypatch.setenv("JAXCAL_FREE_MASK", "off")
@@ -282,10 +284,11 @@ def test_first_solve_compiles_ahead_once(experiment, monkeypatch):
     the solve it then runs is that program — one new compiled solve, none left pending — and the
     fit is the one compiled the usual way."""
     from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._calibration import _programs
 
     ex = experiment
     built = []  # the thread each solve program is built in
-    build = cal_mod._build_solve
+    build = _programs._build_solve
 
     def slow_build(*a):  # a build of at least 0.3 s, finished before the solve is launched (below)
         built.append(threading.current_thread().name)
@@ -298,11 +301,11 @@ def test_first_solve_compiles_ahead_once(experiment, monkeypatch):
         time.sleep(0.6)
         return launch(*a)
 
-    monkeypatch.setattr(cal_mod, "_build_solve", slow_build)
+    monkeypatch.setattr(_programs, "_build_solve", slow_build)
     monkeypatch.setattr(cal_mod, "_launch", late_launch)
-    before = set(cal_mod._COMPILED._d)
+    before = set(_programs._COMPILED._d)
     res = calibrate(ex.robot, ex.measurement, ex.train, "lm", loss="cauchy")  # an objective kind of its own
-    assert len(set(cal_mod._COMPILED._d) - before) == 1 and not cal_mod._AHEAD
+    assert len(set(_programs._COMPILED._d) - before) == 1 and not _programs._AHEAD
     ahead = (os.cpu_count() or 1) >= 2 and os.environ.get("JAXCAL_COMPILE_AHEAD", "on") != "off"
     assert len(built) == 1 and built[0].startswith("jaxcal-compile") == ahead, built
     # the compile time reported is the build's, also where the call waited for none of it

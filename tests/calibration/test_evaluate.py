@@ -85,18 +85,18 @@ def test_registration_runs_the_calibrations_solve(two_days):
     """A new day's frame registration (extras only, robot fixed) runs the calibration's compiled
     solve — same program space and objective kind, the free set a run-time mask — and equals the
     registration compiled for itself (no prior, its own candidates) to round-off."""
-    from jaxcal._calibration import _calibrate as cal_mod
+    from jaxcal._calibration import _programs
     from jaxcal._calibration._evaluate import register_extras
 
     d, _ = two_days
     res = jaxcal.load_result(d / "result.json")  # prior + Huber (the measured-data defaults)
     day2 = jaxcal.load_csv(d / "day2.csv")  # 300 rows: the bucket of the 400 training rows holds them
     groups = ("base_rotation", "base_translation")
-    before = set(cal_mod._COMPILED._d)
+    before = set(_programs._COMPILED._d)
     shared, _ = register_extras(res.robot, res.measurement, day2, res.deviations, groups, like=res)
-    assert set(cal_mod._COMPILED._d) == before
+    assert set(_programs._COMPILED._d) == before
     own, _ = register_extras(res.robot, res.measurement, day2, res.deviations, groups)
-    assert len(set(cal_mod._COMPILED._d) - before) == 1
+    assert len(set(_programs._COMPILED._d) - before) == 1
     a, b = np.asarray(shared._ravel_numpy()), np.asarray(own._ravel_numpy())
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.abs(b).max())
     assert np.any(a != np.asarray(res.deviations._ravel_numpy()))  # the frame moved

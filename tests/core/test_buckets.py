@@ -10,7 +10,7 @@ import pytest
 
 import jaxcal
 from jaxcal import Calibrator, Deviations, calibrate, simulate_experiment
-from jaxcal._calibration import _calibrate
+from jaxcal._calibration import _programs
 from jaxcal._core import _buckets
 from jaxcal._core._buckets import BoundedCache, bucket_size, pad_rows
 from jaxcal._core._params import ParameterSpace, layout_for
@@ -202,7 +202,7 @@ def test_one_compilation_per_bucket_and_bounded_cache(ex, buckets_on, monkeypatc
             counts["n"] += 1
 
     jax.monitoring.register_event_duration_secs_listener(listener)
-    monkeypatch.setattr(_calibrate, "_COMPILED", BoundedCache(2))
+    monkeypatch.setattr(_programs, "_COMPILED", BoundedCache(2))
     _buckets.set_buckets(True)
     qn, yn = np.asarray(ex.train.q), np.asarray(ex.train.y)
     try:
@@ -217,6 +217,6 @@ def test_one_compilation_per_bucket_and_bounded_cache(ex, buckets_on, monkeypatc
             _buckets.set_buckets(64)  # smaller buckets: 100 -> 128, 150 -> 192 rows, new programs
             for n in (100, 150):
                 calibrate(ex.robot, ex.measurement, (qn[:n], yn[:n]), "lm")
-            assert len(_calibrate._COMPILED) == 2 and _calibrate._COMPILED.evictions >= 1
+            assert len(_programs._COMPILED) == 2 and _programs._COMPILED.evictions >= 1
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
