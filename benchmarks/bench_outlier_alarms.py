@@ -114,13 +114,20 @@ def _plant_contact(path, result_path, row) -> None:
 
 
 def _flagged(err: str) -> list[tuple[str, list[int]]]:
-    """(file, rows) of every outlier warning in ``err``."""
+    """(file, rows) of every outlier warning in ``err``: ``…: N outlier rows at data rows 3, 17: …``,
+    or for a reading of several points ``…: N outlier corners … at data row 12 (corner 31: …), data
+    row 40 (…), above …``."""
     out = []
     for ln in err.splitlines():
         m = re.match(r"jaxcal: warning: (.+?)(?:, (?:training|test) rows)?: \d+ outlier rows? at data rows? ([0-9, …]+):",
                      ln)
         if m:
             out.append((m.group(1), [int(v) for v in re.findall(r"\d+", m.group(2))]))
+            continue
+        m = re.match(r"jaxcal: warning: (.+?)(?:, (?:training|test) rows)?: \d+ outlier \w+ .*?at (data row .*?), above ",
+                     ln)
+        if m:
+            out.append((m.group(1), [int(v) for v in re.findall(r"data row (\d+)", m.group(2))]))
     return out
 
 

@@ -576,17 +576,20 @@ class Combined(MeasurementModel):
         return self._join(parts)
 
     @host_method
-    def outlier_parts(self) -> list[tuple[str, int, int, int, float, str]]:
+    def outlier_parts(self) -> list[tuple[str, int, int, int, float, str, int | None, str]]:
         """The data blocks' rows for an outlier scan in each block's own unit
         (:func:`~jaxcal._fit._diagnostics.scan_outliers`): per block ``(name, first row, end row,
-        entries, σ, unit)``: its rows among the stacked ones, the residual entries an outlier scan
-        reads (a pose's position part), and the σ that turns its whitened residual back into its
-        unit. The relations block is left out (its few rows are already whitened)."""
+        entries, σ, unit, point entries, point word)``: its rows among the stacked ones, the
+        residual entries an outlier scan reads (a pose's position part), the σ that turns its
+        whitened residual back into its unit, and how its rows split into points (a camera's
+        corners: ``2, "corner"``; ``None`` where a row is one point). The relations block is left
+        out (its few rows are already whitened)."""
         out, s = [], 0
         for name, mod, n, sigma in zip(self.names, self.models, self.counts, np.asarray(self.sigma, np.float64)):
             if not isinstance(mod, Relations):
                 entries = mod.size if mod.error_entries is None else int(mod.error_entries)
-                out.append((name, s, s + n, entries, float(sigma), getattr(mod, "unit", "mm")))
+                out.append((name, s, s + n, entries, float(sigma), getattr(mod, "unit", "mm"), mod.point_entries,
+                            mod.point_word))
             s += n
         return out
 

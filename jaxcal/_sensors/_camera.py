@@ -201,6 +201,8 @@ class Camera(MeasurementModel):
     sees_tool_point: ClassVar[bool] = False
     #: unit of the residual and of the per-sample errors
     unit: ClassVar[str] = "px"
+    point_entries: ClassVar[int | None] = 2  # a corner's u, v: the outlier scan judges each corner
+    point_word: ClassVar[str] = "corner"
 
     def __init__(self, points_mm, intrinsics, mount: str = "eye_in_hand", *, handeye_rotation=None,
                  handeye_translation=None, target_rotation=None, target_translation=None, image_size=None,

@@ -64,6 +64,13 @@ class MeasurementModel(eqx.Module):
     #: how many leading entries of a residual row the sample error (mm) is made of and the
     #: evaluation's expectation counts (a pose's position part, ``3``); ``None``: every entry.
     error_entries: ClassVar[int | None] = None
+    #: residual entries per measured point, for a reading of several points (a camera image's
+    #: corners: 2 px each; a marker set's markers: 3 mm each), the entries of point ``k`` being
+    #: ``[k·w, (k+1)·w)`` of a row; the outlier scan judges each point on its own
+    #: (:func:`~jaxcal._fit._diagnostics.scan_rows`). ``None``: a row is one point.
+    point_entries: ClassVar[int | None] = None
+    #: what one point is called in messages (``"corner"``, ``"marker"``) where :attr:`point_entries` is set
+    point_word: ClassVar[str] = "point"
     #: residual entries per sample (``m``).
     size: ClassVar[int]
     #: measurement shape per sample (``()`` for a scalar).
@@ -475,6 +482,8 @@ class MarkerModel(MeasurementModel):
     initialisable: ClassVar[tuple[str, ...]] = ("base", "markers")
     sees_tool_point: ClassVar[bool] = False
     reading_words: ClassVar[str] = "positions"
+    point_entries: ClassVar[int | None] = 3  # a marker's x, y, z: the outlier scan judges each marker
+    point_word: ClassVar[str] = "marker"
 
     @property
     @abc.abstractmethod
