@@ -297,13 +297,39 @@ def candidate_poses(
     Pure in ``key`` (same key ⇒ same candidates). Raises ``ValueError`` if fewer than ``n`` of
     ``n·oversample`` draws pass.
     """
+    planner = _planner(measurement)
+    if planner is not None:  # the sensor's own candidates (SensorKind.planner)
+        return planner(key, robot, measurement, n, coverage=coverage, wire_range_mm=wire_range_mm,
+                       min_height_mm=min_height_mm, box_mm=box_mm, tracker_mm=tracker_mm, tracker_axis=tracker_axis,
+                       cone_half_angle_deg=cone_half_angle_deg, oversample=oversample, bar_lengths_mm=bar_lengths_mm,
+                       min_visible=min_visible, around=around, spread_deg=spread_deg)
+    return _workspace_candidates(key, robot, measurement, n, coverage, wire_range_mm, min_height_mm, box_mm,
+                                 tracker_mm, tracker_axis, cone_half_angle_deg, oversample)
+
+
+def _planner(measurement):
+    """The candidate function :attr:`SensorKind.planner <jaxcal._sensors._kind.SensorKind>` of
+    ``measurement``'s kind names (imported here: the hook by which the sensors name their planning
+    code on this floor), or ``None``: joint angles over the workspace (also for a model of no
+    registered kind)."""
+    import importlib
+
+    from .._sensors._kind import kind_names, sensor_kind
+
+    name = getattr(measurement, "kind", None)
+    hook = sensor_kind(name).planner if name in kind_names() else None
+    if hook is None:
+        return None
+    module, _, function = hook.partition(":")
+    return getattr(importlib.import_module(module), function)
+
+
+def _workspace_candidates(key, robot, measurement, n, coverage, wire_range_mm, min_height_mm, box_mm, tracker_mm,
+                          tracker_axis, cone_half_angle_deg, oversample):
+    """:func:`candidate_poses` for a sensor without its own (a tracker, a draw wire): random joint
+    angles kept by the workspace filters."""
     from .._models._robot import sample_joint_angles
 
-    kind = getattr(measurement, "kind", None)
-    if kind in ("plane", "point", "distance"):
-        return _contact_candidates(key, robot, measurement, n, bar_lengths_mm)
-    if kind == "camera":
-        return _camera_candidates(key, robot, measurement, n, coverage, oversample, min_visible, around, spread_deg)
     dtype = jnp.result_type(float)
     reach = robot.reach_mm()
     total = 0
@@ -338,24 +364,32 @@ def candidate_poses(
     return jnp.asarray(q[:n], dtype)
 
 
-def _contact_candidates(key, robot, measurement, n: int, bar_lengths_mm):
-    """:func:`candidate_poses` for the contact models and the distance bar: a noise-free
-    simulation on the nominal robot (its readings are the labels / the second pose)."""
+def contact_candidates(key, robot, measurement, n: int, **_):
+    """:func:`candidate_poses` for the contact models (the planner of the plane and point kinds): a
+    noise-free simulation on the nominal robot (its readings are the labels)."""
     from .._core._params import Deviations, layout_for
-    from .._simulation._simulate_sensors import simulate_contact, simulate_distance
+    from .._simulation._simulate_sensors import simulate_contact
 
     zero = Deviations.zeros(layout_for(robot, measurement), jnp.result_type(float))
-    if measurement.kind == "distance":
-        ex = simulate_distance(key, robot, n_samples=n, noise_std=0.0, lengths_mm=bar_lengths_mm,
-                               test_fraction=0.0, true_deviations=zero, tries=8)
-    else:
-        ex = simulate_contact(key, robot, measurement, n_samples=n, noise_std=0.0, test_fraction=0.0,
-                              true_deviations=zero, tries=4)
-    return ex.train
+    return simulate_contact(key, robot, measurement, n_samples=n, noise_std=0.0, test_fraction=0.0,
+                            true_deviations=zero, tries=4).train
 
 
-def _camera_candidates(key, robot, camera, n: int, coverage, oversample, min_visible, around, spread_deg):
-    """:func:`candidate_poses` for a camera: poses that see at least ``min_visible`` of the target."""
+def distance_candidates(key, robot, measurement, n: int, *, bar_lengths_mm=(150.0, 300.0), **_):
+    """:func:`candidate_poses` for the distance bar (its kind's planner): a noise-free simulation on
+    the nominal robot (its readings are the second pose and the bar length)."""
+    from .._core._params import Deviations, layout_for
+    from .._simulation._simulate_sensors import simulate_distance
+
+    zero = Deviations.zeros(layout_for(robot, measurement), jnp.result_type(float))
+    return simulate_distance(key, robot, n_samples=n, noise_std=0.0, lengths_mm=bar_lengths_mm,
+                             test_fraction=0.0, true_deviations=zero, tries=8).train
+
+
+def camera_candidates(key, robot, camera, n: int, *, coverage=1.0, oversample=8, min_visible=1.0, around=None,
+                      spread_deg=(8.0, 8.0, 8.0, 25.0, 25.0, 25.0), **_):
+    """:func:`candidate_poses` for a camera (its kind's planner): poses that see at least
+    ``min_visible`` of the target."""
     from .._models._robot import sample_joint_angles
     from .._sensors._camera import target_in_view
 
@@ -564,7 +598,7 @@ def _setup(robot, measurement, candidates, space, prior, noise_std):
 
 def _setup_rows(robot, measurement, candidates, space, prior, noise_std):
     """``(q, space, scale, Jc, Λ, W, J)``: candidate poses, identifiable space, column scales, the
-    scaled candidate Jacobians (compressed for a camera, :func:`_compress`), the prior
+    scaled candidate Jacobians (compressed where the kind says, :func:`_compressed`), the prior
     information, the workspace weight of "I", and the unscaled ``[N, m, p]`` Jacobians."""
     q, y = candidate_rows(robot, measurement, candidates)
     base = ParameterSpace.for_robot(robot, measurement=measurement) if space is None else space
@@ -579,7 +613,16 @@ def _setup_rows(robot, measurement, candidates, space, prior, noise_std):
     Jc = J / scale
     lam = _prior_info(space, prior, noise_std, scale, rows)
     W = np.einsum("kap,kaq->pq", Jc, Jc) / J.shape[0]  # mean per pose: the workspace weight of "I"
-    return q, space, scale, _compress(Jc) if measurement.kind == "camera" else Jc, lam, W, J
+    return q, space, scale, _compressed(measurement, Jc), lam, W, J
+
+
+def _compressed(measurement, Jc: np.ndarray) -> np.ndarray:
+    """``Jc`` :func:`_compress`-ed for a kind that plans on compressed rows
+    (:attr:`SensorKind.plan_compressed <jaxcal._sensors._kind.SensorKind>`: a camera), else as it is."""
+    from .._sensors._kind import kind_names, sensor_kind
+
+    name = getattr(measurement, "kind", None)
+    return _compress(Jc) if name in kind_names() and sensor_kind(name).plan_compressed else Jc
 
 
 def _compress(Jc: np.ndarray) -> np.ndarray:
@@ -772,8 +815,9 @@ def _error_rows(measurement) -> slice:
 
 def _error_points(measurement) -> int:
     """The per-sample error is ``sqrt(Σ rows² / this)``: a camera image's error is the RMS over its
-    target points (:meth:`jaxcal.Camera.sample_error`), every other model's the norm of its rows."""
-    return int(getattr(measurement, "n_points", 1)) if measurement.kind == "camera" else 1
+    target points (:meth:`jaxcal.Camera.sample_error`), every other model's the norm of its rows
+    (:attr:`~jaxcal._sensors._measurement.MeasurementModel.error_points`)."""
+    return int(measurement.error_points)
 
 
 def predicted_accuracy(

@@ -38,7 +38,7 @@ from .._sensors._blocks import Block, Relations, combine
 from ._plan import (
     CRITERIA,
     PoseSelection,
-    _compress,
+    _compressed,
     _error_points,
     _error_rows,
     _exchange,
@@ -534,7 +534,7 @@ def plan_blocks(
     parts = []
     for b in planned_idx:
         Jc = setup.masked(b)[:, :, cols] / scale
-        parts.append(_compress(Jc) if setup.model.models[b].kind == "camera" else Jc)
+        parts.append(_compressed(setup.model.models[b], Jc))
     m = max(p.shape[1] for p in parts)
     Jc = np.concatenate([np.pad(p, ((0, 0), (0, m - p.shape[1]), (0, 0))) for p in parts])
     W = sum(np.einsum("kap,kaq->pq", t[:, :, cols], t[:, :, cols]) / t.shape[0] for t in tests) / np.outer(scale, scale)

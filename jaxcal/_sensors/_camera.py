@@ -239,6 +239,11 @@ class Camera(MeasurementModel):
     def n_points(self) -> int:
         return int(self.points.shape[0])
 
+    @property
+    def error_points(self) -> int:  # type: ignore[override]
+        """The target points: a prediction's per-image error is the RMS over them."""
+        return self.n_points
+
     def target_tip_for(self, robot) -> str | None:
         """Tip to tip: the model's ``target_tip`` checked against ``robot``
         (as :meth:`tip_for` checks ``tip``; host-side, also at trace time: the tip is static).
@@ -954,6 +959,10 @@ class CameraKind(PointsKind):
     name = "camera"
     noise_unit = "px"
     simulator = "jaxcal._simulation._simulate_files:camera_file"
+    planner = "jaxcal._experiments._plan:camera_candidates"
+    plan_compressed = True
+    plan_next = ("take an image at each pose and fill in the detected target points' u_k_px, v_k_px (empty where not "
+                 "detected)")
     pattern = re.compile(r"([uv])_(\d+)_px")
     number_group, width = 2, 2
     columns_word, count_word = "image-point", "target point(s)"
@@ -961,6 +970,20 @@ class CameraKind(PointsKind):
 
     def point_columns(self, n_points):
         return camera_columns(n_points)
+
+    def planning_model(self, robot, *, anchor_mm=None, mount="eye_in_hand"):
+        """:func:`planning_camera` (the simulation's set-up as the nominal frames) with ``mount``."""
+        self.refuse_anchor(anchor_mm)
+        return planning_camera(robot, mount=mount)
+
+    def plan_lines(self, model):
+        """The target (:func:`planning_camera`'s default 9×6 board of 20 mm squares), intrinsics,
+        mount and image size."""
+        return {"target": "checkerboard:9x6:20", "camera_intrinsics": ",".join(repr(float(v)) for v in model.intrinsics),
+                "mount": model.mount, "image_size_px": ",".join(str(v) for v in model.image_size)}
+
+    def plan_readings(self, model, n):
+        return np.full((n, model.n_points, 2), np.nan)
 
     def check_options(self, estimate, options):
         if estimate - {"intrinsics"}:

@@ -813,6 +813,7 @@ class _LabelledContactKind(_ContactKind):
     metadata (:func:`dataset_labels`)."""
 
     labelled = True
+    planner = "jaxcal._experiments._plan:contact_candidates"
 
     def found_in(self, header) -> bool:
         return CONTACT_KINDS[self.name] in header
@@ -861,6 +862,12 @@ class _LabelledContactKind(_ContactKind):
         self.refuse_anchor(anchor_mm)
         return contact_model(self.name, robot, data)
 
+    def plan_lines(self, model):
+        lines = {f"{self.name}_labels": ",".join(model.labels)}
+        if getattr(model, "sphere", False):
+            lines["radius_mm"] = f"{float(np.asarray(model.radii)[0]):g}"
+        return lines
+
 
 @register_kind
 class PlaneKind(_LabelledContactKind):
@@ -868,6 +875,8 @@ class PlaneKind(_LabelledContactKind):
 
     name = "plane"
     simulator = "jaxcal._simulation._simulate_files:plane_file"
+    plan_next = ("touch the plane each row names and record the joint angles there (the planned ones are the nominal "
+                 "robot's)")
 
 
 @register_kind
@@ -877,6 +886,8 @@ class PointKind(_LabelledContactKind):
 
     name = "point"
     simulator = "jaxcal._simulation._simulate_files:point_file"
+    plan_next = ("put the tool tip on the point each row names (or the ball on the sphere) and record the joint angles "
+                 "there")
 
     def check_options(self, estimate, options):
         if "base" in estimate:
@@ -973,6 +984,9 @@ class DistanceKind(_ContactKind):
     columns = ("distance_mm",)
     own_table = True
     simulator = "jaxcal._simulation._simulate_files:distance_file"
+    planner = "jaxcal._experiments._plan:distance_candidates"
+    plan_next = ("place the bar between each row's two poses (bar length: distance_mm) and record both poses' joint "
+                 "angles")
 
     def check_options(self, estimate, options):
         if "base" in estimate:

@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # the registry's names are read by the command line's parser,
     import numpy as np
 
 __all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_kind", "sensor_kinds", "kind_names",
-           "check_label", "check_tip", "resolve_tip"]
+           "check_label", "check_tip", "resolve_tip", "simulated_kind_names", "plannable_kind_names"]
 
 #: built-in kinds and the module (in this package) that defines each, in the order in which a
 #: file without a ``# kind:`` line is recognised from its columns (the first whose columns are
@@ -41,6 +41,16 @@ _BUILTIN: dict[str, str] = {
     "self_contact": "_self_contact",
 }
 _REGISTRY: dict[str, SensorKind] = {}
+#: what the command line offers of each built-in kind, in the order of its menus, known without
+#: importing the kind's module (``jaxcal --help`` imports no NumPy): ``(simulated, plannable)``,
+#: i.e. whether the kind names a :attr:`SensorKind.simulator` (``jaxcal simulate``) and is
+#: :attr:`SensorKind.plannable` (``jaxcal plan``). ``tests/sensors/test_kinds.py`` keeps it equal
+#: to the kind classes.
+_OFFERED: dict[str, tuple[bool, bool]] = {
+    "cable": (True, True), "position": (True, True), "pose": (True, True), "camera": (True, True),
+    "plane": (True, True), "point": (True, True), "distance": (True, True), "self_contact": (True, False),
+    "markers": (False, False),
+}
 
 #: every extra ``jaxcal calibrate --estimate`` names, whatever the kind (a kind takes some of them)
 ESTIMATE_NAMES = frozenset({"anchor", "tool", "offset", "cable_offset", "base"})
@@ -102,6 +112,23 @@ class SensorKind:
             :class:`~jaxcal._simulation._simulate_files.FileRequest` and returns a
             :class:`~jaxcal._simulation._simulate_files.SimulatedFile` (the rows with their set-up
             lines, such as a tree tip's ``# tip:``, and the words that describe them).
+        planner: the function that makes this kind's planning candidates (``jaxcal plan``,
+            :func:`jaxcal.candidate_poses`), named ``"module:function"`` as :attr:`simulator` is
+            (the same hook: planning sits above the sensors), for a sensor whose candidates are
+            more than joint angles (poses that touch a plane, bar pose pairs, poses that see a
+            target); ``None``: random joint angles within the limits and the sensor's range
+            (the workspace filters of :func:`~jaxcal._experiments._plan.candidate_poses`). It is
+            called as ``function(key, robot, measurement, n, **options)`` with every option of
+            ``candidate_poses`` and returns the candidates.
+        plan_compressed: the planning selection works on each candidate's information
+            ``J_kᵀJ_k`` through the ``R`` factor of its Jacobian rows
+            (:func:`~jaxcal._experiments._plan._compress`): for a kind with many rows per
+            reading (a camera image's ``2N``); the others keep their few rows as they are.
+        plan_next: what to do with a planned poses file, in the words of ``jaxcal plan``'s last line.
+        counts_markers: ``jaxcal calibrate --markers N`` (the number of points a reading of the file
+            has, :func:`jaxcal.load_csv`'s ``n_markers``) applies to this kind (marker data).
+        messy: the messy real-world session simulator of this kind (:func:`jaxcal.simulate_messy`),
+            named ``"module:object"`` (the same hook as :attr:`simulator`), or ``None``: not offered.
     """
 
     name: ClassVar[str]
@@ -113,6 +140,29 @@ class SensorKind:
     fleet: ClassVar[bool] = False
     labelled: ClassVar[bool] = False
     simulator: ClassVar[str | None] = None
+    planner: ClassVar[str | None] = None
+    plan_compressed: ClassVar[bool] = False
+    plan_next: ClassVar[str] = "fill in the readings"
+    counts_markers: ClassVar[bool] = False
+    messy: ClassVar[str | None] = None
+
+    # -- planning (jaxcal plan) -----------------------------------------------------------------
+    def planning_model(self, robot, *, anchor_mm=None, mount: str = "eye_in_hand"):
+        """The measurement model ``jaxcal plan`` plans for, before any reading exists: the kind's
+        default set-up (:meth:`default_model`; ``anchor_mm``: a draw wire's anchor). A camera's
+        takes its nominal frames from the simulation's set-up (``mount``)."""
+        return self.default_model(robot, anchor_mm=anchor_mm)
+
+    def plan_lines(self, model) -> dict:
+        """The set-up lines (``{key: text}``) of a planned poses file of ``model`` (the draw wire's
+        anchor, the labels, a camera's target): what ``jaxcal calibrate`` reads back with the
+        readings. None by default."""
+        return {}
+
+    def plan_readings(self, model, n: int):
+        """The empty readings (NaN) of ``n`` planned poses of a kind with a :attr:`planner` whose
+        candidates are joint angles only (a camera's ``[n, N, 2]``), written as empty cells."""
+        raise NotImplementedError(f"{self.name} plans have their candidates' readings")
 
     # -- reading a file ------------------------------------------------------------------------
     def found_in(self, header) -> bool:
@@ -373,6 +423,24 @@ def register_kind(cls: type[SensorKind]) -> type[SensorKind]:
 def kind_names() -> tuple[str, ...]:
     """The names of every kind (built-in first, in recognition order), without importing any."""
     return tuple(dict.fromkeys([*_BUILTIN, *_REGISTRY]))
+
+
+def _offered(which: int) -> tuple[str, ...]:
+    added = [k for k in _REGISTRY if k not in _OFFERED]  # registered at run time: their classes say
+    flag = ((lambda k: k.simulator is not None), (lambda k: k.plannable))[which]
+    return tuple([k for k, v in _OFFERED.items() if v[which]] + [k for k in added if flag(_REGISTRY[k])])
+
+
+def simulated_kind_names() -> tuple[str, ...]:
+    """The kinds ``jaxcal simulate`` writes (a :attr:`SensorKind.simulator`), without importing any
+    built-in kind's module."""
+    return _offered(0)
+
+
+def plannable_kind_names() -> tuple[str, ...]:
+    """The kinds ``jaxcal plan`` plans (:attr:`SensorKind.plannable`), without importing any
+    built-in kind's module."""
+    return _offered(1)
 
 
 def sensor_kind(name: str, what: str = "measurement kind") -> SensorKind:

@@ -75,6 +75,10 @@ class MeasurementModel(eqx.Module):
     size: ClassVar[int]
     #: measurement shape per sample (``()`` for a scalar).
     sample_shape: ClassVar[tuple[int, ...]]
+    #: the per-sample error of a prediction (:func:`jaxcal.predicted_accuracy`) is
+    #: ``sqrt(Σ rows² / error_points)``: the RMS over a camera image's target points (its
+    #: :meth:`sample_error`); ``1`` (the norm of a row) for the others.
+    error_points: ClassVar[int] = 1
 
     #: residual components with a noise σ each, ``((name, unit, first, stop), ...)`` over a row's
     #: ``size`` entries (:class:`Pose`: position mm, orientation rad); empty: one σ for every entry.
@@ -85,6 +89,12 @@ class MeasurementModel(eqx.Module):
     #: what the readings are in words, for a reading kind (:meth:`readings_mm`): ``"lengths"``,
     #: ``"positions"``; ``""`` for a kind whose readings are not mm entry by entry
     reading_words: ClassVar[str] = ""
+
+    def expected_points(self) -> int | None:
+        """The number of points a reading of a new data file of this set-up must have
+        (:func:`jaxcal.load_csv`'s ``n_markers``: a marker set's markers), or ``None``: not
+        checked (the file's own)."""
+        return None
 
     def readings_mm(self, y) -> np.ndarray | None:
         """The readings ``[n, m]`` (mm) entry by entry as the residual ``prediction − reading``
@@ -561,6 +571,9 @@ class Markers(MarkerModel):
     def n_markers(self) -> int:
         return int(self.positions.shape[0])
 
+    def expected_points(self) -> int | None:
+        return self.n_markers
+
     @host_method
     def check_measurements(self, y, n: int) -> None:
         """``[n, N, 3]`` and finite: a missing marker (NaN) is masked by
@@ -655,6 +668,7 @@ class CableKind(SensorKind):
     columns = ("length_mm",)
     fleet = True
     simulator = "jaxcal._simulation._simulate_files:cable_file"
+    messy = "jaxcal._simulation._messy:CABLE_SESSION"
 
     def check_options(self, estimate, options):
         self.refuse_point_options(options)
@@ -673,6 +687,9 @@ class CableKind(SensorKind):
 
     def model_to_dict(self, model):
         return {"kind": "cable", "anchor_mm": np.asarray(model.anchor, np.float64).tolist()} | tip_to_dict(model)
+
+    def plan_lines(self, model):
+        return {"anchor_mm": ",".join(f"{float(v):.6g}" for v in model.anchor)}
 
     def model_from_dict(self, d):
         return CableLength(to_device(np.asarray(d["anchor_mm"], np.float64)), tip=d.get("tip"))
@@ -702,6 +719,7 @@ class PositionKind(SensorKind):
     columns = ("x_mm", "y_mm", "z_mm")
     fleet = True
     simulator = "jaxcal._simulation._simulate_files:experiment_file"
+    messy = "jaxcal._simulation._messy:TRACKER_SESSION"
 
     def model_to_dict(self, model):
         return {"kind": "position"} | frame_to_dict(model) | tip_to_dict(model)

@@ -513,6 +513,7 @@ class MarkersKind(PointsKind):
     name = "markers"
     session_labels = True
     plannable = False
+    counts_markers = True
     pattern = _MARKER
     number_group, width = 1, 3
     columns_word, count_word = "marker", "marker(s)"

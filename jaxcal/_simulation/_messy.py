@@ -138,13 +138,7 @@ class MessyExperiment(eqx.Module):
         nominal = _rms(self.measurement.residual(self.robot, None, self.train.q, self.train.y))
         inlier = np.setdiff1d(np.arange(self.train.n), self.outlier_rows)
         truth_test = _rms(self.measurement.residual(self.robot, self.true_deviations, self.test.q, self.test.y))
-        dev = self.true_deviations
-        if self.measurement.kind == "cable":
-            guess = (f"anchor guess off by {float(jnp.linalg.norm(dev.anchor)):.0f} mm, "
-                     f"cable zero offset {float(dev.cable_offset):+.1f} mm")
-        else:
-            guess = (f"sensor frame guess off by {math.degrees(float(jnp.linalg.norm(dev.base_rotation))):.1f}° "
-                     f"and {float(jnp.linalg.norm(dev.base_translation)):.0f} mm")
+        guess = _session(self.measurement.kind).guess_words(self.true_deviations)
         c = np.asarray(s["compliance_deg_per_knm"])
         lines = [
             f"messy {self.measurement.kind} session on {self.robot.name}: train {self.train.n} "
@@ -450,7 +444,8 @@ def simulate_messy(
     if not isinstance(key, jax.core.Tracer):
         warn_if_float32(dtype, "simulate_messy")
     keys = _Keys(*jax.random.split(key, 11))
-    truth = _truth_and_guess(keys, robot, opt, dtype)  # 1–2
+    session = _session(opt.measurement)
+    truth = _truth_and_guess(keys, robot, opt, dtype, session)  # 1–2
     sensor = _Sensor.build(keys, robot, truth, opt, dtype)
     rad = np.deg2rad(np.asarray(opt.ranges))
     q, y = sensor.measure(keys.q, keys.noise, opt.n_samples, (rad[:, 0], rad[:, 1]), "joint_ranges_deg")  # 3–4
@@ -459,7 +454,7 @@ def simulate_messy(
     return MessyExperiment(
         robot=robot, measurement=truth.model, true_deviations=truth.dev, train=train, test=test, far=far,
         outlier_rows=tuple(int(r) for r in rows), noise_std=sensor.sigma,
-        settings=_settings_record(opt, truth.dev, sensor.phase),
+        settings=_settings_record(opt, truth.dev, sensor.phase, session),
     )
 
 
@@ -491,8 +486,7 @@ class _Options(NamedTuple):
 
 def _checked_options(robot: DHRobot, dtype, **o) -> _Options:
     """The settings of :func:`simulate_messy`, each checked (a ``ValueError`` naming the option)."""
-    if o["measurement"] not in ("cable", "position"):
-        raise ValueError(f"measurement must be 'cable' or 'position', got {o['measurement']!r}")
+    _session(o["measurement"])  # a kind with a messy session, else ValueError
     check_simulation_settings(o["n_samples"], o["test_fraction"], o["noise_std"], _OVERSAMPLE)
     nonneg = {k: _nonneg(k, o[k]) for k in ("angle_std_deg", "length_std_mm", "quantization_deg",
                                             "anchor_guess_error_mm", "base_guess_error_mm", "base_guess_error_deg")}
@@ -553,15 +547,31 @@ class _Truth(NamedTuple):
     wire_range: tuple[float, float]
 
 
-def _truth_and_guess(keys: _Keys, robot: DHRobot, opt: _Options, dtype) -> _Truth:
-    """Steps 1–2: the true DH deviations (and tool offset), the true sensor set-up, and the
-    nominal model the user builds from a guess ``anchor_guess_error_mm`` (cable) or
-    ``base_guess_error_mm``/``_deg`` (position) away from it."""
-    dev = draw_deviations(keys.dev, robot, angle_std_deg=opt.angle_std_deg, length_std_mm=opt.length_std_mm,
-                          dtype=dtype)
-    if np.any(opt.tool_offset != 0):
-        dev = dev.replace(tool=jnp.asarray(opt.tool_offset, dtype))
-    if opt.measurement == "cable":
+class MessySession:
+    """The sensor of a messy session (:func:`simulate_messy`): how its true set-up is drawn, the
+    user's guess of it, and the words for :meth:`MessyExperiment.describe`. A sensor kind offers
+    one by naming it (:attr:`SensorKind.messy <jaxcal._sensors._kind.SensorKind>`, ``"module:object"``:
+    the hook by which the sensors, a floor below, name their session here)."""
+
+    def truth(self, keys: _Keys, robot: DHRobot, opt: _Options, dev: Deviations, dtype) -> _Truth:
+        """Step 2: the true deviations ``dev`` with the sensor's set-up errors, the nominal model
+        the user builds from a guess, and the workspace filter's anchor and wire-length range."""
+        raise NotImplementedError
+
+    def guess_words(self, dev: Deviations) -> str:
+        """How far the user's guess of the set-up is off, in words."""
+        raise NotImplementedError
+
+    def cable_offset_mm(self, dev: Deviations) -> float | None:
+        """The true zero offset of a draw wire (mm) for :attr:`MessyExperiment.settings`, or ``None``."""
+        return None
+
+
+class _CableSession(MessySession):
+    """A draw wire: the true anchor :func:`default_anchor`, guessed ``anchor_guess_error_mm`` away,
+    and a zero offset of the wire."""
+
+    def truth(self, keys, robot, opt, dev, dtype):
         true_anchor = default_anchor(robot).astype(dtype)
         anchor_error = jnp.asarray(opt.anchor_guess_error_mm, dtype) * _unit(keys.sensor1, dtype)
         if opt.cable_offset_mm is None:
@@ -571,11 +581,73 @@ def _truth_and_guess(keys: _Keys, robot: DHRobot, opt: _Options, dtype) -> _Trut
         dev = eqx.tree_at(lambda d: (d.anchor, d.cable_offset), dev, (anchor_error, offset))
         reach = robot.reach_mm()
         return _Truth(dev, CableLength(true_anchor - anchor_error), true_anchor, (0.05 * reach, 1.2 * reach))
-    model = Position(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype))
-    rotvec = jnp.asarray(math.radians(opt.base_guess_error_deg), dtype) * _unit(keys.sensor1, dtype)
-    shift = jnp.asarray(opt.base_guess_error_mm, dtype) * _unit(keys.sensor2, dtype)
-    dev = eqx.tree_at(lambda d: (d.base_rotation, d.base_translation), dev, (rotvec, shift))
-    return _Truth(dev, model, None, (0.0, math.inf))
+
+    def guess_words(self, dev):
+        return (f"anchor guess off by {float(jnp.linalg.norm(dev.anchor)):.0f} mm, "
+                f"cable zero offset {float(dev.cable_offset):+.1f} mm")
+
+    def cable_offset_mm(self, dev):
+        return float(dev.cable_offset)
+
+
+class _TrackerSession(MessySession):
+    """A tracker (tool positions): the identity sensor frame guessed, the true one rotated by
+    ``base_guess_error_deg`` and shifted by ``base_guess_error_mm``."""
+
+    def truth(self, keys, robot, opt, dev, dtype):
+        model = Position(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype))
+        rotvec = jnp.asarray(math.radians(opt.base_guess_error_deg), dtype) * _unit(keys.sensor1, dtype)
+        shift = jnp.asarray(opt.base_guess_error_mm, dtype) * _unit(keys.sensor2, dtype)
+        dev = eqx.tree_at(lambda d: (d.base_rotation, d.base_translation), dev, (rotvec, shift))
+        return _Truth(dev, model, None, (0.0, math.inf))
+
+    def guess_words(self, dev):
+        return (f"sensor frame guess off by {math.degrees(float(jnp.linalg.norm(dev.base_rotation))):.1f}° "
+                f"and {float(jnp.linalg.norm(dev.base_translation)):.0f} mm")
+
+
+#: the sessions the cable and position kinds name (``SensorKind.messy``)
+CABLE_SESSION = _CableSession()
+TRACKER_SESSION = _TrackerSession()
+
+
+def _session(measurement: str) -> MessySession:
+    """The :class:`MessySession` the kind ``measurement`` names.
+
+    Raises:
+        ValueError: no kind of that name offers a messy session; the message names those that do.
+    """
+    import importlib
+
+    from .._sensors._kind import sensor_kind
+
+    try:
+        hook = sensor_kind(measurement).messy
+    except ValueError:  # no kind of that name
+        hook = None
+    if hook is None:
+        offered = sorted(k.name for k in _kinds_with_messy())
+        raise ValueError(f"measurement must be {' or '.join(repr(k) for k in offered)}, got {measurement!r}")
+    module, _, name = hook.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _kinds_with_messy():
+    """The sensor kinds that offer a messy session."""
+    from .._sensors._kind import sensor_kinds
+
+    return tuple(k for k in sensor_kinds() if k.messy is not None)
+
+
+def _truth_and_guess(keys: _Keys, robot: DHRobot, opt: _Options, dtype, session: MessySession) -> _Truth:
+    """Steps 1–2: the true DH deviations (and tool offset), the true sensor set-up, and the
+    nominal model the user builds from a guess of it (:meth:`MessySession.truth`: a draw wire's
+    anchor ``anchor_guess_error_mm`` away, a tracker's frame ``base_guess_error_mm``/``_deg``)."""
+    dev = draw_deviations(keys.dev, robot, angle_std_deg=opt.angle_std_deg, length_std_mm=opt.length_std_mm,
+                          dtype=dtype)
+    if np.any(opt.tool_offset != 0):
+        dev = dev.replace(tool=jnp.asarray(opt.tool_offset, dtype))
+    return session.truth(keys, robot, opt, dev, dtype)
 
 
 class _Sensor(NamedTuple):
@@ -618,8 +690,9 @@ class _Sensor(NamedTuple):
 
 
 def _split_with_outliers(keys: _Keys, q, y, kind: str, opt: _Options, robot: DHRobot, dtype):
-    """Step 5: a random train/test split, then ``n_outliers`` gross errors in train rows (cable:
-    on the length; position: on one random coordinate). Returns ``(train, test, rows)``."""
+    """Step 5: a random train/test split, then ``n_outliers`` gross errors in train rows (a scalar
+    reading such as a wire length: on the reading; a position: on one random coordinate). Returns
+    ``(train, test, rows)``."""
     k_rows, k_sign, k_mag, k_coord = jax.random.split(keys.out, 4)
     perm = np.asarray(jax.random.permutation(keys.split, opt.n_samples))
     te, tr = perm[:opt.n_test], perm[opt.n_test:]
@@ -628,7 +701,7 @@ def _split_with_outliers(keys: _Keys, q, y, kind: str, opt: _Options, robot: DHR
     rows = np.sort(np.asarray(jax.random.permutation(k_rows, n_train))[:n_out])
     sign = np.where(np.asarray(jax.random.bernoulli(k_sign, 0.5, (n_train,)))[:n_out], 1.0, -1.0)
     err = (sign * np.asarray(jax.random.uniform(k_mag, (n_train,), dtype, *opt.outlier_mm))[:n_out]).astype(y.dtype)
-    if kind == "cable":
+    if y_tr.ndim == 1:
         y_tr[rows] += err
     else:
         y_tr[rows, np.asarray(jax.random.randint(k_coord, (n_train,), 0, 3))[:n_out]] += err
@@ -650,7 +723,7 @@ def _far_set(keys: _Keys, sensor: _Sensor, opt: _Options, robot: DHRobot, dtype)
     return _dataset(q_far, y_far, sensor.truth.model.kind, robot, "far", dtype)
 
 
-def _settings_record(opt: _Options, dev: Deviations, phase) -> _FrozenDict:
+def _settings_record(opt: _Options, dev: Deviations, phase, session: MessySession) -> _FrozenDict:
     """:attr:`MessyExperiment.settings`: every setting as plain Python values."""
     return _FrozenDict(
         measurement=opt.measurement, n_samples=opt.n_samples, noise_std=float(opt.noise_std),
@@ -658,7 +731,7 @@ def _settings_record(opt: _Options, dev: Deviations, phase) -> _FrozenDict:
         joint_ranges_deg=opt.ranges, quantization_deg=opt.quantization_deg,
         anchor_guess_error_mm=opt.anchor_guess_error_mm, base_guess_error_mm=opt.base_guess_error_mm,
         base_guess_error_deg=opt.base_guess_error_deg,
-        cable_offset_mm=float(dev.cable_offset) if opt.measurement == "cable" else None,
+        cable_offset_mm=session.cable_offset_mm(dev),
         tool_offset_mm=tuple(float(v) for v in opt.tool_offset),
         compliance_deg_per_knm=tuple(float(c) for c in opt.compliance), gear_error_deg=opt.gear_error_deg,
         gear_phase_rad=tuple(float(p) for p in np.asarray(phase)), n_outliers=opt.n_outliers,

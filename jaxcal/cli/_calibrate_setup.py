@@ -89,14 +89,15 @@ def _calibration_setup(args, method: str, data_file: str) -> types.SimpleNamespa
     path = pathlib.Path(data_file)
     if not path.exists():
         raise _Usage(f"data file {data_file!r} not found")
-    if args.markers is not None and args.measurement not in (None, "markers"):
+    counted = args.measurement is None or sensor_kind(args.measurement).counts_markers
+    if args.markers is not None and not counted:
         raise _Usage("--markers applies to --measurement markers only")
     if args.markers is not None and args.markers < 1:
         raise _Usage(f"--markers must be at least 1, got {args.markers}")
     try:  # without --measurement: the file's '# kind:' line, else the kind its columns show
         data = load_csv(path, kind=args.measurement, n_markers=args.markers)
     except ValueError as e:
-        if args.measurement != "markers":
+        if args.measurement is None or not counted:
             raise
         raise _Usage(str(e)) from None
     kind = data.kind

@@ -68,27 +68,16 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
                  "(.csv, see jaxcal calibrate --help) or a URDF (.urdf, with --base LINK and --tip LINK)")
 
 
-def _measurement(kind: str, anchor, robot, n_markers: int | None = None, data=None):
-    """The kind's measurement model at its default set-up (``SensorKind.default_model``; bad input:
-    :class:`_Usage`)."""
+def _robot_and_sensor(args, robot=None):
+    """``(robot, measurement)`` of ``jaxcal plan`` from ``--robot/--base/--tip`` (or ``robot``, given),
+    ``--measurement``, ``--anchor`` and ``--mount`` (the kind's :meth:`SensorKind.planning_model`)."""
     from .._sensors._kind import sensor_kind
 
-    with _as_usage():
-        return sensor_kind(kind).default_model(robot, anchor_mm=anchor, n_markers=n_markers, data=data)
-
-
-def _robot_and_sensor(args, robot=None):
-    """``(robot, measurement)`` from ``--robot/--base/--tip`` (or ``robot``, given), ``--measurement``
-    and ``--anchor`` (``jaxcal simulate`` and ``jaxcal plan``)."""
     robot = _robot(args.robot, args.base, args.tip) if robot is None else robot
     anchor = _floats(args.anchor, 3, "--anchor") if args.anchor else None
-    if args.measurement == "camera":  # jaxcal plan: the simulation's set-up as the nominal frames
-        if anchor is not None:
-            raise _Usage("--anchor applies to --measurement cable only")
-        from .._sensors._camera import planning_camera
-
-        return robot, planning_camera(robot, mount=args.mount.replace("-", "_"))
-    measurement = _measurement(args.measurement, anchor, robot)
+    with _as_usage():
+        measurement = sensor_kind(args.measurement).planning_model(robot, anchor_mm=anchor,
+                                                                   mount=args.mount.replace("-", "_"))
     radius = getattr(args, "radius_mm", None)
     if radius is not None:
         measurement = _sphere_model(args.measurement, measurement, radius, False)

@@ -39,8 +39,8 @@ def _cmd_evaluate(args) -> int:
     res = load_result(src)
     m = res.measurement
     sessions = hasattr(m, "frame_index")  # a SessionMarkers result: the file's own sessions and marker count
-    data = load_csv(path, kind=m.kind, n_markers=int(m.positions.shape[0]) if m.kind == "markers" and not sessions
-                    else None, kind_from=f"the calibration {src} is of {m.kind} data")
+    data = load_csv(path, kind=m.kind, n_markers=m.expected_points(),  # a marker set's markers
+                    kind_from=f"the calibration {src} is of {m.kind} data")
     if data.dof != res.robot.dof:
         raise _Usage(joint_columns_message(path, data.dof, res.robot, "the calibrated robot"))
     if data.labels and not sessions:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .._sensors._kind import kind_names
+from .._sensors._kind import kind_names, plannable_kind_names, simulated_kind_names
 from ._calibrate import _cmd_calibrate
 from ._evaluate import _cmd_evaluate
 from ._export import _cmd_export
@@ -327,9 +327,7 @@ def _add_simulate(sub, fmt) -> None:
                    help="URDF robot: the chain's tip link; several, comma-separated: a kinematic tree; a tree "
                         "preset (dual_arm_ma1400, icub): the tips to keep, the first the default (one tip: its "
                         "chain)")
-    s.add_argument("--measurement", choices=("cable", "position", "pose", "camera", "plane", "point", "distance",
-                                             "self_contact"),
-                   default=None,
+    s.add_argument("--measurement", choices=simulated_kind_names(), default=None,
                    help="sensor: cable (draw-wire length), position (x,y,z), pose (x,y,z + rotation vector; default "
                         "cable); camera (--samples images of a 9×6 checkerboard, 20 mm squares, 1280×1024 px, "
                         "f = 1000 px, only poses that see the whole target; --noise-std in px); plane: a probe "
@@ -460,8 +458,7 @@ def _add_plan(sub, fmt) -> None:
     pl.add_argument("--robot", default="hsr_jr680", help="preset name, DH table CSV or URDF file (default hsr_jr680)")
     pl.add_argument("--base", metavar="LINK", help="URDF robot: the chain's base link")
     pl.add_argument("--tip", metavar="LINK", help="URDF robot: the chain's tip link; a tree preset: the tip(s) to keep")
-    pl.add_argument("--measurement", choices=("cable", "position", "pose", "plane", "point", "distance", "camera"),
-                    default="cable",
+    pl.add_argument("--measurement", choices=plannable_kind_names(), default="cable",
                     help="sensor: cable (draw-wire length), position (tracker x,y,z) or pose (default cable); "
                          "without a tracker (the set-ups of `jaxcal simulate`): plane (three planes; candidates "
                          "touch them), point (two pivot points, or spheres with --radius-mm; candidates touch them), "

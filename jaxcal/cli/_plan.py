@@ -15,8 +15,10 @@ def _cmd_plan(args) -> int:
     import numpy as np
 
     from .._experiments import _plan
+    from .._sensors._kind import sensor_kind
 
     robot, measurement = _robot_and_sensor(args)
+    kind = sensor_kind(args.measurement)
     if args.poses < 1:
         raise _Usage(f"--poses must be at least 1, got {args.poses}")
     if not (args.noise_std > 0 and math.isfinite(args.noise_std)):
@@ -33,8 +35,8 @@ def _cmd_plan(args) -> int:
         filters["tracker_mm"] = _floats(args.tracker, 3, "--tracker")
         filters["tracker_axis"] = _floats(args.tracker_axis, 3, "--tracker-axis")
         filters["cone_half_angle_deg"] = args.cone_deg
-    sensor = args.measurement in ("plane", "point", "distance", "camera")
-    unit = "px" if args.measurement == "camera" else "mm"
+    sensor = kind.planner is not None  # the sensor's own candidates, not joint angles over the workspace
+    unit = kind.noise_unit
     if sensor and filters:
         raise _Usage(f"--wire-range/--box/--tracker do not apply to --measurement {args.measurement}: its candidates "
                      "are poses that touch the planes/points, bar pose pairs, or poses that see the target")
@@ -47,16 +49,16 @@ def _cmd_plan(args) -> int:
     else:
         if not pathlib.Path(spec).exists():
             raise _Usage(f"--candidates: {spec!r} is neither a number nor an existing file")
-        if args.measurement in ("plane", "point", "distance"):
+        if kind.labelled or kind.own_table:
             from .._datasets._dataset import load_csv
 
             cand = load_csv(spec, kind=args.measurement)  # labels / the bar's second pose are part of a candidate
-            if args.measurement != "distance":
+            if kind.labelled:
                 from .._datasets._dataset import relabel
-                from .._sensors._contact import contact_model
 
-                measurement = contact_model(args.measurement, robot, cand) if args.radius_mm is None else \
-                    _sphere_model("point", contact_model("point", robot, cand), args.radius_mm, False)
+                measurement = kind.default_model(robot, data=cand)
+                if args.radius_mm is not None:
+                    measurement = _sphere_model(args.measurement, measurement, args.radius_mm, False)
                 cand = relabel(cand, measurement.labels)
         else:
             cand = _plan.load_joint_angles(spec, robot.dof)
@@ -65,7 +67,7 @@ def _cmd_plan(args) -> int:
     if args.poses > n_cand:
         raise _Usage(f"--poses {args.poses} is more than the {n_cand} candidates")
     if args.with_files:
-        return _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
+        return _plan_combined(args, robot, measurement, cand, source, unit, k_perm)
     if args.with_sigma:
         raise _Usage("--with-sigma applies to --with FILE (one σ per file, in order)")
     sel = _plan.select_poses(robot, measurement, cand, args.poses, criterion=args.criterion,
@@ -81,7 +83,7 @@ def _cmd_plan(args) -> int:
     meta = [("source", "jaxcal plan"), ("robot", robot.name), ("planned_poses", args.poses),
             ("criterion", f"{args.criterion}-optimal ({sel.method})"), ("seed", args.seed),
             (f"predicted_test_rmse_{unit}", f"{pred.test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
-    _write_plan(args.out, robot, measurement, sel, meta, sensor)
+    _write_plan(args.out, robot, measurement, sel, meta)
     print(f"{source}; {sel.n} selected ({args.criterion}-optimal, {sel.method}, {sel.seconds:.2f} s) "
           f"for {len(sel.space.free_names)} identifiable parameters")
     rows = [["selected", *[f"{v:.4g}" for v in (sel.indices.o1, sel.indices.o2, sel.indices.o3, sel.indices.o4,
@@ -96,7 +98,7 @@ def _cmd_plan(args) -> int:
           f"{len(q_test.q) if hasattr(q_test, 'q') else q_test.shape[0]} random "
           f"{'candidate' if sensor else 'workspace'} poses, σ = {args.noise_std:g} {unit})\n")
     print(pred.table())
-    print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
+    print(f"\nwrote {sel.n} poses to {args.out}: {kind.plan_next}, then "
           f"`jaxcal calibrate {args.out} --robot {args.robot}{_robot_flags(args)} --measurement {args.measurement}`")
     if args.plot:
         top = min(cand.shape[0], max(4 * args.poses, 100))
@@ -109,56 +111,27 @@ def _cmd_plan(args) -> int:
     return 0
 
 
-_PLAN_NEXT = {
-    "plane": "touch the plane each row names and record the joint angles there (the planned ones are the nominal "
-             "robot's)",
-    "point": "put the tool tip on the point each row names (or the ball on the sphere) and record the joint angles "
-             "there",
-    "distance": "place the bar between each row's two poses (bar length: distance_mm) and record both poses' joint "
-                "angles",
-    "camera": "take an image at each pose and fill in the detected target points' u_k_px, v_k_px (empty where not "
-              "detected)",
-}
-
-
-def _write_plan(path, robot, measurement, sel, meta: list, sensor: bool) -> None:
-    """The selected poses as a data file with empty readings: ``meta`` plus the anchor (draw wire)
-    and the joint units."""
-    from .._datasets._dataset import mm_joints_metadata
+def _write_plan(path, robot, measurement, sel, meta: list) -> None:
+    """The selected poses as a data file of the kind with empty readings: ``meta``, the joint units
+    and the kind's set-up lines (:meth:`SensorKind.plan_lines`: a draw wire's anchor, the labels, a
+    camera's target, intrinsics, mount and image size). Where the candidates are rows of the kind
+    (contact rows with their label, bar rows with both poses and the bar length) they are written
+    as they are; a camera's rows get empty pixel columns (:meth:`SensorKind.plan_readings`)."""
+    from .._datasets._dataset import Dataset, mm_joints_metadata
     from .._experiments import _plan
+    from .._sensors._kind import sensor_kind
 
-    meta = list(meta)
-    if measurement.kind == "cable":
-        meta.append(("anchor_mm", ",".join(f"{float(v):.6g}" for v in measurement.anchor)))
-    meta += list(mm_joints_metadata(robot).items())
-    if sensor:
-        _save_sensor_plan(path, robot, measurement, sel, meta)
-    else:
-        _plan.save_plan_csv(path, sel.q, measurement.kind, meta)
-
-
-def _save_sensor_plan(path, robot, measurement, sel, meta) -> None:
-    """The selected poses of a plane/point/distance/camera plan as a data file of its kind: contact
-    rows with their label, bar rows with both poses and the bar length, camera rows with empty
-    pixel columns and the set-up lines (target: the default 9×6 board of
-    :func:`jaxcal._sensors._camera.planning_camera`, intrinsics, mount, image size)."""
-    import numpy as np
-
-    from .._datasets._dataset import Dataset
-
-    meta = dict(meta)
-    if measurement.kind == "camera":
-        meta.update({"target": "checkerboard:9x6:20", "camera_intrinsics": ",".join(repr(float(v)) for v in measurement.intrinsics),
-                     "mount": measurement.mount, "image_size_px": ",".join(str(v) for v in measurement.image_size)})
-        y = np.full((sel.n, measurement.n_points, 2), np.nan)
-        Dataset(sel.q, y, "camera", meta).to_csv(path)
+    kind = sensor_kind(measurement.kind)
+    lines = kind.plan_lines(measurement)
+    units = list(mm_joints_metadata(robot).items())
+    if kind.planner is None:  # joint angles only: the kind's columns left empty
+        _plan.save_plan_csv(path, sel.q, measurement.kind, [*meta, *lines.items(), *units])
         return
-    data = sel.data
-    if measurement.kind != "distance":
-        meta[f"{measurement.kind}_labels"] = ",".join(measurement.labels)
-        if getattr(measurement, "sphere", False):
-            meta["radius_mm"] = f"{float(np.asarray(measurement.radii)[0]):g}"
-    Dataset(data.q, data.y, measurement.kind, meta).to_csv(path)
+    meta = dict([*meta, *units]) | lines
+    if sel.data is None:
+        Dataset(sel.q, kind.plan_readings(measurement, sel.n), measurement.kind, meta).to_csv(path)
+    else:
+        Dataset(sel.data.q, sel.data.y, measurement.kind, meta).to_csv(path)
 
 
 def _fixed_block(path: str, sigma, robot):
@@ -177,7 +150,7 @@ def _fixed_block(path: str, sigma, robot):
     return block, getattr(block.measurement, "unit", "mm")
 
 
-def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm) -> int:
+def _plan_combined(args, robot, measurement, cand, source, unit, k_perm) -> int:
     """`jaxcal plan ... --with FILE [--with FILE ...]`: the poses of this sensor that add most to the
     data in hand (:func:`jaxcal.plan_blocks`), the combined prediction, the poses file."""
     import jax
@@ -233,9 +206,9 @@ def _plan_combined(args, robot, measurement, cand, source, unit, sensor, k_perm)
             ("criterion", f"{args.criterion}-optimal on the combined information ({sel.method})"),
             ("seed", args.seed), ("planned_with", ",".join(str(pathlib.Path(f).name) for f in args.with_files)),
             (f"predicted_test_rmse_{unit}", f"{pred.block(name).test_rmse:.4f}"), (f"noise_std_{unit}", args.noise_std)]
-    _write_plan(args.out, robot, measurement, sel, meta, sensor)
+    _write_plan(args.out, robot, measurement, sel, meta)
     files = " ".join([args.out, *args.with_files])
-    print(f"\nwrote {sel.n} poses to {args.out}: {_PLAN_NEXT.get(args.measurement, 'fill in the readings')}, then "
+    print(f"\nwrote {sel.n} poses to {args.out}: {sensor_kind(args.measurement).plan_next}, then "
           f"`jaxcal calibrate {files} --robot {args.robot}{_robot_flags(args)} --combine --out-dir fit`")
     return 0
 

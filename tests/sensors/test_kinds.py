@@ -152,3 +152,22 @@ def test_a_new_kind_needs_only_its_class(gauge_kind, tmp_path):
         jaxcal.measurement_for(back, robots.hsr_jr680(), anchor_mm=(1, 2, 3))
     with pytest.raises(ValueError, match="gauge measurements must have shape"):
         Dataset(np.zeros((3, 6)), np.zeros((3, 2)), "gauge")
+
+
+def test_command_line_offers_match_the_kind_classes():
+    """The parser's NumPy-free table of what `jaxcal simulate` / `jaxcal plan` offer (_kind._OFFERED)
+    says what the kind classes say: a simulator named, plannable; and the hooks the kinds name
+    (simulator, planner, messy session) resolve."""
+    import importlib
+
+    assert set(_kind._OFFERED) == set(_kind._BUILTIN)
+    for k in sensor_kinds():
+        if k.name in _kind._OFFERED:
+            assert _kind._OFFERED[k.name] == (k.simulator is not None, k.plannable), k.name
+        for hook in (k.simulator, k.planner, k.messy):
+            if hook is not None:
+                module, _, name = hook.partition(":")
+                assert callable(getattr(importlib.import_module(module), name)) or name.isupper(), hook
+        if k.planner is not None:
+            assert k.plannable, k.name
+    assert "markers" not in _kind.simulated_kind_names() and "self_contact" not in _kind.plannable_kind_names()
