@@ -626,10 +626,11 @@ def match_labels(result, data):
     ``new``, get zero values, to be registered on the data) and the data's label indices
     renumbered to the result's label order. Anything else comes back unchanged (``new`` empty)."""
     from .._datasets._dataset import Dataset, relabel
-    from .._sensors._contact import FixedPoint, PlaneContact, dataset_labels, label_metadata_key
+    from .._sensors._contact import dataset_labels, label_metadata_key
+    from .._sensors._kind import sensor_kind
 
     m = result.measurement
-    if not (isinstance(data, Dataset) and isinstance(m, (PlaneContact, FixedPoint)) and data.kind == m.kind
+    if not (isinstance(data, Dataset) and data.kind == m.kind and sensor_kind(m.kind).labelled
             and data.meta.get(label_metadata_key(data.kind))):
         return result, data, ()
     labels = dataset_labels(data)
@@ -789,7 +790,7 @@ def evaluate_sessions(result, data, *, extras: str = "auto", objective: str | No
     robot = result.robot
     if extras not in ("auto", "register", "result"):
         raise ValueError(f"extras must be 'auto', 'register' or 'result', got {extras!r}")
-    if not isinstance(data, Dataset) or data.kind != "markers":
+    if not isinstance(data, Dataset) or data.kind != SessionMarkers.kind:
         raise ValueError("a session-marker result is evaluated on marker data: give a jaxcal.Dataset of kind "
                          "'markers' (load_csv of a marker file)")
     if not data.labels:

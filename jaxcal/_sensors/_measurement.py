@@ -89,6 +89,10 @@ class MeasurementModel(eqx.Module):
     #: what the readings are in words, for a reading kind (:meth:`readings_mm`): ``"lengths"``,
     #: ``"positions"``; ``""`` for a kind whose readings are not mm entry by entry
     reading_words: ClassVar[str] = ""
+    #: the set-up the fit takes as known unless estimated, for the hint of an implausible fit:
+    #: ``(extras, words, flag)`` — the ``--estimate`` names that free it, what it is, the option that
+    #: frees it; ``None``: nothing to suggest
+    known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = None
 
     def expected_points(self) -> int | None:
         """The number of points a reading of a new data file of this set-up must have
@@ -263,6 +267,8 @@ class CableLength(MeasurementModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "cable"
     initialisable: ClassVar[tuple[str, ...]] = ("anchor", "cable_offset", "tool")
+    known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = (
+        ("anchor", "cable_offset"), "the anchor and cable offset were", "--estimate anchor,offset")
     reading_words: ClassVar[str] = "lengths"
     size: ClassVar[int] = 1
     sample_shape: ClassVar[tuple[int, ...]] = ()
@@ -353,6 +359,7 @@ class Position(MeasurementModel):
     translation: Float[Array, " 3"]
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "position"
+    known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = (("base",), "the sensor frame was", "--estimate base")
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
     reading_words: ClassVar[str] = "positions"
     size: ClassVar[int] = 3
@@ -404,6 +411,7 @@ class Pose(MeasurementModel):
     orientation_scale_given: bool = eqx.field(static=True, default=True)
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "pose"
+    known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = (("base",), "the sensor frame was", "--estimate base")
     error_entries: ClassVar[int | None] = 3
     reading_words: ClassVar[str] = "positions"
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")

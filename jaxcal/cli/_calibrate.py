@@ -309,13 +309,10 @@ def _exit_status(res, args, measurement, extras) -> int:
               file=sys.stderr)
         return _EXIT_FAILED
     if not res.plausible and not args.accept_implausible:
-        hint = ""
-        if measurement.kind == "cable" and not {"anchor", "cable_offset"} <= set(extras):
-            hint = ("; the anchor and cable offset were taken as known — if they are not exact, estimate them "
-                    "(--estimate anchor,offset), or the robot's parameters absorb their error")
-        elif measurement.kind in ("position", "pose") and "base" not in extras:
-            hint = ("; the sensor frame was taken as known — if it is not exact, estimate it (--estimate base), "
-                    "or the robot's parameters absorb its error")
+        hint, known = "", measurement.known_setup
+        if known is not None and not set(known[0]) <= set(extras):
+            hint = (f"; {known[1]} taken as known — if not exact, estimate {'them' if len(known[0]) > 1 else 'it'} "
+                    f"({known[2]}), or the robot's parameters absorb the error")
         print("jaxcal: calibration implausible (see the warning above); exit status 1 — use "
               f"--accept-implausible to accept it, or a stronger --prior{hint}", file=sys.stderr)
         return _EXIT_FAILED
