@@ -99,6 +99,15 @@ def _free_compiled_programs():
         jaxcal.clear_compiled()
 
 
+@pytest.fixture(scope="module")
+def experiment():
+    """The paper's experiment as :func:`jaxcal.simulate_experiment` makes it by default (key 0), one
+    per test module."""
+    from jaxcal import simulate_experiment
+
+    return simulate_experiment(jax.random.PRNGKey(0))
+
+
 @pytest.fixture(params=ROBOT_NAMES)
 def robot(request):
     """Every robot preset."""

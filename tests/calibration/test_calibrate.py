@@ -33,11 +33,6 @@ from jaxcal.methods._least_squares import residual_with_jacfwd
 GRADIENT_METHODS = ["adam", "adamw", "adamod", "adamodw"]
 
 
-@pytest.fixture(scope="module")
-def experiment():
-    return simulate_experiment(jax.random.PRNGKey(0))
-
-
 def assert_lm_at_floor_and_cramer_rao(ex, n_test_extra=20000, seed=11):
     """LM on ex.train; test RMSE on a large fresh test set vs the statistical floor, and the
     estimate vs the noiseless fit within 3 Cramér–Rao standard deviations."""

@@ -11,11 +11,6 @@ from jaxcal import ParameterSpace, identifiability, simulate_experiment
 from jaxcal._core._params import group_kind
 
 
-@pytest.fixture(scope="module")
-def experiment():
-    return simulate_experiment(jax.random.PRNGKey(0))
-
-
 def test_default_experiment_rank_19_of_24(experiment):
     ex = experiment
     rep = identifiability(ex.robot, ex.measurement, ex.train.q)

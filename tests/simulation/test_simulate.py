@@ -40,11 +40,6 @@ def _problem_sample_errors(problem):
     return problem.sample_errors(problem.x0())
 
 
-@pytest.fixture(scope="module")
-def experiment():
-    return simulate_experiment(jax.random.PRNGKey(0))
-
-
 def test_same_key_bit_identical(experiment):
     again = simulate_experiment(jax.random.PRNGKey(0))
     for a, b in [(experiment.train.q, again.train.q), (experiment.train.y, again.train.y),
