@@ -18,7 +18,7 @@ the hand's, facing each other at the view's home posture). Sensors (the blocks),
 * ``trk_l`` / ``trk_r``: the reference: a tracker on each hand (``Position(tip=...)``), σ = 0.1 mm,
   its frame and the tool point estimated (two blocks: each its own tracker frame).
 
-Each configuration is one :func:`jaxcal.calibrate_blocks` (LM, no prior, every block's σ estimated
+Each configuration is one :func:`jaxcal.calibrate_blocks` (LM, jaxcal's default prior toward nominal, every block's σ estimated
 by variance components, the free set the identifiable subset of every candidate). Columns:
 
 * held-out whitened RMSE / floor: the held-out rows of the configuration's blocks (as many as the
@@ -46,7 +46,7 @@ residual against ``scipy.optimize.least_squares(method="lm")`` of the same resid
 residual, 2-point finite-difference Jacobian: what the CTU toolbox's ``lsqnonlin`` does), both from
 the same start (the extras' closed-form start, robot at nominal) on the same free set.
 
-Run: ``python benchmarks/bench_multiarm.py`` (about 8–10 min on 2 CPU cores) or ``--quick``
+Run: ``python benchmarks/bench_multiarm.py`` (about 12 min on 2 busy CPU cores) or ``--quick``
 (small sizes, a smoke run). Writes ``benchmarks/results/multiarm_cpu.md`` (or ``--out``).
 """
 
