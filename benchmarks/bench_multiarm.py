@@ -19,7 +19,7 @@ the hand's, facing each other at the view's home posture). Sensors (the blocks),
   its frame and the tool point estimated (two blocks: each its own tracker frame).
 
 Each configuration is one :func:`jaxcal.calibrate_blocks` (LM, jaxcal's default prior toward nominal, every block's σ estimated
-by variance components, the free set the identifiable subset of every candidate). Columns:
+by variance components; under the prior every candidate is free, the rank is what the data determine). Columns:
 
 * held-out whitened RMSE / floor: the held-out rows of the configuration's blocks (as many as the
   training rows), each block's residual over its true σ, against the combined floor
