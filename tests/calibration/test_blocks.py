@@ -260,7 +260,7 @@ def test_combined_model_whitens_renames_and_names_errors(robot):
     with pytest.raises(ValueError, match="names point 'nope', which no block has"):
         combine(robot, blocks, [KnownDistance("s1", "nope", 50.0)])
     moved = FixedPoint(("s1",), np.ones((1, 3)))
-    with pytest.raises(ValueError, match="point 's1' is in blocks 'pivot' and 'other' with different nominal"):
+    with pytest.raises(ValueError, match="point 's1' is in block 'pivot' and block 'other' with different nominal"):
         combine(robot, [*blocks, Block("other", moved, (np.asarray(ex.train.q), np.zeros(n)))])
     sphere = FixedPoint(("s1",), np.zeros((1, 3)), radii_mm=10.0, estimate_radius=True)
     with pytest.raises(ValueError, match="defined differently|block names must differ"):
