@@ -452,9 +452,9 @@ def workspace_errors(points, errors, path=None, *, label: str = "tool point of t
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
         ax.set_title(("from above" if b == 1 else "from the side") + f" ({'xyz'[a]}–{'xyz'[b]})", fontsize=9)
-    fig.colorbar(sc, ax=axes, extend="max", shrink=0.9,
-                 label=f"error after calibration / mm (clipped at the {100 * WORKSPACE_COLOUR_QUANTILE:g}th percentile)")
-    fig.suptitle(f"Error over the workspace ({label})", fontsize=10)
+    fig.colorbar(sc, ax=axes, extend="max", shrink=0.9, label="error after calibration / mm")
+    fig.suptitle(f"Error over the workspace ({label}; colour clipped at the "
+                 f"{100 * WORKSPACE_COLOUR_QUANTILE:g}th percentile)", fontsize=10)
     _save(fig, path)
     return fig
 

@@ -93,6 +93,9 @@ class MeasurementModel(eqx.Module):
     #: ``(extras, words, flag)`` — the ``--estimate`` names that free it, what it is, the option that
     #: frees it; ``None``: nothing to suggest
     known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = None
+    #: what one row's error in the accuracy tables is, where it is not the reading's own error
+    #: (a tracker's 3-D distance); ``""``: nothing to say
+    row_error: ClassVar[str] = ""
 
     def expected_points(self) -> int | None:
         """The number of points a reading of a new data file of this set-up must have
@@ -360,6 +363,8 @@ class Position(MeasurementModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "position"
     known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = (("base",), "the sensor frame was", "--estimate base")
+    row_error: ClassVar[str] = ("a row's error is the 3-D distance between the predicted and the measured point: "
+                                "about √3·σ = 1.73·σ at the floor for a noise σ per axis")
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")
     reading_words: ClassVar[str] = "positions"
     size: ClassVar[int] = 3
@@ -412,6 +417,8 @@ class Pose(MeasurementModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "pose"
     known_setup: ClassVar[tuple[tuple[str, ...], str, str] | None] = (("base",), "the sensor frame was", "--estimate base")
+    row_error: ClassVar[str] = ("a row's error is the 3-D distance of its position part: about √3·σ = 1.73·σ at the "
+                                "floor for a noise σ per axis")
     error_entries: ClassVar[int | None] = 3
     reading_words: ClassVar[str] = "positions"
     initialisable: ClassVar[tuple[str, ...]] = ("base", "tool")

@@ -234,6 +234,7 @@ def _accuracy(args, setup, split, res):
                              f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
     print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
           + ("; raw nominal = the guessed extras, nothing estimated" if show_raw else "")
+          + (f"; {measurement.row_error}" if measurement.row_error else "")
           + ("" if evaluation is None else f"\ntest file: {evaluation.message}"))
     line, warning = (None, None) if evaluation is None else evaluation.expectation()
     if line is not None:
