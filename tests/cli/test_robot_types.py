@@ -94,20 +94,17 @@ def test_previous_result_as_prior(robot_args, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("robot_args", ["dh_file", "urdf"], indirect=True)
-def test_combined_fit_with_relations(robot_args, tmp_path, capsys):
+def test_combined_fit_with_relations(robot_args, seed_files, tmp_path, capsys):
     """Plane + distance-bar files of one simulated set-up in one fit with a (loose) known relation
     between two planes: each block's σ near the simulated noise, the bar setting the length scale.
     The robot enters the combined fit through its length entries (``nominal_lengths``), which a DH
     table gives alike in both conventions and a chain gives as its joint-origin translations: a
-    DH table file (the preset's programs) and a URDF chain cover both."""
-    sim = ["simulate", *robot_args, "--seed", "1"]
-    assert _run([*sim, "--measurement", "plane", "--samples", "200", "--out", str(tmp_path / "plane.csv")],
-                capsys)[0] == 0
-    assert _run([*sim, "--measurement", "distance", "--samples", "150", "--out", str(tmp_path / "bar.csv")],
-                capsys)[0] == 0
+    DH table file (the preset's programs) and a URDF chain cover both. The files are the module's
+    seed files (`jaxcal simulate`, seed 1: 300 plane rows, 200 bar rows), whose simulations and
+    row counts the other combined fits of this module share."""
     rel = tmp_path / "rel.txt"
     rel.write_text("plane_angle table wall_a 90 45  # loose: a relation the fit barely leans on\n")
-    code, out = _run(["calibrate", str(tmp_path / "plane.csv"), str(tmp_path / "bar.csv"), "--combine",
+    code, out = _run(["calibrate", str(seed_files["plane"]), str(seed_files["bar"]), "--combine",
                       "--relations", str(rel), *robot_args, "--out-dir", str(tmp_path / "fit")], capsys)
     assert code == 0, out.err
     combined = json.loads((tmp_path / "fit" / "combined.json").read_text())
