@@ -201,7 +201,10 @@ def main() -> None:
              "20 % test split scanned too; combined: `--combine`), then again with one random row of one file "
              "carrying a 10σ error (σ the file's simulated noise: added to a reading; contact rows: joints moved "
              "so that the row's residual moves by 10σ). Default `--outlier-rate 0.01` per file, so a run of two "
-             "files may alarm in about 2 % of clean runs.", "",
+             "files may alarm in about 2 % of clean runs. A reading of several points (a camera image's corners) "
+             "is judged per point (half the file's rate, over its detected points) and as a whole row (the other "
+             "half). No marker set-up: `jaxcal simulate` writes no marker files (marker-shaped rows are checked "
+             "in NumPy by `tests/fit/test_outlier_threshold.py`).", "",
              "| set-up | files (rows) | runs | clean runs with an outlier warning | planted row named (file and row) "
              "| planted runs with another row named too | runs that ended in an error | median clean run / s | "
              "clean alarms (seed: file [rows]) |",
