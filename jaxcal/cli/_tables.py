@@ -129,13 +129,16 @@ def _extras_line(res, sd: dict, extras) -> str | None:
         return None
     dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
     units = dict(zip(res.space.names, res.space.units))
+    mark = _marks(res)  # † where the prior, not the data, holds it (the DH table's mark)
     parts = []
     for n in extra_names + frozen:
         u = "°" if units[n] == "rad" else units[n]
         v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
         s_ = sd.get(n, (None,))[0]
-        parts.append(f"{n} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
+        parts.append(f"{n}{mark(n)} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
+    held = any(mark(n) for n in extra_names)
     return ("(deviation from the nominal/guessed value, ± one posterior σ"
+            + ("; † held by the prior" if held else "")
             + ("; * held at its start value: without a prior the data cannot tell it from another extra"
                if frozen else "")
             + "): " + ", ".join(parts))
