@@ -381,6 +381,11 @@ def html_report(d: dict, *, source: str = "", result: dict | None = None, inputs
     body += ["<h2>Outlier rows</h2>", '<p class="small">Rows whose residual after calibration is an outlier in '
              "their own robust σ̂ (1.4826·MAD), at the threshold clean Gaussian rows of the file cross with the "
              "chance --outlier-rate (1 % by default; data-row numbers, 1-based).</p>", _outliers(parts_rows, flagged)]
+    return _page(title, body)
+
+
+def _page(title: str, body) -> str:
+    """One self-contained HTML page: the head (title, the style sheet) and the ``body`` pieces."""
     return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"/>'
             '<meta name="viewport" content="width=device-width, initial-scale=1"/>'
             f"<title>{_e(title)}</title><style>{_CSS}</style></head><body>"
@@ -509,10 +514,7 @@ def combined_html_report(d: dict, *, source: str = "", inputs=(), created: str |
         if extras:
             body.append("<h3>Estimated extras</h3>" + _parameters(_restricted(r, extras, table=False, heatmap=False)))
         body.append(_figures(r.get("rows") or {}, robot, heading="h3", tip=(r.get("measurement") or {}).get("tip")))
-    return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"/>'
-            '<meta name="viewport" content="width=device-width, initial-scale=1"/>'
-            f"<title>{_e(title)}</title><style>{_CSS}</style></head><body>"
-            + "".join(body) + "</body></html>\n")
+    return _page(title, body)
 
 
 def write_html(source, out) -> pathlib.Path:

@@ -312,16 +312,11 @@ def _planner(measurement):
     ``measurement``'s kind names (imported here: the hook by which the sensors name their planning
     code on this floor), or ``None``: joint angles over the workspace (also for a model of no
     registered kind)."""
-    import importlib
-
-    from .._sensors._kind import kind_names, sensor_kind
+    from .._sensors._kind import kind_names, resolve_hook, sensor_kind
 
     name = getattr(measurement, "kind", None)
     hook = sensor_kind(name).planner if name in kind_names() else None
-    if hook is None:
-        return None
-    module, _, function = hook.partition(":")
-    return getattr(importlib.import_module(module), function)
+    return None if hook is None else resolve_hook(hook)
 
 
 def _workspace_candidates(key, robot, measurement, n, coverage, wire_range_mm, min_height_mm, box_mm, tracker_mm,

@@ -617,7 +617,7 @@ def outlier_threshold(n_rows: int, entries=1, n_entries: int | None = None, rate
 
     m = np.asarray(entries, np.float64)
     n_rows = max(int(n_rows), 1)
-    p = -math.expm1(math.log1p(-float(rate)) / n_rows)  # 1 − (1 − rate)^(1/n), exact for small rate
+    p = file_rate(rate, 1, n_rows)  # each row's tail, 1 − (1 − rate)^(1/n)
     n_entries = int(n_rows * np.max(m)) if n_entries is None else int(n_entries)
     nu = MAD_EFFICIENCY * max(n_entries, 1)
     safe = np.where(m > 0, m, 1.0)
@@ -827,7 +827,7 @@ def scan_rows(r, observed=None, *, rate: float = 0.01, k: float | None = None, n
     k_row = None
     if k is None:
         # several points: half the rate (Šidák) to the points, half to the rows as a whole
-        part = -math.expm1(0.5 * math.log1p(-float(rate))) if many else float(rate)
+        part = file_rate(rate, 1, 2) if many else float(rate)
         n_tests = max(1, round(n_file * per_row))  # the file's real points (rows where a row is one point)
         kk = outlier_threshold(n_tests, per_pt, int(real.size), part)
         k_full = outlier_threshold(n_tests, w, int(real.size), part)
@@ -870,13 +870,13 @@ def scan_outliers(problem, x, checks: Checks | None = None, *, residuals=None,
     r = np.asarray(signed_residuals(problem, x) if residuals is None else residuals, np.float64)
     obs = problem.observed()
     obs = np.ones(r.shape, bool) if obs is None else np.asarray(obs, bool)[:, : r.shape[1]]
-    if problem.weight is not None:  # padding rows (weight 0) are no data
-        keep = np.asarray(problem.weight) > 0
+    keep = None if problem.weight is None else np.asarray(problem.weight) > 0  # padding rows (weight 0): no data
+    if keep is not None:
         obs = obs & keep[: obs.shape[0], None]
     model = problem.measurement
     parts = model.outlier_parts() if hasattr(model, "outlier_parts") else None
     if parts is None:
-        n = int(problem.n_real) if problem.weight is None else int(np.sum(np.asarray(problem.weight) > 0))
+        n = int(problem.n_real) if keep is None else int(np.sum(keep))
         return (scan_rows(r[:n], obs[:n], rate=checks.outlier_rate, k=checks.outlier_k, n_file=n_file,
                           unit=getattr(model, "unit", "mm"), point_entries=getattr(model, "point_entries", None),
                           point_word=getattr(model, "point_word", "point")),)

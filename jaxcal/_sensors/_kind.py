@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # the registry's names are read by the command line's parser,
 
     import numpy as np
 
-__all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_kind", "sensor_kinds", "kind_names",
+__all__ = ["SensorKind", "PointsKind", "SetupOptions", "register_kind", "sensor_kind", "sensor_kinds", "kind_names", "resolve_hook",
            "check_label", "check_tip", "resolve_tip", "simulated_kind_names", "plannable_kind_names"]
 
 #: built-in kinds and the module (in this package) that defines each, in the order in which a
@@ -456,6 +456,14 @@ def sensor_kind(name: str, what: str = "measurement kind") -> SensorKind:
     if kind is None:
         raise ValueError(f"unknown {what} {name!r}; expected one of {list(kind_names())}")
     return kind
+
+
+def resolve_hook(spec: str):
+    """The object a kind's hook names (:attr:`SensorKind.simulator`, ``planner``, ``messy``):
+    ``"module:name"``, the module imported on first use (a higher floor's code, which the sensors
+    must not import at module level)."""
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def sensor_kinds() -> tuple[SensorKind, ...]:

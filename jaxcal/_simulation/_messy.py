@@ -617,26 +617,16 @@ def _session(measurement: str) -> MessySession:
     Raises:
         ValueError: no kind of that name offers a messy session; the message names those that do.
     """
-    import importlib
-
-    from .._sensors._kind import sensor_kind
+    from .._sensors._kind import resolve_hook, sensor_kind, sensor_kinds
 
     try:
         hook = sensor_kind(measurement).messy
     except ValueError:  # no kind of that name
         hook = None
     if hook is None:
-        offered = sorted(k.name for k in _kinds_with_messy())
+        offered = sorted(k.name for k in sensor_kinds() if k.messy is not None)
         raise ValueError(f"measurement must be {' or '.join(repr(k) for k in offered)}, got {measurement!r}")
-    module, _, name = hook.partition(":")
-    return getattr(importlib.import_module(module), name)
-
-
-def _kinds_with_messy():
-    """The sensor kinds that offer a messy session."""
-    from .._sensors._kind import sensor_kinds
-
-    return tuple(k for k in sensor_kinds() if k.messy is not None)
+    return resolve_hook(hook)
 
 
 def _truth_and_guess(keys: _Keys, robot: DHRobot, opt: _Options, dtype, session: MessySession) -> _Truth:

@@ -16,11 +16,10 @@ intrinsics, mount and tips, the two tips of a self-contact).
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 from collections.abc import Mapping
 
-__all__ = ["FileRequest", "SimulatedFile", "simulate_file", "simulated_kinds", "UNKNOWN_ANCHOR_STD_MM",
+__all__ = ["FileRequest", "SimulatedFile", "simulate_file", "UNKNOWN_ANCHOR_STD_MM",
            "UNKNOWN_OFFSET_STD_MM", "CAMERA_TARGET", "CAMERA_INTRINSICS", "CAMERA_IMAGE_SIZE"]
 
 #: ``--unknown-anchor``: σ per axis (mm) of the true anchor around the default one, and σ (mm) of
@@ -96,13 +95,6 @@ class SimulatedFile:
     summary: str
 
 
-def simulated_kinds() -> tuple[str, ...]:
-    """The names of the kinds that have a file simulator, in the registry's order."""
-    from .._sensors._kind import sensor_kinds
-
-    return tuple(k.name for k in sensor_kinds() if k.simulator is not None)
-
-
 def simulate_file(kind, request: FileRequest) -> SimulatedFile:
     """A simulated data file of ``kind`` (a :class:`~jaxcal._sensors._kind.SensorKind` or its name)
     by the kind's own simulator (:attr:`SensorKind.simulator`).
@@ -111,14 +103,13 @@ def simulate_file(kind, request: FileRequest) -> SimulatedFile:
         ValueError: a kind that is not simulated, an option that does not apply to it, or a set-up
             the robot cannot give (the message in the command line's words).
     """
-    from .._sensors._kind import sensor_kind
+    from .._sensors._kind import resolve_hook, sensor_kind, simulated_kind_names
 
     k = sensor_kind(kind) if isinstance(kind, str) else kind
     if k.simulator is None:
         raise ValueError(f"{k.name} data are not simulated; `jaxcal simulate` writes "
-                         f"{', '.join(simulated_kinds())} data")
-    module, _, name = k.simulator.partition(":")
-    return getattr(importlib.import_module(module), name)(k, request)
+                         f"{', '.join(simulated_kind_names())} data")
+    return resolve_hook(k.simulator)(k, request)
 
 
 # -- checks shared by the simulators ---------------------------------------------------------------
@@ -180,7 +171,7 @@ def cable_file(kind, request: FileRequest) -> SimulatedFile:
         vals["cable_offset"] = jnp.full_like(vals["cable_offset"], offset)
     truth = Deviations(vals, truth.layout)
     if not request.unknown_anchor:
-        setup = {"anchor_mm": ",".join(f"{float(v):.6g}" for v in measurement.anchor)}
+        setup = kind.plan_lines(measurement)  # the anchor line a planned file has
     else:  # the truth to the last bit: --like simulates from these lines
         setup = {"true_anchor_mm": ",".join(repr(float(v)) for v in measurement.anchor),
                  "true_cable_offset_mm": repr(float(truth.cable_offset))}

@@ -13,12 +13,11 @@ from ._calibrate_setup import _calibration_setup
 from ._calibrate_several import _cmd_calibrate_combined, _cmd_calibrate_fleet
 from ._common import _EXIT_FAILED, _as_usage, _today, _Usage
 from ._tables import (
-    _metrics_rows,
+    _accuracy_table,
     _outlier_line,
-    _print_chain_table,
-    _print_dh_table,
     _print_estimates,
     _print_outliers_and_warnings,
+    _print_robot_table,
 )
 
 _T0 = time.perf_counter()  # the command line's start (before JAX is imported)
@@ -192,7 +191,7 @@ def _accuracy(args, setup, split, res):
     import numpy as np
 
     from .._calibration._evaluate import before_after_errors, evaluate_result, joints_to_file_units, sample_errors
-    from .._core._metrics import format_table, metrics_numpy
+    from .._core._metrics import metrics_numpy
     from .._core._params import Deviations
 
     robot, measurement, train, test_file = setup.robot, split.measurement, split.train, setup.test_file
@@ -229,9 +228,9 @@ def _accuracy(args, setup, split, res):
         rows += part("test", split.test, split.test_rows)
     print()
     unit = getattr(measurement, "unit", "mm")  # px for camera data
-    print(format_table(_metrics_rows(rows), ["data", f"RMSE/{unit}", f"MEAN/{unit}", f"MAX/{unit}"],
-                       title=f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
-                             f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile {res.compile_time_s:.1f} s)"))
+    print(_accuracy_table(rows, unit, f"Accuracy before/after calibration ({res.method}: {res.status.name.lower()}, "
+                                      f"{res.n_iterations} iterations, {res.wall_time_s:.3f} s + compile "
+                                      f"{res.compile_time_s:.1f} s)"))
     print("before = the nominal robot with the sensor extras estimated from the data (closed-form start)"
           + ("; raw nominal = the guessed extras, nothing estimated" if show_raw else "")
           + (f"; {measurement.row_error}" if measurement.row_error else "")
@@ -253,10 +252,7 @@ def _print_findings(args, setup, split, res) -> list[int]:
     robot, measurement, checks = setup.robot, split.measurement, setup.checks
     unit = getattr(measurement, "unit", "mm")  # px for camera data
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
-    if robot.dh_rows_deg() is not None:  # a DH table; a generic chain prints its per-joint corrections
-        _print_dh_table(robot, res, sd)
-    else:
-        _print_chain_table(robot, res, sd)
+    _print_robot_table(robot, res, sd)
     _print_estimates(res, sd, setup.extras, unit)
     rate, n_file, where = checks.outlier_rate, _file_rows(split), str(setup.path)
     _print_outliers_and_warnings(res, args, lambda i: split.train_file_rows([i])[0], where, rate, n_file)

@@ -126,7 +126,7 @@ def _print_block_tables(res, results: dict, setups, out_dir) -> dict:
     single command's entries: before/after metrics, per-row errors of its 1-based data rows)."""
     from .._calibration._evaluate import before_after_errors, joints_to_file_units
     from .._core._metrics import metrics_numpy
-    from ._tables import _accuracy_table, _extras_line, _print_chain_table, _print_dh_table, _print_nongeometric
+    from ._tables import _accuracy_table, _extras_line, _print_nongeometric, _print_robot_table
 
     robot = res.robot
     print(f"\nAccuracy before/after calibration, per block in its own unit ({res.method}: "
@@ -150,10 +150,7 @@ def _print_block_tables(res, results: dict, setups, out_dir) -> dict:
           + "; every row of every file trains, so these are training numbers: nothing was held out (jaxcal evaluate "
           f"{pathlib.Path(out_dir) / (res.blocks[0].name + '.json')} NEW.csv checks a block on new rows)")
     sd = res.uncertainty.std_display() if res.uncertainty is not None else {}
-    if robot.dh_rows_deg() is not None:  # a DH table; a generic chain or a tree prints its per-joint corrections
-        _print_dh_table(robot, res, sd)
-    else:
-        _print_chain_table(robot, res, sd)
+    _print_robot_table(robot, res, sd)
     asked = sorted({e for s in setups for e in s.estimate})  # one line over the combined layout: a shared
     line = _extras_line(res, sd, asked)  # extra (the tool, a plane both arms touch) is one entry, printed once
     if line is not None:

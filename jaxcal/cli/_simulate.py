@@ -131,8 +131,7 @@ def _json_format(path) -> str | None:
 def _check_simulated(kind, src) -> None:
     """Raises _Usage: ``kind`` is not one ``jaxcal simulate`` writes (nor so ``--like`` re-simulates):
     a kind without a simulator (``SensorKind.simulator``), or no kind at all."""
-    from .._sensors._kind import sensor_kind
-    from .._simulation._simulate_files import simulated_kinds
+    from .._sensors._kind import sensor_kind, simulated_kind_names
 
     try:
         simulated = sensor_kind(str(kind)).simulator is not None
@@ -140,7 +139,7 @@ def _check_simulated(kind, src) -> None:
         simulated = False
     if not simulated:
         raise _Usage(f"--like cannot re-simulate {kind} data ({src}): `jaxcal simulate` writes "
-                     f"{', '.join(simulated_kinds())} data only; measure a new file instead")
+                     f"{', '.join(simulated_kind_names())} data only; measure a new file instead")
 
 
 def _like_file(args, res, path, source: str) -> int:

@@ -66,6 +66,14 @@ def _marks(res):
     return lambda name: "†" if verdicts is not None and verdicts.verdict.get(name) == PRIOR else ""
 
 
+def _print_robot_table(robot, res, sd) -> None:
+    """The calibrated robot: its DH table, or a generic chain's or a tree's per-joint corrections."""
+    if robot.dh_rows_deg() is not None:
+        _print_dh_table(robot, res, sd)
+    else:
+        _print_chain_table(robot, res, sd)
+
+
 def _print_chain_table(robot, res, sd) -> None:
     """Per-joint corrections of a generic chain: offset (°, or mm at prismatic joints), dx, dy, dz
     (mm), drx, dry, drz (°), and a last row with the tip transform's tip_dx … tip_drz; ± one
