@@ -42,9 +42,13 @@ cameras' extrinsics fixed at the first stage's values, on the same blocks as ``a
 Speed row: ``all three`` (contact + planes + both cameras, ~10 000 residual entries), the Python
 ``jaxcal.calibrate_blocks`` timed cold in a fresh process (imports and compilation included) and
 warm (a second call in that process), and one warm LM solve of the final problem's whitened
-residual against ``scipy.optimize.least_squares(method="lm")`` of the same residual (jitted JAX
-residual, 2-point finite-difference Jacobian: what the CTU toolbox's ``lsqnonlin`` does), both from
-the same start (the extras' closed-form start, robot at nominal) on the same free set.
+residual against ``scipy.optimize.least_squares(method="lm", jac="2-point")`` of the same residual
+(a finite-difference Jacobian), both from the same start (the extras' closed-form start, robot at
+nominal) on the same free set. scipy twice: on a plain NumPy transcription of the residual
+(``benchmarks/_numpy_tree_residual.py``, vectorised over rows, float64: what the CTU toolbox gives
+MATLAB's ``lsqnonlin``; checked equal to jaxcal's residual at the start and at the solution, the run
+fails if it is not within 1e-9 relative), the issue's baseline; and on jaxcal's own jitted JAX
+residual (the strongest scipy baseline there is, not what the toolbox does).
 
 Run: ``python benchmarks/bench_multiarm.py`` (about 12 min on 2 busy CPU cores) or ``--quick``
 (small sizes, a smoke run). Writes ``benchmarks/results/multiarm_cpu.md`` (or ``--out``).
@@ -69,6 +73,7 @@ jax.config.update("jax_enable_x64", True)
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from _common import machine, median_time  # noqa: E402
+from _numpy_tree_residual import NumpyTreeResidual  # noqa: E402
 
 import jaxcal  # noqa: E402
 from jaxcal import Block, Camera, Position, SelfContact  # noqa: E402
@@ -251,7 +256,10 @@ def lm_vs_scipy(tree, blocks, res, repeats: int = 3) -> dict:
     Jacobian on one problem: every block with σ given (the variance components of ``res``), no
     prior, the identifiable subset jaxcal frees, from the same start (the robot nominal, the
     extras in closed form). jaxcal: ``calibrate_blocks`` on that space, warm (one round: σ given;
-    its identifiability check and diagnostics included); scipy: the same jitted JAX residual."""
+    its identifiability check and diagnostics included), and its jitted LM solve alone; scipy:
+    on the plain NumPy transcription of the residual (the CTU toolbox's way), and on the same
+    jitted JAX residual (the strongest scipy baseline). Both residuals hold every row's own
+    entries (``Combined.residual_entries``: no padding)."""
     from scipy.optimize import least_squares
 
     blks = [Block(b.name, b.measurement, b.data, res.sigma[b.name], b.extras) for b in (blocks[n][0] for n in ALL)]
@@ -267,13 +275,13 @@ def lm_vs_scipy(tree, blocks, res, repeats: int = 3) -> dict:
             rj = jaxcal.calibrate_blocks(tree, blks, **kw)
             tj.append(time.perf_counter() - t)
     comb, q, y = combine(tree, blks)
-    obs = np.asarray(comb.observed(y))
+    entries = comb.residual_entries(q.shape[0])
     qd, yd = jnp.asarray(q), jnp.asarray(y)
 
     @jax.jit
     def resid(x):
-        r = comb.residual(tree, space.from_vector(x, start), qd, yd)
-        return jnp.where(obs, r, 0.0).ravel()
+        r = comb.residual(tree, space.from_vector(x, start), qd, yd).reshape(-1)
+        return r if entries is None else r[entries]
 
     # the pure LM solve (jaxcal.Calibrator, jitted), as benchmarks/bench_lm_scipy.py times it
     import equinox as eqx
@@ -288,19 +296,61 @@ def lm_vs_scipy(tree, blocks, res, repeats: int = 3) -> dict:
     t_solve = median_time(run, dyn, qd, yd, key, repeats=5)
     out = run(dyn, qd, yd, key)
     x0 = space.to_vector_numpy(start)
-    fun = lambda x: np.asarray(resid(jnp.asarray(x)))  # noqa: E731
-    fun(x0)  # compile the residual (not timed)
-    ts = []
-    for _ in range(max(1, repeats - 2)):
-        t = time.perf_counter()
-        sol = least_squares(fun, x0, method="lm", jac="2-point", x_scale="jac")
-        ts.append(time.perf_counter() - t)
-    cost_j = float(np.sum(fun(space.to_vector_numpy(rj.deviations)) ** 2))
-    cost_solve = float(np.sum(fun(np.asarray(out.x)) ** 2))
-    return dict(solve_s=t_solve, solve_steps=int(out.n_iterations), cost_solve=cost_solve,
-                jax_s=float(np.median(tj)), scipy_s=float(np.median(ts)), scipy_nfev=int(sol.nfev),
-                cost_jax=cost_j, cost_scipy=float(np.sum(sol.fun**2)), p=int(x0.size), m=int(obs.sum()),
-                cost_start=float(np.sum(fun(x0) ** 2)), jax_steps=int(rj.n_iterations))
+    fun_jax = lambda x: np.asarray(resid(jnp.asarray(x)))  # noqa: E731
+    fun_np = NumpyTreeResidual(tree, comb, q, y, space, start)
+
+    def check(x, where):
+        """The NumPy transcription against jaxcal's residual at ``x``: max |Δ| and |Δ| / max |r|."""
+        r, rn = fun_jax(x), fun_np(x)
+        if rn.shape != r.shape:
+            raise SystemExit(f"NumPy transcription at {where}: {rn.shape[0]} entries, jaxcal's residual {r.shape[0]}")
+        diff = float(np.max(np.abs(rn - r)))
+        rel = diff / float(np.max(np.abs(r)))
+        print(f"NumPy transcription vs comb.residual at {where}: max |diff| {diff:.3g} (relative {rel:.3g})",
+              flush=True)
+        if not rel <= 1e-9:
+            raise SystemExit(f"the NumPy transcription differs from jaxcal's residual at {where}: max |diff| "
+                             f"{diff:.3g}, relative {rel:.3g} > 1e-9")
+        return rel
+
+    rel_start = check(x0, "the start")
+    rel_end = check(np.asarray(out.x), "jaxcal's solution")
+    counted = {"n": 0}
+
+    def counting(fun):
+        def f(x):
+            counted["n"] += 1
+            return fun(x)
+        return f
+
+    t_eval_np = float(np.median([_timed(fun_np, x0) for _ in range(20)]))
+    t_eval_jax = float(np.median([_timed(fun_jax, x0) for _ in range(20)]))
+    runs = {}
+    for name, fun in (("np", fun_np), ("jax", fun_jax)):
+        ts = []
+        for _ in range(max(1, repeats - 2)):
+            counted["n"] = 0
+            t = time.perf_counter()
+            sol = least_squares(counting(fun), x0, method="lm", jac="2-point", x_scale="jac")
+            ts.append(time.perf_counter() - t)
+        runs[name] = (float(np.median(ts)), sol, counted["n"])
+    rel_scipy = check(runs["np"][1].x, "scipy's solution")
+    cost = lambda x: float(np.sum(fun_jax(x) ** 2))  # noqa: E731
+    return dict(solve_s=t_solve, solve_steps=int(out.n_iterations), cost_solve=cost(np.asarray(out.x)),
+                jax_s=float(np.median(tj)), jax_steps=int(rj.n_iterations),
+                cost_jax=cost(space.to_vector_numpy(rj.deviations)), p=int(x0.size), m=int(fun_np(x0).size),
+                cost_start=cost(x0), check_rel=max(rel_start, rel_end, rel_scipy),
+                eval_np_s=t_eval_np, eval_jax_s=t_eval_jax,
+                scipy_np_s=runs["np"][0], scipy_np_nfev=int(runs["np"][1].nfev), scipy_np_calls=runs["np"][2],
+                cost_scipy_np=cost(runs["np"][1].x),
+                scipy_s=runs["jax"][0], scipy_nfev=int(runs["jax"][1].nfev), scipy_calls=runs["jax"][2],
+                cost_scipy=cost(runs["jax"][1].x))
+
+
+def _timed(fun, x) -> float:
+    t = time.perf_counter()
+    fun(x)
+    return time.perf_counter() - t
 
 
 T_IMPORT = 0.0
@@ -353,7 +403,11 @@ def main() -> None:
 def run_speed(args) -> dict:
     """The speed row in a fresh process (cold = its first ``calibrate_blocks``)."""
     cmd = [sys.executable, __file__, "--speed-child"] + (["--quick"] if args.quick else [])
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode:
+        sys.exit(f"the speed run failed (exit {proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+    out = proc.stdout
+    print("\n".join(ln for ln in out.splitlines() if ln.startswith("NumPy transcription")))
     speed = json.loads(next(ln for ln in out.splitlines() if ln.startswith("SPEED "))[6:])
     print(speed)
     return speed
@@ -377,25 +431,38 @@ def write(args, sizes, rows, speed, total, load):
 
 
 def speed_lines(speed, load, args):
+    ratio = lambda a, b: f"{a / b:.1f}×"  # noqa: E731
     return ["## Speed: every block (all three)", "",
-                  f"{speed['n']} training residual entries, {speed['free']} free parameters (rank {speed['rank']}), "
-                  f"{speed['rounds']} variance-component rounds. Under load (load average {load[0]:.2f} → {load[1]:.2f} "
-                  f"while it ran): upper bounds. scipy calls the same jitted JAX residual (its compilation not "
-                  f"timed): faster than the CTU toolbox's MATLAB residual, so the ratio is a lower bound.", "",
-                  "| what | time / s |", "|---|---|",
-                  f"| `calibrate_blocks` cold, fresh process (after `import jaxcal` and simulation) | {speed['cold']:.2f} |",
-                  f"| `calibrate_blocks` warm, same process | {speed['warm']:.2f} |",
-                  f"| `calibrate_blocks`, σ given, no prior, the identifiable {speed['p']} parameters, warm "
-                  f"({speed['jax_steps']} LM steps) | {speed['jax_s']:.3f} |",
-                  f"| scipy `least_squares(method='lm')`, 2-point FD Jacobian, same residual (nfev {speed['scipy_nfev']} as scipy reports it) "
-                  f"| {speed['scipy_s']:.2f} |",
-                  f"| jaxcal's LM solve alone (`jaxcal.Calibrator`, jitted, warm; {speed['solve_steps']} steps) "
-                  f"| {speed['solve_s']:.3f} |",
-                  f"| **ratio scipy / jaxcal LM solve** | **{speed['scipy_s'] / speed['solve_s']:.1f}×** |",
-                  f"| ratio scipy / jaxcal `calibrate_blocks` (with its checks) | {speed['scipy_s'] / speed['jax_s']:.1f}× |", "",
-                  f"Cost (sum of squared whitened residuals) at the start {speed['cost_start']:.4g}; at the end: jaxcal {speed['cost_jax']:.2f} "
-                  f"(the solve alone {speed['cost_solve']:.2f}), "
-                  f"scipy {speed['cost_scipy']:.2f} ({speed['p']} parameters, {speed['m']} entries).", ""]
+            f"{speed['n']} training residual entries, {speed['free']} free parameters (rank {speed['rank']}), "
+            f"{speed['rounds']} variance-component rounds. Under load (load average {load[0]:.2f} → {load[1]:.2f} "
+            f"while it ran): upper bounds. scipy runs twice, from jaxcal's start on jaxcal's free set: on a plain "
+            f"NumPy transcription of the residual (`benchmarks/_numpy_tree_residual.py`, vectorised over rows: what "
+            f"the CTU toolbox gives MATLAB's `lsqnonlin`; equal to jaxcal's residual within "
+            f"{speed['check_rel']:.1g} relative at the start and at both solutions), the issue's baseline; and on "
+            f"jaxcal's own jitted JAX residual (its compilation not timed), the strongest scipy baseline there is. "
+            f"One residual evaluation: NumPy {1e3 * speed['eval_np_s']:.2f} ms, jitted JAX "
+            f"{1e3 * speed['eval_jax_s']:.2f} ms.", "",
+            "| what | time / s |", "|---|---|",
+            f"| `calibrate_blocks` cold, fresh process (after `import jaxcal` and simulation) | {speed['cold']:.2f} |",
+            f"| `calibrate_blocks` warm, same process | {speed['warm']:.2f} |",
+            f"| `calibrate_blocks`, σ given, no prior, the identifiable {speed['p']} parameters, warm "
+            f"({speed['jax_steps']} LM steps) | {speed['jax_s']:.3f} |",
+            f"| jaxcal's LM solve alone (`jaxcal.Calibrator`, jitted, warm; {speed['solve_steps']} steps) "
+            f"| {speed['solve_s']:.3f} |",
+            f"| scipy `least_squares(method='lm', jac='2-point')`, **NumPy residual** ({speed['scipy_np_calls']} "
+            f"residual calls, FD columns included; nfev {speed['scipy_np_nfev']} as scipy reports it) "
+            f"| {speed['scipy_np_s']:.2f} |",
+            f"| scipy `least_squares(method='lm', jac='2-point')`, jitted JAX residual ({speed['scipy_calls']} "
+            f"residual calls; nfev {speed['scipy_nfev']}) | {speed['scipy_s']:.2f} |",
+            f"| **ratio scipy (NumPy residual, FD) / jaxcal LM solve** | "
+            f"**{ratio(speed['scipy_np_s'], speed['solve_s'])}** |",
+            f"| ratio scipy (jitted JAX residual, FD) / jaxcal LM solve | {ratio(speed['scipy_s'], speed['solve_s'])} |",
+            f"| ratio scipy (NumPy residual, FD) / jaxcal `calibrate_blocks` (with its checks) | "
+            f"{ratio(speed['scipy_np_s'], speed['jax_s'])} |", "",
+            f"Cost (sum of squared whitened residuals) at the start {speed['cost_start']:.4g}; at the end: jaxcal "
+            f"{speed['cost_jax']:.2f} (the solve alone {speed['cost_solve']:.2f}), scipy on the NumPy residual "
+            f"{speed['cost_scipy_np']:.2f}, on the JAX residual {speed['cost_scipy']:.2f} ({speed['p']} parameters, "
+            f"{speed['m']} entries).", ""]
 
 
 if __name__ == "__main__":
