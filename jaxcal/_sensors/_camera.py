@@ -486,33 +486,40 @@ _affine_project.defjvp(_affine_project_jvp, symbolic_zeros=True)
 
 # -- NumPy geometry ------------------------------------------------------------------------------
 def _log(R) -> np.ndarray:
-    """Rotation vector of ``R`` ``[3, 3]`` (rad), accurate near 0 and π (via the quaternion)."""
+    """Rotation vectors ``[..., 3]`` of ``R`` ``[..., 3, 3]`` (rad), accurate near 0 and π (via the
+    quaternion: Shepperd's branch on the trace or the largest diagonal entry, per matrix)."""
     R = np.asarray(R, np.float64)
-    tr = np.trace(R)
-    q = np.empty(4)  # w, x, y, z
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        q[:] = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
-    else:
-        i = int(np.argmax(np.diag(R)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = math.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k]) * 2
-        q[0] = (R[k, j] - R[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (R[j, i] + R[i, j]) / s
-        q[1 + k] = (R[k, i] + R[i, k]) / s
-    if q[0] < 0:
-        q = -q
-    v = q[1:]
-    sv = np.linalg.norm(v)
-    if sv < 1e-15:
-        return 2 * v
-    return 2 * math.atan2(sv, q[0]) * v / sv
+    tr = np.trace(R, axis1=-2, axis2=-1)
+    d = np.diagonal(R, axis1=-2, axis2=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):  # the branches not taken may divide by 0
+        s = np.sqrt(tr + 1.0) * 2
+        q = np.stack([0.25 * s, (R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
+                      (R[..., 1, 0] - R[..., 0, 1]) / s], -1)  # w, x, y, z
+        big = np.argmax(d, axis=-1)
+        for i in range(3):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            s = np.sqrt(1.0 + R[..., i, i] - R[..., j, j] - R[..., k, k]) * 2
+            qi = np.empty_like(q)
+            qi[..., 0] = (R[..., k, j] - R[..., j, k]) / s
+            qi[..., 1 + i] = 0.25 * s
+            qi[..., 1 + j] = (R[..., j, i] + R[..., i, j]) / s
+            qi[..., 1 + k] = (R[..., k, i] + R[..., i, k]) / s
+            q = np.where(((tr <= 0) & (big == i))[..., None], qi, q)
+    q = np.where(q[..., :1] < 0, -q, q)
+    v = q[..., 1:]
+    sv = np.linalg.norm(v, axis=-1)
+    small = sv < 1e-15
+    return np.where(small[..., None], 2 * v,
+                    (2 * np.arctan2(sv, q[..., 0]))[..., None] * v / np.where(small, 1.0, sv)[..., None])
 
 
 def _project_rotation(M) -> np.ndarray:
+    """The rotations nearest ``M`` ``[..., 3, 3]`` (``U diag(1, 1, ±1) Vᵀ``, det = +1)."""
     U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0]) @ Vt
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.ones(d.shape + (3,))
+    D[..., 2] = np.where(d == 0, 1.0, d)
+    return (U * D[..., None, :]) @ Vt
 
 
 def _inv(T) -> np.ndarray:
@@ -526,8 +533,10 @@ def _inv(T) -> np.ndarray:
 
 
 def _T(R, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
+    """Homogeneous transforms ``[..., 4, 4]`` of ``R`` ``[..., 3, 3]`` and ``t`` ``[..., 3]``."""
+    R = np.asarray(R, np.float64)
+    T = np.zeros(R.shape[:-2] + (4, 4))
+    T[..., :3, :3], T[..., :3, 3], T[..., 3, 3] = R, t, 1.0
     return T
 
 
@@ -556,56 +565,205 @@ def undistort_points(uv, intrinsics, iterations: int = 20) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def _normalise_2d(p):
-    c = p.mean(axis=0)
-    s = math.sqrt(2) / max(np.mean(np.linalg.norm(p - c, axis=1)), 1e-12)
-    return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1]])
+def _null_vector(A) -> np.ndarray:
+    """Unit right singular vectors ``[m, p]`` of the smallest singular value of ``A`` ``[m, r, p]``
+    (the DLT solution; rows of zeros, e.g. undetected points, change nothing). Fewer rows than
+    unknowns are padded with zero rows, so the minimal case gets the null vector, not the
+    smallest non-zero direction. A matrix with a non-finite entry gets NaN (alone)."""
+    m, r, p = A.shape
+    bad = ~np.isfinite(A).all(axis=(1, 2))
+    A = np.where(bad[:, None, None], 0.0, A)
+    if r < p:
+        A = np.concatenate([A, np.zeros((m, p - r, p))], axis=1)
+    v = np.linalg.svd(A, full_matrices=False)[2][:, -1]
+    return np.where(bad[:, None], np.nan, v)
 
 
-def _homography(src, dst) -> np.ndarray:
-    """``H`` ``[3, 3]`` with ``dst ~ H src`` (normalised DLT, Hartley & Zisserman Alg. 4.2)."""
-    Ts, Td = _normalise_2d(src), _normalise_2d(dst)
-    s = (np.c_[src, np.ones(len(src))] @ Ts.T)
-    d = (np.c_[dst, np.ones(len(dst))] @ Td.T)
-    A = []
-    for (x, y, w), (u, v, z) in zip(s, d):
-        A.append([0, 0, 0, -z * x, -z * y, -z * w, v * x, v * y, v * w])
-        A.append([z * x, z * y, z * w, 0, 0, 0, -u * x, -u * y, -u * w])
-    H = np.linalg.svd(np.asarray(A), full_matrices=False)[2][-1].reshape(3, 3)
+def _normalise_2d(p, w):
+    """Hartley's normalising similarities ``[m, 3, 3]`` of points ``p`` ``[m, N, 2]`` over the
+    points with weight ``w`` ``[m, N]`` = 1 (0: not detected): centroid to 0, mean distance √2."""
+    n = w.sum(axis=1)
+    c = np.sum(p * w[..., None], axis=1) / n[:, None]
+    s = math.sqrt(2) / np.maximum(np.sum(w * np.linalg.norm(p - c[:, None], axis=-1), axis=1) / n, 1e-12)
+    T = np.zeros((len(p), 3, 3))
+    T[:, 0, 0], T[:, 1, 1], T[:, 2, 2] = s, s, 1.0
+    T[:, :2, 2] = -s[:, None] * c
+    return T
+
+
+def _homography(src, dst, w) -> np.ndarray:
+    """``H`` ``[m, 3, 3]`` with ``dst ~ H src`` (normalised DLT, Hartley & Zisserman Alg. 4.2) per
+    image from ``src``, ``dst`` ``[m, N, 2]`` over the points with weight ``w`` ``[m, N]`` = 1."""
+    Ts, Td = _normalise_2d(src, w), _normalise_2d(dst, w)
+    one = np.ones(src.shape[:-1] + (1,))
+    s = np.concatenate([src, one], axis=-1) @ np.swapaxes(Ts, 1, 2)
+    d = np.concatenate([dst, one], axis=-1) @ np.swapaxes(Td, 1, 2)
+    x, y, v_s, u, v, z = s[..., 0], s[..., 1], s[..., 2], d[..., 0], d[..., 1], d[..., 2]
+    o = np.zeros_like(x)
+    A = np.stack([np.stack([o, o, o, -z * x, -z * y, -z * v_s, v * x, v * y, v * v_s], axis=-1),
+                  np.stack([z * x, z * y, z * v_s, o, o, o, -u * x, -u * y, -u * v_s], axis=-1)], axis=2)
+    H = _null_vector((A * w[..., None, None]).reshape(len(src), -1, 9)).reshape(-1, 3, 3)
     return np.linalg.inv(Td) @ H @ Ts
 
 
-def _pose_residual(R, t, pts, uv, k):
-    return (project_points(pts @ R.T + t, k) - uv).ravel()
+def _pose_residuals(R, t, pts, uv, ok, k):
+    """Reprojection errors ``[..., N, 2]`` (px) of the target points ``pts`` ``[N, 3]`` at poses
+    ``R`` ``[..., 3, 3]``, ``t`` ``[..., 3]``; 0 where ``ok`` ``[..., N]`` is False (not detected)."""
+    r = project_points(pts @ np.swapaxes(R, -1, -2) + t[..., None, :], k) - uv
+    return np.where(ok[..., None], r, 0.0)
 
 
-def _refine_pose(R, t, pts, uv, k, iterations: int = 30):
-    """Levenberg–Marquardt on the pixel reprojection error of one pose (6 unknowns, central
-    difference Jacobian; the update ``R ← exp(δ)·R``)."""
-    r = _pose_residual(R, t, pts, uv, k)
-    lam = 1e-3
+def _squares(r):
+    """``Σ r²`` ``[m]`` of residuals ``[m, N, 2]`` (a BLAS dot product per image)."""
+    f = r.reshape(len(r), 1, -1)
+    return (f @ np.swapaxes(f, 1, 2))[:, 0, 0]
+
+
+def _solve_each(A, b):
+    """``np.linalg.solve`` of a stack ``A`` ``[m, 6, 6]``, ``b`` ``[m, 6]``; a singular matrix
+    gives a NaN solution and its index in the second output, the others are solved."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0], np.zeros(len(A), bool)
+    except np.linalg.LinAlgError:
+        x, singular = np.full(b.shape, np.nan), np.zeros(len(A), bool)
+        for i in range(len(A)):
+            try:
+                x[i] = np.linalg.solve(A[i], b[i])
+            except np.linalg.LinAlgError:
+                singular[i] = True
+        return x, singular
+
+
+#: central-difference steps of the pose fit: rotation vector (rad), translation (mm)
+_PNP_STEPS = np.array([1e-7] * 3 + [1e-5] * 3)
+
+
+def _refine_poses(R, t, pts, uv, ok, k, iterations: int = 30):
+    """Levenberg–Marquardt on the pixel reprojection error of ``m`` images' poses side by side.
+
+    Each image is its own problem (6 unknowns, central-difference Jacobian, the update
+    ``R ← exp(δ)·R``, ``t ← t + δ``) with its own damping ``λ`` (÷10 on a decrease, ×10 on an
+    increase; given up above 1e10) and its own stop (a relative decrease of the squared error
+    below 1e-14, or ``iterations`` steps): a batched step runs the one-image iteration of every
+    image that is still going, so one image that fails or converges late does not change another.
+
+    Args:
+        R, t: ``[m, 3, 3]``, ``[m, 3]`` starting poses ``T_camera_target``.
+        pts: ``[N, 3]`` target points (mm); uv: ``[m, N, 2]`` px; ok: ``[m, N]`` detected.
+
+    Returns:
+        ``(R, t, r, singular)``: the poses, their residuals ``[m, N, 2]`` (0 where not detected)
+        and ``[m]`` whether the damped normal equations of an image were singular (its pose is
+        then the last one reached; :func:`solve_pnp` raises ``LinAlgError`` for it).
+    """
+    R, t = R.copy(), t.copy()
+    m = len(R)
+    e = np.diag(_PNP_STEPS)
+    Dp, Dm = rotvec_to_matrix_np(e[:, :3]), rotvec_to_matrix_np(-e[:, :3])  # [6, 3, 3]; I for j ≥ 3
+    r = _pose_residuals(R, t, pts, uv, ok, k)
+    ss = _squares(r)
+    lam = np.full(m, 1e-3)
+    going, singular = np.ones(m, bool), np.zeros(m, bool)
     for _ in range(iterations):
-        J = np.empty((r.size, 6))
-        for j in range(6):
-            e = np.zeros(6)
-            e[j] = 1e-7 if j < 3 else 1e-5
-            J[:, j] = (_pose_residual(rotvec_to_matrix_np(e[:3]) @ R, t + e[3:], pts, uv, k)
-                       - _pose_residual(rotvec_to_matrix_np(-e[:3]) @ R, t - e[3:], pts, uv, k)) / (2 * e[j])
-        H, g = J.T @ J, J.T @ r
-        while True:
-            step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g)
-            Rn, tn = rotvec_to_matrix_np(step[:3]) @ R, t + step[3:]
-            rn = _pose_residual(Rn, tn, pts, uv, k)
-            if rn @ rn < r @ r:
-                done = r @ r - rn @ rn < 1e-14 * (r @ r) + 1e-24
-                R, t, r, lam = Rn, tn, rn, lam / 10
-                break
-            lam *= 10
-            if lam > 1e10:
-                return R, t
-        if done:
+        a = np.flatnonzero(going)
+        if not a.size:
             break
-    return R, t
+        Rpm = np.stack([Dp @ R[a, None], Dm @ R[a, None]], axis=1)  # [ma, ±, 6, 3, 3]
+        tpm = np.stack([t[a, None] + e[:, 3:], t[a, None] - e[:, 3:]], axis=1)
+        rpm = _pose_residuals(Rpm, tpm, pts, uv[a, None, None], ok[a, None, None], k)
+        J = ((rpm[:, 0] - rpm[:, 1]) / (2 * _PNP_STEPS)[:, None, None]).reshape(len(a), 6, -1)
+        J = np.ascontiguousarray(np.swapaxes(J, 1, 2))  # [ma, 2N, 6]
+        H, g = np.swapaxes(J, 1, 2) @ J, (np.swapaxes(J, 1, 2) @ r[a].reshape(len(a), -1, 1))[..., 0]
+        dH = np.diagonal(H, axis1=1, axis2=2)
+        pend = np.arange(len(a))  # the images of this step still looking for a decrease
+        while pend.size:
+            i = a[pend]
+            step, sing = _solve_each(H[pend] + lam[i, None, None] * (np.eye(6) * (dH[pend] + 1e-12)[:, None, :]),
+                                     g[pend])
+            singular[i[sing]], going[i[sing]] = True, False
+            Rn, tn = rotvec_to_matrix_np(-step[:, :3]) @ R[i], t[i] - step[:, 3:]
+            rn = _pose_residuals(Rn, tn, pts, uv[i], ok[i], k)
+            ssn = _squares(rn)
+            acc = (ssn < ss[i]) & ~sing
+            ia = i[acc]
+            done = ss[ia] - ssn[acc] < 1e-14 * ss[ia] + 1e-24
+            R[ia], t[ia], r[ia], ss[ia], lam[ia] = Rn[acc], tn[acc], rn[acc], ssn[acc], lam[ia] / 10
+            going[ia[done]] = False
+            rej = ~acc & ~sing
+            lam[i[rej]] *= 10
+            stuck = rej & (lam[i] > 1e10)
+            going[i[stuck]] = False
+            pend = pend[rej & ~stuck]
+    return R, t, r, singular
+
+
+def _solve_pnp_images(points_mm, uv, intrinsics):
+    """:func:`solve_pnp` of ``n`` images of one target at once (NumPy over the images: each
+    step one array program, no loop over images).
+
+    Args:
+        points_mm: ``[N, 3]`` target points (mm); uv: ``[n, N, 2]`` px (NaN: not detected);
+        intrinsics: ``[9]`` (or ``[4]``/``[8]``).
+
+    Returns:
+        ``(R [n, 3, 3], t [n, 3], rms_px [n], errors)``: ``errors[i]`` is ``None`` or the
+        exception :func:`solve_pnp` raises for image ``i`` (its pose and RMS are then NaN).
+    """
+    P = np.asarray(points_mm, np.float64)
+    uv = np.asarray(uv, np.float64)
+    n = uv.shape[0]
+    k = np.concatenate([np.asarray(intrinsics, np.float64).ravel(), np.zeros(9)])[:9]
+    ok = np.isfinite(uv).all(axis=-1)
+    w = ok.astype(np.float64)
+    n_ok = ok.sum(axis=1)
+    errors: list = [None] * n
+    R, t = np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan)
+    # each image's detected points: centroid, principal axes (undetected rows are zero rows)
+    c = np.sum(np.where(ok[..., None], P, 0.0), axis=1) / np.maximum(n_ok, 1)[:, None]
+    Pc = np.where(ok[..., None], P - c[:, None], 0.0)
+    _, s, Vt = np.linalg.svd(Pc, full_matrices=False)
+    planar = s[:, -1] <= 1e-9 * s[:, 0]
+    need = np.where(planar, 4, 6)
+    for i in np.flatnonzero(n_ok < need):
+        errors[i] = ValueError(f"PnP needs at least {need[i]} detected points, got {n_ok[i]}")
+    xn = np.where(ok[..., None], undistort_points(uv, k), 0.0)
+    pl = np.flatnonzero(planar & (n_ok >= 4))
+    if pl.size:  # plane frame: origin c, axes Vt[0], Vt[1], normal Vt[2] (a right-handed frame)
+        E = Vt[pl].copy()
+        E[np.linalg.det(E) < 0, 2] *= -1
+        H = _homography(Pc[pl] @ np.swapaxes(E[:, :2], 1, 2), xn[pl], w[pl])
+        h1, h2, h3 = H[..., 0], H[..., 1], H[..., 2]
+        lam = 2.0 / (np.linalg.norm(h1, axis=-1) + np.linalg.norm(h2, axis=-1))
+        lam = np.where(h3[:, 2] * lam < 0, -lam, lam)[:, None]  # the target in front of the camera
+        r1, r2 = lam * h1, lam * h2
+        Rp = _project_rotation(np.stack([r1, r2, np.cross(r1, r2)], axis=-1))  # R_camera_plane
+        R[pl] = Rp @ E  # target frame: x_plane = E (x − c)
+        t[pl] = lam * h3 - (R[pl] @ c[pl, :, None])[..., 0]
+    gen = np.flatnonzero(~planar & (n_ok >= 6))
+    if gen.size:  # DLT of [R|t] on [X Y Z 1] (centred)
+        Xh = np.concatenate([Pc[gen], w[gen, :, None]], axis=-1)
+        x, y, o = xn[gen, :, :1], xn[gen, :, 1:], np.zeros_like(Xh)
+        A = np.stack([np.concatenate([Xh, o, -x * Xh], -1), np.concatenate([o, Xh, -y * Xh], -1)], axis=2)
+        M = _null_vector(A.reshape(len(gen), -1, 12)).reshape(-1, 3, 4)
+        M = M / np.cbrt(np.linalg.det(M[:, :, :3]))[:, None, None]
+        Rg = _project_rotation(M[:, :, :3])
+        tg = M[:, :, 3] - (Rg @ c[gen, :, None])[..., 0]
+        z = np.sum(w[gen] * (P @ np.swapaxes(Rg, 1, 2) + tg[:, None])[..., 2], axis=1) / n_ok[gen]
+        for i in gen[z < 0]:
+            errors[i] = ValueError("PnP: degenerate view (target behind the camera)")
+        R[gen[z >= 0]], t[gen[z >= 0]] = Rg[z >= 0], tg[z >= 0]
+    for i in np.flatnonzero(~(np.isfinite(R).all(axis=(1, 2)) & np.isfinite(t).all(axis=1))):
+        errors[i] = errors[i] or ValueError("PnP: degenerate view")
+    run = np.array([i for i in range(n) if errors[i] is None], dtype=int)
+    rms = np.full(n, np.nan)
+    if run.size:
+        R[run], t[run], r, singular = _refine_poses(R[run], t[run], P, uv[run], ok[run], k)
+        rms[run] = np.sqrt(np.sum(np.sum(r * r, axis=-1), axis=-1) / n_ok[run])
+        for i in run[singular]:
+            errors[i] = np.linalg.LinAlgError("PnP: singular normal equations in the pose fit")
+    bad = np.array([e is not None for e in errors], dtype=bool)
+    R[bad], t[bad], rms[bad] = np.nan, np.nan, np.nan
+    return R, t, rms, errors
 
 
 def solve_pnp(points_mm, uv, intrinsics):
@@ -620,53 +778,18 @@ def solve_pnp(points_mm, uv, intrinsics):
     largest): homography DLT from the plane's 2-D coordinates to the undistorted normalised
     image points, ``H ∝ [r1 r2 t]`` (Zhang 2000, §3.1), the rotation projected onto SO(3).
     Other targets: DLT of the ``3×4`` matrix ``[R|t]`` (≥ 6 points). Then Levenberg–Marquardt on
-    the pixel reprojection error with the distortion. Returns ``(R, t, rms_px)``.
+    the pixel reprojection error with the distortion. Returns ``(R, t, rms_px)``. Many images
+    of one target: :func:`initial_camera_extras` solves them together (the same computation
+    per image, batched over the images in NumPy).
 
     Raises:
         ValueError: too few detected points (4 planar, 6 otherwise) or a degenerate view.
     """
-    P = np.asarray(points_mm, np.float64)
     uv = np.asarray(uv, np.float64)
-    ok = np.isfinite(uv).all(axis=1)
-    P, uv = P[ok], uv[ok]
-    k = np.concatenate([np.asarray(intrinsics, np.float64).ravel(), np.zeros(9)])[:9]
-    c = P.mean(axis=0)
-    _, s, Vt = np.linalg.svd(P - c, full_matrices=False)
-    planar = s[-1] <= 1e-9 * s[0]
-    if len(P) < (4 if planar else 6):
-        raise ValueError(f"PnP needs at least {4 if planar else 6} detected points, got {len(P)}")
-    xn = undistort_points(uv, k)
-    if planar:  # plane frame: origin c, axes Vt[0], Vt[1], normal Vt[2] (a right-handed frame)
-        E = Vt.copy()
-        if np.linalg.det(E) < 0:
-            E[2] = -E[2]
-        q2 = (P - c) @ E[:2].T
-        H = _homography(q2, xn)
-        h1, h2, h3 = H[:, 0], H[:, 1], H[:, 2]
-        lam = 2.0 / (np.linalg.norm(h1) + np.linalg.norm(h2))
-        if h3[2] * lam < 0:  # the target in front of the camera
-            lam = -lam
-        r1, r2, t = lam * h1, lam * h2, lam * h3
-        Rp = _project_rotation(np.c_[r1, r2, np.cross(r1, r2)])  # R_camera_plane
-        R = Rp @ E  # target frame: x_plane = E (x − c)
-        t = t - R @ c
-    else:
-        A = []
-        for (X, Y, Zc), (x, y) in zip(P - c, xn):
-            A.append([X, Y, Zc, 1, 0, 0, 0, 0, -x * X, -x * Y, -x * Zc, -x])
-            A.append([0, 0, 0, 0, X, Y, Zc, 1, -y * X, -y * Y, -y * Zc, -y])
-        M = np.linalg.svd(np.asarray(A), full_matrices=False)[2][-1].reshape(3, 4)
-        scale = np.cbrt(np.linalg.det(M[:, :3]))
-        M = M / scale
-        R = _project_rotation(M[:, :3])
-        t = M[:, 3] - R @ c
-        if np.mean((P @ R.T + t)[:, 2]) < 0:
-            raise ValueError("PnP: degenerate view (target behind the camera)")
-    if not np.all(np.isfinite(R)) or not np.all(np.isfinite(t)):
-        raise ValueError("PnP: degenerate view")
-    R, t = _refine_pose(R, t, P, uv, k)
-    r = _pose_residual(R, t, P, uv, k).reshape(-1, 2)
-    return R, t, float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+    R, t, rms, errors = _solve_pnp_images(points_mm, uv[None], intrinsics)
+    if errors[0] is not None:
+        raise errors[0]
+    return R[0], t[0], float(rms[0])
 
 
 def hand_eye_park(gripper2base, target2cam):
@@ -688,11 +811,10 @@ def hand_eye_park(gripper2base, target2cam):
     n = G.shape[0]
     if n < 3:
         raise ValueError(f"hand-eye calibration needs at least 3 poses (2 motions), got {n}")
-    Gi, Ci = _inv(G), _inv(C)
-    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
-    A = np.stack([Gi[j] @ G[i] for i, j in pairs])
-    B = np.stack([C[j] @ Ci[i] for i, j in pairs])
-    M = sum(np.outer(_log(b[:3, :3]), _log(a[:3, :3])) for a, b in zip(A, B))
+    i, j = np.triu_indices(n, 1)  # the pairs i < j, in OpenCV's order
+    A = _inv(G)[j] @ G[i]
+    B = C[j] @ _inv(C)[i]
+    M = _log(B[:, :3, :3]).T @ _log(A[:, :3, :3])
     w, V = np.linalg.eigh(M.T @ M)
     if w.min() <= 1e-12 * max(w.max(), 1e-300):
         raise ValueError("hand-eye: the robot motions rotate about fewer than two distinct axes; "
@@ -748,7 +870,8 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
     """Closed-form start of the hand-eye transform and the target pose from the images.
 
     1. Per image, :func:`solve_pnp` → ``C_i = T_camera_target,i`` (images with too few detected
-       points are skipped).
+       points or a degenerate view are skipped); all images in one batched NumPy computation,
+       each image the computation of its own :func:`solve_pnp` call.
     2. The flange frames ``F_i`` of the robot at ``start`` (nominal DH part).
     3. :func:`hand_eye_park` with ``G_i = F_i`` (eye-in-hand) or ``F_i⁻¹`` (eye-to-hand) → ``X``;
        tip to tip, the relative motion ``F_A,i⁻¹F_B,i`` (tip B in tip A's frame, both from the
@@ -780,18 +903,11 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
     RX0, tX0, RB0, tB0, k = (np.asarray(a, np.float64) for a in measurement.frames(start, dtype))
     pts = np.asarray(measurement.points, np.float64)
     T = tip_frames(robot, measurement, q, start)
-    C, used, pnp_rms = [], [], []
-    for i in range(Y.shape[0]):
-        try:
-            R, t, e = solve_pnp(pts, Y[i], k)
-        except (ValueError, np.linalg.LinAlgError):
-            continue
-        C.append(_T(R, t))
-        used.append(i)
-        pnp_rms.append(e)
+    R, t, pnp_rms, errors = _solve_pnp_images(pts, Y, k)  # every image at once
+    used = np.array([i for i, e in enumerate(errors) if e is None], dtype=int)
     if len(used) < 3:
         raise ValueError(f"camera start: only {len(used)} image(s) with enough detected target points (need 3)")
-    C = np.stack(C)
+    C = _T(R[used], t[used])
     F = T[used]
     if measurement.mount == "tip_to_tip":  # the target's tip seen from the camera's: F_A⁻¹F_B
         F = _inv(F) @ np.asarray(fk_pose_jit(robot, q, start, tip=measurement.target_tip_for(robot)), np.float64)[used]
@@ -831,7 +947,7 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
         what = {"eye_in_hand": ("camera on the flange (T_flange_camera)", "target in the base frame"),
                 "eye_to_hand": ("camera in the base frame (T_base_camera)", "target on the flange")}[measurement.mount]
     msg = (f"extras from the data: per-image PnP on {len(used)} of {Y.shape[0]} images (median reprojection "
-           f"{np.median(pnp_rms):.3f} px), hand-eye by Park–Martin: {what[0]} at "
+           f"{np.median(pnp_rms[used]):.3f} px), hand-eye by Park–Martin: {what[0]} at "
            f"({', '.join(f'{v:.1f}' for v in X[:3, 3])}) mm, {what[1]} at "
            f"({', '.join(f'{v:.1f}' for v in B[:3, 3])}) mm (RMS reprojection error of the nominal robot "
            f"{before:.3g} → {after:.3g} px)")

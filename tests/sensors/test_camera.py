@@ -68,6 +68,43 @@ def test_jacobian_of_the_structured_projection(mount):
     np.testing.assert_allclose(J, fd, rtol=0, atol=1e-5 * np.abs(J).max())
 
 
+def test_pnp_of_many_images_is_each_image_alone():
+    """The batched PnP of initial_camera_extras (issue 51) against one solve_pnp call per image, on
+    noise-free images of known poses: the poses are recovered (to 1e-9), also from the minimal 4
+    detected corners (the DLT's null vector, not the smallest non-zero direction of an 8×9
+    system); an image of random corners (its fit does not converge to a good pose), an image with
+    3 corners and one with none do not change the others, and get solve_pnp's own messages."""
+    from jaxcal._core._rotvec import rotvec_to_matrix
+    from jaxcal._sensors._camera import _solve_pnp_images
+
+    rng = np.random.default_rng(7)
+    pts = checkerboard(9, 6, 20.0)
+    R = rotvec_to_matrix(rng.normal(0.0, 0.3, (6, 3)))
+    t = np.c_[rng.uniform(-120, -40, (6, 2)), rng.uniform(400, 800, 6)]
+    uv = project_points(np.einsum("nij,kj->nki", R, pts) + t[:, None], INTR)
+    uv[1, rng.permutation(54)[:20]] = np.nan  # some corners not detected
+    uv[2, [i for i in range(54) if i not in (0, 8, 45, 53)]] = np.nan  # the four outer corners
+    uv[3] = rng.uniform(0, 1000, (54, 2))  # random corners
+    uv[4, 3:] = np.nan
+    uv[5] = np.nan
+    Rb, tb, rms, errors = _solve_pnp_images(pts, uv, INTR)
+    for i in range(6):
+        if i >= 4:
+            assert isinstance(errors[i], ValueError) and np.isnan(rms[i])
+            with pytest.raises(ValueError, match=f"PnP needs at least 4 detected points, got {3 if i == 4 else 0}"):
+                solve_pnp(pts, uv[i], INTR)
+            continue
+        assert errors[i] is None
+        R1, t1, e1 = solve_pnp(pts, uv[i], INTR)
+        np.testing.assert_allclose(Rb[i], R1, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(tb[i], t1, rtol=1e-12)
+        assert rms[i] == pytest.approx(e1, rel=1e-9, abs=1e-12)
+        if i != 3:
+            np.testing.assert_allclose(Rb[i], R[i], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(tb[i], t[i], rtol=1e-9)
+            assert rms[i] < 1e-6
+    assert rms[3] > 10.0
+
 @pytest.mark.parametrize("mount", ["eye_in_hand", "eye_to_hand"])
 def test_hand_eye_start_matches_opencv(mount):
     """Park–Martin on the same simulated poses as cv2.calibrateHandEye(CALIB_HAND_EYE_PARK): the same
