@@ -114,6 +114,13 @@ def robot(request):
     return robots.get_robot(request.param)
 
 
+@pytest.fixture(scope="session")
+def paper_robot():
+    """The paper's robot, the ``hsr_jr680`` preset: one per test run (a robot is immutable), for
+    the modules that test one robot, not every preset (:func:`robot`)."""
+    return robots.hsr_jr680()
+
+
 def np_rz(t):
     c, s = np.cos(t), np.sin(t)
     return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])

@@ -27,11 +27,6 @@ from jaxcal._simulation._simulate_sensors import simulate_contact, simulate_dist
 SIGMA_PLANE, SIGMA_BAR = 0.05, 0.02
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return jaxcal.robots.hsr_jr680()
-
-
 def _dh_only(robot, dev):
     layout = layout_for(robot)
     return Deviations({g: v for g, v in dev.values.items() if g in layout.group_names}, layout)
@@ -58,14 +53,14 @@ def _stacked(pd, bd):
     return np.concatenate([pd.q, bd.q]), np.concatenate([np.pad(np.asarray(pd.y)[:, None], ((0, 0), (0, 6))), bd.y])
 
 
-def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot):
+def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(paper_robot):
     """Plane contact + a distance bar sharing the robot and the probe: σ of each block estimated by
     variance components (within 5 % of the truth on 3 seeds), and on fresh data of the same true
     set-up the whitened RMS (each block over its true σ) at the combined problem's floor (3 %)."""
     n = 800
     for seed in range(3):
-        planes, pd, bd, truth = _plane_and_bar(robot, seed, n)
-        res = _fit(robot, planes, pd, bd)
+        planes, pd, bd, truth = _plane_and_bar(paper_robot, seed, n)
+        res = _fit(paper_robot, planes, pd, bd)
         est = {s.name: s for s in res.blocks}
         print(seed, [s.line() for s in res.blocks], res.variance_rounds, res.block_report)
         assert abs(est["plane"].sigma_hat / SIGMA_PLANE - 1) < 0.05
@@ -91,8 +86,8 @@ def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot
             # itself (J·v = r), so the plane rows' information along it is their own RSS
             r, every = block_information(res, res.measurement, *_stacked(pd, bd), every=True)
             full = ParameterSpace.from_names(res.space.layout, res.space.layout.names)
-            v_all = length_scale_direction(robot, res.measurement, res.deviations, full)
-            assert v_all[full.free_names.index("a_2")] == pytest.approx(float(robot.a[1] + res.deviations.a[1]))
+            v_all = length_scale_direction(paper_robot, res.measurement, res.deviations, full)
+            assert v_all[full.free_names.index("a_2")] == pytest.approx(float(paper_robot.a[1] + res.deviations.a[1]))
             assert v_all[full.free_names.index("theta_2")] == 0.0
             v = free_scale_direction(v_all, every, res.space.free)
             idx = res.space.free_index
@@ -106,7 +101,7 @@ def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot
         layout = res.space.layout
         t = Deviations({g: v for g, v in truth.values.items() if g in layout.group_names}, layout)
         q, y = _stacked(pd, bd)
-        realised = [float(np.sqrt(np.mean(np.asarray(r) ** 2))) for r in model.block_residuals(robot, t, q, y)]
+        realised = [float(np.sqrt(np.mean(np.asarray(r) ** 2))) for r in model.block_residuals(paper_robot, t, q, y)]
         assert abs(est["plane"].sigma_hat / realised[0] - 1) < 0.02 and abs(est["bar"].sigma_hat / realised[1] - 1) < 0.02
         assert not est["plane"].sigma_given and est["plane"].kind == "plane" and est["bar"].unit == "mm"
         # the redundancies share the residual degrees of freedom: Σ r_b = N − rank J (p, or one less
@@ -116,10 +111,10 @@ def test_plane_and_distance_bar_at_the_combined_floor_with_sigma_estimated(robot
         if seed == 0:  # 2 × n fresh rows per sensor, drawn at the training shapes (programs compiled once)
             r = []
             for fresh_seed in (50, 51):
-                _, tp, tb, _ = _plane_and_bar(robot, fresh_seed, n, truth=truth)
-                model, q, y = combine(robot, [Block("plane", planes, tp, SIGMA_PLANE),
-                                              Block("bar", DistanceBar(robot.dof), tb, SIGMA_BAR)])
-                r.append(np.asarray(model.residual(robot, res.deviations, q, y)))
+                _, tp, tb, _ = _plane_and_bar(paper_robot, fresh_seed, n, truth=truth)
+                model, q, y = combine(paper_robot, [Block("plane", planes, tp, SIGMA_PLANE),
+                                              Block("bar", DistanceBar(paper_robot.dof), tb, SIGMA_BAR)])
+                r.append(np.asarray(model.residual(paper_robot, res.deviations, q, y)))
             floor = combined_floor(res.identifiability.rank, 2 * n).test
             ratio = float(np.sqrt(np.mean(np.concatenate(r) ** 2))) / floor
             print("whitened test RMS / combined floor", ratio)
@@ -155,18 +150,18 @@ def _register(robot, res, model, data):
 
 
 @pytest.fixture(scope="module")
-def sockets(robot):
+def sockets(paper_robot):
     """Ball-in-socket data: the robot's links 1.5 % longer than nominal, a ball 80 mm off the flange,
     four training plate placements (labels a0, b0 … a3, b3: 320 rows) and two held-out ones
     (a4, b4, a5, b5: 160 rows), σ = 0.02 mm per axis."""
     from jaxcal._simulation._simulate import draw_deviations
 
     rng = np.random.default_rng(7)
-    mid = np.asarray(default_setup("point", robot).centres).mean(0)
-    truth = draw_deviations(jax.random.key(3), robot, angle_std_deg=0.05, length_std_mm=0.2)
+    mid = np.asarray(default_setup("point", paper_robot).centres).mean(0)
+    truth = draw_deviations(jax.random.key(3), paper_robot, angle_std_deg=0.05, length_std_mm=0.2)
     scale = 0.015
-    truth = truth.replace(a=np.asarray(truth.a) + scale * np.asarray(robot.a),
-                          d=np.asarray(truth.d) + scale * np.asarray(robot.d), tool=np.array([3.0, -2.0, 80.0]))
+    truth = truth.replace(a=np.asarray(truth.a) + scale * np.asarray(paper_robot.a),
+                          d=np.asarray(truth.d) + scale * np.asarray(paper_robot.d), tool=np.array([3.0, -2.0, 80.0]))
     train_labels = tuple(f"{s}{k}" for k in range(4) for s in "ab")
     test_labels = tuple(f"{s}{k}" for k in range(4, 6) for s in "ab")
     centres = _plates(rng, mid, 6)
@@ -174,14 +169,14 @@ def sockets(robot):
     sims = []
     for labels, c, n, seed in ((train_labels, centres[:8], 320, 11), (test_labels, centres[8:], 160, 12)):
         m = FixedPoint(labels, c)
-        layout = layout_for(robot, m)
+        layout = layout_for(paper_robot, m)
         t = Deviations({g: v for g, v in truth.values.items() if g in layout.group_names}, layout)
-        sims.append((m, simulate_contact(jax.random.key(seed), robot, m, n_samples=n, noise_std=SIGMA_BALL,
+        sims.append((m, simulate_contact(jax.random.key(seed), paper_robot, m, n_samples=n, noise_std=SIGMA_BALL,
                                          test_fraction=0.0, true_deviations=t).train))
     return sims
 
 
-def test_ball_in_socket_known_distance_sets_the_scale(robot, sockets):
+def test_ball_in_socket_known_distance_sets_the_scale(paper_robot, sockets):
     """A ball on the flange put many times into two sockets 50.00 mm apart, four plate placements;
     the robot's links 1.5 % longer than nominal (a length scale pivot points cannot see). With the
     known distances, two held-out placements' socket distances come out within 0.05 mm and their
@@ -196,9 +191,9 @@ def test_ball_in_socket_known_distance_sets_the_scale(robot, sockets):
             warnings.simplefilter("ignore")
             # the measured-data defaults (prior toward the nominal lengths + Huber), as the CLI: without
             # the relation the prior, not the data, holds the scale at nominal
-            res = calibrate_blocks(robot, [Block("sockets", fit_model, train, extras="tool")], relations,
+            res = calibrate_blocks(paper_robot, [Block("sockets", fit_model, train, extras="tool")], relations,
                                    objective="measured")
-        c, rms = _register(robot, res, m_test, test)
+        c, rms = _register(paper_robot, res, m_test, test)
         err = np.linalg.norm(c[1::2] - c[::2], axis=1) - SOCKETS_MM
         if name == "with":  # the library's evaluate registers the held-out file's own labels by name
             ev = evaluate_result(block_result(res, "sockets"), test)
@@ -228,26 +223,26 @@ def test_ball_in_socket_known_distance_sets_the_scale(robot, sockets):
     assert np.all((err0 < -0.5) & (err0 > -1.0)), err0  # the nominal scale: the sockets come out ~1.5 % short
 
 
-def test_combined_model_whitens_renames_and_names_errors(robot):
+def test_combined_model_whitens_renames_and_names_errors(paper_robot):
     """The combined residual is each block's own residual over its σ (padded rows and columns left
     out by observed()); two trackers get their own frames, the tool is shared unless a block says
     own_tool; a relation naming a point no block has, or a label defined two ways, is refused."""
     from jaxcal import Position
     from jaxcal._simulation._simulate import simulate_experiment
 
-    ex = simulate_experiment(jax.random.key(0), robot, n_samples=12, noise_std=0.1, measurement=Position())
+    ex = simulate_experiment(jax.random.key(0), paper_robot, n_samples=12, noise_std=0.1, measurement=Position())
     pts = FixedPoint(("s1", "s2"), np.zeros((2, 3)))
     lab = np.arange(12) % 2.0
     blocks = [Block("t1", Position(), ex.train, 0.1), Block("t2", Position(), ex.train, 0.3, own_tool=True),
               Block("pivot", pts, (np.asarray(ex.train.q), lab[: ex.train.q.shape[0]]), 0.05)]
-    model, q, y = combine(robot, blocks, [KnownDistance("s1", "s2", 50.0, 0.01)])
-    names = set(layout_for(robot, model).names)
+    model, q, y = combine(paper_robot, blocks, [KnownDistance("s1", "s2", 50.0, 0.01)])
+    names = set(layout_for(paper_robot, model).names)
     assert {"base_rx@t1", "base_z@t2", "tool_x@t2", "point_x@s1", "tool_x"} <= names
     assert "tool_x@t1" not in names and "tool_x@pivot" not in names
-    dev = Deviations.zeros(layout_for(robot, model))
-    r = np.asarray(model.residual(robot, dev, q, y))
+    dev = Deviations.zeros(layout_for(paper_robot, model))
+    r = np.asarray(model.residual(paper_robot, dev, q, y))
     n = ex.train.q.shape[0]
-    own = np.asarray(Position().residual(robot, None, ex.train.q, ex.train.y))
+    own = np.asarray(Position().residual(paper_robot, None, ex.train.q, ex.train.y))
     assert np.allclose(r[:n], own / 0.1) and np.allclose(r[n:2 * n], own / 0.3)
     obs = model.observed(y)
     assert obs[:3 * n].all() and obs[-1].tolist() == [True, False, False]  # a pivot row: 3 entries; a relation: 1
@@ -255,16 +250,16 @@ def test_combined_model_whitens_renames_and_names_errors(robot):
     # padded to a bucket: the padding rows repeat row 0 and are cut off again
     padded = model.pad_rows(q.shape[0], q.shape[0] + 5)
     qp, yp = np.concatenate([q, np.repeat(q[:1], 5, 0)]), np.concatenate([y, np.repeat(y[:1], 5, 0)])
-    rp = np.asarray(padded.residual(robot, dev, qp, yp))
+    rp = np.asarray(padded.residual(paper_robot, dev, qp, yp))
     assert np.allclose(rp[: q.shape[0]], r) and np.allclose(rp[q.shape[0]:], r[:1])
     with pytest.raises(ValueError, match="names point 'nope', which no block has"):
-        combine(robot, blocks, [KnownDistance("s1", "nope", 50.0)])
+        combine(paper_robot, blocks, [KnownDistance("s1", "nope", 50.0)])
     moved = FixedPoint(("s1",), np.ones((1, 3)))
     with pytest.raises(ValueError, match="point 's1' is in block 'pivot' and block 'other' with different nominal"):
-        combine(robot, [*blocks, Block("other", moved, (np.asarray(ex.train.q), np.zeros(n)))])
+        combine(paper_robot, [*blocks, Block("other", moved, (np.asarray(ex.train.q), np.zeros(n)))])
     sphere = FixedPoint(("s1",), np.zeros((1, 3)), radii_mm=10.0, estimate_radius=True)
     with pytest.raises(ValueError, match="defined differently|block names must differ"):
-        combine(robot, [*blocks, Block("t1", sphere, (np.asarray(ex.train.q), np.zeros(n)))])
+        combine(paper_robot, [*blocks, Block("t1", sphere, (np.asarray(ex.train.q), np.zeros(n)))])
 
 
 def test_relations_file(tmp_path):
@@ -297,7 +292,7 @@ def test_relations_file(tmp_path):
     assert np.allclose(values, [50.0, 25.0, np.pi / 2, 0.0])
 
 
-def test_cli_combine_with_relations_and_evaluate_new_labels(robot, sockets, tmp_path, capsys):
+def test_cli_combine_with_relations_and_evaluate_new_labels(paper_robot, sockets, tmp_path, capsys):
     """`jaxcal calibrate sockets.csv --combine --relations rel.txt --out-dir DIR`, then `jaxcal evaluate`
     on a file with new point labels (two new plate placements): they are registered on its rows, and
     their registered sockets are 50 mm apart (the relation set the scale)."""
@@ -405,13 +400,13 @@ def _camera_pair(robot, other: str, seed: int):
 
 
 @pytest.fixture(scope="module")
-def tracker_and_camera(robot):
-    return [_camera_pair(robot, "tracker", seed) for seed in SEEDS]
+def tracker_and_camera(paper_robot):
+    return [_camera_pair(paper_robot, "tracker", seed) for seed in SEEDS]
 
 
 @pytest.fixture(scope="module")
-def camera_and_plane(robot):
-    return [_camera_pair(robot, "plane", seed) for seed in SEEDS]
+def camera_and_plane(paper_robot):
+    return [_camera_pair(paper_robot, "plane", seed) for seed in SEEDS]
 
 
 def _check_camera_pair(fits, other):
@@ -438,7 +433,7 @@ def test_camera_and_plane_at_the_combined_floor(camera_and_plane):
     _check_camera_pair(camera_and_plane, "plane")
 
 
-def test_known_plane_distance_lets_plane_data_see_the_scale(robot):
+def test_known_plane_distance_lets_plane_data_see_the_scale(paper_robot):
     """Plane contact alone cannot see the length scale (one null direction of the Jacobian); a known
     distance between two parallel planes (a step of 25 mm), or a point on a plane at a known offset
     with a known socket distance, adds exactly that direction: the rank rises by one."""
@@ -447,30 +442,30 @@ def test_known_plane_distance_lets_plane_data_see_the_scale(robot):
     from jaxcal import PlaneContact, PlaneDistance, identifiability
     from jaxcal._calibration._blocks import BlockStats, who_sees_what
 
-    base = default_setup("plane", robot)
+    base = default_setup("plane", paper_robot)
     n = np.asarray(base.normals)
     d = np.asarray(base.offsets)
     planes = PlaneContact((*base.labels, "step"), np.concatenate([n, n[:1]]), np.concatenate([d, d[:1] + 25.0]))
-    ex = simulate_contact(jax.random.key(4), robot, planes, n_samples=160, noise_std=0.0, test_fraction=0.0)
+    ex = simulate_contact(jax.random.key(4), paper_robot, planes, n_samples=160, noise_std=0.0, test_fraction=0.0)
     ranks, seen = [], []
     for relations in ((), [PlaneDistance("table", "step", 25.0)]):
         # the null direction needs exact contacts (off a plane, scaling changes the residual)
-        model, q, y = combine(robot, [Block("planes", planes, ex.train, 0.05)], relations)
-        layout = layout_for(robot, model)
+        model, q, y = combine(paper_robot, [Block("planes", planes, ex.train, 0.05)], relations)
+        layout = layout_for(paper_robot, model)
         truth = Deviations({g: v for g, v in ex.true_deviations.values.items() if g in layout.group_names}, layout)
-        space = ParameterSpace.for_robot(robot, measurement=model, tool=True)
-        ranks.append(identifiability(robot, model, q, space, truth).rank)
+        space = ParameterSpace.for_robot(paper_robot, measurement=model, tool=True)
+        ranks.append(identifiability(paper_robot, model, q, space, truth).rank)
         # the length-scale check of the block report on the same rows: the scale direction (every
         # free length at its absolute value) is the Jacobian's null direction of the planes, seen
         # by the relation alone
-        result = SimpleNamespace(robot=robot, deviations=truth, space=space)
+        result = SimpleNamespace(robot=paper_robot, deviations=truth, space=space)
         r, grams = block_information(result, model, q, y)
-        v = length_scale_direction(robot, model, truth, space)
+        v = length_scale_direction(paper_robot, model, truth, space)
         assert v[space.free_names.index("plane_d@step")] == pytest.approx(float(planes.offsets[3]))
         shares, ok = scale_shares(grams, v, float(np.sum(r**2)))
         seen.append(ok)
         if not relations:
-            pr = jaxcal.Problem(robot, model, q, y, space, truth)
+            pr = jaxcal.Problem(paper_robot, model, q, y, space, truth)
             J = np.asarray(pr.jacobian(pr.x0()))
             assert np.linalg.norm(J @ v) < 1e-9 * np.linalg.norm(J, axis=0) @ np.abs(v)
             stats = [BlockStats("planes", "plane", "mm", 1, 1, 1.0, True, 1.0, 1.0, 1.0, 1.0,
@@ -544,7 +539,7 @@ def test_scale_shares_closed_form():
 
 
 
-def test_own_entries_of_narrow_blocks_equal_the_padded_rows(robot, monkeypatch):
+def test_own_entries_of_narrow_blocks_equal_the_padded_rows(paper_robot, monkeypatch):
     """A combined model's rows are padded to the widest block (a tracker's 3 entries, a wire's 1);
     the residual vector and the Jacobian hold each row's own entries only
     (``Combined.residual_entries``: 3 100 of 6 300 here). Against the same quantities with the padding
@@ -562,13 +557,13 @@ def test_own_entries_of_narrow_blocks_equal_the_padded_rows(robot, monkeypatch):
 
     # the simulations at the shapes other tests draw (the paper's draw-wire experiment, the tracker
     # of the camera pairs): their programs are compiled once in a test run
-    wire = simulate_experiment(jax.random.key(8), robot)
-    track = simulate_experiment(jax.random.key(7), robot, n_samples=1000, noise_std=0.05, measurement=Position(),
-                                true_deviations=_dh_only(robot, wire.true_deviations), test_fraction=0.5)
-    model, q, y = combine(robot, [Block("tracker", Position(), track.train, 0.05, extras="tool,base"),
-                                  Block("wire", CableLength(default_anchor(robot)), wire.train, 0.05)])
-    space = ParameterSpace.for_robot(robot, measurement=model)
-    problem = Problem(robot, model, q, y, space)
+    wire = simulate_experiment(jax.random.key(8), paper_robot)
+    track = simulate_experiment(jax.random.key(7), paper_robot, n_samples=1000, noise_std=0.05, measurement=Position(),
+                                true_deviations=_dh_only(paper_robot, wire.true_deviations), test_fraction=0.5)
+    model, q, y = combine(paper_robot, [Block("tracker", Position(), track.train, 0.05, extras="tool,base"),
+                                  Block("wire", CableLength(default_anchor(paper_robot)), wire.train, 0.05)])
+    space = ParameterSpace.for_robot(paper_robot, measurement=model)
+    problem = Problem(paper_robot, model, q, y, space)
     assert problem.n_entries == 500 * 3 + 1600 and problem.n_residuals == 2100 * 3
     np.testing.assert_array_equal(problem.entry_rows()[[0, 1499, 1500, 3099]], [0, 499, 500, 2099])
     x = jax.random.normal(jax.random.key(3), (space.n_free,)) * 1e-3  # off the start: residuals of all sizes
@@ -588,7 +583,7 @@ def test_own_entries_of_narrow_blocks_equal_the_padded_rows(robot, monkeypatch):
     np.testing.assert_allclose(np.asarray(back), np.asarray(blocks), rtol=1e-12, atol=1e-12)  # the wire's rows: 1 entry
     assert not np.any(np.asarray(back)[500:, 1:])
     monkeypatch.setattr(Combined, "residual_entries", lambda self, n: None)
-    assert Problem(robot, model, q, y, space).n_entries == 6300
+    assert Problem(paper_robot, model, q, y, space).n_entries == 6300
     padded = jax.jit(lambda p, x: pieces(p, x))(problem, x)[1]
     for a, b in zip(own, padded):
         if b is None:  # a piece only some models have (a pose's per-component information)

@@ -21,18 +21,13 @@ SIGMA_PLANE, SIGMA_BAR = 0.05, 0.02
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return jaxcal.robots.hsr_jr680()
-
-
-@pytest.fixture(scope="module")
-def setup(robot):
+def setup(paper_robot):
     """150 plane-contact candidates and 40 bar pose pairs (the shapes of test_plan_sensors.py); 40
     plane poses planned with the bar data in hand."""
-    planes, bar = default_setup("plane", robot), DistanceBar(robot.dof)
-    cand = _plan.candidate_poses(jax.random.key(3), robot, planes, 150)
-    bars = _plan.candidate_poses(jax.random.key(1), robot, bar, 40)
-    plan = plan_blocks(robot, Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool"), 40,
+    planes, bar = default_setup("plane", paper_robot), DistanceBar(paper_robot.dof)
+    cand = _plan.candidate_poses(jax.random.key(3), paper_robot, planes, 150)
+    bars = _plan.candidate_poses(jax.random.key(1), paper_robot, bar, 40)
+    plan = plan_blocks(paper_robot, Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool"), 40,
                        fixed=[Block("bar", bar, bars, sigma=SIGMA_BAR)])
     return planes, bar, cand, bars, plan
 
@@ -43,17 +38,17 @@ def _scaled_rank(G, rtol=1e-12):
     return int(np.sum(ev > rtol * ev[-1]))
 
 
-def test_combined_information_is_the_sum_of_the_whitened_blocks(robot, setup):
+def test_combined_information_is_the_sum_of_the_whitened_blocks(paper_robot, setup):
     """The plan's information equals JᵀJ of the Combined model's own whitened residual (what
     calibrate_blocks fits) at the bar rows and the selected plane rows; the plane rows alone miss
     one direction of it (the length scale), which the bar supplies: every σ finite."""
     planes, bar, cand, bars, plan = setup
     sel = plan.selection
     assert sel.n == 40 and np.array_equal(np.asarray(sel.data.y), np.asarray(cand.y)[sel.index])
-    model, q, y = combine(robot, [Block("bar", bar, bars, SIGMA_BAR),
+    model, q, y = combine(paper_robot, [Block("bar", bar, bars, SIGMA_BAR),
                                   Block("plane", planes, sel.data, SIGMA_PLANE, extras="tool")])
     assert model.size == 1  # one residual column each: no padding to mask
-    J = np.asarray(_plan._jac(Problem(robot, model, jnp.asarray(q), jnp.asarray(y), plan.space)))  # one program
+    J = np.asarray(_plan._jac(Problem(paper_robot, model, jnp.asarray(q), jnp.asarray(y), plan.space)))  # one program
     J = J.reshape(q.shape[0], -1)
     G = plan.prediction.information
     assert np.allclose(J.T @ J, G, rtol=1e-9, atol=1e-9 * np.abs(G).max())
@@ -62,7 +57,7 @@ def test_combined_information_is_the_sum_of_the_whitened_blocks(robot, setup):
     assert _scaled_rank(J[40:].T @ J[40:]) == p - 1  # the plane rows alone: the length scale unseen
     assert np.all(np.isfinite(plan.prediction.param_std))
     # planned alone, plane contact identifies one parameter fewer (same candidates, nominal contacts)
-    alone = predicted_accuracy_blocks(robot, [Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool")])
+    alone = predicted_accuracy_blocks(paper_robot, [Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool")])
     assert len(alone.names) == p - 1
     # the prediction's σ: Σ = G⁻¹ (no prior)
     assert np.allclose(plan.prediction.covariance @ G, np.eye(p), atol=1e-6)
@@ -83,11 +78,11 @@ def test_plan_beats_random_candidates_on_the_combined_criterion(setup):
     print(plan.table())
 
 
-def test_budget_split_and_relations(robot, setup):
+def test_budget_split_and_relations(paper_robot, setup):
     """Two planned blocks share one budget (the criterion picks the split); a relation's whitened row
     adds its rank-one information to the plane block's."""
     planes, bar, cand, bars, plan = setup
-    split = plan_blocks(robot, [Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool"),
+    split = plan_blocks(paper_robot, [Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool"),
                                 Block("bar", bar, bars, sigma=SIGMA_BAR)], 40, exchange=False)
     assert sum(split.split.values()) == 40 and min(split.split.values()) > 0, split.split
     idx = {k: s.index for k, s in split.selections.items()}
@@ -100,8 +95,9 @@ def test_budget_split_and_relations(robot, setup):
     n = np.asarray(planes.normals, np.float64)
     angle = float(np.degrees(np.arccos(np.clip(n[0] @ n[1], -1, 1))))
     blk = Block("plane", planes, cand, sigma=SIGMA_PLANE, extras="tool")
-    without = predicted_accuracy_blocks(robot, [blk])
-    with_rel = predicted_accuracy_blocks(robot, [blk], [PlaneAngle(planes.labels[0], planes.labels[1], angle, 0.01)])
+    without = predicted_accuracy_blocks(paper_robot, [blk])
+    with_rel = predicted_accuracy_blocks(paper_robot, [blk],
+                                         [PlaneAngle(planes.labels[0], planes.labels[1], angle, 0.01)])
     assert with_rel.names == without.names
     extra = with_rel.information - without.information
     ev = np.linalg.eigvalsh(extra)
@@ -110,7 +106,7 @@ def test_budget_split_and_relations(robot, setup):
 
 
 @pytest.mark.slow
-def test_predicted_test_rmse_matches_simulated_fits(robot, setup):
+def test_predicted_test_rmse_matches_simulated_fits(paper_robot, setup):
     """The combined prediction of each block's test RMSE against calibrate_blocks on 6 simulated true
     set-ups (the planned plane poses and the bar pairs moved onto the true robot's contacts / bar
     lengths plus noise, σ given), evaluated on fresh readings at the test poses (all 150 plane
@@ -126,33 +122,34 @@ def test_predicted_test_rmse_matches_simulated_fits(robot, setup):
         q, k = jnp.asarray(data.q), jnp.asarray(np.round(np.asarray(data.y)).astype(int))
         target = SIGMA_PLANE * jax.random.normal(key, (q.shape[0], 1), q.dtype)
         for _ in range(31):
-            q, err = _newton_step(robot, dev, planes, q, k, target)
+            q, err = _newton_step(paper_robot, dev, planes, q, k, target)
         assert float(jnp.max(err)) < 1e-8
         return np.asarray(q), np.asarray(data.y)
 
     def on_bar(dev, key):
         y = np.asarray(bars.y)
-        qa, qb, L = jnp.asarray(bars.q), jnp.asarray(y[:, :robot.dof]), y[:, robot.dof]
+        qa, qb, L = jnp.asarray(bars.q), jnp.asarray(y[:, :paper_robot.dof]), y[:, paper_robot.dof]
         target = jnp.asarray(L + SIGMA_BAR * np.asarray(jax.random.normal(key, L.shape, qa.dtype)))[:, None]
         for _ in range(31):
-            qb, err = _pair_step(robot, dev, qa, qb, target)
+            qb, err = _pair_step(paper_robot, dev, qa, qb, target)
         assert float(jnp.max(err)) < 1e-8
         return np.asarray(qa), np.concatenate([np.asarray(qb), L[:, None]], 1)
 
     rmse = {"bar": [], "plane": []}
     for s in range(6):
         ks = jax.random.split(jax.random.key(1000 + s), 5)
-        truth = _true_deviations(ks[0], robot, layout_for(robot, planes), None, None, None, 2.0, jnp.float64)
-        bl = layout_for(robot, bar)
+        truth = _true_deviations(ks[0], paper_robot, layout_for(paper_robot, planes), None, None, None, 2.0,
+                                 jnp.float64)
+        bl = layout_for(paper_robot, bar)
         tb = Deviations({g: truth.values[g] for g in bl.group_names}, bl)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = jaxcal.calibrate_blocks(robot, [Block("bar", bar, on_bar(tb, ks[2]), sigma=SIGMA_BAR),
+            res = jaxcal.calibrate_blocks(paper_robot, [Block("bar", bar, on_bar(tb, ks[2]), sigma=SIGMA_BAR),
                                                   Block("plane", planes, on_plane(truth, sel.data, ks[1]),
                                                         sigma=SIGMA_PLANE, extras="tool")])
-        model, q, y = combine(robot, [Block("bar", bar, on_bar(tb, ks[4]), SIGMA_BAR),
+        model, q, y = combine(paper_robot, [Block("bar", bar, on_bar(tb, ks[4]), SIGMA_BAR),
                                       Block("plane", planes, on_plane(truth, cand, ks[3]), SIGMA_PLANE)])
-        for name, r in zip(("bar", "plane"), model.block_residuals(robot, res.deviations, q, y)):
+        for name, r in zip(("bar", "plane"), model.block_residuals(paper_robot, res.deviations, q, y)):
             rmse[name].append(float(np.sqrt(np.mean(np.asarray(r) ** 2))))
     for name, vals in rmse.items():
         simulated = float(np.sqrt(np.mean(np.square(vals))))
@@ -161,7 +158,7 @@ def test_predicted_test_rmse_matches_simulated_fits(robot, setup):
         assert abs(simulated / predicted - 1) < 0.15
 
 
-def test_cli_plan_with_a_file_in_hand(robot, setup, tmp_path, capsys):
+def test_cli_plan_with_a_file_in_hand(paper_robot, setup, tmp_path, capsys):
     """`jaxcal plan --measurement plane --with bar.csv`: the combined table, a poses file that reads
     back as plane data touching the planes, and clear errors."""
     from jaxcal.cli import main
@@ -178,7 +175,7 @@ def test_cli_plan_with_a_file_in_hand(robot, setup, tmp_path, capsys):
     assert "--combine" in text
     data = jaxcal.load_csv(out, kind="plane")
     assert data.n == 40 and data.meta["planned_with"] == "bar.csv"
-    pts = np.asarray(jaxcal.fk_pose(robot, jnp.asarray(data.q), tool=True))[:, :3, 3]
+    pts = np.asarray(jaxcal.fk_pose(paper_robot, jnp.asarray(data.q), tool=True))[:, :3, 3]
     k = np.round(np.asarray(data.y)).astype(int)
     n, d = np.asarray(planes.normals), np.asarray(planes.offsets)
     assert np.max(np.abs(np.einsum("ij,ij->i", pts, n[k]) - d[k])) < 1e-6

@@ -15,11 +15,6 @@ from jaxcal._sensors._camera import planning_camera
 from jaxcal._sensors._contact import DistanceBar, FixedPoint, default_setup
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return jaxcal.robots.hsr_jr680()
-
-
 def _model(kind, robot):
     if kind == "camera":
         return planning_camera(robot)
@@ -84,66 +79,68 @@ def _sees_target_opencv(robot, cam, q):
 # (30-40 s each on the shared 2-core machine, mostly compilation)
 @pytest.mark.parametrize("kind", ["plane", "camera", *(pytest.param(k, marks=pytest.mark.slow)
                                                       for k in ("point", "sphere", "distance"))])
-def test_selected_poses_beat_random_candidates(robot, kind):
-    m = _model(kind, robot)
-    cand = _plan.candidate_poses(jax.random.key(3), robot, m, 150)
+def test_selected_poses_beat_random_candidates(paper_robot, kind):
+    m = _model(kind, paper_robot)
+    cand = _plan.candidate_poses(jax.random.key(3), paper_robot, m, 150)
     if kind == "camera":
-        assert _sees_target_opencv(robot, m, cand).all()
+        assert _sees_target_opencv(paper_robot, m, cand).all()
         n = 10
     else:
-        _check_constraint(robot, m, cand)
+        _check_constraint(paper_robot, m, cand)
         n = 40
-    sel = _plan.select_poses(robot, m, cand, n, exchange=False)
+    sel = _plan.select_poses(paper_robot, m, cand, n, exchange=False)
     if kind == "camera":
-        assert _sees_target_opencv(robot, m, sel.q).all()
+        assert _sees_target_opencv(paper_robot, m, sel.q).all()
     else:  # the selected rows keep their readings (labels, the bar's second pose)
         assert np.array_equal(np.asarray(sel.data.y), np.asarray(cand.y)[sel.index])
     # D-criterion on the same parameters and column scales: O1 = (∏σ_i)^(1/p)/√N of the scaled
     # Jacobian, so a larger O1 at equal N is a smaller predicted generalised parameter variance
     rows = lambda idx: cand.subset(idx) if hasattr(cand, "subset") else np.asarray(cand)[idx]  # noqa: E731
     o1 = lambda idx: _plan.indices_from_jacobian(  # noqa: E731
-        _plan.planning_jacobian(robot, m, rows(idx), sel.space), sel.scale).o1
+        _plan.planning_jacobian(paper_robot, m, rows(idx), sel.space), sel.scale).o1
     assert o1(sel.index) == pytest.approx(sel.indices.o1, rel=1e-9)
     rng = np.random.default_rng(0)
     random_o1 = [o1(rng.choice(150, n, replace=False)) for _ in range(5)]
     assert sel.indices.o1 > max(random_o1), (sel.indices.o1, random_o1)
     # and the predicted per-parameter σ (posterior, scaled by the column scales) is smaller overall
-    sd = lambda idx: _plan.predicted_accuracy(robot, m, rows(idx), 0.1, space=sel.space, q_test=cand)  # noqa: E731
+    sd = lambda idx: _plan.predicted_accuracy(paper_robot, m, rows(idx), 0.1, space=sel.space,  # noqa: E731
+                                              q_test=cand)
     best = sd(sel.index)
     worst = sd(rng.choice(150, n, replace=False))
     if best.names == worst.names:
         assert np.sum(np.log(best.param_std)) < np.sum(np.log(worst.param_std))
 
 
-def test_distance_candidates_as_pose_pairs(robot):
+def test_distance_candidates_as_pose_pairs(paper_robot):
     """[N, 2·dof] pose pairs read like a distance Dataset: the same Jacobian rows."""
-    m = DistanceBar(robot.dof)
-    cand = _plan.candidate_poses(jax.random.key(1), robot, m, 40)
-    pairs = np.concatenate([np.asarray(cand.q), np.asarray(cand.y)[:, :robot.dof]], axis=1)
-    space = jaxcal.ParameterSpace.for_robot(robot, measurement=m)
-    assert np.allclose(_plan.planning_jacobian(robot, m, pairs, space), _plan.planning_jacobian(robot, m, cand, space),
+    m = DistanceBar(paper_robot.dof)
+    cand = _plan.candidate_poses(jax.random.key(1), paper_robot, m, 40)
+    pairs = np.concatenate([np.asarray(cand.q), np.asarray(cand.y)[:, :paper_robot.dof]], axis=1)
+    space = jaxcal.ParameterSpace.for_robot(paper_robot, measurement=m)
+    assert np.allclose(_plan.planning_jacobian(paper_robot, m, pairs, space),
+                       _plan.planning_jacobian(paper_robot, m, cand, space),
                        atol=1e-12)
     with pytest.raises(ValueError, match="pose pairs"):
-        _plan.planning_jacobian(robot, m, np.asarray(cand.q), space)
+        _plan.planning_jacobian(paper_robot, m, np.asarray(cand.q), space)
 
 
-def test_camera_candidates_fraction_and_errors(robot):
-    cam = planning_camera(robot)
+def test_camera_candidates_fraction_and_errors(paper_robot):
+    cam = planning_camera(paper_robot)
     from jaxcal._sensors._camera import target_in_view
 
-    q = _plan.candidate_poses(jax.random.key(2), robot, cam, 60, min_visible=0.5)
-    frac = target_in_view(robot, cam, q).mean(axis=1)
+    q = _plan.candidate_poses(jax.random.key(2), paper_robot, cam, 60, min_visible=0.5)
+    frac = target_in_view(paper_robot, cam, q).mean(axis=1)
     assert frac.min() >= 0.5 and frac.min() < 1.0  # some see only part of the board
     # a 10 × 10 px image far off the principal point (640, 512): the whole board never lands in it
     away = jaxcal.Camera(cam.points, cam.intrinsics, handeye_rotation=cam.handeye_rotation,
                          handeye_translation=cam.handeye_translation, target_rotation=cam.target_rotation,
                          target_translation=cam.target_translation, image_size=(10, 10))
     with pytest.raises(ValueError, match="see at least"):
-        _plan.candidate_poses(jax.random.key(2), robot, away, 10)
+        _plan.candidate_poses(jax.random.key(2), paper_robot, away, 10)
 
 
 @pytest.mark.parametrize("kind", ["plane", *(pytest.param(k, marks=pytest.mark.slow) for k in ("camera", "distance"))])
-def test_cli_plan_sensor_files_read_back(robot, kind, tmp_path, capsys):
+def test_cli_plan_sensor_files_read_back(paper_robot, kind, tmp_path, capsys):
     from jaxcal.cli import main
 
     out = tmp_path / f"{kind}.csv"
@@ -154,6 +151,7 @@ def test_cli_plan_sensor_files_read_back(robot, kind, tmp_path, capsys):
     data = jaxcal.load_csv(out, kind=kind)
     assert data.n == 12
     if kind == "camera":
-        assert np.isnan(np.asarray(data.y)).all() and _sees_target_opencv(robot, planning_camera(robot), data.q).all()
+        assert np.isnan(np.asarray(data.y)).all()
+        assert _sees_target_opencv(paper_robot, planning_camera(paper_robot), data.q).all()
     else:
-        _check_constraint(robot, _model(kind, robot), data)
+        _check_constraint(paper_robot, _model(kind, paper_robot), data)

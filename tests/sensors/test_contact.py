@@ -20,11 +20,6 @@ from jaxcal._simulation._truth import simulated_truth
 SIGMA = 0.05
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return jaxcal.robots.hsr_jr680()
-
-
 def _cli_at_floor(robot, kind, tmp_path, seed=3, radius_mm=None, calibrate_args=()):
     """`jaxcal simulate` + `jaxcal calibrate` (defaults: prior, Huber, extras from the data) → the
     test RMSE on 3000 fresh poses of the same true robot over the floor. ``radius_mm``: point data
@@ -56,28 +51,28 @@ def _cli_at_floor(robot, kind, tmp_path, seed=3, radius_mm=None, calibrate_args=
     return res, res.evaluate(big).rmse / floor, truth
 
 
-def test_plane_cli_three_planes_at_floor(robot, tmp_path):
-    res, ratio, truth = _cli_at_floor(robot, "plane", tmp_path)
+def test_plane_cli_three_planes_at_floor(paper_robot, tmp_path):
+    res, ratio, truth = _cli_at_floor(paper_robot, "plane", tmp_path)
     print("plane: test RMSE / floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
     # the planes' extras are free (kept before robot parameters) and the tool point is close to the truth
     assert {"plane_d@table", "plane_u@wall_a", "tool_y"} <= set(res.space.free_names)
-    tool = np.asarray(robot.tool) + np.asarray(res.deviations.tool)
-    assert np.max(np.abs(tool - (np.asarray(robot.tool) + np.asarray(truth.tool)))) < 5.0
+    tool = np.asarray(paper_robot.tool) + np.asarray(res.deviations.tool)
+    assert np.max(np.abs(tool - (np.asarray(paper_robot.tool) + np.asarray(truth.tool)))) < 5.0
 
 
-def test_point_cli_pivot_at_floor(robot, tmp_path):
-    res, ratio, _ = _cli_at_floor(robot, "point", tmp_path)
+def test_point_cli_pivot_at_floor(paper_robot, tmp_path):
+    res, ratio, _ = _cli_at_floor(paper_robot, "point", tmp_path)
     print("point: test RMSE / floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
 
 
 @pytest.mark.parametrize("estimate", [pytest.param(False, marks=pytest.mark.slow), True])
-def test_sphere_cli_at_floor(robot, tmp_path, estimate):
+def test_sphere_cli_at_floor(paper_robot, tmp_path, estimate):
     """A ball on the flange touching two fixed spheres, via the CLI: the radius from the file's
     '# radius_mm:' line (known), or unknown (--estimate radius with a nominal of 0 mm: started by a
     sphere fit to the data)."""
-    res, ratio, _ = _cli_at_floor(robot, "point", tmp_path, radius_mm=30.0,
+    res, ratio, _ = _cli_at_floor(paper_robot, "point", tmp_path, radius_mm=30.0,
                                   calibrate_args=["--estimate", "radius", "--radius-mm", "0"] if estimate else [])
     print("sphere: test RMSE / floor", ratio, "radius estimated" if estimate else "")
     assert res.measurement.sphere and res.measurement.size == 1
@@ -92,15 +87,15 @@ def test_sphere_cli_at_floor(robot, tmp_path, estimate):
     assert abs(ratio - 1) < 0.03, ratio
 
 
-def test_one_plane_report_names_what_it_cannot_see(robot):
+def test_one_plane_report_names_what_it_cannot_see(paper_robot):
     """One horizontal plane: rotation about its normal (θ_1) is invisible and d_1 is the plane's
     offset; the words name the in-plane translations and the turn about the normal. Three planes with
     independent normals: nothing left unseen."""
-    m0 = default_setup("plane", robot)
+    m0 = default_setup("plane", paper_robot)
     one = PlaneContact(("table",), [[0.0, 0.0, 1.0]], [float(m0.offsets[0])])
-    ex = simulate_contact(jax.random.key(5), robot, one, n_samples=120, noise_std=SIGMA, test_fraction=0.0)
-    space = ParameterSpace.for_robot(robot, measurement=one, tool=True)
-    rep = jaxcal.identifiability(robot, one, ex.train.q, space, ex.true_deviations)
+    ex = simulate_contact(jax.random.key(5), paper_robot, one, n_samples=120, noise_std=SIGMA, test_fraction=0.0)
+    space = ParameterSpace.for_robot(paper_robot, measurement=one, tool=True)
+    rep = jaxcal.identifiability(paper_robot, one, ex.train.q, space, ex.true_deviations)
     assert "theta_1" in rep.unidentifiable
     assert "d_1" in rep.unidentifiable and any(n == "plane_d@table" for _, n in rep.dependencies["d_1"])
     words = unobservable_directions(np.asarray(one.normals))
@@ -110,22 +105,22 @@ def test_one_plane_report_names_what_it_cannot_see(robot):
 
 
 @pytest.mark.parametrize("kind", ["plane", "point", "sphere-unknown", "sphere-known"])
-def test_contact_data_cannot_see_the_length_scale(robot, kind):
+def test_contact_data_cannot_see_the_length_scale(paper_robot, kind):
     """Scaling every length of the set-up (DH a_i, d_i, tool, plane offsets / point centres / unknown
     radii) by the same factor keeps every contact: that direction is in the Jacobian's null space.
     A known sphere radius is a length reference and sees it."""
-    p = default_setup("point", robot)
-    m = {"plane": default_setup("plane", robot), "point": p,
+    p = default_setup("point", paper_robot)
+    m = {"plane": default_setup("plane", paper_robot), "point": p,
          "sphere-unknown": FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0, estimate_radius=True),
          "sphere-known": FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0)}[kind]
-    ex = simulate_contact(jax.random.key(0), robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
-                          true_deviations=Deviations.zeros(layout_for(robot, m)))
-    space = ParameterSpace.for_robot(robot, measurement=m, tool=True)
-    pr = jaxcal.Problem(robot, m, ex.train.q, ex.train.y, space)
+    ex = simulate_contact(jax.random.key(0), paper_robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
+                          true_deviations=Deviations.zeros(layout_for(paper_robot, m)))
+    space = ParameterSpace.for_robot(paper_robot, measurement=m, tool=True)
+    pr = jaxcal.Problem(paper_robot, m, ex.train.q, ex.train.y, space)
     J = np.asarray(pr.jacobian(pr.x0()))
-    nominal = {**{f"a_{i + 1}": v for i, v in enumerate(np.asarray(robot.a))},
-               **{f"d_{i + 1}": v for i, v in enumerate(np.asarray(robot.d))},
-               **{f"tool_{c}": v for c, v in zip("xyz", np.asarray(robot.tool))}}
+    nominal = {**{f"a_{i + 1}": v for i, v in enumerate(np.asarray(paper_robot.a))},
+               **{f"d_{i + 1}": v for i, v in enumerate(np.asarray(paper_robot.d))},
+               **{f"tool_{c}": v for c, v in zip("xyz", np.asarray(paper_robot.tool))}}
     if kind == "plane":
         nominal.update({f"plane_d@{s}": v for s, v in zip(m.labels, np.asarray(m.offsets))})
     else:
@@ -139,36 +134,37 @@ def test_contact_data_cannot_see_the_length_scale(robot, kind):
         assert rel < 1e-12, rel
 
 
-def test_closed_form_starts_recover_planes_points_and_tool(robot):
+def test_closed_form_starts_recover_planes_points_and_tool(paper_robot):
     """Noise-free data on the nominal robot: SVD plane fit + linear tool solve, and the linear pivot
     solve, give the true planes / centres and tool point."""
-    m = default_setup("plane", robot)
-    layout_truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])}, jaxcal._core._params.layout_for(robot, m))
-    ex = simulate_contact(jax.random.key(7), robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
+    m = default_setup("plane", paper_robot)
+    layout_truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])},
+                                     jaxcal._core._params.layout_for(paper_robot, m))
+    ex = simulate_contact(jax.random.key(7), paper_robot, m, n_samples=90, noise_std=0.0, test_fraction=0.0,
                           true_deviations=layout_truth)
     cm = PlaneContact.from_dataset(ex.train)
-    est = initial_contact(robot, cm, ex.train, estimate=("plane", "tool"))
+    est = initial_contact(paper_robot, cm, ex.train, estimate=("plane", "tool"))
     assert est.rmse_after < 1e-6
     np.testing.assert_allclose(np.asarray(est.deviations.tool), [3.0, -2.0, 1.5], atol=1e-6)
     n, d = cm.planes(est.deviations)
     np.testing.assert_allclose(np.asarray(n), np.asarray(m.normals), atol=1e-9)
     np.testing.assert_allclose(np.asarray(d), np.asarray(m.offsets), atol=1e-6)
-    p = default_setup("point", robot)
-    truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])}, jaxcal._core._params.layout_for(robot, p))
+    p = default_setup("point", paper_robot)
+    truth = jaxcal.Deviations({"tool": jnp.array([3.0, -2.0, 1.5])}, jaxcal._core._params.layout_for(paper_robot, p))
     # 90 rows like the plane data here and the length-scale test's data: the same simulation programs
-    ex = simulate_contact(jax.random.key(8), robot, p, n_samples=90, noise_std=0.0, test_fraction=0.0,
+    ex = simulate_contact(jax.random.key(8), paper_robot, p, n_samples=90, noise_std=0.0, test_fraction=0.0,
                           true_deviations=truth)
     cp = FixedPoint.from_dataset(ex.train)
-    est = initial_contact(robot, cp, ex.train, estimate=("point", "tool"))
+    est = initial_contact(paper_robot, cp, ex.train, estimate=("point", "tool"))
     np.testing.assert_allclose(np.asarray(est.deviations.tool), [3.0, -2.0, 1.5], atol=1e-6)
     c, _ = cp.points(est.deviations)
     np.testing.assert_allclose(np.asarray(c), np.asarray(p.centres), atol=1e-6)
 
 
-def test_csv_round_trip_and_relabel(robot, tmp_path):
-    m = default_setup("plane", robot)
+def test_csv_round_trip_and_relabel(paper_robot, tmp_path):
+    m = default_setup("plane", paper_robot)
     # 24 rows, like the hidden plane rows of test_evaluate_expects_the_floor...: the same simulation programs
-    ex = simulate_contact(jax.random.key(9), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0)
+    ex = simulate_contact(jax.random.key(9), paper_robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0)
     path = tmp_path / "p.csv"
     ex.train.to_csv(path)
     text = path.read_text()
@@ -178,21 +174,21 @@ def test_csv_round_trip_and_relabel(robot, tmp_path):
     np.testing.assert_array_equal(np.asarray(back.y), np.asarray(ex.train.y))
     other = relabel(back, ("wall_b", "table", "wall_a"))
     # each residual as one compiled program (op by op, each operation compiled a program of its own)
-    r0 = jax.jit(lambda dev, q, y: m.residual(robot, dev, q, y))(ex.true_deviations, back.q, back.y)
+    r0 = jax.jit(lambda dev, q, y: m.residual(paper_robot, dev, q, y))(ex.true_deviations, back.q, back.y)
     m2 = PlaneContact(("wall_b", "table", "wall_a"), np.asarray(m.normals)[[2, 0, 1]], np.asarray(m.offsets)[[2, 0, 1]])
-    r2 = jax.jit(lambda dev, q, y: m2.residual(robot, dev, q, y))(ex.true_deviations.replace(), other.q, other.y)
+    r2 = jax.jit(lambda dev, q, y: m2.residual(paper_robot, dev, q, y))(ex.true_deviations.replace(), other.q, other.y)
     np.testing.assert_allclose(np.asarray(r2), np.asarray(r0), atol=1e-9)
 
 
-def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
+def test_distance_cli_at_floor_and_blind_to_the_base(paper_robot, tmp_path):
     """Bar data: at the floor; θ_1 and d_1 (the base frame) have no effect on any distance."""
-    res, ratio, truth = _cli_at_floor(robot, "distance", tmp_path)
+    res, ratio, truth = _cli_at_floor(paper_robot, "distance", tmp_path)
     print("distance: test RMSE / floor", ratio)
     assert abs(ratio - 1) < 0.03, ratio
     # evaluate on hidden bar rows: the tool was estimated (part of the robot, kept), nothing to register;
     # the expectation counts each row's own second pose and length
     # 300 rows, like the calibration data: the same simulation programs (60 rows compiled their own)
-    hidden = simulate_distance(jax.random.key(4), robot, n_samples=300, noise_std=SIGMA, test_fraction=0.0,
+    hidden = simulate_distance(jax.random.key(4), paper_robot, n_samples=300, noise_std=SIGMA, test_fraction=0.0,
                                true_deviations=truth).train
     ev = jaxcal.evaluate_result(res, hidden)
     assert ev.extras == "none" and ev.kept == ("tool",) and "no sensor extras were estimated" not in ev.message
@@ -206,46 +202,46 @@ def test_distance_cli_at_floor_and_blind_to_the_base(robot, tmp_path):
 
 
 @pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
-def test_sphere_start_and_robust_fit_with_an_outlier(robot):
+def test_sphere_start_and_robust_fit_with_an_outlier(paper_robot):
     """A flange ball on two spheres of unknown radius: the algebraic start + Gauss–Newton finds
     centres and radii; one gross outlier row (a wrong label) does not move a Huber fit away from
     the floor, while plain least squares is pulled off."""
-    p = default_setup("point", robot)
+    p = default_setup("point", paper_robot)
     m = FixedPoint(p.labels, np.asarray(p.centres), [30.0, 45.0])
-    ex = simulate_contact(jax.random.key(11), robot, m, n_samples=200, noise_std=SIGMA, test_fraction=0.0)
+    ex = simulate_contact(jax.random.key(11), paper_robot, m, n_samples=200, noise_std=SIGMA, test_fraction=0.0)
     cm = FixedPoint(m.labels, radii_mm=[0.0, 0.0], estimate_radius=True)
-    est = initial_contact(robot, cm, ex.train, estimate=("point",))
+    est = initial_contact(paper_robot, cm, ex.train, estimate=("point",))
     c, r = cm.points(est.deviations)
     np.testing.assert_allclose(np.asarray(r), [30.0, 45.0], atol=2.0)
     np.testing.assert_allclose(np.asarray(c), np.asarray(m.centres), atol=3.0)
     y = np.asarray(ex.train.y).copy()
     y[0] = 1.0 - y[0]  # one row names the wrong sphere: a gross outlier (~400 mm)
     bad = jaxcal.Dataset(ex.train.q, y, "point", ex.train.metadata)
-    big = simulate_contact(jax.random.key(12), robot, m, n_samples=2000, noise_std=SIGMA,
+    big = simulate_contact(jax.random.key(12), paper_robot, m, n_samples=2000, noise_std=SIGMA,
                            true_deviations=ex.true_deviations, test_fraction=0.0).train
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        hub = jaxcal.calibrate(robot, cm, bad, "lm", extras=["tool"], prior="default", loss="huber")
-        lin = jaxcal.calibrate(robot, cm, bad, "lm", extras=["tool"], prior="default", loss="linear")
+        hub = jaxcal.calibrate(paper_robot, cm, bad, "lm", extras=["tool"], prior="default", loss="huber")
+        lin = jaxcal.calibrate(paper_robot, cm, bad, "lm", extras=["tool"], prior="default", loss="linear")
     floor = statistical_floor(SIGMA, hub.identifiability.rank, 199, 1).test
     assert hub.evaluate(big).rmse < 1.1 * floor
     assert lin.evaluate(big).rmse > 2 * floor
     assert np.all(np.isfinite(hub.uncertainty.std[[i for i, n in enumerate(hub.space.free_names) if "@" in n]]))
 
 
-def test_evaluate_expects_the_floor_and_flags_a_remounted_probe(robot, tmp_path, capsys):
+def test_evaluate_expects_the_floor_and_flags_a_remounted_probe(paper_robot, tmp_path, capsys):
     """`evaluate` of a plane-contact calibration on hidden rows: with the result's planes the RMSE
     it expects is near the measured one (each row counted on its own plane: with every row on the
     first plane it expected ~20× too much), and a probe remounted 2 mm longer is flagged by the
     library and by `jaxcal evaluate` (a warning naming the ratio, exit status 3)."""
-    m = default_setup("plane", robot)
-    ex = simulate_contact(jax.random.key(3), robot, m, n_samples=90, noise_std=SIGMA, test_fraction=0.0)
+    m = default_setup("plane", paper_robot)
+    ex = simulate_contact(jax.random.key(3), paper_robot, m, n_samples=90, noise_std=SIGMA, test_fraction=0.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = jaxcal.calibrate(robot, PlaneContact.from_dataset(ex.train), ex.train, "lm", extras=["tool"],
+        res = jaxcal.calibrate(paper_robot, PlaneContact.from_dataset(ex.train), ex.train, "lm", extras=["tool"],
                                objective="measured")
     truth = ex.true_deviations
-    hidden = simulate_contact(jax.random.key(4), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
+    hidden = simulate_contact(jax.random.key(4), paper_robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
                               true_deviations=truth).train
     same = jaxcal.evaluate_result(res, hidden, extras="result")
     print(f"same set-up: measured {same.after.rmse:.4f} mm, expected {same.expected_rmse:.4f} mm")
@@ -253,7 +249,7 @@ def test_evaluate_expects_the_floor_and_flags_a_remounted_probe(robot, tmp_path,
     assert not same.worse_than_expected and 1 / 1.6 < same.expected_rmse / same.after.rmse < 1.6
     assert same.kept == ("tool",) and "tool from the result" in same.table()
     remounted = truth.replace(tool=truth.values["tool"] + jnp.array([0.0, 0.0, 2.0]))
-    new = simulate_contact(jax.random.key(5), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
+    new = simulate_contact(jax.random.key(5), paper_robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
                            true_deviations=remounted).train
     ev = jaxcal.evaluate_result(res, new)  # the planes registered again: the tool is part of the robot
     print(f"probe 2 mm longer: measured {ev.after.rmse:.4f} mm, expected {ev.expected_rmse:.4f} mm")
@@ -266,7 +262,7 @@ def test_evaluate_expects_the_floor_and_flags_a_remounted_probe(robot, tmp_path,
     assert "worse than the calibration predicts" in err and "exit status 3" in err
 
 
-def test_evaluate_expects_the_floor_on_spheres_and_flags_a_remounted_probe(robot):
+def test_evaluate_expects_the_floor_on_spheres_and_flags_a_remounted_probe(paper_robot):
     """`evaluate` of a sphere-contact calibration (a flange ball on two spheres of unknown radius,
     300 rows): the RMSE it expects on fresh rows of the same true set-up, with the result's spheres and
     with the spheres registered again, within 15 % of a Monte Carlo of fresh data sets (6 sets of 24
@@ -276,15 +272,15 @@ def test_evaluate_expects_the_floor_on_spheres_and_flags_a_remounted_probe(robot
     (With 90 training rows under the measured-data defaults the expectation came out 19 % low over 6
     training seeds, with σ̂ under the Huber loss 0.039-0.053 mm for σ = 0.05, below the training RMSE in
     4 of 6; with a linear loss and the prior 0.98 / 1.04 of the Monte Carlo; planes at 90 rows: 3 %.)"""
-    p = default_setup("point", robot)
+    p = default_setup("point", paper_robot)
     m = FixedPoint(p.labels, np.asarray(p.centres), radii_mm=30.0)
-    ex = simulate_contact(jax.random.key(3), robot, m, n_samples=300, noise_std=SIGMA, test_fraction=0.0)
+    ex = simulate_contact(jax.random.key(3), paper_robot, m, n_samples=300, noise_std=SIGMA, test_fraction=0.0)
     fit_model = FixedPoint(m.labels, np.asarray(m.centres), radii_mm=30.0, estimate_radius=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = jaxcal.calibrate(robot, fit_model, ex.train, "lm", extras=["tool"], objective="measured")
+        res = jaxcal.calibrate(paper_robot, fit_model, ex.train, "lm", extras=["tool"], objective="measured")
     truth = ex.true_deviations
-    fresh = simulate_contact(jax.random.key(4), robot, m, n_samples=144, noise_std=SIGMA, test_fraction=0.0,
+    fresh = simulate_contact(jax.random.key(4), paper_robot, m, n_samples=144, noise_std=SIGMA, test_fraction=0.0,
                              true_deviations=truth).train
     for extras in ("result", "register"):
         evs = [jaxcal.evaluate_result(res, fresh.subset(np.arange(k, 144, 6)), extras=extras) for k in range(6)]
@@ -294,7 +290,7 @@ def test_evaluate_expects_the_floor_on_spheres_and_flags_a_remounted_probe(robot
         assert abs(expected / measured - 1) < 0.15, (extras, expected, measured)
     assert evs[0].registered == ("point@p1", "radius@p1", "point@p2", "radius@p2")
     remounted = truth.replace(tool=truth.values["tool"] + jnp.array([0.0, 0.0, 2.0]))
-    new = simulate_contact(jax.random.key(5), robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
+    new = simulate_contact(jax.random.key(5), paper_robot, m, n_samples=24, noise_std=SIGMA, test_fraction=0.0,
                            true_deviations=remounted).train
     ev = jaxcal.evaluate_result(res, new)  # the spheres registered again: the tool is part of the robot
     print(f"spheres, probe 2 mm longer: measured {ev.after.rmse:.4f} mm, expected {ev.expected_rmse:.4f} mm")

@@ -25,14 +25,15 @@ SIGMA = 0.1
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return hsr_jr680().with_tool(NOMINAL_TOOL)
+def tooled_robot(paper_robot):
+    """The paper's robot with the nominal tool point guessed here."""
+    return paper_robot.with_tool(NOMINAL_TOOL)
 
 
 @pytest.fixture(scope="module")
-def truth(robot):
+def truth(tooled_robot):
     """Deviated DH table (the paper's magnitudes), tool 98.6 mm off its guess, sensor far off."""
-    dev = draw_deviations(jax.random.key(3), robot).replace(tool=jnp.asarray(TRUE_TOOL - NOMINAL_TOOL))
+    dev = draw_deviations(jax.random.key(3), tooled_robot).replace(tool=jnp.asarray(TRUE_TOOL - NOMINAL_TOOL))
     return {"position": dev.replace(**FRAME), "pose": dev.replace(**FRAME), "cable": dev.replace(**WIRE)}
 
 
@@ -56,13 +57,13 @@ def _tool(est):
 
 
 @pytest.mark.parametrize("kind", ["position", "pose", "cable"])
-def test_tool_point_start_lands_near_the_truth(kind, robot, truth):
+def test_tool_point_start_lands_near_the_truth(kind, tooled_robot, truth):
     """Wide joint coverage: the start is within a few mm of the true tool point (the nominal
     robot is not the true one, so not exactly) and the sensor unknowns come with it."""
-    m = _model(kind, robot)
-    ex = simulate_experiment(jax.random.key(1), robot, n_samples=400, measurement=m, true_deviations=truth[kind],
+    m = _model(kind, tooled_robot)
+    ex = simulate_experiment(jax.random.key(1), tooled_robot, n_samples=400, measurement=m, true_deviations=truth[kind],
                              noise_std=SIGMA)
-    est = initial_extras(robot, m, ex.train, estimate=_estimate(kind))
+    est = initial_extras(tooled_robot, m, ex.train, estimate=_estimate(kind))
     err = np.linalg.norm(_tool(est) - TRUE_TOOL)
     assert err < 3.0, (err, est.message)
     assert "tool point" in est.message and "98." in est.message  # ~98.6 mm from the guess
@@ -74,26 +75,26 @@ def test_tool_point_start_lands_near_the_truth(kind, robot, truth):
         assert np.linalg.norm(np.asarray(est.deviations.base_translation - truth[kind].base_translation)) < 5
         assert np.linalg.norm(np.asarray(est.deviations.base_rotation - truth[kind].base_rotation)) < 5e-3
     # without "tool" the tool point stays at its guess, and the fit is much worse
-    est0 = initial_extras(robot, m, ex.train, estimate=[e for e in _estimate(kind) if e != "tool"])
+    est0 = initial_extras(tooled_robot, m, ex.train, estimate=[e for e in _estimate(kind) if e != "tool"])
     assert np.array_equal(np.asarray(est0.deviations.tool), np.zeros(3)) and "tool" not in est0.message
     assert est.rmse_after < 0.5 * est0.rmse_after
 
 
-def test_default_estimate_leaves_the_tool_alone(robot, truth):
-    m = _model("position", robot)
-    ex = simulate_experiment(jax.random.key(1), robot, n_samples=100, measurement=m, true_deviations=truth["position"],
-                             noise_std=SIGMA)
-    est = initial_extras(robot, m, ex.train)
+def test_default_estimate_leaves_the_tool_alone(tooled_robot, truth):
+    m = _model("position", tooled_robot)
+    ex = simulate_experiment(jax.random.key(1), tooled_robot, n_samples=100, measurement=m,
+                             true_deviations=truth["position"], noise_std=SIGMA)
+    est = initial_extras(tooled_robot, m, ex.train)
     assert np.array_equal(np.asarray(est.deviations.tool), np.zeros(3))
 
 
 @pytest.mark.parametrize("kind", ["position", "pose", "cable"])
-def test_tool_alone_with_the_sensor_known(kind, robot, truth):
+def test_tool_alone_with_the_sensor_known(kind, tooled_robot, truth):
     """Sensor frame / anchor and offset known (given in the model): the tool point alone, linear
     least squares for position and pose, LM on ``t`` for the draw-wire."""
     dev = truth[kind]
     if kind == "cable":
-        m = CableLength(default_anchor(robot) + dev.anchor)
+        m = CableLength(default_anchor(tooled_robot) + dev.anchor)
         dev = dev.replace(anchor=jnp.zeros(3))
         start = dev.replace(alpha=0 * dev.alpha, a=0 * dev.a, d=0 * dev.d, theta=0 * dev.theta, beta=0 * dev.beta,
                             tool=jnp.zeros(3))  # the offset is known: it comes with the start
@@ -104,9 +105,9 @@ def test_tool_alone_with_the_sensor_known(kind, robot, truth):
         m = type(m)(rotation=rotvec_to_matrix(dev.base_rotation), translation=dev.base_translation)
         dev = dev.replace(base_rotation=jnp.zeros(3), base_translation=jnp.zeros(3))
         start = None
-    ex = simulate_experiment(jax.random.key(2), robot, n_samples=200, measurement=m, true_deviations=dev,
+    ex = simulate_experiment(jax.random.key(2), tooled_robot, n_samples=200, measurement=m, true_deviations=dev,
                              noise_std=SIGMA)
-    est = initial_extras(robot, m, ex.train, estimate=["tool"], start=start)
+    est = initial_extras(tooled_robot, m, ex.train, estimate=["tool"], start=start)
     assert np.linalg.norm(_tool(est) - TRUE_TOOL) < 3.0, est.message
     if kind != "cable":
         assert np.array_equal(np.asarray(est.deviations.base_translation), np.zeros(3))
@@ -115,16 +116,17 @@ def test_tool_alone_with_the_sensor_known(kind, robot, truth):
 
 
 @pytest.mark.parametrize("half_deg", [(45, 30, 30, 2, 2, 2), (3, 3, 3, 0, 0, 0)])
-def test_wire_narrow_wrist_is_never_worse_than_the_start(half_deg, robot, truth):
+def test_wire_narrow_wrist_is_never_worse_than_the_start(half_deg, tooled_robot, truth):
     """Wrists (nearly) still: the data barely tell the tool point from the anchor. The joint
     start is finite and never fits worse than multilateration with the tool at its guess."""
-    m = _model("cable", robot)
-    mid = (np.asarray(robot.q_min) + np.asarray(robot.q_max)) / 2
+    m = _model("cable", tooled_robot)
+    mid = (np.asarray(tooled_robot.q_min) + np.asarray(tooled_robot.q_max)) / 2
     half = np.radians(np.asarray(half_deg, float))
-    q = sample_joint_angles(jax.random.key(5), robot, 300, ranges=(jnp.asarray(mid - half), jnp.asarray(mid + half)))
-    y = _readings(m, robot, truth["cable"], q)
-    est0 = initial_extras(robot, m, (q, y), estimate=["anchor", "cable_offset"])
-    est = initial_extras(robot, m, (q, y), estimate=["anchor", "cable_offset", "tool"])
+    q = sample_joint_angles(jax.random.key(5), tooled_robot, 300,
+                            ranges=(jnp.asarray(mid - half), jnp.asarray(mid + half)))
+    y = _readings(m, tooled_robot, truth["cable"], q)
+    est0 = initial_extras(tooled_robot, m, (q, y), estimate=["anchor", "cable_offset"])
+    est = initial_extras(tooled_robot, m, (q, y), estimate=["anchor", "cable_offset", "tool"])
     assert np.all(np.isfinite(np.asarray(est.deviations.tool))) and np.isfinite(est.rmse_after)
     assert est.rmse_after <= est0.rmse_after * (1 + 1e-9)
     # the weak prior keeps the unseen directions near the guess: nothing absurd
@@ -150,30 +152,30 @@ def test_project_rotation_is_the_chordal_mean():
     assert np.allclose(project_rotation(5.0 * R), R)
 
 
-def test_position_tool_start_ignores_a_gross_outlier(robot, truth):
-    m = _model("position", robot)
-    ex = simulate_experiment(jax.random.key(1), robot, n_samples=300, measurement=m, true_deviations=truth["position"],
-                             noise_std=SIGMA)
+def test_position_tool_start_ignores_a_gross_outlier(tooled_robot, truth):
+    m = _model("position", tooled_robot)
+    ex = simulate_experiment(jax.random.key(1), tooled_robot, n_samples=300, measurement=m,
+                             true_deviations=truth["position"], noise_std=SIGMA)
     y = np.asarray(ex.train.y).copy()
     y[7] += [300.0, -200.0, 100.0]
-    est = initial_extras(robot, m, (ex.train.q, jnp.asarray(y)), estimate=["base", "tool"])
+    est = initial_extras(tooled_robot, m, (ex.train.q, jnp.asarray(y)), estimate=["base", "tool"])
     assert est.n_trimmed >= 1 and "gross outliers" in est.message
     assert np.linalg.norm(_tool(est) - TRUE_TOOL) < 3.0
 
 
-def test_calibrate_with_the_tool_far_off_reaches_the_floor(robot, truth):
+def test_calibrate_with_the_tool_far_off_reaches_the_floor(tooled_robot, truth):
     """Position data, sensor frame and tool point unknown (tool 98.6 mm off its guess): the
     closed-form start puts the offset into the tool, not into a_6/d_6, and LM reaches the
     statistical floor on fresh poses."""
     m = Position()
     sigma = 0.5
-    ex = simulate_experiment(jax.random.key(1), robot, n_samples=1000, measurement=m,
+    ex = simulate_experiment(jax.random.key(1), tooled_robot, n_samples=1000, measurement=m,
                              true_deviations=truth["position"], noise_std=sigma)
-    big = simulate_experiment(jax.random.key(11), robot, n_samples=20000, test_fraction=0.5, measurement=m,
+    big = simulate_experiment(jax.random.key(11), tooled_robot, n_samples=20000, test_fraction=0.5, measurement=m,
                               true_deviations=truth["position"], noise_std=sigma)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = calibrate(robot, m, ex.train, "lm", extras="base,tool")
+        res = calibrate(tooled_robot, m, ex.train, "lm", extras="base,tool")
     assert res.ok, res.message
     floor = statistical_floor(sigma, res.space.n_free, ex.train.n, size=3).test
     ratio = res.evaluate(big.test).rmse / floor
@@ -185,7 +187,7 @@ def test_calibrate_with_the_tool_far_off_reaches_the_floor(robot, truth):
 
 
 @pytest.mark.slow  # default-run time (issue 25: keep it near 10 min on 2 cores)
-def test_cli_prints_the_tool_start(robot, truth, tmp_path, capsys):
+def test_cli_prints_the_tool_start(tooled_robot, truth, tmp_path, capsys):
     """`jaxcal calibrate --estimate base,tool`: the start line names the tool point, and the
     extras line lists the tool entries (free or kept at their start)."""
     from jaxcal import save_csv
