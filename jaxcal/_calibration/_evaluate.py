@@ -674,7 +674,7 @@ def evaluate_result(result, data, *, extras: str = "auto", objective: str | None
     from ._calibrate import _as_arrays
 
     robot, m = result.robot, result.measurement
-    if hasattr(m, "frame_index"):  # SessionMarkers: the new data's sessions get their own model
+    if m.row_sessions:  # SessionMarkers: the new data's sessions get their own model
 
         return evaluate_sessions(result, data, extras=extras, objective=objective, outlier_rate=outlier_rate)
     if not isinstance(data, Dataset):

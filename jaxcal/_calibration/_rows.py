@@ -115,7 +115,6 @@ def split_rows(data, measurement, *, seed: int = 0, test_fraction: float = 0.2, 
             frame or placement with no training row after the split.
     """
     from .._datasets._split import seed_split
-    from .._sensors._sessions import SessionMarkers
 
     if not (0.0 <= test_fraction < 1.0):
         raise ValueError(f"the test fraction must be in [0, 1), got {test_fraction}")
@@ -129,7 +128,7 @@ def split_rows(data, measurement, *, seed: int = 0, test_fraction: float = 0.2, 
     if test_file:
         train_idx, test_idx = np.arange(data.n), np.arange(0)
     measurement_test, full = measurement, None
-    if isinstance(measurement, SessionMarkers):  # a model per row of the file: one per row set (train, test)
+    if measurement.row_sessions:  # a model per row of the file: one per row set (train, test)
         full = measurement.take(kept)
         lonely = sorted({lab for i in test_idx for lab in data.labels[i][1:]}
                         - {lab for i in train_idx for lab in data.labels[i][1:]})

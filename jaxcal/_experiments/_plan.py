@@ -336,10 +336,7 @@ def _workspace_candidates(key, robot, measurement, n, coverage, wire_range_mm, m
         ok = np.ones(q.shape[0], bool)
         if min_height_mm is not None:
             ok &= p[:, 2] >= min_height_mm
-        if isinstance(measurement, CableLength):
-            lo, hi = (0.05 * reach, 1.2 * reach) if wire_range_mm is None else map(float, wire_range_mm)
-            dist = np.linalg.norm(p - np.asarray(measurement.anchor, np.float64), axis=1)
-            ok &= (dist >= lo) & (dist <= hi)
+        ok &= measurement.in_range(p, reach, wire_range_mm)  # a draw wire's length range
         if box_mm is not None:
             lo3, hi3 = (np.asarray(b, np.float64) for b in box_mm)
             ok &= np.all((p >= lo3) & (p <= hi3), axis=1)

@@ -96,6 +96,10 @@ class MeasurementModel(eqx.Module):
     #: what one row's error in the accuracy tables is, where it is not the reading's own error
     #: (a tracker's 3-D distance); ``""``: nothing to say
     row_error: ClassVar[str] = ""
+    #: the model holds its data file's sessions row by row (:class:`~jaxcal.SessionMarkers`: each
+    #: row's frame and placement): it describes those rows only, and other rows (a test split, a
+    #: new file) get a model of their own sessions
+    row_sessions: ClassVar[bool] = False
 
     def expected_points(self) -> int | None:
         """The number of points a reading of a new data file of this set-up must have
@@ -112,6 +116,14 @@ class MeasurementModel(eqx.Module):
             return None
         y = np.asarray(y, np.float64)
         return y.reshape(y.shape[0], -1)
+
+    @host_method
+    def in_range(self, points_mm, reach_mm: float, range_mm: tuple[float, float] | None = None) -> np.ndarray:
+        """Which tool points ``points_mm`` ``[n, 3]`` (nominal robot, base frame, mm) the sensor
+        reads, a bool mask ``[n]`` (the sensor's filter in :func:`jaxcal.candidate_poses`): all of
+        them unless the sensor has a range of its own. ``range_mm``: that range ``(min, max)`` as
+        the user gave it (``None``: the sensor's default for a robot of reach ``reach_mm``)."""
+        return np.ones(np.shape(points_mm)[0], bool)
 
     @host_method
     def estimates_weights(self) -> bool:
@@ -299,6 +311,14 @@ class CableLength(MeasurementModel):
 
     def nominal_lengths(self) -> dict[str, float]:
         return xyz_entries("anchor_", self.anchor)
+
+    @host_method
+    def in_range(self, points_mm, reach_mm: float, range_mm: tuple[float, float] | None = None) -> np.ndarray:
+        """The tool points whose wire length ``‖p − anchor‖`` lies within ``range_mm`` (default
+        ``(0.05, 1.2)·reach_mm``, as :func:`jaxcal.simulate_experiment` draws its poses)."""
+        lo, hi = (0.05 * reach_mm, 1.2 * reach_mm) if range_mm is None else map(float, range_mm)
+        dist = np.linalg.norm(np.asarray(points_mm, np.float64) - np.asarray(self.anchor, np.float64), axis=1)
+        return (dist >= lo) & (dist <= hi)
 
     def predict(self, robot, deviations, q) -> Float[Array, " n"]:
         """Wire lengths ``[n]`` (mm)."""

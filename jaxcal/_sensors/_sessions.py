@@ -150,6 +150,7 @@ class SessionMarkers(MarkerModel):
     tip: str | None = eqx.field(static=True, default=None)
     kind: ClassVar[str] = "markers"
     known: ClassVar[bool] = False
+    row_sessions: ClassVar[bool] = True
 
     def __init__(self, frames: Sequence[str], placements: Sequence[str], n_markers: int = 1, positions_mm=None,
                  *, frame_labels: Sequence[str] | None = None, placement_labels: Sequence[str] | None = None,

@@ -38,7 +38,7 @@ def _cmd_evaluate(args) -> int:
     raw = load_result_dict(src)
     res = load_result(src)
     m = res.measurement
-    sessions = hasattr(m, "frame_index")  # a SessionMarkers result: the file's own sessions and marker count
+    sessions = m.row_sessions  # a SessionMarkers result: the file's own sessions and marker count
     data = load_csv(path, kind=m.kind, n_markers=m.expected_points(),  # a marker set's markers
                     kind_from=f"the calibration {src} is of {m.kind} data")
     if data.dof != res.robot.dof:
