@@ -67,7 +67,7 @@ def _cmd_calibrate(args) -> int:
     with _as_usage():
         method = check_method_name(args.method)  # a registry name, or stages such as ga>lm
     if args.combine or args.relations:
-        return _cmd_calibrate_combined(args, method)
+        return _cmd_calibrate_combined(args, method, t_start)
     if len(args.data) > 1 or args.out_dir:
         return _cmd_calibrate_fleet(args, method)
     setup = _calibration_setup(args, method, args.data[0])
@@ -89,15 +89,22 @@ def _cmd_calibrate(args) -> int:
     if args.out:
         _save(args, setup, split, res, method, objective_line, rows, per_row, evaluation, test_outliers)
     if args.verbose:
-        t_end = time.perf_counter()
-        print(f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
-              f"{t_loaded - t_start:.2f} s, "
-              f"calibrate() {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
-              f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
-              f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
-              f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
-              "interpreter's exit come on top)")
+        print(times_line(t_start, t_loaded, t_fit, res, "calibrate()"))
     return _exit_status(res, args, split.measurement, setup.extras)
+
+
+def times_line(t_start: float, t_loaded: float, t_fit: float, res, call: str) -> str:
+    """``--verbose``'s line of where the time went, from the command line's start (:data:`_T0`):
+    start-up to ``t_start``, the data to ``t_loaded``, the fit (``call``, result ``res``) to
+    ``t_fit``, the output to now (``time.perf_counter`` values)."""
+    t_end = time.perf_counter()
+    return (f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
+            f"{t_loaded - t_start:.2f} s, "
+            f"{call} {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
+            f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
+            f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
+            f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
+            "interpreter's exit come on top)")
 
 
 def _split(args, setup):

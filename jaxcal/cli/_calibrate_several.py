@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pathlib
 import sys
+import time
 import warnings
 
 from ._calibrate_setup import _calibration_setup
@@ -34,12 +35,13 @@ _OUTLIER_TODO = ("check those rows (a mis-read, a wrong label); to leave them ou
                  "again")
 
 
-def _cmd_calibrate_combined(args, method: str) -> int:
+def _cmd_calibrate_combined(args, method: str, t_start: float) -> int:
     """`jaxcal calibrate a.csv b.csv ... --combine --out-dir DIR [--relations FILE]`: the files are
     blocks of one robot (:func:`jaxcal.calibrate_blocks`): one fit, each block's σ estimated; one
     result JSON per block (:func:`~jaxcal._calibration._blocks.block_result`, read by `jaxcal
     evaluate`) and ``combined.json`` (:func:`jaxcal.save_combined_result`: every block's statistics and result, the
-    relations, σ, the deviations)."""
+    relations, σ, the deviations). ``t_start``: when the command began (after start-up), for
+    ``--verbose``."""
 
     from .._calibration._blocks import block_extras, block_result, calibrate_blocks, save_combined_result
     from .._calibration._calibrate import CalibrationWarning, OutlierWarning, StatedNoiseWarning
@@ -71,11 +73,13 @@ def _cmd_calibrate_combined(args, method: str) -> int:
     for s in setups:
         for n in s.notes:
             print(f"note: {s.path.name}: {n}")
+    t_loaded = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
         with _as_usage():
             res = calibrate_blocks(first.robot, blocks, relations, method, prior=first.prior, loss=first.loss,
                                    checks=first.checks, free=args.free, fix=args.fix or (), **first.hyper)
+    t_fit = time.perf_counter()
     for w in caught:  # a block's σ̂ against its noise line, its outlier rows: below, naming the file
         if issubclass(w.category, CalibrationWarning) and not issubclass(w.category, (StatedNoiseWarning,
                                                                                       OutlierWarning)):
@@ -114,6 +118,10 @@ def _cmd_calibrate_combined(args, method: str) -> int:
                          settings={"data": [str(s.path) for s in setups], "method": method, "prior": args.prior,
                                    "loss": first.loss, "relations": None if not args.relations else str(args.relations)})
     print(f"wrote {len(names)} block result(s) and combined.json to {out}")
+    if args.verbose:
+        from ._calibrate import times_line
+
+        print(times_line(t_start, t_loaded, t_fit, res, f"calibrate_blocks() ({res.variance_rounds} fit(s))"))
     return 0 if res.status.name not in ("DIVERGED", "FAILED") else _EXIT_FAILED
 
 
