@@ -17,11 +17,15 @@
    data-identifiable free parameters (QR with column pivoting at the start, no prior: what plain
    least squares can determine) from the same closed-form start on the same training rows; the
    Huber ``f_scale`` is ``1.345·σ̂`` per residual entry, σ̂ the MAD scale of the plain fit's residuals.
+   **Public sets** (read from where the flags say, not kept here): the ABB IRB 120 points of Wu et
+   al. (T-ASE 2015; ``--irb120``): 6 contiguous folds of its 36 configurations, and its two test
+   sessions predicted by the fits on all 36 (each test point registered at q = 0 from its own
+   measurement); ``--only-public`` runs and writes this section alone.
 3. **Warm ``calibrate()`` time** of the evidence prior and the default prior on one simulated set
    (same process, interleaved, median and quartiles), the solves each runs, and the XLA programs
    compiled (or loaded from the persistent cache) by the first call of each and by the warm calls.
 
-Run: ``python benchmarks/bench_evidence.py [--seeds 4] [--urdf tiago_no_hand.urdf]``. Writes
+Run: ``python benchmarks/bench_evidence.py [--seeds 4] [--urdf tiago_no_hand.urdf] [--irb120 DIR]``. Writes
 ``benchmarks/results/evidence_cpu.md`` (or ``--out``). Record the load average: on a shared
 machine the times move with it, the accuracies and counts do not.
 """
