@@ -423,7 +423,8 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         """Not available on a tree yet: a joint's gravity torque sums every branch above it,
         which the chain's mass model does not describe (harmonic errors are: :meth:`with_harmonics`)."""
         raise NotImplementedError("joint compliance is not modelled on a kinematic tree yet (the gravity torque of a "
-                                  "shared joint sums every branch above it); harmonic errors are (with_harmonics)")
+                                  "shared joint sums every branch above it); harmonic errors are (--harmonics on the "
+                                  "command line, with_harmonics in Python)")
 
     def geometry_dict(self) -> dict:
         """JSON-friendly tree that :func:`jaxcal._models._urdf.tree_from_dict` rebuilds exactly:

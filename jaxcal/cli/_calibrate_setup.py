@@ -58,7 +58,7 @@ def _hyper(items: list[str] | None) -> dict:
 
 def _nongeometric_robot(robot, compliance: str | None, harmonics: str | None):
     """``robot`` with the non-geometric error models of ``--compliance`` / ``--harmonics``."""
-    with _as_usage("--compliance/--harmonics: ", (ValueError, OSError)):
+    with _as_usage("--compliance/--harmonics: ", (ValueError, OSError, NotImplementedError)):
         if compliance:
             spec = compliance.strip()
             if spec.lower() != "default" and not pathlib.Path(spec).exists():

@@ -1,12 +1,14 @@
 """The command line with every robot type: a preset, a DH table file, a modified-DH (Craig) table
-file and a URDF chain, each through the features that read the robot's own parameters (the
-combined fit's length scale, a previous result or a fleet prior as ``--prior``).
+file, a URDF chain and a kinematic tree, each through the features that read the robot's own
+parameters (the combined fit's length scale, a previous result or a fleet prior as ``--prior``,
+`drift`, the non-geometric errors).
 
 Each feature ends with exit 0 and numbers near the simulated noise, or a one-line refusal; never
 a traceback (``jaxcal calibrate --combine`` with a URDF robot ended in ``'SerialChain' object has
 no attribute 'a'``, ``--prior previous.json`` of a URDF result in ``unknown parameter name
 'offset_1'``, and a ``# convention: modified`` line was ignored)."""
 
+import csv
 import json
 import pathlib
 import re
@@ -51,7 +53,7 @@ def write_panda_craig(path) -> pathlib.Path:
 
 def robot_type_args(kind: str, d: pathlib.Path) -> list[str]:
     """``--robot ...`` arguments of a robot type (``"preset"``, ``"dh_file"``, ``"modified_dh_file"``,
-    ``"urdf"``), its files written into ``d``."""
+    ``"urdf"``, ``"tree"``: the dual-arm preset with both tool tips), its files written into ``d``."""
     if kind == "preset":
         return ["--robot", "hsr_jr680"]
     if kind == "dh_file":
@@ -59,6 +61,8 @@ def robot_type_args(kind: str, d: pathlib.Path) -> list[str]:
         return ["--robot", str(d / "jr680.csv")]
     if kind == "modified_dh_file":
         return ["--robot", str(write_panda_craig(d / "panda.csv"))]
+    if kind == "tree":
+        return ["--robot", "dual_arm_ma1400", "--tip", "left_tool,right_tool"]
     return ["--robot", str(URDF), "--base", "base_link", "--tip", "tool0"]
 
 
@@ -212,6 +216,45 @@ def test_urdf_fleet_prior_used_by_a_new_unit(tmp_path, capsys):
                       "--prior", str(tmp_path / "fleet.prior.json"), "--out", str(tmp_path / "u3.json")], capsys)
     assert code == 0, out.err
     assert "offset_1" in (tmp_path / "fleet.prior.json").read_text()
+
+
+@pytest.mark.parametrize("robot_args", ["tree"], indirect=True)
+def test_tree_fleet_prior_drift_and_nongeometric_errors(robot_args, tmp_path, capsys):
+    """A kinematic tree (two arms on a torso; the position files measure the first tip) through the
+    features that read its own parameter names: three units as a fleet (`calibrate` of three files,
+    `--out-dir`) with harmonic errors at joints 2 and 3, each unit's σ̂ the simulated noise (within
+    25 %); `fleet-prior` of them and `--prior FILE` for a fourth unit, at the floor on its held-out
+    rows (σ√3, within 30 %); `drift` from one unit to another (another true robot: parameters
+    moved, exit 1); `--compliance` refused in one line (not modelled on a tree: a shared joint's
+    gravity torque sums its branches). Two compiled fits (the fleet's, the prior's) on 100-row files."""
+    fit = ["--measurement", "position", "--harmonics", "2,3:1"]
+    files = [tmp_path / f"u{unit}.csv" for unit in range(4)]
+    for unit, path in enumerate(files):
+        assert _run(["simulate", *robot_args, "--measurement", "position", "--samples", "100", "--seed",
+                     str(10 + unit), "--out", str(path)], capsys)[0] == 0
+    fleet = tmp_path / "fleet"
+    code, out = _run(["calibrate", *map(str, files[:3]), *robot_args, *fit, "--out-dir", str(fleet)], capsys)
+    assert code == 0, out.err
+    with open(fleet / "summary.csv", newline="") as f:
+        units = list(csv.DictReader(f))
+    assert [u["status"] for u in units] == ["converged"] * 3, units
+    assert all(abs(float(u["noise_std_mm"]) / NOISE - 1) < 0.25 for u in units), units
+    prior = tmp_path / "tree.prior.json"
+    code, out = _run(["fleet-prior", *(str(fleet / f"u{unit}.json") for unit in range(3)), "--out", str(prior)], capsys)
+    assert code == 0, out.err
+    assert all(name in prior.read_text() for name in ("offset_8", "tip_dx@left_tool", "h1s_2")), "the tree's names"
+    code, out = _run(["calibrate", str(files[3]), *robot_args, *fit, "--prior", str(prior),
+                      "--out", str(tmp_path / "u3.json")], capsys)
+    assert code == 0, out.err
+    assert "fleet of 3 units of dual_arm_ma1400" in out.out
+    rmse = load_result_dict(tmp_path / "u3.json")["metrics_mm"]["test, after"]["rmse"]
+    assert rmse < 1.3 * NOISE * np.sqrt(3), rmse
+    code, out = _run(["drift", str(fleet / "u0.json"), str(fleet / "u1.json")], capsys)
+    assert code == 1 and " moved " in out.out.splitlines()[0], out.out
+    code, out = _run(["calibrate", str(files[0]), *robot_args, "--measurement", "position", "--compliance", "default"],
+                     capsys)
+    assert code == 2 and out.err.count("\n") == 1, out.err
+    assert "--compliance" in out.err and "kinematic tree" in out.err and "--harmonics" in out.err, out.err
 
 
 def test_chain_parameter_names_known_before_any_chain_is_made():
