@@ -7,7 +7,10 @@ not given is estimated by **variance components** (Förstner 1979; Koch 1999, §
 with the current σ, each block's σ̂_b² = RSS_b / r_b, with ``RSS_b`` the block's residual sum of
 squares (its unit) and ``r_b = Σ_{i∈b} (1 − h_ii)`` its redundancy, ``h_ii`` the diagonal of the
 whitened hat matrix ``J (JᵀJ + Λ)⁻¹ Jᵀ`` (``Λ`` the prior's precision in whitened units); then
-the fit is repeated with the new σ until no σ moves by more than ``sigma_rtol``. The redundancies
+the fit is repeated with the new σ until no σ moves by more than ``sigma_rtol``. These rounds are
+:func:`jaxcal.calibrate`'s own (the model's :meth:`~jaxcal.Combined.estimates_weights`): each
+warm-started from the last, re-estimating the block σ together with the prior's noise σ and the
+robust scale, after one parameter selection and with one diagnosis at the end. The redundancies
 sum to ``N − p`` (the residual count less the parameters the data determine), so each block gets
 its share of the degrees of freedom the fit used, and σ̂_b is unbiased for a linear model.
 """
@@ -409,17 +412,58 @@ def block_information(result, model: Combined, q, y, *, every: bool = False):
         (``p = n_free``; units 1/unit_i·1/unit_j of the parameters); masked entries count nowhere.
         With ``every``, ``grams`` is over every parameter of the layout (free or held).
     """
+    r, grams = _information(result.robot, model, result.space, result.deviations, q, y)
+    if every:
+        return r, grams
+    idx = result.space.free_index
+    return r, grams[:, idx][:, :, idx]
+
+
+def _information(robot, model: Combined, space: ParameterSpace, deviations: Deviations, q, y):
+    """:func:`block_information` with ``every`` at ``deviations``: ``(r [N, m], grams [B, P, P])``
+    over every parameter of ``space``'s layout (one compiled program for every free set)."""
     q = to_device(np.asarray(q, np.float64))
     y = np.asarray(y, np.float64)
-    full = ParameterSpace.from_names(result.space.layout, result.space.layout.names)
-    problem = Problem(result.robot, model, q, to_device(y), full, result.deviations.astype(q.dtype))
+    full = ParameterSpace.from_names(space.layout, space.layout.names)
+    problem = Problem(robot, model, q, to_device(y), full, deviations.astype(q.dtype))
     obs = model.observed(y)
     obs = np.ones((q.shape[0], model.size), bool) if obs is None else obs
     r, grams = _block_grams(problem, to_device(obs))
-    if every:
-        return np.asarray(r, np.float64), np.asarray(grams, np.float64)
-    idx = result.space.free_index
-    return np.asarray(r, np.float64), np.asarray(grams, np.float64)[:, idx][:, :, idx]
+    return np.asarray(r, np.float64), np.asarray(grams, np.float64)
+
+
+def _variance_components(model: Combined, space: ParameterSpace, prior, r, every, y, prior_noise: float = 1.0):
+    """Each block's redundancy and σ̂ by variance components at a combined fit (module
+    docstring): ``(grams [B, p, p] over the free parameters, A⁻¹ [p, p], observed [N, m],
+    redundancy [B], σ̂ [B] each block's unit)``; ``r``, ``every``: :func:`_information`'s."""
+    idx = space.free_index
+    grams = every[:, idx][:, :, idx]
+    lam = np.zeros(grams.shape[1])
+    if prior is not None:
+        s = prior.std(space)
+        lam = np.where(np.isfinite(s), (prior_noise / s) ** 2, 0.0)
+    A_inv = np.linalg.pinv(grams.sum(0) + np.diag(lam))
+    obs = model.observed(np.asarray(y))
+    obs = np.ones(r.shape, bool) if obs is None else obs
+    sigma = np.asarray(model.sigma, np.float64)
+    red, sig_hat = [], []
+    for b, (mod, rb, ob) in enumerate(zip(model.models, model._rows(r, r.shape[0]), model._rows(obs, r.shape[0]))):
+        red.append(float(ob.sum() - np.sum(A_inv * grams[b])))  # Σ (1 − h_ii) = n_b − tr(A⁻¹ J_bᵀJ_b)
+        raw = rb[:, : mod.size] * sigma[b]  # its own unit
+        rss = float(np.sum(raw[ob[:, : mod.size]] ** 2))
+        sig_hat.append(math.sqrt(rss / red[b]) if red[b] > 0 else float("nan"))
+    return grams, A_inv, obs, np.asarray(red), np.asarray(sig_hat)
+
+
+def block_sigmas(robot, model: Combined, space: ParameterSpace, deviations: Deviations, prior, q, y) -> np.ndarray:
+    """``[B]`` the blocks' σ for the next fit of a combined model at ``deviations``: each
+    estimated block's σ̂ by variance components (where finite and > 0), the others' as they are.
+    What :func:`jaxcal.calibrate` reweights a :class:`~jaxcal.Combined` model by between its fits."""
+    r, every = _information(robot, model, space, deviations, q, y)
+    sig_hat = _variance_components(model, space, prior, r, every, y)[-1]
+    sigma = np.asarray(model.sigma, np.float64)
+    ok = np.asarray(model.estimated) & np.isfinite(sig_hat) & (sig_hat > 0)
+    return np.where(ok, sig_hat, sigma)
 
 
 def free_scale_direction(v, grams, free, rcond: float = 1e-10) -> np.ndarray:
@@ -451,18 +495,9 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
     whitened information ``Σ_b J_bᵀJ_b + Λ``, ``Λ`` the prior's precision): the sum of ``1 − h_ii``
     over its entries."""
     r, every = block_information(result, model, q, y, every=True)
-    idx = result.space.free_index
-    grams = every[:, idx][:, :, idx]
-    p = grams.shape[1]
-    lam = np.zeros(p)
-    if result.prior is not None:
-        s = result.prior.std(result.space)
-        lam = np.where(np.isfinite(s), (prior_noise / s) ** 2, 0.0)
-    total = grams.sum(0)
-    A_inv = np.linalg.pinv(total + np.diag(lam))
-    obs = model.observed(np.asarray(y))
-    obs = np.ones(r.shape, bool) if obs is None else obs
-    col = np.diag(total)
+    grams, A_inv, obs, red, sig_hat = _variance_components(model, result.space, result.prior, r, every, y,
+                                                           prior_noise)
+    col = np.diag(grams.sum(0))
     rank, ranks_without, directions = block_directions(grams, result.space.free_names)
     full = ParameterSpace.from_names(result.space.layout, result.space.layout.names)
     v = free_scale_direction(length_scale_direction(result.robot, model, result.deviations, full), every,
@@ -473,15 +508,13 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
     sigma = np.asarray(model.sigma, np.float64)
     for b, (name, mod, rb, ob) in enumerate(zip(model.names, model.models, model._rows(r, r.shape[0]),
                                                model._rows(obs, r.shape[0]))):
-        red = float(ob.sum() - np.sum(A_inv * grams[b]))  # Σ (1 − h_ii) = n_b − tr(A⁻¹ J_bᵀJ_b)
         raw = rb[:, : mod.size] * sigma[b]  # its own unit
         ob = ob[:, : mod.size]
-        rss = float(np.sum(raw[ob] ** 2))
-        sig_hat = math.sqrt(rss / red) if red > 0 else float("nan")
         err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
         unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
         share = np.diag(grams[b]) / np.where(col > 0, col, 1.0)
-        out.append(BlockStats(name, mod.kind, unit, rb.shape[0], int(ob.sum()), float(sigma[b]), False, sig_hat, red,
+        out.append(BlockStats(name, mod.kind, unit, rb.shape[0], int(ob.sum()), float(sigma[b]), False,
+                              float(sig_hat[b]), float(red[b]),
                               float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(raw[ob] ** 2))),
                               float(np.mean(np.abs(err))), float(np.max(np.abs(err))),
                               dict(zip(result.space.free_names, share.tolist())), directions[b], ranks_without[b],
@@ -599,7 +632,7 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
             except ValueError as e:
                 raise ValueError(f"block {blk.name!r}: {e}") from None
     model, q, y = combine(robot, blocks, relations)
-    estimated = [blk.sigma is None for blk in blocks] + ([False] if model.relations is not None else [])
+    model = model.estimating(sigma_rtol, max_rounds)  # its σ's rounds: jaxcal.calibrate's reweighting
     extras, fix = _extras_and_fix(robot, model, blocks)
     user_fix = kwargs.pop("fix", ())
     user_fix = [s for s in user_fix.split(",") if s.strip()] if isinstance(user_fix, str) else list(user_fix or ())
@@ -613,42 +646,25 @@ def calibrate_blocks(robot, blocks: Sequence[Block], relations: Sequence = (), m
         cur, msgs = _initial_start(robot, model, blocks, q, y, cur)
     elif init != "none":
         raise ValueError(f"init must be 'auto' or 'none', got {init!r}")
-    first_start = cur  # the "before" of the accuracy tables: nominal robot, extras from the data
-    sigma = np.asarray(model.sigma, np.float64)
-    rounds = 0
-    q_dev, y_dev = to_device(q), to_device(y)
-    while True:
-        m = model.with_sigma(sigma)
-        with warnings.catch_warnings(record=True) as caught:  # issued below for the final fit only
-            warnings.simplefilter("always")
-            res = calibrate(robot, m, (q_dev, y_dev), method, start=cur, init="none", extras=extras,
-                            fix=[*fix, *user_fix], **kwargs)
-        rounds += 1
-        stats = block_statistics(res, m, q, y)
-        new = np.asarray([s.sigma_hat if est and np.isfinite(s.sigma_hat) and s.sigma_hat > 0 else s.sigma
-                          for s, est in zip(stats, estimated)])
-        cur = res.deviations
-        done = np.all(np.abs(new - sigma) <= sigma_rtol * sigma) or rounds >= max_rounds or not any(estimated)
-        if done:
-            break
-        sigma = new
-    for w in caught:  # the final fit's warnings: the earlier rounds' σ were not the final ones
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    # one calibrate: its rounds re-estimate the blocks' σ (variance components) with the prior's
+    # noise σ and the robust scale, after one selection, diagnosed once at the end
+    res = calibrate(robot, model, (to_device(q), to_device(y)), method, start=cur, init="none", extras=extras,
+                    fix=[*fix, *user_fix], **kwargs)
+    stats = block_statistics(res, res.measurement, q, y)
     from .._fit._diagnostics import Checks, given_noise_std
     from ._calibrate import StatedNoiseWarning
 
     stated = [given_noise_std(blk.data, None, blk.measurement) for blk in blocks] + [None]  # the files' lines
     stats = tuple(dataclasses.replace(s, sigma_given=not est, sigma_stated=st)
-                  for s, est, st in zip(stats, estimated, stated))
+                  for s, est, st in zip(stats, res.measurement.estimated, stated))
     factor = (kwargs.get("checks") or Checks()).noise_warn_factor
     for s in stats:  # a block far above the noise its file states: another set-up, or a wrong noise line
         msg = s.noise_warning(factor=factor)
         if msg is not None:
             warnings.warn(msg, StatedNoiseWarning, stacklevel=2)
-    object.__setattr__(res, "start", first_start)  # not the last round's start (the previous round's solution)
     object.__setattr__(res, "blocks", stats)
     object.__setattr__(res, "sigma", {s.name: s.sigma for s in stats})
-    object.__setattr__(res, "variance_rounds", rounds)
+    object.__setattr__(res, "variance_rounds", res.diagnostics.rounds)
     object.__setattr__(res, "block_messages", tuple(msgs))
     object.__setattr__(res, "block_report", who_sees_what(stats, verdicts=res.diagnostics.verdicts))
     return res

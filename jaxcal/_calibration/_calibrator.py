@@ -39,6 +39,9 @@ class CalibrationOutput(NamedTuple):
     #: full :class:`Deviations` at ``x`` (``start`` in the entries that are not free).
     gram: object = None
     deviations: object = None
+    #: a trust-region method's (LM) step size at its end (:attr:`Calibrator.trust_radius` of a
+    #: solve that continues from ``x``), else ``None``.
+    trust_radius: object = None
 
 
 class Calibrator(eqx.Module):
@@ -71,6 +74,10 @@ class Calibrator(eqx.Module):
             (the others stay at ``start``, without prior terms), so one compiled program serves
             every free set of ``space`` (:attr:`~jaxcal.methods.Method.maskable` methods only;
             ``None``: all of ``space`` moves). :func:`calibrate` runs LM this way.
+        trust_radius: a run-time scalar: the trust region's step size at the start (LM; ``1``,
+            optimistix's own, at a calibration's first solve): :func:`calibrate`'s later rounds
+            pass the last solve's (:attr:`CalibrationOutput.trust_radius`), so a round that starts
+            near its solution takes Gauss–Newton-like steps at once. ``None``: the solver's own.
     """
 
     robot: AbstractRobot
@@ -83,6 +90,7 @@ class Calibrator(eqx.Module):
     start_jacobian: Array | None = None
     free: Array | None = None
     start_jacobian_given: Array | None = None
+    trust_radius: Array | None = None
 
     def __check_init__(self):
         if self.free is not None and not self.method.maskable:
@@ -100,7 +108,8 @@ class Calibrator(eqx.Module):
             scaled = ScaledProblem.build(problem, objective=self.objective, jacobian=self.start_jacobian,
                                          mask=self.free, keep_jacobian=self.report,
                                          defer_scale=self.method.scales_itself,
-                                         jacobian_given=self.start_jacobian_given)
+                                         jacobian_given=self.start_jacobian_given,
+                                         trust_radius=self.trust_radius)
             raw = self.method.run(scaled, key)
             if raw.scale is not None:  # computed by the method from the start's Jacobian
                 scaled = eqx.tree_at(lambda s: s.scale, scaled, raw.scale)
@@ -124,7 +133,8 @@ class Calibrator(eqx.Module):
                 deviations = problem.deviations(x)
         its = iterations_to_converge(raw.history, raw.n_iterations)
         status = budget_status(raw.status, raw.history, raw.n_iterations)  # COMPLETED → STILL_IMPROVING
-        return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra, gram, deviations)
+        return CalibrationOutput(x, raw.history, raw.n_iterations, its, status, metrics, raw.extra, gram, deviations,
+                                 raw.trust_radius)
 
 
 @functools.partial(jit, static_argnums=1)

@@ -244,7 +244,8 @@ def _output_structure(cal: Calibrator):
     comp = z if len(cal.measurement.components) > 1 else None  # gram_at's per-component grams
     gram = (z, z, z, z, z, z if robust else None, comp) if cal.report else None
     dev = cal.start if cal.report else None
-    template = CalibrationOutput(z, z, z, z, z, Metrics(*(z for _ in Metrics._fields)), None, gram, dev)
+    radius = z if cal.trust_radius is not None else None  # a trust region's step size at the end
+    template = CalibrationOutput(z, z, z, z, z, Metrics(*(z for _ in Metrics._fields)), None, gram, dev, radius)
     return jax.tree_util.tree_structure(template)
 
 

@@ -18,23 +18,18 @@ from .._fit._identifiability import start_jacobian
 from .._fit._objective import LOSSES, Objective, robust_scale
 from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import Status
+from ._blocks import block_sigmas
 from ._calibrator import CalibrationOutput, Calibrator
 from ._diagnose import _prior_terms
 from ._programs import _Launched, _mask_output, _program_columns, _solve_space
 
-__all__ = ["Solves", "Rounds", "MAX_REWEIGHT_ROUNDS", "MAX_EVIDENCE_ROUNDS"]
+__all__ = ["Solves", "Rounds", "MAX_EVIDENCE_ROUNDS"]
 
 
 def _close(a, b, rtol: float = 0.05) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return bool(np.all(np.abs(np.subtract(a, b)) <= rtol * np.abs(b)))
-
-
-#: at most this many solves per selection while a model's component weights settle
-#: (:meth:`~jaxcal.MeasurementModel.estimates_weights`; exact orientation readings push a pose's
-#: weight to the end of its range, a factor of a few per round)
-MAX_REWEIGHT_ROUNDS = 10
 
 
 #: at most this many solves per selection while the evidence chooses the prior's scale (each
@@ -59,14 +54,18 @@ def _with_rounds(prior, rounds: int):
     return dataclasses.replace(prior, evidence=dataclasses.replace(prior.evidence, rounds=rounds))
 
 
-def _reweighted(problem: Problem, out: CalibrationOutput, prior, loss: str, scale):
+def _reweighted(problem: Problem, out: CalibrationOutput, prior, loss: str, scale, cur: Deviations):
     """``problem``'s measurement reweighted by the σ̂ of its residual components at the solve
-    ``out`` (variance components: :attr:`~jaxcal._fit._diagnostics.Uncertainty.component_std`),
-    or as it is where they cannot be estimated."""
+    ``out`` (at the deviations ``cur``; variance components:
+    :attr:`~jaxcal._fit._diagnostics.Uncertainty.component_std`), or as it is where they cannot be
+    estimated. Several blocks' data stacked (:class:`~jaxcal.Combined`): a σ per block
+    (:func:`~jaxcal._calibration._blocks.block_sigmas`)."""
+    m = problem.measurement
+    if m.stacked_data:
+        return m.with_sigma(block_sigmas(problem.robot, m, problem.space, cur, prior, problem.q, problem.y))
     inv, info = _prior_terms(prior, problem.space)
     unc, _ = parameter_uncertainty(problem, np.asarray(out.x, np.float64), prior_inv_std=inv, prior_information=info,
                                    loss=loss, loss_scale=scale or 1.0, gram=out.gram)
-    m = problem.measurement
     if unc.component_std is None:
         return m
     return m.reweighted([unc.component_std[c[0]] for c in m.components])
@@ -87,14 +86,18 @@ class Solves:
     plain: bool  # plain least squares: no scale to estimate, no Objective
     carry_jac: bool
 
-    def request(self, measurement, prior, cur, prog, mask, noise, scale, free, start_jacobian):
-        """The solve of one round: ``(Calibrator, q, y, key)``."""
+    def request(self, measurement, prior, cur, prog, mask, noise, scale, free, start_jacobian, radius=None):
+        """The solve of one round: ``(Calibrator, q, y, key)``. ``radius``: the trust region's step
+        size to start from (a trust-region method: the last round's; ``None``: optimistix's 1)."""
         objective = None if self.plain else Objective.build(prog, prior, noise, self.loss, scale, self.q.dtype,
                                                             free=free)
         flag = np.bool_(start_jacobian is not None) if self.carry_jac else None
+        # a trust-region method always gets its step size as run-time data: one program for every round
+        radius = (np.asarray(1.0 if radius is None else radius, self.q.dtype) if self.meth.trust_region else None)
         return Calibrator(self.robot, measurement, self.meth, cur, prog,
                           None if objective is None or objective.plain_least_squares else objective, report=True,
-                          start_jacobian=start_jacobian, free=mask, start_jacobian_given=flag), self.q, self.y, self.key
+                          start_jacobian=start_jacobian, free=mask, start_jacobian_given=flag,
+                          trust_radius=radius), self.q, self.y, self.key
 
 
 @dataclasses.dataclass(eq=False)
@@ -152,8 +155,10 @@ class Rounds:
             self.noise, self.scale = new_noise, new_scale
             self.round_prior = self.round_prior if self.ev_prior is None else self.ev_prior
             jac = self.start_jac if self.first_round_jac and self.rounds == first else None
+            # a later round starts near its solution: the trust region as the last solve left it
+            radius = None if self.out is None else self.out.trust_radius
             launched = yield self.solves.request(self.measurement, self.round_prior, self.cur, prog, mask, self.noise,
-                                                 self.scale, self.space, jac)
+                                                 self.scale, self.space, jac, radius)
             out = self._take(launched, columns)
             if int(out.status) in (Status.DIVERGED, Status.FAILED) or not self.adaptive:
                 break
@@ -179,7 +184,7 @@ class Rounds:
         settled, or the round budget is spent."""
         return (not self.adaptive or (_close(new_noise, self.noise) and _close(new_scale, self.scale) and not self.moved
                                       and _settled(self.ev_prior, self.round_prior))
-                or self.rounds - first >= (MAX_REWEIGHT_ROUNDS if self.reweight else
+                or self.rounds - first >= (self.measurement.weight_rounds if self.reweight else
                                            MAX_EVIDENCE_ROUNDS if self.evidence else 4))
 
     def _take(self, launched: _Launched, columns) -> CalibrationOutput:
@@ -206,8 +211,9 @@ class Rounds:
                                                         rounds=self.rounds, noise_used=self.prior.noise_std or self.noise,
                                                         unit=getattr(self.measurement, "unit", "mm"))
         if self.reweight:  # a σ per residual component (a pose's position, orientation): refit whitened
-            new_m = _reweighted(self.problem, out, self.round_prior, self.solves.loss, self.scale)
-            self.moved = not _close(new_m.component_scales(), self.measurement.component_scales(), 0.02)
+            new_m = _reweighted(self.problem, out, self.round_prior, self.solves.loss, self.scale, self.cur)
+            self.moved = not _close(new_m.component_scales(), self.measurement.component_scales(),
+                                    self.measurement.weights_rtol)
             self.measurement = new_m
             self.problem = eqx.tree_at(lambda pr: pr.measurement, self.problem, new_m)
 

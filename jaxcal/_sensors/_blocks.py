@@ -426,6 +426,10 @@ class Combined(MeasurementModel):
         views: per block, ``(its own layout, ((its group, the combined group), ...))`` (static).
         groups: the extra groups the blocks add to the layout (static).
         pad: padding rows at the end (copies of row 0, a block-0 row: shape buckets).
+        estimated: per block, whether its σ is estimated from the fit (variance components: a
+            :class:`Block` with ``sigma=None``) (static); :func:`jaxcal.calibrate` then refits with
+            each such σ re-estimated (:meth:`estimates_weights`) until none moves by more than
+            ``sigma_rtol``, at most ``max_rounds`` fits (static).
     """
 
     models: tuple
@@ -436,14 +440,49 @@ class Combined(MeasurementModel):
     views: tuple = eqx.field(static=True)
     groups: tuple = eqx.field(static=True)
     pad: int = eqx.field(static=True, default=0)
+    estimated: tuple[bool, ...] = eqx.field(static=True, default=())
+    sigma_rtol: float = eqx.field(static=True, default=0.01)
+    max_rounds: int = eqx.field(static=True, default=10)
     kind: ClassVar[str] = "blocks"
     unit: ClassVar[str] = "σ"
     stacked_data: ClassVar[bool] = True  # each block checked by its own model (combine)
 
-    def __init__(self, models, sigma, names, counts, widths, views, groups, pad: int = 0):
+    def __init__(self, models, sigma, names, counts, widths, views, groups, pad: int = 0, estimated=(),
+                 sigma_rtol: float = 0.01, max_rounds: int = 10):
         self.models, self.names, self.counts = tuple(models), tuple(names), tuple(int(c) for c in counts)
         self.widths, self.views, self.groups, self.pad = tuple(widths), tuple(views), tuple(groups), int(pad)
         self.sigma = jnp.asarray(sigma, jnp.result_type(float)).reshape(len(self.models))
+        self.estimated = tuple(bool(e) for e in estimated) or (False,) * len(self.models)
+        if len(self.estimated) != len(self.models):
+            raise ValueError(f"estimated: one flag per block ({len(self.models)}), got {len(self.estimated)}")
+        if not (sigma_rtol > 0 and max_rounds >= 1):
+            raise ValueError(f"sigma_rtol must be > 0 and max_rounds >= 1, got {sigma_rtol!r}, {max_rounds!r}")
+        self.sigma_rtol, self.max_rounds = float(sigma_rtol), int(max_rounds)
+
+    def estimating(self, sigma_rtol: float, max_rounds: int) -> Combined:
+        """The same model with other stopping rules of its σ's rounds (:attr:`sigma_rtol`,
+        :attr:`max_rounds`)."""
+        return Combined(self.models, self.sigma, self.names, self.counts, self.widths, self.views, self.groups,
+                        self.pad, self.estimated, sigma_rtol, max_rounds)
+
+    @host_method
+    def estimates_weights(self) -> bool:
+        """Whether :func:`jaxcal.calibrate` re-estimates block σ between its fits (some block's σ
+        was not given)."""
+        return any(self.estimated)
+
+    @host_method
+    def component_scales(self) -> np.ndarray:
+        """``[B]`` what each block's raw residual is multiplied by: ``1/σ_b``."""
+        return 1.0 / np.asarray(self.sigma, np.float64)
+
+    @property
+    def weights_rtol(self) -> float:  # type: ignore[override]
+        return self.sigma_rtol
+
+    @property
+    def weight_rounds(self) -> int:  # type: ignore[override]
+        return self.max_rounds
 
     @host_method
     def takes_extra(self, flag: str, name: str) -> bool:
@@ -643,7 +682,7 @@ class Combined(MeasurementModel):
         n0 = self.counts[0] + self.pad
         models = (self.models[0].pad_rows(n0, n0 + extra), *self.models[1:])
         return Combined(models, self.sigma, self.names, self.counts, self.widths, self.views, self.groups,
-                        self.pad + extra)
+                        self.pad + extra, self.estimated, self.sigma_rtol, self.max_rounds)
 
     @property
     def jacobian_free_of_data(self) -> bool:
@@ -766,6 +805,7 @@ def combine(robot, blocks: Sequence[Block], relations: Sequence = ()) -> tuple[C
         views.append(None)
     W = max(widths)
     y = np.concatenate([np.pad(v, ((0, 0), (0, W - v.shape[1]))) for v in ys])
-    model = Combined(models, sigma, names, counts, widths, views, tuple(groups.values()))
+    estimated = [b.sigma is None for b in blocks] + [False] * (len(models) - len(blocks))  # the relations: σ = 1
+    model = Combined(models, sigma, names, counts, widths, views, tuple(groups.values()), estimated=estimated)
     return model, np.concatenate(qs), y
 

@@ -131,6 +131,12 @@ class MeasurementModel(eqx.Module):
         the residual whitened by them (:meth:`reweighted`). No by default."""
         return False
 
+    #: the reweighting's rounds stop when no weight (:meth:`component_scales`) moves by more than
+    #: this (relative), or after :attr:`weight_rounds` fits per selection (exact orientation readings
+    #: push a pose's weight to the end of its range, a factor of a few per round)
+    weights_rtol: ClassVar[float] = 0.02
+    weight_rounds: ClassVar[int] = 10
+
     #: the ``(q, y)`` pairs of this model are several sensors' data stacked (:class:`~jaxcal.Combined`),
     #: each block's checked by its own model where they were combined: :func:`jaxcal.calibrate`
     #: takes them as they are.

@@ -73,12 +73,16 @@ class ScaledProblem(eqx.Module):
     #: step from it) or zeros standing in (the run computes it), so one compiled program serves
     #: both (``None``: no start Jacobian is passed).
     start_jacobian_given: Array | None = None
+    #: a run-time scalar: a trust-region method's step size at the start (``None``: the solver's
+    #: own); :attr:`RawRun.trust_radius` its step size at the end.
+    trust_radius: Array | None = None
 
     @classmethod
     def build(cls, problem: Problem, x_start: Float[Array, " p"] | None = None,
               objective: Objective | None = None, jacobian: Float[Array, "N p"] | None = None,
               mask: Float[Array, " p"] | None = None, keep_jacobian: bool = False,
-              defer_scale: bool = False, jacobian_given: Array | None = None) -> ScaledProblem:
+              defer_scale: bool = False, jacobian_given: Array | None = None,
+              trust_radius: Array | None = None) -> ScaledProblem:
         """Scales from the Jacobian ``problem.jacobian(x_start)`` (``x_start`` default
         ``problem.x0()``), or from ``jacobian`` when the caller has computed it (it is then kept
         as ``start_jacobian`` for the least-squares methods' first step).
@@ -92,7 +96,8 @@ class ScaledProblem(eqx.Module):
         (:attr:`scale_pending`), which computes the start's Jacobian in its own loop.
         ``jacobian_given`` (a run-time boolean, with ``defer_scale`` and ``jacobian``): the scales
         are left to ``run`` too, which takes the start's Jacobian from ``jacobian`` where
-        ``jacobian_given`` is true and computes it otherwise (:attr:`start_jacobian_given`)."""
+        ``jacobian_given`` is true and computes it otherwise (:attr:`start_jacobian_given`).
+        ``trust_radius``: :attr:`trust_radius`."""
         if objective is not None and objective.plain_least_squares:
             objective = None
         x_start = problem.x0() if x_start is None else jnp.asarray(x_start, problem.dtype)
@@ -119,8 +124,9 @@ class ScaledProblem(eqx.Module):
                     objective = eqx.tree_at(lambda o: o.prior_whitening, objective,
                                             objective.prior_whitening * mask[:, None] * mask[None, :])
         given = None if jacobian_given is None else jnp.asarray(jacobian_given, bool)
+        radius = None if trust_radius is None else jnp.asarray(trust_radius, problem.dtype)
         return cls(problem, x_start, scale, objective, None if jacobian is None else J, mask, keep_jacobian, pending,
-                   given)
+                   given, radius)
 
     @staticmethod
     def scale_from_jacobian(problem: Problem, J: Float[Array, "N p"], mask: Float[Array, " p"] | None = None
@@ -348,6 +354,8 @@ class RawRun(NamedTuple):
             (the least-squares methods under :attr:`ScaledProblem.keep_jacobian`), else ``None``.
         scale: ``[p]`` the scales ``z`` is in when the method computed them
             (:attr:`ScaledProblem.scale_pending`), else ``None`` (the problem's own).
+        trust_radius: a trust-region method's step size at the end (LM) when the problem gave
+            one to start from (:attr:`ScaledProblem.trust_radius`), else ``None``.
     """
 
     z: Float[Array, " p"]
@@ -358,6 +366,7 @@ class RawRun(NamedTuple):
     data_residual: Float[Array, " N"] | None = None
     data_jacobian: Float[Array, "N p"] | None = None
     scale: Float[Array, " p"] | None = None
+    trust_radius: Float[Array, ""] | None = None
 
 
 def finish_history(history: Array, n_iterations: Array) -> Array:
@@ -407,6 +416,11 @@ class Method(eqx.Module):
     #: whether ``run`` accepts a :attr:`ScaledProblem.scale_pending` problem: it computes the
     #: start's Jacobian and the scales itself and returns them (:attr:`RawRun.scale`).
     scales_itself: ClassVar[bool] = False
+
+    #: whether ``run`` is a trust-region method that starts from :attr:`ScaledProblem.trust_radius`
+    #: and returns its step size at the end (:attr:`RawRun.trust_radius`): :func:`jaxcal.calibrate`'s
+    #: later rounds continue with the last solve's.
+    trust_region: ClassVar[bool] = False
 
     @property
     def paddable(self) -> bool:

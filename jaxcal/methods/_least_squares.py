@@ -131,6 +131,7 @@ class LevenbergMarquardt(_OptimistixMethod):
     name: ClassVar[str] = "lm"
     solver_name: ClassVar[str] = "LevenbergMarquardt"
     maskable: ClassVar[bool] = True
+    trust_region: ClassVar[bool] = True
 
 
 @register_method("gn")

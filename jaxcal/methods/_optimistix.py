@@ -140,6 +140,11 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     info_struct = optx.FunctionInfo.ResidualJac(r_struct, lx.MatrixLinearOperator(jac_struct))
     f_info0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), info_struct)
     search_state0 = search.init(z0, info_struct)
+    # a trust region's step size from the caller (a later round of calibrate: the last solve's)
+    radius = problem.trust_radius if isinstance(search, optx.ClassicalTrustRegion) else None
+    if radius is not None:
+        search_state0 = eqx.tree_at(lambda s: s.step_size, search_state0,
+                                    jnp.asarray(radius, search_state0.step_size.dtype))
     descent_state0 = descent.init(z0, info_struct)
     hist0 = jnp.full(max_steps + 1, jnp.nan, problem.dtype)
 
@@ -242,7 +247,8 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
     carry0 = (z0, z0, jnp.asarray(True), jnp.asarray(0), f_info0, search_state0, descent_state0,
               jnp.asarray(False), optx.RESULTS.successful, hist0, data0,
               jnp.zeros(n_data, problem.dtype) if keep else (), problem.scale)
-    z, _, _, k, f_info, _, _, done, result, hist, data, data_start, scale = jax.lax.while_loop(cond, body, carry0)
+    z, _, _, k, f_info, s_state, _, done, result, hist, data, data_start, scale = jax.lax.while_loop(cond, body,
+                                                                                                     carry0)
     rmse0 = hist[0]
     hist = finish_history(hist, k)
     finite = jnp.all(jnp.isfinite(hist[: max_steps + 1])) & jnp.all(jnp.isfinite(z))
@@ -266,4 +272,4 @@ def optimistix_run(solver, problem: ScaledProblem, max_steps: int) -> RawRun:
         data_residual = jnp.where(z_finite, r, data_start)
         data_jacobian = jnp.where(z_finite, J, 0.0 if Jd0 is None else Jd0)
     return RawRun(z, hist, k, status, data_residual=data_residual, data_jacobian=data_jacobian,
-                  scale=scale if pending else None)
+                  scale=scale if pending else None, trust_radius=None if radius is None else s_state.step_size)
