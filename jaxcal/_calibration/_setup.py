@@ -117,9 +117,9 @@ def measurement_for(data, robot, *, anchor_mm=None, radius_mm: float | None = No
     kind = sensor_kind(data.kind)
     measurement, estimate, notes = kind.setup(data, robot, estimate, options)
     measurement = kind.at_file_tip(measurement, data, robot)
-    if getattr(measurement, "tip", None) is not None:
-        notes = (*notes, f"the sensor sees tip {measurement.tip} (the file's '# tip:' line); its tool point is the "
-                         f"{measurement.tool_group} group")
+    if getattr(measurement, "tip", None) is not None:  # a camera sees no tool point: no group to name
+        tool = f"; its tool point is the {measurement.tool_group} group" if getattr(measurement, "sees_tool_point", True) else ""
+        notes = (*notes, f"the sensor sees tip {measurement.tip} (the file's '# tip:' line){tool}")
     return MeasurementSetup(measurement, frozenset(estimate), tuple(notes))
 
 
