@@ -10,6 +10,13 @@ import tempfile
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
 
+# One BLAS thread per test worker (two workers on two cores), as the command line runs
+# (jaxcal.cli.console_main): OpenBLAS's worker threads busy-wait between calls and took the cores
+# from XLA's thread pool. NumPy is loaded already in this process (a plugin imports it), but the
+# xdist workers and the subprocesses tests start inherit the variables and read them at load.
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
