@@ -18,10 +18,10 @@ from .._fit._identifiability import start_jacobian
 from .._fit._objective import LOSSES, Objective, robust_scale
 from .._fit._problem import Problem, observed_entries, residual_blocks_numpy, signed_residuals
 from .._fit._result import Status
-from ._blocks import block_sigmas
 from ._calibrator import CalibrationOutput, Calibrator
 from ._diagnose import _prior_terms
 from ._programs import _Launched, _mask_output, _program_columns, _solve_space
+from ._variance import block_sigmas
 
 __all__ = ["Solves", "Rounds", "MAX_EVIDENCE_ROUNDS"]
 

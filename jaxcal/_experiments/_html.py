@@ -434,6 +434,7 @@ def combined_html_report(d: dict, *, source: str = "", inputs=(), created: str |
     --combine`` writes them). What the file cannot show, the page says."""
     from .._calibration._blocks import _stats_from_dict
     from .._fit._diagnostics import Checks
+    from .._sensors._blocks import Relations
 
     blocks = [b for b in d.get("blocks", []) if isinstance(b, dict)]
     data_blocks = [b for b in blocks if "result" in b]
@@ -489,7 +490,7 @@ def combined_html_report(d: dict, *, source: str = "", inputs=(), created: str |
     rel = d.get("relations") or []
     body.append("<h2>Relations</h2>")
     if rel:
-        rel_stats = next((st for st in stats if st.kind == "relations"), None)
+        rel_stats = next((st for st in stats if st.kind == Relations.kind), None)
         body.append(_table(["relation", "between", "known value", "std"], [
             [r.get("kind"), " – ".join(str(v) for k, v in r.items() if isinstance(v, str) and k != "kind"),
              ", ".join(_num(v) for k, v in r.items() if isinstance(v, (int, float)) and "std" not in k),

@@ -11,7 +11,7 @@ import warnings
 
 from ._calibrate_setup import _calibration_setup
 from ._calibrate_several import _cmd_calibrate_combined, _cmd_calibrate_fleet
-from ._common import _EXIT_FAILED, _as_usage, _today, _Usage
+from ._common import _EXIT_FAILED, _as_usage, _today, _Usage, times_line
 from ._tables import (
     _accuracy_table,
     _outlier_line,
@@ -19,8 +19,6 @@ from ._tables import (
     _print_outliers_and_warnings,
     _print_robot_table,
 )
-
-_T0 = time.perf_counter()  # the command line's start (before JAX is imported)
 
 
 def _rows(text: str | None) -> list[int]:
@@ -91,20 +89,6 @@ def _cmd_calibrate(args) -> int:
     if args.verbose:
         print(times_line(t_start, t_loaded, t_fit, res, "calibrate()"))
     return _exit_status(res, args, split.measurement, setup.extras)
-
-
-def times_line(t_start: float, t_loaded: float, t_fit: float, res, call: str) -> str:
-    """``--verbose``'s line of where the time went, from the command line's start (:data:`_T0`):
-    start-up to ``t_start``, the data to ``t_loaded``, the fit (``call``, result ``res``) to
-    ``t_fit``, the output to now (``time.perf_counter`` values)."""
-    t_end = time.perf_counter()
-    return (f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
-            f"{t_loaded - t_start:.2f} s, "
-            f"{call} {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
-            f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
-            f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
-            f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
-            "interpreter's exit come on top)")
 
 
 def _split(args, setup):

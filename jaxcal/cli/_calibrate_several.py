@@ -119,7 +119,7 @@ def _cmd_calibrate_combined(args, method: str, t_start: float) -> int:
                                    "loss": first.loss, "relations": None if not args.relations else str(args.relations)})
     print(f"wrote {len(names)} block result(s) and combined.json to {out}")
     if args.verbose:
-        from ._calibrate import times_line
+        from ._common import times_line
 
         print(times_line(t_start, t_loaded, t_fit, res, f"calibrate_blocks() ({res.variance_rounds} fit(s))"))
     return 0 if res.status.name not in ("DIVERGED", "FAILED") else _EXIT_FAILED

@@ -6,12 +6,16 @@ from __future__ import annotations
 import contextlib
 import pathlib
 import sys
+import time
 
 _EXIT_FAILED = 1
 
 
 class _Usage(Exception):
     """Bad command-line input: reported as one line, exit status 2."""
+
+
+_T0 = time.perf_counter()  # the command line's start (before JAX is imported)
 
 
 @contextlib.contextmanager
@@ -132,3 +136,17 @@ def _today() -> str:
     import datetime
 
     return datetime.datetime.now(datetime.timezone.utc).date().isoformat()
+
+
+def times_line(t_start: float, t_loaded: float, t_fit: float, res, call: str) -> str:
+    """``--verbose``'s line of where the time went, from the command line's start (:data:`_T0`):
+    start-up to ``t_start``, the data to ``t_loaded``, the fit (``call``, result ``res``) to
+    ``t_fit``, the output to now (``time.perf_counter`` values)."""
+    t_end = time.perf_counter()
+    return (f"\ntimes: start-up (arguments, importing JAX) {t_start - _T0:.2f} s, reading and checking the data "
+            f"{t_loaded - t_start:.2f} s, "
+            f"{call} {t_fit - t_loaded:.2f} s (compiling the solve {res.compile_time_s:.2f} s, on a background "
+            f"thread beside the rest where there is a second core; solve {res.wall_time_s:.3f} s; "
+            f"the rest: initialisation, identifiability, diagnostics), output {t_end - t_fit:.2f} s; "
+            f"total {t_end - _T0:.2f} s since the command line started (Python's own start-up and the "
+            "interpreter's exit come on top)")
