@@ -217,12 +217,21 @@ def _cmd_calibrate_fleet(args, method: str) -> int:
           f"{first.test_fraction:g} of each file held out (seed {args.seed})")
     for n in first.notes:
         print(f"note: {n}")
+    noise_std = args.noise_std
+    if noise_std is None:  # the sensor σ the files state (their '# noise_std_mm:' lines), where they agree
+        from .._fit._diagnostics import given_noise_std
+
+        stated = {given_noise_std(s.data, None, s.measurement) for s in setups}
+        if len(stated) == 1 and None not in stated:
+            noise_std = stated.pop()
+            print(f"note: the floor is for the sensor σ the files state, {noise_std:g} mm "
+                  "(give --noise-std MM for another)")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
         with _as_usage(errors=(TypeError,)):  # a --set name the method does not take
             fleet = calibrate_many(robot, measurement, trains, method, names=names, key=k_method, extras=extras,
                                    prior=first.prior, loss=first.loss, checks=first.checks, free=args.free,
-                                   fix=args.fix or (), tolerance_mm=args.tolerance_mm, noise_std=args.noise_std,
+                                   fix=args.fix or (), tolerance_mm=args.tolerance_mm, noise_std=noise_std,
                                    **first.hyper)
     for w in caught:
         if issubclass(w.category, CalibrationWarning):

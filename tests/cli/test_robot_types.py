@@ -239,6 +239,8 @@ def test_tree_fleet_prior_drift_and_nongeometric_errors(robot_args, tmp_path, ca
         units = list(csv.DictReader(f))
     assert [u["status"] for u in units] == ["converged"] * 3, units
     assert all(abs(float(u["noise_std_mm"]) / NOISE - 1) < 0.25 for u in units), units
+    # the floor from the σ the files state (their '# noise_std_mm:' line), no --noise-std needed
+    assert f"floor for sensor σ {NOISE:g} mm" in out.out and all(0.8 < float(u["floor_ratio"]) < 1.2 for u in units)
     prior = tmp_path / "tree.prior.json"
     code, out = _run(["fleet-prior", *(str(fleet / f"u{unit}.json") for unit in range(3)), "--out", str(prior)], capsys)
     assert code == 0, out.err
