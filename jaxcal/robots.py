@@ -17,6 +17,10 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from ._models._abstract import AbstractRobot
+from ._models._dh_tree import TreeSpec as _TreeSpec
+from ._models._dh_tree import dh_head as _head
+from ._models._dh_tree import dh_row as _row
+from ._models._dh_tree import dh_tail as _tail
 from ._models._robot import DHRobot
 from ._models._tree import KinematicTree
 
@@ -116,101 +120,9 @@ def abb_irb120(tool_mm=(30.0, 0.0, 60.0)) -> DHRobot:
 
 # ---------------------------------------------------------------------------- kinematic trees
 #
-# A tree preset is written as the standard DH rows of its source (a, d in mm; α, θ offset in
-# degrees; A_i = Rz(θ_i + q_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)), regrouped as chain_from_dh regroups them:
-# joint i's origin is the previous row's Tx(a)·Rx(α) times Tz(d_i)·Rz(θ_i), and the last row's
-# Tx(a)·Rx(α) is the tip's flange. A joint that several branches share keeps only what precedes
-# its rotation; the rest of its row (d, θ offset, a, α), which the sources give per branch, opens
-# each branch (its first joint's origin, or a tip's flange) — so the shared joint's reading and
-# error parameters are one, as on the robot.
-
-
-def _tz(d):
-    T = np.eye(4)
-    T[2, 3] = d
-    return T
-
-
-def _tx(a):
-    T = np.eye(4)
-    T[0, 3] = a
-    return T
-
-
-def _rz(deg):
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
-    return T
-
-
-def _rx(deg):
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    T = np.eye(4)
-    T[1:3, 1:3] = [[c, -s], [s, c]]
-    return T
-
-
-def _head(d, theta):
-    """``Tz(d)·Rz(θ)``: what a DH row puts before its joint's rotation (they commute)."""
-    return _tz(d) @ _rz(theta)
-
-
-def _tail(a, alpha):
-    """``Tx(a)·Rx(α)``: what a DH row puts after its joint's rotation."""
-    return _tx(a) @ _rx(alpha)
-
-
-def _row(a, d, alpha, theta):
-    """A whole standard DH row at zero joint reading (a fixed transform)."""
-    return _head(d, theta) @ _tail(a, alpha)
-
-
-class _TreeSpec:
-    """Joints and tips added branch by branch (parents first), then :meth:`build`."""
-
-    def __init__(self):
-        self.origins, self.parents, self.names, self.links, self.lo, self.hi = [], [], [], [], [], []
-        self.tips, self.tip_parents, self.flanges, self.tools = [], [], [], []
-
-    def joint(self, parent: int, origin, name: str, link: str, limits_deg) -> int:
-        self.origins.append(np.asarray(origin, np.float64))
-        self.parents.append(parent)
-        self.names.append(name)
-        self.links.append(link)
-        self.lo.append(np.radians(limits_deg[0]))
-        self.hi.append(np.radians(limits_deg[1]))
-        return len(self.parents) - 1
-
-    def branch(self, parent: int, mount, rows, names, links, limits_deg) -> tuple[int, np.ndarray]:
-        """DH ``rows`` ``(a, d, α, θ)`` hanging from joint ``parent`` (``-1``: the base) after the
-        fixed ``mount``: returns the last joint's index and the last row's tail (a tip's flange)."""
-        prev = np.asarray(mount, np.float64)
-        for (a, d, alpha, theta), name, link, lim in zip(rows, names, links, limits_deg, strict=True):
-            parent = self.joint(parent, prev @ _head(d, theta), name, link, lim)
-            prev = _tail(a, alpha)
-        return parent, prev
-
-    def tip(self, name: str, parent: int, flange, tool=(0.0, 0.0, 0.0)) -> None:
-        self.tips.append(name)
-        self.tip_parents.append(parent)
-        self.flanges.append(np.asarray(flange, np.float64))
-        self.tools.append(np.asarray(tool, np.float64))
-
-    def build(self, name: str, base: str, tools: Mapping[str, Sequence[float]] | None) -> KinematicTree:
-        tl = np.array(self.tools)
-        for t, v in (tools or {}).items():
-            if t not in self.tips:
-                raise ValueError(f"tool points given for {t!r}, which is not a tip of {name} ({self.tips})")
-            tl[self.tips.index(t)] = np.asarray(v, np.float64)
-        O = np.array(self.origins)
-        F = np.array(self.flanges)
-        return KinematicTree.build(
-            origin_R=O[:, :3, :3], origin_t=O[:, :3, 3], joint_types=["revolute"] * len(O), q_min=self.lo,
-            q_max=self.hi, parents=self.parents, tips=self.tips, tip_parents=self.tip_parents,
-            flange_R=F[:, :3, :3], flange_t=F[:, :3, 3], tools=tl, joint_names=self.names, link_names=self.links,
-            base=base, name=name)
-
+# A tree preset is written as the standard DH rows of its source, regrouped into joint origins by
+# jaxcal._models._dh_tree (a shared joint keeps what precedes its rotation; the rest of its row opens
+# each branch) — the same code that reads DH tree files (jaxcal._calibration._io.load_tree_csv).
 
 #: The dual-arm robot's DH rows (a mm, d mm, α°, θ°): Rozlivek et al.'s toolbox, ``loadMotoman.m``
 #: (metres and radians there). The torso row is each arm's first row; α is −15° for the left arm and

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from .._core._csvfile import read_table
+from .._core._csvfile import _decode, number_list, read_table
 from .._core._json import from_json_number, to_jsonable
 from .._core._metrics import Metrics
 from .._core._params import Deviations, ParameterSpace, layout_for
@@ -30,6 +30,7 @@ from .._fit._result import CalibrationResult, Status
 from .._models._abstract import AbstractRobot
 from .._models._nongeometric import nongeometric_from_dict
 from .._models._robot import DHRobot
+from .._models._tree import KinematicTree
 from .._sensors._measurement import MeasurementModel
 
 __all__ = [
@@ -43,6 +44,7 @@ __all__ = [
     "load_result",
     "load_result_dict",
     "load_robot_csv",
+    "load_tree_csv",
     "save_robot_csv",
     "result_data_file",
     "file_identity",
@@ -127,8 +129,42 @@ def _convention(path, text: str) -> str:
     return _CONVENTION_NAMES[value]
 
 
-def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
-    """A robot from a DH table file (lengths in mm, angles in degrees or radians).
+def _dh_file_columns(t, path) -> dict[str, np.ndarray]:
+    """The DH-table columns of ``t`` by quantity (``alpha``, ``a``, ``d``, ``theta``, optional ``q_min``,
+    ``q_max``, ``beta``, ``joint``), angles in degrees, checked as :func:`load_robot_csv` says."""
+    unknown = [h for h in t.header if h not in _DH_FILE_COLUMNS]
+    if unknown:
+        raise ValueError(f"{path}: unknown DH table column(s) {unknown}; accepted: {_DH_ACCEPTED}")
+    named: dict[str, list[str]] = {}
+    for h in t.header:
+        named.setdefault(_DH_FILE_COLUMNS[h][0], []).append(h)
+    twice = [cols for cols in named.values() if len(cols) > 1]
+    if twice:
+        raise ValueError(f"{path}: columns {twice[0]} give the same quantity; keep one")
+    missing = [c for c in _DH_COLUMNS if _DH_FILE_COLUMNS[c][0] not in named]
+    if missing:
+        raise ValueError(f"{path}: DH table lacks column(s) {missing}; header must include {','.join(_DH_COLUMNS)}"
+                         " (angles may be *_rad)")
+    if ("q_min" in named) != ("q_max" in named):
+        have, lack = ("q_min", "q_max") if "q_min" in named else ("q_max", "q_min")
+        raise ValueError(f"{path}: joint limit column {named[have][0]} needs its partner "
+                         f"({'/'.join(n + '_deg' for n in _LIMIT_NAMES[lack])} or *_rad)")
+    if not t.rows:
+        raise ValueError(f"{path}: DH table has no joint rows")
+    values = t.floats(t.header)
+    cols = {}
+    for k, h in enumerate(t.header):
+        quantity, unit = _DH_FILE_COLUMNS[h]
+        cols[quantity] = np.rad2deg(values[:, k]) if unit == "rad" else values[:, k]
+    if "joint" in cols and not np.array_equal(cols["joint"], np.arange(1, len(t.rows) + 1)):
+        raise ValueError(f"{path}: the joint column must number the rows 1..{len(t.rows)}, "
+                         f"got {cols['joint'].tolist()}")
+    return cols
+
+
+def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot | KinematicTree:
+    """A robot from a DH table file (lengths in mm, angles in degrees or radians); a file with
+    ``# branch:`` lines is a kinematic tree, one DH table per branch (:func:`load_tree_csv`).
 
     Layout: optional ``# name: NAME``, ``# tool_mm: x,y,z`` (tool point in the flange frame, mm;
     default the flange origin) and ``# convention: standard|modified`` comment lines, a header
@@ -166,38 +202,14 @@ def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
     t = read_table(path, delimiter=delimiter, what="DH table file", row_name="joint row")
     path = t.path
     meta = {k.lower(): v for k, v in t.meta.items()}
+    if "branch" in meta:  # one DH table per branch: a kinematic tree
+        return load_tree_csv(path, delimiter=delimiter)
     if (other := [k for k in meta if k not in _DH_FILE_SETTINGS]):
         raise ValueError(f"{path}: '# {other[0]}: ...' is not a DH table file setting; the settings are "
                          + ", ".join(f"'# {k}:'" for k in _DH_FILE_SETTINGS) + " (a comment line without a colon "
                          "is free text)")
     convention = _convention(path, meta["convention"]) if "convention" in meta else "standard"
-    unknown = [h for h in t.header if h not in _DH_FILE_COLUMNS]
-    if unknown:
-        raise ValueError(f"{path}: unknown DH table column(s) {unknown}; accepted: {_DH_ACCEPTED}")
-    named: dict[str, list[str]] = {}
-    for h in t.header:
-        named.setdefault(_DH_FILE_COLUMNS[h][0], []).append(h)
-    twice = [cols for cols in named.values() if len(cols) > 1]
-    if twice:
-        raise ValueError(f"{path}: columns {twice[0]} give the same quantity; keep one")
-    missing = [c for c in _DH_COLUMNS if _DH_FILE_COLUMNS[c][0] not in named]
-    if missing:
-        raise ValueError(f"{path}: DH table lacks column(s) {missing}; header must include {','.join(_DH_COLUMNS)}"
-                         " (angles may be *_rad)")
-    if ("q_min" in named) != ("q_max" in named):
-        have, lack = ("q_min", "q_max") if "q_min" in named else ("q_max", "q_min")
-        raise ValueError(f"{path}: joint limit column {named[have][0]} needs its partner "
-                         f"({'/'.join(n + '_deg' for n in _LIMIT_NAMES[lack])} or *_rad)")
-    if not t.rows:
-        raise ValueError(f"{path}: DH table has no joint rows")
-    values = t.floats(t.header)
-    cols = {}
-    for k, h in enumerate(t.header):
-        quantity, unit = _DH_FILE_COLUMNS[h]
-        cols[quantity] = np.rad2deg(values[:, k]) if unit == "rad" else values[:, k]
-    if "joint" in cols and not np.array_equal(cols["joint"], np.arange(1, len(t.rows) + 1)):
-        raise ValueError(f"{path}: the joint column must number the rows 1..{len(t.rows)}, "
-                         f"got {cols['joint'].tolist()}")
+    cols = _dh_file_columns(t, path)
     beta = cols.get("beta")
     return DHRobot.from_degrees(
         alpha_deg=cols["alpha"], a_mm=cols["a"], d_mm=cols["d"], theta_deg=cols["theta"],
@@ -206,6 +218,230 @@ def load_robot_csv(path, *, delimiter: str | None = None) -> DHRobot:
         tool_mm=_tool_mm(path, meta["tool_mm"]) if "tool_mm" in meta else (0.0, 0.0, 0.0),
         name=meta.get("name", pathlib.Path(path).stem), convention=convention,
     )
+
+
+#: the ``# key: value`` settings a DH tree file may carry (``# branch:`` once per branch)
+_TREE_FILE_SETTINGS = ("name", "convention", "branch")
+#: the ``# branch:`` line's ``key=value`` words
+_BRANCH_KEYS = ("parent", "tip", "tool_mm")
+_BRANCH_FORM = "'# branch: NAME parent=root|PARENT@ROW [tip=TIP] [tool_mm=x,y,z]'"
+#: a DH tree file's ``type`` column: a joint row (empty cell too) or a fixed row
+_ROW_TYPES = {"": "revolute", "revolute": "revolute", "joint": "revolute", "fixed": "fixed"}
+
+
+def _branch_lines(path: str) -> list[tuple[int, str]]:
+    """``(line number, text after 'branch:')`` of each ``# branch:`` line, in file order."""
+    out = []
+    for number, line in enumerate(_decode(path).splitlines(), start=1):
+        s = line.strip()
+        if s.startswith("#") and ":" in s:
+            key, value = s[1:].split(":", 1)
+            if key.strip().lower() == "branch":
+                out.append((number, value.strip()))
+    return out
+
+
+def _parse_branch(path, number: int, text: str) -> dict:
+    """``{"name", "parent" (None: the root), "row" (1-based), "tip", "tool", "where", "line"}`` of one
+    ``# branch:`` line (``where`` names it in errors)."""
+    where = f"{path}: line {number} ('# branch: {text}')"
+    words = text.split()
+    if not words or "=" in words[0]:
+        raise ValueError(f"{where}: a branch line starts with the branch's name: {_BRANCH_FORM}")
+    opts: dict[str, str] = {}
+    for w in words[1:]:
+        key, eq, value = w.partition("=")
+        key = key.lower()
+        if not eq or key not in _BRANCH_KEYS or not value:
+            raise ValueError(f"{where}: {w!r} is not one of parent=..., tip=..., tool_mm=...; the form is "
+                             f"{_BRANCH_FORM}")
+        if key in opts:
+            raise ValueError(f"{where}: {key}= is given twice")
+        opts[key] = value
+    if "parent" not in opts:
+        raise ValueError(f"{where}: says no parent= (parent=root for a branch on the base, parent=BRANCH@ROW for "
+                         "one hanging from joint row ROW of an earlier branch)")
+    parent, row = None, None
+    if opts["parent"].lower() != "root":
+        parent, at, r = opts["parent"].rpartition("@")
+        if not at or not parent or not r.isdigit() or int(r) < 1:
+            raise ValueError(f"{where}: parent={opts['parent']} must be parent=root or parent=BRANCH@ROW (ROW the "
+                             "parent branch's row number, from 1)")
+        row = int(r)
+    if "tool_mm" in opts and "tip" not in opts:
+        raise ValueError(f"{where}: tool_mm= needs tip=NAME (the tool point of that tip)")
+    tool = (0.0, 0.0, 0.0) if "tool_mm" not in opts else tuple(
+        number_list(opts["tool_mm"], 3, f"{where}: tool_mm="))
+    return {"name": words[0], "parent": parent, "row": row, "tip": opts.get("tip"), "tool": tool, "where": where,
+            "line": number}
+
+
+def load_tree_csv(path, *, delimiter: str | None = None) -> KinematicTree:
+    """A kinematic tree from a DH tree file: one standard DH table per branch, each after a
+    ``# branch:`` line that names the branch, its parent and its tip (lengths mm, angles degrees
+    or radians; :func:`load_robot_csv` reads such a file too).
+
+    Layout: the DH table file's (one header row, the columns of :func:`load_robot_csv` but
+    ``joint`` and ``beta``, optional ``# name:`` and ``# convention: standard`` lines), with the
+    joint rows grouped by branch::
+
+        # name: two_arms
+        alpha_deg,a_mm,d_mm,theta_deg,q_min_deg,q_max_deg,type
+        # branch: torso parent=root
+        0,0,500,0,-170,170,
+        # branch: left parent=torso@1 tip=left_tool tool_mm=0,0,120
+        90,0,500,0,,,
+        -90,300,0,0,-90,90,
+        # branch: right parent=torso@1 tip=right_tool
+        -90,0,500,0,,,
+        90,300,0,0,-90,90,
+
+    ``# branch: NAME parent=root|PARENT@ROW [tip=TIP] [tool_mm=x,y,z]``:
+
+    * ``parent=root``: the branch's rows are a DH chain from the base frame.
+    * ``parent=PARENT@ROW``: the branch hangs from the joint of row ``ROW`` (from 1) of the
+      branch ``PARENT``, defined above. Its **first row is that joint again**, as this branch's
+      DH table has it: the same joint (one reading, one set of error parameters), whose row may
+      hold other ``d, θ, a, α`` than the parent's (``Tz(d)·Rz(θ)`` commutes with the joint's
+      rotation; a torso axis whose arms leave it at ±15° is one joint with two rows). Its limit
+      cells may be empty (they are the parent's) and must otherwise equal the parent's.
+      So the branch, written as one DH chain, is its parent's rows before ``ROW`` (recursively)
+      followed by its own rows.
+    * ``tip=TIP``: the branch ends at a tip (the frame after its last row's ``Tx(a)·Rx(α)``);
+      ``tool_mm=x,y,z``: that tip's tool point in its frame (mm, default its origin). A branch
+      without a tip must carry other branches.
+
+    Optional ``type`` column: ``revolute`` (or empty) for a joint, ``fixed`` for a row without a
+    joint reading (its ``Rz(θ)·Tz(d)·Tx(a)·Rx(α)`` is a fixed transform, e.g. a camera frame
+    after the last joint; its limit cells may be empty). Only revolute joints and standard DH.
+
+    Joints are numbered in file order (parents' rows before their children's, a repeated first
+    row not counted again) and named ``BRANCH_joint_K`` (``K`` the row number in the branch),
+    their links ``BRANCH_link_K``; tips in file order, the first the default tip; the base link is
+    ``base``.
+
+    Raises:
+        ValueError: naming the file and line: a row before the first ``# branch:`` line, a branch
+            without rows or defined twice, a parent not defined above, a row number out of range
+            or on a fixed row, a repeated first row that is fixed or has other limits, a tip name
+            repeated, a modified-DH file, ``joint``/``beta`` columns, what :func:`load_robot_csv`
+            refuses in the columns, or what :meth:`~jaxcal.KinematicTree.build` refuses.
+    """
+    from dataclasses import replace
+
+    from .._models._dh_tree import TreeSpec, dh_head, dh_row, dh_tail
+
+    t = read_table(path, delimiter=delimiter, what="DH tree file", row_name="joint row")
+    path = t.path
+    meta = {k.lower(): v for k, v in t.meta.items()}
+    if (other := [k for k in meta if k not in _TREE_FILE_SETTINGS]):
+        raise ValueError(f"{path}: '# {other[0]}: ...' is not a DH tree file setting; the settings are "
+                         + ", ".join(f"'# {k}:'" for k in _TREE_FILE_SETTINGS))
+    if "convention" in meta and _convention(path, meta["convention"]) != "standard":
+        raise ValueError(f"{path}: a DH tree file holds standard DH rows; '# convention: {meta['convention']}' is "
+                         "not read for trees (rewrite the rows in standard DH)")
+    if (bad := [h for h in t.header if _DH_FILE_COLUMNS.get(h, ("",))[0] in ("joint", "beta")]):
+        raise ValueError(f"{path}: column(s) {bad} are not read in a DH tree file (joints are named after their "
+                         "branch; Hayati beta rows are for single chains)")
+    types = ["revolute"] * len(t.rows)
+    if "type" in t.header:
+        k = t.header.index("type")
+        for r, cells in enumerate(t.rows):
+            value = cells[k].strip().lower()
+            if value not in _ROW_TYPES:
+                raise ValueError(f"{path}: {t.where(r, 'type')}: {cells[k]!r} is not a row type (revolute or empty: "
+                                 "a joint; fixed: a fixed transform)")
+            types[r] = _ROW_TYPES[value]
+        keep = [i for i in range(len(t.header)) if i != k]
+        t = replace(t, header=tuple(t.header[i] for i in keep), rows=[[c[i] for i in keep] for c in t.rows])
+    branches = [_parse_branch(path, n, text) for n, text in _branch_lines(path)]
+    if not branches:
+        raise ValueError(f"{path}: a DH tree file has a {_BRANCH_FORM} line before each branch's rows")
+    # each row's branch: the last '# branch:' line above it
+    of_row = [int(np.searchsorted([b["line"] for b in branches], line)) - 1 for line in t.lines]
+    if t.rows and of_row[0] < 0:
+        raise ValueError(f"{path}: {t.where(0)} comes before the first '# branch:' line: every row belongs to a "
+                         "branch")
+    first = {r for r in range(len(t.rows)) if r == 0 or of_row[r] != of_row[r - 1]}
+    inherit = [types[r] == "fixed" or (r in first and branches[of_row[r]]["parent"] is not None)
+               for r in range(len(t.rows))]
+    blank = np.zeros(len(t.rows), bool)
+    limit_cols = [i for i, h in enumerate(t.header) if _DH_FILE_COLUMNS.get(h, ("",))[0] in ("q_min", "q_max")]
+    if limit_cols:  # empty limit cells of fixed and repeated rows: no value to read
+        rows = [list(c) for c in t.rows]
+        for r, cells in enumerate(rows):
+            if inherit[r] and all(not cells[i].strip() for i in limit_cols):
+                blank[r] = True
+                for i in limit_cols:
+                    cells[i] = "0"
+        t = replace(t, rows=rows)
+    cols = _dh_file_columns(t, path)
+    lo = cols.get("q_min", np.full(len(t.rows), -180.0))
+    hi = cols.get("q_max", np.full(len(t.rows), 180.0))
+
+    spec = TreeSpec()
+    done: dict[str, list] = {}  # branch -> per row (joint index or None, (d, θ) in its origin, limits)
+    tips: dict[str, str] = {}
+    for b, br in enumerate(branches):
+        rows = [r for r in range(len(t.rows)) if of_row[r] == b]
+        name, where = br["name"], br["where"]
+        if name in done:
+            raise ValueError(f"{where}: branch {name!r} is defined twice")
+        if not rows:
+            raise ValueError(f"{where}: branch {name!r} has no rows")
+        entries = []
+        if br["parent"] is None:
+            joint, prev, own = -1, np.eye(4), rows
+        else:
+            parent, k = br["parent"], br["row"]
+            if parent not in done:
+                raise ValueError(f"{where}: parent branch {parent!r} is not defined above (defined: "
+                                 f"{', '.join(done) or 'none'}); a branch comes after its parent")
+            if k > len(done[parent]):
+                raise ValueError(f"{where}: {parent}@{k}: branch {parent!r} has {len(done[parent])} rows")
+            joint, (pd, ptheta), lim = done[parent][k - 1]
+            if joint is None:
+                raise ValueError(f"{where}: {parent}@{k} is a fixed row; a branch hangs from a joint")
+            r = rows[0]
+            if types[r] == "fixed":
+                raise ValueError(f"{path}: {t.where(r)}: the first row of branch {name!r} is joint {parent}@{k} "
+                                 "again (as this branch's DH table has it), not a fixed row")
+            if not blank[r] and not np.allclose((lo[r], hi[r]), lim, rtol=0, atol=1e-9):
+                raise ValueError(f"{path}: {t.where(r)}: the first row of branch {name!r} is joint {parent}@{k} "
+                                 f"again; its limits {lo[r]:g}..{hi[r]:g} deg differ from the parent's "
+                                 f"{lim[0]:g}..{lim[1]:g} (leave the cells empty)")
+            # the joint's origin holds the parent's Tz(d)·Rz(θ); this branch's own row opens it
+            prev = np.linalg.inv(dh_head(pd, ptheta)) @ dh_head(cols["d"][r], cols["theta"][r]) @ dh_tail(
+                cols["a"][r], cols["alpha"][r])
+            entries.append((joint, (pd, ptheta), lim))
+            own = rows[1:]
+        for r in own:
+            a, d, alpha, theta = cols["a"][r], cols["d"][r], cols["alpha"][r], cols["theta"][r]
+            if types[r] == "fixed":
+                prev = prev @ dh_row(a, d, alpha, theta)
+                entries.append((None, None, None))
+                continue
+            kk = len(entries) + 1
+            joint = spec.joint(joint, prev @ dh_head(d, theta), f"{name}_joint_{kk}", f"{name}_link_{kk}",
+                               (lo[r], hi[r]))
+            prev = dh_tail(a, alpha)
+            entries.append((joint, (d, theta), (lo[r], hi[r])))
+        done[name] = entries
+        tip = br["tip"]
+        if tip is not None:
+            if tip in tips:
+                raise ValueError(f"{where}: tip {tip!r} is already the tip of branch {tips[tip]!r}")
+            if joint < 0:
+                raise ValueError(f"{where}: tip {tip!r} is on no joint (branch {name!r} has only fixed rows on "
+                                 "the root)")
+            tips[tip] = name
+            spec.tip(tip, joint, prev, br["tool"])
+    if not tips:
+        raise ValueError(f"{path}: no branch names a tip (tip=NAME on its '# branch:' line)")
+    try:
+        return spec.build(meta.get("name", pathlib.Path(path).stem), "base", None)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
 
 
 def save_robot_csv(robot: DHRobot, path) -> None:

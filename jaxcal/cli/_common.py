@@ -38,9 +38,11 @@ def _floats(text: str, n: int, what: str) -> list[float]:
 def _robot(spec: str, base: str | None = None, tip: str | None = None):
     """The robot of ``--robot`` (a preset, a DH table file, a URDF file with ``--base``/``--tip``;
     several comma-separated ``--tip`` links: a :class:`~jaxcal.KinematicTree` with those tips; a
-    tree preset with ``--tip``: the tree of those of its tips, :meth:`KinematicTree.with_tips`)."""
+    tree preset or a DH tree file (``# branch:`` lines) with ``--tip``: the tree of those of its
+    tips, :meth:`KinematicTree.with_tips`)."""
     from .. import robots
     from .._calibration._io import load_robot_csv
+    from .._models._tree import KinematicTree
 
     p = pathlib.Path(spec)
     tips = [t.strip() for t in (tip or "").split(",") if t.strip()]
@@ -53,21 +55,25 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
             with _as_usage("--tip: "):
                 return load_urdf(p, base=base, tips=tips)
         return load_urdf(p, base=base, tip=tip)
+    robot = None
     if spec in robots.TREE_PRESETS and base is None:
-        tree = robots.get_robot(spec)
-        if tip is None:
-            return tree
-        with _as_usage("--tip: "):
-            return tree.with_tips(tips)
-    if base is not None or tip is not None:
-        raise _Usage("--base/--tip apply to a URDF robot (--robot FILE.urdf) only, and --tip to a tree preset "
-                     f"({', '.join(robots.TREE_PRESETS)}): the tips to keep")
-    if spec in robots.PRESETS:
-        return robots.get_robot(spec)
-    if p.suffix.lower() in (".csv", ".txt") or p.exists():
+        robot = robots.get_robot(spec)
+    elif spec not in robots.PRESETS and (p.suffix.lower() in (".csv", ".txt") or p.exists()):
         if not p.exists():
             raise _Usage(f"robot file {spec!r} not found")
-        return load_robot_csv(p)
+        robot = load_robot_csv(p)  # a DH tree file (with '# branch:' lines) gives a KinematicTree
+    if isinstance(robot, KinematicTree) and base is None:
+        if tip is None:
+            return robot
+        with _as_usage("--tip: "):
+            return robot.with_tips(tips)
+    if base is not None or tip is not None:
+        raise _Usage("--base/--tip apply to a URDF robot (--robot FILE.urdf) only, and --tip to a tree preset "
+                     f"({', '.join(robots.TREE_PRESETS)}) or a DH tree file: the tips to keep")
+    if robot is not None:
+        return robot
+    if spec in robots.PRESETS:
+        return robots.get_robot(spec)
     raise _Usage(f"unknown robot {spec!r}; presets: {', '.join(robots.PRESETS)}; or a robot file: a DH table "
                  "(.csv, see jaxcal calibrate --help) or a URDF (.urdf, with --base LINK and --tip LINK)")
 
