@@ -71,6 +71,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
+from .._core._precision import to_device
 from ._abstract import AbstractRobot
 from ._nongeometric import NonGeometric, NonGeometricMixin, nongeometric_groups
 from ._robot import replace_tool
@@ -414,9 +415,9 @@ class SerialChain(NonGeometricMixin, AbstractRobot):
         jn = tuple(joint_names) if joint_names is not None else tuple(f"joint_{i + 1}" for i in range(dof))
         ln = tuple(link_names) if link_names is not None else tuple(f"link_{i + 1}" for i in range(dof))
         return cls(
-            origin_R=jnp.asarray(R), origin_t=jnp.asarray(t), flange_R=jnp.asarray(fR),
-            flange_t=jnp.asarray(ft), align=jnp.asarray(al), q_min=jnp.asarray(lo), q_max=jnp.asarray(hi),
-            tool=jnp.asarray(tl), mass=jnp.asarray(m), com=jnp.asarray(c), joint_types=types,
+            origin_R=to_device(R), origin_t=to_device(t), flange_R=to_device(fR),
+            flange_t=to_device(ft), align=to_device(al), q_min=to_device(lo), q_max=to_device(hi),
+            tool=to_device(tl), mass=to_device(m), com=to_device(c), joint_types=types,
             patterns=tuple(_pattern(r) for r in R), flange_pattern=_pattern(fR), joint_names=jn,
             link_names=ln, base=base, tip=tip, name=name, urdf=urdf, dh=dh,
         )

@@ -51,11 +51,13 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
+from .._core._precision import to_device
 from ._abstract import AbstractRobot
 from ._chain import (
     GEOMETRIC_GROUPS,
@@ -189,7 +191,7 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
             tip_error_groups(None if n == 1 else t)  # register the tip's group names (group_of works at once)
         return cls(
             origin_R=joints.origin_R, origin_t=joints.origin_t, align=joints.align, q_min=joints.q_min,
-            q_max=joints.q_max, flange_R=jnp.asarray(fR), flange_t=jnp.asarray(ft), tools=jnp.asarray(tl),
+            q_max=joints.q_max, flange_R=to_device(fR), flange_t=to_device(ft), tools=to_device(tl),
             joint_types=joints.joint_types, patterns=joints.patterns, parents=parents, tips=tips,
             tip_parents=tip_parents, flange_patterns=tuple(_pattern(r) for r in fR),
             joint_names=joints.joint_names, link_names=joints.link_names,
@@ -252,11 +254,12 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
         k = self.tip_index(tip)
         idx = self.path(k)
         take = (lambda a: a) if idx == tuple(range(self.dof)) else (lambda a: a[np.asarray(idx)])  # noqa: E731
-        zeros = jnp.zeros((len(idx),), self.q_min.dtype)
+        xp = np if isinstance(self.q_min, np.ndarray) else jnp  # a tree of NumPy arrays: a chain of them
+        zeros = xp.zeros((len(idx),), self.q_min.dtype)
         return SerialChain(
             origin_R=take(self.origin_R), origin_t=take(self.origin_t), flange_R=self.flange_R[k],
             flange_t=self.flange_t[k], align=take(self.align), q_min=take(self.q_min), q_max=take(self.q_max),
-            tool=self.tools[k], mass=zeros, com=jnp.zeros((len(idx), 3), zeros.dtype),
+            tool=self.tools[k], mass=zeros, com=xp.zeros((len(idx), 3), zeros.dtype),
             joint_types=tuple(self.joint_types[j] for j in idx), patterns=tuple(self.patterns[j] for j in idx),
             flange_pattern=self.flange_patterns[k], joint_names=tuple(self.joint_names[j] for j in idx),
             link_names=tuple(self.link_names[j] for j in idx), base=self.base, tip=self.tips[k], name=self.name,
@@ -466,8 +469,10 @@ class KinematicTree(NonGeometricMixin, AbstractRobot):
     @host_method
     def reach_mm(self) -> float:
         """A generous bound on the distance from the base origin to any tip's tool point (mm):
-        the largest of the path chains' bounds (:meth:`SerialChain.reach_mm`)."""
-        return max(self.path_chain(k).reach_mm() for k in range(len(self.tips)))
+        the largest of the path chains' bounds (:meth:`SerialChain.reach_mm`), on the host (a
+        NumPy copy of the tree: slicing its JAX arrays would run a small program per slice)."""
+        host = jax.tree_util.tree_map(np.asarray, self)
+        return max(host.path_chain(k).reach_mm() for k in range(len(self.tips)))
 
 
 def tool_group_name(tip: str) -> str:
