@@ -22,7 +22,6 @@ import math
 import warnings
 from collections.abc import Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
 from .._core._params import STANDARD_EXTRAS, Deviations, ParameterSpace, layout_for
@@ -30,6 +29,7 @@ from .._core._precision import to_device
 from .._datasets._dataset import Dataset, mm_joints_metadata
 from .._sensors._blocks import Block, Combined, Relations, combine
 from .._sensors._initial_extras import initial_extras
+from .._sensors._initialise import row_errors
 from .._sensors._measurement import xyz_entries
 from ._variance import _information, _variance_components
 
@@ -445,7 +445,7 @@ def block_statistics(result, model: Combined, q, y, prior_noise: float = 1.0) ->
                                                model._rows(obs, r.shape[0]))):
         raw = rb[:, : mod.size] * sigma[b]  # its own unit
         ob = ob[:, : mod.size]
-        err = np.asarray(mod.sample_error(jnp.asarray(raw)), np.float64)
+        err = row_errors(mod, raw)
         unit = "σ" if isinstance(mod, Relations) else getattr(mod, "unit", "mm")
         share = np.diag(grams[b]) / np.where(col > 0, col, 1.0)
         out.append(BlockStats(name, mod.kind, unit, rb.shape[0], int(ob.sum()), float(sigma[b]), False,

@@ -47,6 +47,7 @@ from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -451,7 +452,9 @@ class Combined(MeasurementModel):
                  sigma_rtol: float = 0.01, max_rounds: int = 10):
         self.models, self.names, self.counts = tuple(models), tuple(names), tuple(int(c) for c in counts)
         self.widths, self.views, self.groups, self.pad = tuple(widths), tuple(views), tuple(groups), int(pad)
-        self.sigma = jnp.asarray(sigma, jnp.result_type(float)).reshape(len(self.models))
+        # from the host by jax.device_put (jnp.asarray of NumPy runs a small program); a JAX array as it is
+        sigma = jnp.asarray(sigma, jnp.result_type(float)) if isinstance(sigma, jax.Array) else to_device(sigma, float)
+        self.sigma = sigma.reshape(len(self.models))
         self.estimated = tuple(bool(e) for e in estimated) or (False,) * len(self.models)
         if len(self.estimated) != len(self.models):
             raise ValueError(f"estimated: one flag per block ({len(self.models)}), got {len(self.estimated)}")
@@ -703,12 +706,12 @@ def check_shared_labels(blocks: Sequence[Block], sources: Mapping[str, str] | No
     for b in blocks:
         m = b.measurement
         if isinstance(m, PlaneContact):
-            geo = {s: np.concatenate([np.asarray(m.normals[k]), np.asarray(m.offsets[k])[None]])
-                   for k, s in enumerate(m.labels)}
+            n, d = np.asarray(m.normals), np.asarray(m.offsets)  # sliced on the host, not op by op
+            geo = {s: np.concatenate([n[k], d[k][None]]) for k, s in enumerate(m.labels)}
             show = lambda v: f"normal {_fmt(v[:3])}, offset {v[3]:g} mm"  # noqa: E731
         elif isinstance(m, FixedPoint):
-            geo = {s: np.concatenate([np.asarray(m.centres[k]), np.asarray(m.radii[k])[None]])
-                   for k, s in enumerate(m.labels)}
+            c, r = np.asarray(m.centres), np.asarray(m.radii)
+            geo = {s: np.concatenate([c[k], r[k][None]]) for k, s in enumerate(m.labels)}
             show = lambda v: f"centre {_fmt(v[:3])} mm, radius {v[3]:g} mm"  # noqa: E731
         else:
             continue

@@ -78,6 +78,7 @@ from .._core._csvfile import rad_to_deg_roundtrip
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
 from .._core._precision import to_device
+from .._core._xla import jit
 from .._models._kinematics import check_joint_angles, rotvec_to_matrix, tool_point_soa
 from ._kind import SensorKind, check_label, register_kind
 from ._measurement import MeasurementModel, tip_groups, tip_to_dict, xyz_entries
@@ -111,8 +112,10 @@ def _tangent_basis(n0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(eu), np.asarray(ev)
 
 
-def _labels_of(y, n_labels: int):
-    return jnp.clip(jnp.round(y).astype(jnp.int32), 0, n_labels - 1).reshape(-1)
+def _labels_of(y, n_labels: int, xp=jnp):
+    """The label index ``[n]`` (int32) of readings ``y``, rounded and clipped to ``0..n_labels-1``
+    (``xp=np``: the same on the host, no JAX program)."""
+    return xp.clip(xp.round(y).astype(xp.int32), 0, n_labels - 1).reshape(-1)
 
 
 def _per_label(deviations: Deviations, group: str, labels, dtype) -> Array:
@@ -439,10 +442,10 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     Returns:
         :class:`jaxcal.ExtrasEstimate`.
     """
-    from ._initialise import ExtrasEstimate, _trim, tip_frames, tool_guess, trimmed_note, with_tool
+    from ._initialise import ExtrasEstimate, _trim, residual_rows, tip_frames, tool_guess, trimmed_note, with_tool
 
     q, y = (data.q, data.y) if hasattr(data, "q") else data
-    q = jnp.asarray(q)
+    q = to_device(q)
     dtype = q.dtype
     m = measurement
     kind = m.kind
@@ -451,14 +454,14 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     bad = est - {kind, "tool"}
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for {kind} data; possible: {kind}, tool")
-    lab = np.asarray(_labels_of(jnp.asarray(y), len(m.labels)))
+    lab = _labels_of(np.asarray(y), len(m.labels), np)
     T = tip_frames(robot, m, q, start)
     F, P = T[:, :3, :3], T[:, :3, 3]
     t0 = tool_guess(robot, m, start)[1]
     K = len(m.labels)
 
-    def resid(dev):
-        r = np.asarray(m.residual(robot, dev, q, jnp.asarray(y, dtype)), np.float64)
+    def resid(dev):  # the residual program of the calibration's host-side checks
+        r = residual_rows(m, robot, dev, q, y)
         return np.linalg.norm(r, axis=1) if r.shape[1] > 1 else r[:, 0]
 
     before = float(np.sqrt(np.mean(resid(start) ** 2)))
@@ -489,8 +492,13 @@ def initial_contact(robot, measurement, data, *, estimate=None, start: Deviation
     return ExtrasEstimate(dev, before, after, n_trim, msg)
 
 
+#: the planes ``(n, d)`` or points ``(c, r)`` of a contact model at some deviations, for the
+#: closed-form starts: one compiled program (op by op, a dozen small ones)
+_geometry = jit(lambda m, dev: m.planes(dev) if m.kind == "plane" else m.points(dev))
+
+
 def _plane_start(m: PlaneContact, start, F, P, lab, t0, est_planes, est_tool, iterations):
-    n_cur, d_cur = (np.array(a, np.float64) for a in m.planes(start))
+    n_cur, d_cur = (np.array(a, np.float64) for a in _geometry(m, start))
     t = t0.copy()
     K = len(m.labels)
     for _ in range(iterations):
@@ -535,7 +543,7 @@ def _plane_start(m: PlaneContact, start, F, P, lab, t0, est_planes, est_tool, it
 def _point_start(m: FixedPoint, start, F, P, lab, t0, est_points, est_tool, iterations):
     from ._initialise import _trim
 
-    c_cur, r_cur = (np.array(a, np.float64) for a in m.points(start))
+    c_cur, r_cur = (np.array(a, np.float64) for a in _geometry(m, start))
     K = len(m.labels)
     t = t0.copy()
     n = len(lab)

@@ -131,6 +131,16 @@ def plain_row_errors(measurement, r) -> np.ndarray:
     return np.linalg.norm(r[:, :3] if measurement.kind == "pose" else r, axis=1)
 
 
+def row_errors(measurement, r) -> np.ndarray:
+    """The per-row errors ``[n]`` (NumPy) of residual blocks ``r`` ``[n, m]``: :func:`plain_row_errors`
+    where the model's error is the plain one, else its
+    :meth:`~jaxcal.MeasurementModel.sample_error` compiled once per model and shape (op by op
+    outside ``jit`` it runs as a handful of small programs)."""
+    if has_plain_row_error(measurement):
+        return plain_row_errors(measurement, r)
+    return np.asarray(_sample_error(measurement, to_device(r)), np.float64)
+
+
 def tip_frames(robot, measurement, q, start: Deviations | None) -> np.ndarray:
     """``T_base_link`` ``[n, 4, 4]`` (mm) of the link frame ``measurement`` sees at ``q`` (the flange,
     or the link of its ``tip`` on a :class:`~jaxcal.KinematicTree`), robot at ``start``: the
@@ -145,7 +155,9 @@ def tool_guess(robot, measurement, start: Deviations) -> tuple[np.ndarray, np.nd
     the robot's nominal tool point of that tip and it plus ``start``'s deviation of the model's
     :attr:`~jaxcal.MeasurementModel.tool_group`."""
     tip = measurement.tip_for(robot)
-    nominal = np.asarray(robot.tool if tip is None else robot.tool_of(tip), np.float64)
+    tools = getattr(robot, "tools", None)  # a tree's, sliced on the host (a slice of a JAX array is a program)
+    nominal = (np.asarray(robot.tool if tip is None else robot.tool_of(tip), np.float64) if tools is None
+               else np.asarray(tools, np.float64)[robot.tip_index(tip)])
     return nominal, nominal + np.asarray(start.values[measurement.tool_group], np.float64)
 
 
