@@ -69,6 +69,7 @@ from jaxtyping import Array, Float
 
 from .._core._host_method import host_method
 from .._core._params import Deviations, Group, layout_for
+from .._core._precision import to_device
 from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._core._xla import filter_jit
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
@@ -110,14 +111,15 @@ def _check_two_tips(tip: str | None, target_tip: str | None) -> None:
 
 
 def _frame(R, t, what):
-    R = jnp.eye(3) if R is None else jnp.asarray(R)
-    t = jnp.zeros(3) if t is None else jnp.asarray(t)
+    # checked on the host and put on the device as is (jnp.asarray of NumPy runs a small program)
+    R = np.eye(3) if R is None else np.asarray(R)
+    t = np.zeros(3) if t is None else np.asarray(t)
     Rn = np.asarray(R, np.float64)
     if R.shape != (3, 3) or t.shape != (3,):
         raise ValueError(f"{what}: rotation must be [3, 3] and translation [3] (mm), got {R.shape}, {t.shape}")
     if not (np.allclose(Rn.T @ Rn, np.eye(3), atol=1e-6) and np.linalg.det(Rn) > 0):
         raise ValueError(f"{what}: rotation must be a proper rotation matrix (RᵀR = I, det R = +1)")
-    return R.astype(jnp.result_type(float)), t.astype(jnp.result_type(float))
+    return to_device(R, float), to_device(t, float)
 
 
 class Camera(MeasurementModel):
@@ -228,7 +230,7 @@ class Camera(MeasurementModel):
         if mount == "tip_to_tip":
             _check_two_tips(self.tip, self.target_tip)
         self.points = pts
-        self.intrinsics = jnp.asarray(k, jnp.result_type(float))
+        self.intrinsics = to_device(k, float)
         self.mount = mount
         self.handeye_rotation, self.handeye_translation = _frame(handeye_rotation, handeye_translation, "hand-eye")
         self.target_rotation, self.target_translation = _frame(target_rotation, target_translation, "target pose")
@@ -896,11 +898,11 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
     bad = est - {"handeye", "target"}
     if bad:
         raise ValueError(f"cannot initialise {sorted(bad)} for camera data; possible: handeye, target")
-    q = jnp.asarray(q)
+    q = to_device(q)
     Y = np.asarray(y, np.float64)
     dtype = q.dtype
     start = Deviations.zeros(layout_for(robot, measurement), dtype) if start is None else start.astype(dtype)
-    RX0, tX0, RB0, tB0, k = (np.asarray(a, np.float64) for a in measurement.frames(start, dtype))
+    RX0, tX0, RB0, tB0, k = (np.asarray(a, np.float64) for a in _frames_jit(measurement, start, dtype))
     pts = np.asarray(measurement.points, np.float64)
     T = tip_frames(robot, measurement, q, start)
     R, t, pnp_rms, errors = _solve_pnp_images(pts, Y, k)  # every image at once
@@ -929,13 +931,13 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
         B = _T(RB0, tB0)
     RX_nom = np.asarray(measurement.handeye_rotation, np.float64)
     RB_nom = np.asarray(measurement.target_rotation, np.float64)
-    dev = start.replace(handeye_rotation=jnp.asarray(_log(X[:3, :3] @ RX_nom.T), dtype),
-                        handeye_translation=jnp.asarray(X[:3, 3] - np.asarray(measurement.handeye_translation), dtype),
-                        target_rotation=jnp.asarray(_log(B[:3, :3] @ RB_nom.T), dtype),
-                        target_translation=jnp.asarray(B[:3, 3] - np.asarray(measurement.target_translation), dtype))
+    dev = start.replace(handeye_rotation=to_device(_log(X[:3, :3] @ RX_nom.T), dtype),
+                        handeye_translation=to_device(X[:3, 3] - np.asarray(measurement.handeye_translation), dtype),
+                        target_rotation=to_device(_log(B[:3, :3] @ RB_nom.T), dtype),
+                        target_translation=to_device(B[:3, 3] - np.asarray(measurement.target_translation), dtype))
 
     def rms(d):
-        r = np.asarray(_residual_jit(measurement, robot, d, q, jnp.asarray(Y, dtype)), np.float64)
+        r = np.asarray(_residual_jit(measurement, robot, d, q, to_device(Y, dtype)), np.float64)
         n_det = max(int(np.isfinite(Y).all(axis=-1).sum()), 1)
         return float(np.sqrt(np.sum(r * r) / n_det))
 
@@ -957,6 +959,8 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
 #: the residual and the camera-frame points, compiled once per shape (host-side callers)
 _residual_jit = filter_jit(lambda m, robot, d, q, y: m.residual(robot, d, q, y))
 _predict_jit = filter_jit(lambda m, robot, d, q: (m.predict(robot, d, q), m.camera_points(robot, d, q)[2]))
+#: the camera's frames at some deviations (:meth:`Camera.frames`) for the start, as one program
+_frames_jit = filter_jit(lambda m, d, dtype: m.frames(d, dtype))
 
 
 def camera_floor(noise_px: float, n_params: int, y):
