@@ -156,6 +156,25 @@ class Uncertainty:
         return ", ".join(f"{c} {math.degrees(v):.4g}°" if self.component_units[c] == "rad" else
                          f"{c} {v:.4g} {self.component_units[c]}" for c, v in self.component_std.items())
 
+    def given_std(self, given) -> np.ndarray:
+        """``[p]`` σ of each free parameter with the free parameters named in ``given`` known (held
+        at their values; 0 for those): the conditional covariance ``C_aa − C_ag C_gg⁺ C_ga`` of the
+        Gaussian posterior (rad, mm; ``inf`` where :attr:`std` is). With ``given`` the robot's
+        parameters, a sensor extra's σ relative to the calibrated robot: what the data determine
+        of it, without the part it shares with robot parameters it trades with (a plane's offset
+        and a base height ``d_1``: the prior's σ of ``d_1`` carried over to the plane)."""
+        g = np.asarray([n in set(given) for n in self.names])
+        C = np.asarray(self.covariance, np.float64)
+        out = np.zeros(len(self.names))
+        a = ~g
+        if g.any():
+            C_ag = C[np.ix_(a, g)]
+            cond = C[np.ix_(a, a)] - C_ag @ np.linalg.pinv(C[np.ix_(g, g)], hermitian=True) @ C_ag.T
+        else:
+            cond = C
+        out[a] = np.sqrt(np.clip(np.diag(cond), 0.0, None))
+        return np.where(np.isfinite(self.std), out, np.inf)
+
     def std_display(self) -> dict[str, tuple[float, str]]:
         """``{name: (σ, unit)}`` with angles in degrees (other units as they are: mm, rad/(N*m)...)."""
         return {n: ((math.degrees(s), "deg") if u == "rad" else (float(s), u))

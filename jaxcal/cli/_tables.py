@@ -138,15 +138,26 @@ def _extras_line(res, sd: dict, extras) -> str | None:
     dev = {**res.deviations.named(), **dict(zip(res.space.free_names, np.asarray(res.x)))}
     units = dict(zip(res.space.names, res.space.units))
     mark = _marks(res)  # † where the prior, not the data, holds it (the DH table's mark)
+    held = any(mark(n) for n in extra_names)
+    # an extra the prior holds, most often through the robot parameters it trades with (a plane's
+    # offset and d_1, a tool point and a tip frame): its σ relative to the calibrated robot as well
+    rel = {}
+    if held and res.uncertainty is not None:
+        unc = res.uncertainty
+        robot = [n for n in unc.names if group_kind(n) != "extra"]
+        rel = dict(zip(unc.names, unc.given_std(robot)))
     parts = []
     for n in extra_names + frozen:
         u = "°" if units[n] == "rad" else units[n]
         v = math.degrees(dev[n]) if units[n] == "rad" else dev[n]
         s_ = sd.get(n, (None,))[0]
-        parts.append(f"{n}{mark(n)} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}")
-    held = any(mark(n) for n in extra_names)
+        r = rel.get(n) if mark(n) else None
+        r = "" if r is None else f" (robot-relative ± {math.degrees(r) if units[n] == 'rad' else r:.2g})"
+        parts.append(f"{n}{mark(n)} {_fmt_value(v, s_, u)}{'*' if n in frozen else ''} {u}{r}")
     return ("(deviation from the nominal/guessed value, ± one posterior σ"
-            + ("; † held by the prior" if held else "")
+            + ("; † held by the prior, directly or through robot parameters it trades with, whose prior σ its ± "
+               "carries (the default prior has no term on extras); robot-relative: its σ with the robot's "
+               "parameters known, what the data determine" if held else "")
             + ("; * held at its start value: without a prior the data cannot tell it from another extra"
                if frozen else "")
             + "): " + ", ".join(parts))

@@ -155,6 +155,26 @@ def _check_block_tables(out: str, combined: dict, fit: pathlib.Path, chain: bool
         assert b["result"]["metrics_mm"] == saved["metrics_mm"]  # combined.json holds the same tables
     assert ("Calibrated joint corrections of" if chain else "Calibrated DH table") in out
     assert out.count("estimated extras (") == 1 and "plane_d@table" in out  # the shared tool once
+    _check_extras_sigma(out, combined)
+
+
+def _check_extras_sigma(out: str, combined: dict) -> None:
+    """The default prior has no term on an extra: an extra is † only through the robot parameters
+    it trades with (a plane's offset and the robot's base height), its ± their prior σ, so each †
+    extra also shows its σ relative to the calibrated robot, smaller than its ±; the table plane's
+    offset relative to the robot is about the mean of its rows' noise, σ̂/√n (all planes share the
+    tool point, so up to 2×)."""
+    line = next(ln for ln in out.splitlines() if ln.startswith("estimated extras ("))
+    entries = re.findall(r"(\S+?)(†?) [+-][\d.]+ ± (\S+) \S+(?: \(robot-relative ± (\S+)\))?", line)
+    assert entries and all(name.startswith(("tool_", "plane_")) for name, *_ in entries), line
+    for name, held, sd, rel in entries:
+        assert bool(held) == bool(rel), (name, line)  # every † extra, and only those, robot-relative
+        assert not rel or float(rel) < float(sd), (name, line)
+    rel = {name: float(r) for name, _, _, r in entries if r}
+    assert "plane_d@table" in rel, line  # at the base height's prior σ (d_1 / the first joint's dz)
+    plane = next(b for b in combined["blocks"] if b["name"] == "plane")
+    n_table = 100  # of the 300 rows of `jaxcal simulate --measurement plane` (table, wall_a, wall_b)
+    assert 0.8 < rel["plane_d@table"] / (plane["sigma_hat"] / np.sqrt(n_table)) < 2.0, (rel, plane["sigma_hat"])
 
 
 def test_modified_dh_file_at_the_floor_on_independent_data(tmp_path, capsys):

@@ -4,6 +4,7 @@ posterior ``C = (G + Λ)⁻¹``."""
 import numpy as np
 import pytest
 
+from jaxcal._fit._diagnostics import Uncertainty
 from jaxcal._fit._verdicts import DATA, HELD, PRIOR, UNDETERMINED, parameter_verdicts
 
 
@@ -33,6 +34,14 @@ def test_parallel_axes_and_an_extra_that_trades_with_a_prior_parameter():
     assert v.by_prior == ("d2", "d3", "d1", "a") and v.determined == ("b",)
     assert set(v.expected) == {"d2", "d3", "d1", "a"} and v.fixable == ()
     assert v.prior_share["a"] == pytest.approx(1.0, abs=1e-3) and np.sqrt(C[3, 3]) == pytest.approx(s, rel=1e-3)
+    # a's σ with the robot's parameters known (d1 at its value): the data's alone, 1/√g, d1 + a
+    # being seen with information g; the others keep theirs, the given ones 0
+    sd = np.sqrt(np.diag(C))
+    unc = Uncertainty(tuple(names), ("mm",) * 5, sd, C, 1.0, 3.0, 3)
+    given = unc.given_std(["d2", "d3", "d1", "b"])
+    assert given[3] == pytest.approx(1 / np.sqrt(g), rel=1e-6) and given[3] < 0.01 * sd[3]
+    assert np.array_equal(given[[0, 1, 2, 4]], np.zeros(4))
+    assert unc.given_std([]) == pytest.approx(sd, rel=1e-9)
     # without a prior every free parameter is the data's (or undetermined), the rest held
     w = parameter_verdicts(names + ["c"], ["b", "d2"], np.diag([1 / g, np.inf]), None, None, [1 / g, np.inf])
     assert w.verdict == {"d2": UNDETERMINED, "d3": HELD, "d1": HELD, "a": HELD, "b": DATA, "c": HELD}
