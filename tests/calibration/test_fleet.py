@@ -78,7 +78,10 @@ def test_fleet_equals_single_measured_objective(units):
     assert len(_fleet._COMPILED_MANY) - n_before == 1
     for got, data in zip(fleet.results, (a, b)):
         single = _quiet(calibrate, robot, meas, data, "lm", objective="measured")
-        _compare(got, single)
+        # the later rounds start LM with the trust region the last one ended with (near Gauss–Newton
+        # steps), so the batched and the single run's round-off meet LM's stopping rule at points
+        # ~2e-9 apart in the metrics (1e-12 while every round started from optimistix's own)
+        _compare(got, single, rtol=1e-8)
         assert got.diagnostics.rounds == single.diagnostics.rounds >= 2
     assert fleet.results[0].loss_scale_mm != pytest.approx(fleet.results[1].loss_scale_mm, rel=1e-3)
     assert 3 in fleet.results[1].diagnostics.outliers_after
