@@ -42,7 +42,6 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
     tips, :meth:`KinematicTree.with_tips`)."""
     from .. import robots
     from .._calibration._io import load_robot_csv
-    from .._models._tree import KinematicTree
 
     p = pathlib.Path(spec)
     tips = [t.strip() for t in (tip or "").split(",") if t.strip()]
@@ -62,7 +61,7 @@ def _robot(spec: str, base: str | None = None, tip: str | None = None):
         if not p.exists():
             raise _Usage(f"robot file {spec!r} not found")
         robot = load_robot_csv(p)  # a DH tree file (with '# branch:' lines) gives a KinematicTree
-    if isinstance(robot, KinematicTree) and base is None:
+    if robot is not None and len(robot.tip_names()) > 1 and base is None:  # a tree: the tips to keep
         if tip is None:
             return robot
         with _as_usage("--tip: "):
