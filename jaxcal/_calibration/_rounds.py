@@ -59,7 +59,7 @@ def _reweighted(problem: Problem, out: CalibrationOutput, prior, loss: str, scal
     ``out`` (at the deviations ``cur``; variance components:
     :attr:`~jaxcal._fit._diagnostics.Uncertainty.component_std`), or as it is where they cannot be
     estimated. Several blocks' data stacked (:class:`~jaxcal.Combined`): a σ per block
-    (:func:`~jaxcal._calibration._blocks.block_sigmas`)."""
+    (:func:`~jaxcal._calibration._variance.block_sigmas`)."""
     m = problem.measurement
     if m.stacked_data:
         return m.with_sigma(block_sigmas(problem.robot, m, problem.space, cur, prior, problem.q, problem.y))

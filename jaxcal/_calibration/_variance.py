@@ -7,14 +7,13 @@ reports the same estimates with the blocks' other statistics."""
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 import numpy as np
 
 from .._core._buckets import LeanJit
 from .._core._params import Deviations, ParameterSpace
 from .._core._precision import to_device
+from .._fit._diagnostics import variance_component
 from .._fit._problem import Problem, value_and_jacfwd
 from .._sensors._blocks import Combined
 
@@ -67,10 +66,10 @@ def _variance_components(model: Combined, space: ParameterSpace, prior, r, every
     sigma = np.asarray(model.sigma, np.float64)
     red, sig_hat = [], []
     for b, (mod, rb, ob) in enumerate(zip(model.models, model._rows(r, r.shape[0]), model._rows(obs, r.shape[0]))):
-        red.append(float(ob.sum() - np.sum(A_inv * grams[b])))  # Σ (1 − h_ii) = n_b − tr(A⁻¹ J_bᵀJ_b)
         raw = rb[:, : mod.size] * sigma[b]  # its own unit
-        rss = float(np.sum(raw[ob[:, : mod.size]] ** 2))
-        sig_hat.append(math.sqrt(rss / red[b]) if red[b] > 0 else float("nan"))
+        s, rd = variance_component(float(np.sum(raw[ob[:, : mod.size]] ** 2)), ob.sum(), A_inv, grams[b])
+        sig_hat.append(s)
+        red.append(rd)
     return grams, A_inv, obs, np.asarray(red), np.asarray(sig_hat)
 
 

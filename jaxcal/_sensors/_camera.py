@@ -73,6 +73,7 @@ from .._core._precision import to_device
 from .._core._rotvec import rotvec_to_matrix as rotvec_to_matrix_np
 from .._core._xla import filter_jit
 from .._models._kinematics import _chain, check_joint_angles, fk_pose_jit, materialised, rotvec_to_matrix
+from ._initialise import project_rotation
 from ._kind import PointsKind, check_tip, register_kind, resolve_tip
 from ._measurement import MeasurementModel, tip_to_dict, xyz_entries
 
@@ -515,15 +516,6 @@ def _log(R) -> np.ndarray:
                     (2 * np.arctan2(sv, q[..., 0]))[..., None] * v / np.where(small, 1.0, sv)[..., None])
 
 
-def _project_rotation(M) -> np.ndarray:
-    """The rotations nearest ``M`` ``[..., 3, 3]`` (``U diag(1, 1, ±1) Vᵀ``, det = +1)."""
-    U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.ones(d.shape + (3,))
-    D[..., 2] = np.where(d == 0, 1.0, d)
-    return (U * D[..., None, :]) @ Vt
-
-
 def _inv(T) -> np.ndarray:
     T = np.asarray(T, np.float64)
     out = np.zeros_like(T)
@@ -738,7 +730,7 @@ def _solve_pnp_images(points_mm, uv, intrinsics):
         lam = 2.0 / (np.linalg.norm(h1, axis=-1) + np.linalg.norm(h2, axis=-1))
         lam = np.where(h3[:, 2] * lam < 0, -lam, lam)[:, None]  # the target in front of the camera
         r1, r2 = lam * h1, lam * h2
-        Rp = _project_rotation(np.stack([r1, r2, np.cross(r1, r2)], axis=-1))  # R_camera_plane
+        Rp = project_rotation(np.stack([r1, r2, np.cross(r1, r2)], axis=-1))  # R_camera_plane
         R[pl] = Rp @ E  # target frame: x_plane = E (x − c)
         t[pl] = lam * h3 - (R[pl] @ c[pl, :, None])[..., 0]
     gen = np.flatnonzero(~planar & (n_ok >= 6))
@@ -748,7 +740,7 @@ def _solve_pnp_images(points_mm, uv, intrinsics):
         A = np.stack([np.concatenate([Xh, o, -x * Xh], -1), np.concatenate([o, Xh, -y * Xh], -1)], axis=2)
         M = _null_vector(A.reshape(len(gen), -1, 12)).reshape(-1, 3, 4)
         M = M / np.cbrt(np.linalg.det(M[:, :, :3]))[:, None, None]
-        Rg = _project_rotation(M[:, :, :3])
+        Rg = project_rotation(M[:, :, :3])
         tg = M[:, :, 3] - (Rg @ c[gen, :, None])[..., 0]
         z = np.sum(w[gen] * (P @ np.swapaxes(Rg, 1, 2) + tg[:, None])[..., 2], axis=1) / n_ok[gen]
         for i in gen[z < 0]:
@@ -926,7 +918,7 @@ def initial_camera_extras(robot, measurement: Camera, q, y, *, estimate=None, st
         X = _T(RX0, tX0)
     if "target" in est:
         Bs = np.einsum("nij,jk,nkl->nil", G, X, C)
-        B = _T(_project_rotation(Bs[:, :3, :3].sum(axis=0)), Bs[:, :3, 3].mean(axis=0))
+        B = _T(project_rotation(Bs[:, :3, :3].sum(axis=0)), Bs[:, :3, 3].mean(axis=0))
     else:
         B = _T(RB0, tB0)
     RX_nom = np.asarray(measurement.handeye_rotation, np.float64)

@@ -395,11 +395,14 @@ def alternate_frames_and_markers(F, P, Y, fi, pi, R, t, M, est_f, est_p, *, iter
 
 
 def project_rotation(M) -> np.ndarray:
-    """The rotation nearest ``M`` ``[3, 3]`` in the Frobenius norm (``U diag(1, 1, ±1) Vᵀ`` of its
-    SVD, det = +1): ``argmin_R Σ‖R − A_i‖_F²`` is the projection of ``Σ A_i`` (chordal L2 mean)."""
+    """The rotation nearest ``M`` ``[..., 3, 3]`` in the Frobenius norm (``U diag(1, 1, ±1) Vᵀ`` of
+    its SVD, det = +1), each of a stack: ``argmin_R Σ‖R − A_i‖_F²`` is the projection of ``Σ A_i``
+    (chordal L2 mean)."""
     U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.ones(d.shape + (3,))
+    D[..., 2] = np.where(d == 0, 1.0, d)
+    return (U * D[..., None, :]) @ Vt
 
 
 def _prior_weight(sse: float, n_entries: int, prior_std: float) -> float:
